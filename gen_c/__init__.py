@@ -1,0 +1,1 @@
+"""Generated, freestanding C setpoint library and its loader."""
