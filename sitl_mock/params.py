@@ -1,0 +1,119 @@
+"""Parameters the mock models, with PX4 names and PX4 (SIH quadrotor) defaults.
+
+Both the vehicle model (dynamics, flight control) and the autopilot core read their
+parameters from one `ParamStore`, so `--param NAME=VALUE` and MAVLink PARAM_SET reach both.
+Append new parameters here; never rename one (clients address them by name).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter: default value, whether it is an INT32 on the wire, and a short description."""
+
+    default: float
+    is_int: bool
+    doc: str
+
+
+PARAMS: dict[str, ParamSpec] = {
+    # Identity
+    "MAV_SYS_ID": ParamSpec(1, True, "MAVLink system id"),
+    # Commander / offboard
+    "COM_OF_LOSS_T": ParamSpec(1.0, False, "offboard setpoint loss timeout [s]"),
+    "COM_OBL_RC_ACT": ParamSpec(
+        0,
+        True,
+        "offboard loss action: 0 position hold, 1 altitude, 2 manual, 3 return, 4 land,"
+        " 5 hold, 6 terminate, 7 disarm",
+    ),
+    "COM_DISARM_PRFLT": ParamSpec(10.0, False, "auto-disarm if no takeoff after arming [s]"),
+    "COM_DISARM_LAND": ParamSpec(2.0, False, "auto-disarm after landing [s]"),
+    "COM_ARM_WO_GPS": ParamSpec(0, True, "allow arming without a position estimate"),
+    # Navigator / mission
+    "MIS_TAKEOFF_ALT": ParamSpec(2.5, False, "default takeoff altitude above home [m]"),
+    "NAV_ACC_RAD": ParamSpec(2.0, False, "default waypoint acceptance radius [m]"),
+    "RTL_RETURN_ALT": ParamSpec(60.0, False, "return altitude above home [m]"),
+    # Multicopter position control (PX4 defaults)
+    "MPC_THR_HOVER": ParamSpec(0.5, False, "hover thrust the controllers assume [0..1]"),
+    "MPC_THR_MIN": ParamSpec(0.12, False, "minimum collective thrust in flight [0..1]"),
+    "MPC_THR_MAX": ParamSpec(1.0, False, "maximum collective thrust [0..1]"),
+    "MPC_XY_CRUISE": ParamSpec(5.0, False, "horizontal cruise speed in auto modes [m/s]"),
+    "MPC_XY_VEL_MAX": ParamSpec(12.0, False, "maximum horizontal velocity [m/s]"),
+    "MPC_Z_VEL_MAX_UP": ParamSpec(3.0, False, "maximum climb rate [m/s]"),
+    "MPC_Z_VEL_MAX_DN": ParamSpec(1.5, False, "maximum descent rate [m/s]"),
+    "MPC_TKO_SPEED": ParamSpec(1.5, False, "takeoff climb rate [m/s]"),
+    "MPC_LAND_SPEED": ParamSpec(0.7, False, "landing descent rate [m/s]"),
+    "MPC_TILTMAX_AIR": ParamSpec(45.0, False, "maximum tilt in position control [deg]"),
+    "MPC_ACC_HOR": ParamSpec(3.0, False, "horizontal acceleration in auto modes [m/s^2]"),
+    "MPC_XY_P": ParamSpec(0.95, False, "horizontal position gain [1/s]"),
+    "MPC_Z_P": ParamSpec(1.0, False, "vertical position gain [1/s]"),
+    "MPC_XY_VEL_P_ACC": ParamSpec(1.8, False, "horizontal velocity P gain [1/s]"),
+    "MPC_XY_VEL_I_ACC": ParamSpec(0.4, False, "horizontal velocity I gain [1/s^2]"),
+    "MPC_XY_VEL_D_ACC": ParamSpec(0.2, False, "horizontal velocity D gain [-]"),
+    "MPC_Z_VEL_P_ACC": ParamSpec(4.0, False, "vertical velocity P gain [1/s]"),
+    "MPC_Z_VEL_I_ACC": ParamSpec(2.0, False, "vertical velocity I gain [1/s^2]"),
+    "MPC_Z_VEL_D_ACC": ParamSpec(0.0, False, "vertical velocity D gain [-]"),
+    # Multicopter attitude / rate control (PX4 defaults)
+    "MC_ROLL_P": ParamSpec(6.5, False, "roll attitude gain [1/s]"),
+    "MC_PITCH_P": ParamSpec(6.5, False, "pitch attitude gain [1/s]"),
+    "MC_YAW_P": ParamSpec(2.8, False, "yaw attitude gain [1/s]"),
+    "MC_ROLLRATE_MAX": ParamSpec(220.0, False, "maximum roll rate [deg/s]"),
+    "MC_PITCHRATE_MAX": ParamSpec(220.0, False, "maximum pitch rate [deg/s]"),
+    "MC_YAWRATE_MAX": ParamSpec(200.0, False, "maximum yaw rate [deg/s]"),
+    # SIH quadrotor model (PX4 SIH defaults)
+    "SIH_MASS": ParamSpec(1.0, False, "vehicle mass [kg]"),
+    "SIH_IXX": ParamSpec(0.025, False, "inertia about body x [kg m^2]"),
+    "SIH_IYY": ParamSpec(0.025, False, "inertia about body y [kg m^2]"),
+    "SIH_IZZ": ParamSpec(0.030, False, "inertia about body z [kg m^2]"),
+    "SIH_T_MAX": ParamSpec(5.0, False, "maximum thrust of one rotor [N]"),
+    "SIH_Q_MAX": ParamSpec(0.1, False, "maximum torque of one rotor [N m]"),
+    "SIH_L_ROLL": ParamSpec(0.2, False, "roll arm length [m]"),
+    "SIH_L_PITCH": ParamSpec(0.2, False, "pitch arm length [m]"),
+    "SIH_KDV": ParamSpec(1.0, False, "linear drag coefficient, world frame [N/(m/s)]"),
+    "SIH_KDW": ParamSpec(0.025, False, "angular drag coefficient [N m/(rad/s)]"),
+    "SIH_T_TAU": ParamSpec(0.05, False, "rotor thrust time constant [s]"),
+    # Rover model
+    "RO_MAX_SPEED": ParamSpec(3.0, False, "rover maximum speed [m/s]"),
+    "RO_MAX_YAW_RATE": ParamSpec(90.0, False, "rover maximum yaw rate [deg/s]"),
+    "RO_MAX_ACCEL": ParamSpec(2.0, False, "rover maximum acceleration [m/s^2]"),
+    # Simulated battery
+    "SIM_BAT_DRAIN": ParamSpec(1800.0, False, "time to drain the battery from full [s]"),
+    "SIM_BAT_MIN_PCT": ParamSpec(20.0, False, "battery floor for the drain model [%]"),
+}
+
+
+class ParamStore(Mapping[str, float]):
+    """Mutable name -> value store over `PARAMS`; unknown names raise KeyError."""
+
+    def __init__(self, overrides: Mapping[str, float] | None = None) -> None:
+        self._values: dict[str, float] = {k: float(v.default) for k, v in PARAMS.items()}
+        for name, value in (overrides or {}).items():
+            self.set(name, value)
+
+    def __getitem__(self, name: str) -> float:
+        return self._values[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._values)
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+    def set(self, name: str, value: float) -> None:
+        """Set a known parameter; integer parameters are rounded."""
+        spec = PARAMS.get(name)
+        if spec is None:
+            raise KeyError(f"unknown parameter {name!r}")
+        v = float(value)
+        if v != v or v in (float("inf"), float("-inf")):
+            raise ValueError(f"parameter {name} must be finite, got {value!r}")
+        self._values[name] = float(round(v)) if spec.is_int else v
+
+    def index(self, name: str) -> int:
+        """Position of `name` in the stable parameter list (MAVLink param_index)."""
+        return list(PARAMS).index(name)
