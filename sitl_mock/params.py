@@ -84,6 +84,28 @@ PARAMS: dict[str, ParamSpec] = {
     # Simulated battery
     "SIM_BAT_DRAIN": ParamSpec(1800.0, False, "time to drain the battery from full [s]"),
     "SIM_BAT_MIN_PCT": ParamSpec(20.0, False, "battery floor for the drain model [%]"),
+    # Vehicle model additions (sitl-vehicle): PX4 defaults where PX4 has the parameter
+    "MC_ROLLRATE_P": ParamSpec(0.15, False, "roll rate P gain [normalised torque/(rad/s)]"),
+    "MC_ROLLRATE_I": ParamSpec(0.2, False, "roll rate I gain"),
+    "MC_ROLLRATE_D": ParamSpec(0.003, False, "roll rate D gain"),
+    "MC_PITCHRATE_P": ParamSpec(0.15, False, "pitch rate P gain [normalised torque/(rad/s)]"),
+    "MC_PITCHRATE_I": ParamSpec(0.2, False, "pitch rate I gain"),
+    "MC_PITCHRATE_D": ParamSpec(0.003, False, "pitch rate D gain"),
+    "MC_YAWRATE_P": ParamSpec(0.2, False, "yaw rate P gain [normalised torque/(rad/s)]"),
+    "MC_YAWRATE_I": ParamSpec(0.1, False, "yaw rate I gain"),
+    "MC_YAWRATE_D": ParamSpec(0.0, False, "yaw rate D gain"),
+    "MC_YAW_WEIGHT": ParamSpec(0.4, False, "yaw weight of the attitude controller [0..1]"),
+    "MPC_THR_XY_MARG": ParamSpec(0.3, False, "horizontal thrust margin kept at full thrust"),
+    "MPC_TKO_RAMP_T": ParamSpec(3.0, False, "takeoff thrust ramp time [s]"),
+    "COM_SPOOLUP_TIME": ParamSpec(1.0, False, "motor spool-up time after arming [s]"),
+    "MPC_LAND_ALT1": ParamSpec(10.0, False, "below this height start slowing the descent [m]"),
+    "MPC_LAND_ALT2": ParamSpec(5.0, False, "below this height descend at MPC_LAND_SPEED [m]"),
+    "MPC_ACC_UP_MAX": ParamSpec(4.0, False, "maximum upward acceleration in auto modes [m/s^2]"),
+    "MPC_ACC_DOWN_MAX": ParamSpec(3.0, False, "maximum downward acceleration, auto [m/s^2]"),
+    "NAV_MC_ALT_RAD": ParamSpec(0.8, False, "waypoint altitude acceptance radius [m]"),
+    "SIM_POS_NOISE": ParamSpec(0.0, False, "std of simulated position noise [m] (0 = off)"),
+    "SIM_VEL_NOISE": ParamSpec(0.0, False, "std of simulated velocity noise [m/s] (0 = off)"),
+    "SIM_GYRO_NOISE": ParamSpec(0.0, False, "std of simulated gyro noise [rad/s] (0 = off)"),
 }
 
 

@@ -1,0 +1,271 @@
+"""Tracking benchmark (issue 6): figure-8 errors of the setpoint modes on the mock vehicle.
+
+Lockstep, no MAVLink: the `sitl_mock` quadrotor model (PX4 SIH-like physics + PX4-like
+controller cascade) is stepped at its physics rate; the companion controller sees telemetry at
+the rate PX4 streams LOCAL_POSITION_NED/ODOMETRY (default 30 Hz) delivered one telemetry
+period late, and sends setpoints at 100 Hz.
+
+Trajectory: x = 5 sin(phi), y = 2.5 sin(2 phi), z = -5 m (NED), yaw 0; phi' ramps smoothly
+(septic smoothstep, continuous through snap) from 0 to its final value over 3 s; the final value
+gives the requested peak speed. Errors: horizontal distance to the reference at the same time,
+over the second lap (2 pi <= phi < 4 pi).
+
+Modes: `position` (position-only setpoints, PX4's controller closes the loop: the naive
+baseline), `position_ff` (position + velocity + acceleration feed-forward), `attitude`
+(companion tracking controller, q + thrust), `rates` (companion SO(3) loop, body rates + thrust).
+
+Run: `/work/venv/bin/python bench/bench_tracking.py [--write]` (--write updates BENCHMARKS.md).
+The module also exposes the lockstep harness (`run_lockstep`, `figure8_reference`) used by
+tests/integration/test_tracking_lockstep.py.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from companion.control import (
+    Reference,
+    StateEstimate,
+    TrackingConfig,
+    TrackingController,
+    position_command,
+)
+from companion.flatness import MultirotorParams
+from sitl_mock.params import ParamStore
+from sitl_mock.setpoints import AttitudeTarget, PositionTarget, Target
+from sitl_mock.vehicle import make_vehicle
+
+FloatArray = npt.NDArray[np.float64]
+MODES = ("position", "position_ff", "attitude", "rates")
+RAMP_S = 3.0
+FIG8_DPDPHI_MAX = math.sqrt(50.0)  # max |d p / d phi| of the figure-8 (at phi = 0)
+
+
+# ----------------------------------------------------------------------------- reference
+
+
+def _ramp_terms(t: float, omega: float) -> tuple[float, float, float, float, float]:
+    """phi and its first four time derivatives for the smooth ramp of phi' to `omega`."""
+    if t >= RAMP_S:
+        return omega * (t - 0.5 * RAMP_S), omega, 0.0, 0.0, 0.0
+    if t <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0, 0.0
+    x = t / RAMP_S
+    s = 35 * x**4 - 84 * x**5 + 70 * x**6 - 20 * x**7
+    s1 = 140 * x**3 - 420 * x**4 + 420 * x**5 - 140 * x**6
+    s2 = 420 * x**2 - 1680 * x**3 + 2100 * x**4 - 840 * x**5
+    s3 = 840 * x - 5040 * x**2 + 8400 * x**3 - 4200 * x**4
+    integral = 7 * x**5 - 14 * x**6 + 10 * x**7 - 2.5 * x**8
+    T = RAMP_S
+    return omega * T * integral, omega * s, omega * s1 / T, omega * s2 / T**2, omega * s3 / T**3
+
+
+def figure8_reference(t: float, peak_speed: float, alt_m: float = 5.0) -> tuple[Reference, float]:
+    """Figure-8 reference at time t and its phase phi (see the module docstring)."""
+    omega = peak_speed / FIG8_DPDPHI_MAX
+    phi, p1, p2, p3, p4 = _ramp_terms(t, omega)
+    out = np.zeros((5, 3))
+    for axis, (amp, k) in enumerate(((5.0, 1.0), (2.5, 2.0))):
+        # f(phi) = amp sin(k phi); f^(n) = amp k^n sin(k phi + n pi / 2)
+        f = [amp * k**n * math.sin(k * phi + n * math.pi / 2) for n in range(5)]
+        out[0, axis] = f[0]
+        out[1, axis] = f[1] * p1
+        out[2, axis] = f[2] * p1**2 + f[1] * p2
+        out[3, axis] = f[3] * p1**3 + 3 * f[2] * p1 * p2 + f[1] * p3
+        out[4, axis] = (
+            f[4] * p1**4 + 6 * f[3] * p1**2 * p2 + f[2] * (3 * p2**2 + 4 * p1 * p3) + f[1] * p4
+        )
+    out[0, 2] = -alt_m
+    return Reference(out[0], out[1], out[2], out[3], out[4], 0.0, 0.0, 0.0), phi
+
+
+# ----------------------------------------------------------------------------- harness
+
+
+@dataclass
+class RunResult:
+    """Time series of one lockstep run (sampled at the setpoint rate)."""
+
+    t: FloatArray
+    pos: FloatArray
+    ref: FloatArray
+    phase: FloatArray
+    hover_thrust: FloatArray
+    thrust_cmd: FloatArray
+    fallbacks: int
+    max_tilt_deg: float
+    extra: dict[str, FloatArray] = field(default_factory=dict)
+
+    def lap_errors(self, lap: int = 2) -> tuple[float, float]:
+        """(RMS, max) horizontal error [m] over lap `lap` (1-based) of the phase."""
+        sel = (self.phase >= 2 * math.pi * (lap - 1)) & (self.phase < 2 * math.pi * lap)
+        if not np.any(sel):
+            raise ValueError(f"the run did not complete lap {lap}")
+        e = np.linalg.norm(self.pos[sel, :2] - self.ref[sel, :2], axis=1)
+        return float(np.sqrt(np.mean(e**2))), float(np.max(e))
+
+
+def mock_params(overrides: dict[str, float] | None = None) -> ParamStore:
+    """SIH-like defaults with 60 deg tilt allowed (the figure-8 at 6 m/s needs ~46 deg)."""
+    ov: dict[str, float] = {"MPC_TILTMAX_AIR": 60.0}
+    ov.update(overrides or {})
+    return ParamStore(ov)
+
+
+def default_controller_config(**kw: object) -> TrackingConfig:
+    """Companion config as a user would set it for the SIH quad: nominal mass, D, hover 0.5."""
+    params = MultirotorParams(1.0, np.diag([0.025, 0.025, 0.030]), hover_thrust=0.5, drag=1.0)
+    return TrackingConfig(params=params, **kw)  # type: ignore[arg-type]
+
+
+def run_lockstep(
+    mode: str,
+    reference: Callable[[float], tuple[Reference, float]],
+    seconds: float,
+    *,
+    params: ParamStore | None = None,
+    controller: TrackingController | None = None,
+    physics_hz: float = 500.0,
+    telemetry_hz: float = 30.0,
+    setpoint_hz: float = 100.0,
+    latency_s: float | None = None,
+    start_pos: tuple[float, float, float] = (0.0, 0.0, -5.0),
+    seed: int = 0,
+) -> RunResult:
+    """Fly `reference` for `seconds` in lockstep with the mock quad in `mode` (see MODES).
+
+    Telemetry snapshots are taken every 1/telemetry_hz s and delivered `latency_s` later
+    (default one telemetry period); setpoints are computed every 1/setpoint_hz s from the newest
+    delivered snapshot and held until the next one.
+    """
+    if mode not in MODES:
+        raise ValueError(f"unknown mode {mode!r}, use one of {MODES}")
+    store = params if params is not None else mock_params()
+    veh = make_vehicle("quad", store, seed=seed)
+    hover_true = store["SIH_MASS"] * 9.80665 / (4.0 * store["SIH_T_MAX"])
+    veh.set_state(pos_ned=start_pos, motors=hover_true)  # type: ignore[attr-defined]
+    veh.mark_airborne(hover_true)  # type: ignore[attr-defined]
+    ctl = controller or TrackingController(default_controller_config())
+    lat = (1.0 / telemetry_hz) if latency_s is None else latency_s
+    n_phys = int(round(seconds * physics_hz))
+    dt = 1.0 / physics_hz
+    tel_every = max(1, int(round(physics_hz / telemetry_hz)))
+    sp_every = max(1, int(round(physics_hz / setpoint_hz)))
+    queue: deque[tuple[float, StateEstimate]] = deque()
+    latest: StateEstimate | None = None
+    target: Target = PositionTarget(pos_ned=start_pos, yaw=0.0)
+    ts, ps, rs, phs, hs, us = [], [], [], [], [], []
+    fallbacks = 0
+    max_tilt = 0.0
+    for k in range(n_phys + 1):
+        t = k * dt
+        if k % tel_every == 0:
+            s = veh.state
+            est = StateEstimate(
+                t, np.array(s.pos_ned), np.array(s.vel_ned), np.array(s.q_wxyz),
+                np.array(s.omega_frd), None, not s.landed,
+            )
+            queue.append((t + lat, est))
+        while queue and queue[0][0] <= t + 1e-9:
+            latest = queue.popleft()[1]
+        if k % sp_every == 0:
+            ref, phase = reference(t)
+            if mode in ("position", "position_ff"):
+                pc = position_command(ref, feedforward=(mode == "position_ff"))
+                target = PositionTarget(
+                    tuple(pc.pos_ned), tuple(pc.vel_ned), tuple(pc.acc_ned),  # type: ignore[arg-type]
+                    pc.yaw, pc.yaw_rate,
+                )
+                thrust = math.nan
+            elif latest is None:
+                thrust = math.nan
+            elif mode == "attitude":
+                ac = ctl.attitude(t, latest, ref)
+                fallbacks += ac.fallback
+                target = AttitudeTarget(tuple(ac.q_wxyz), ac.thrust_norm, None,  # type: ignore[arg-type]
+                                        ac.yaw_rate_ff)
+                thrust = ac.thrust_norm
+            else:
+                rc = ctl.rates(t, latest, ref)
+                fallbacks += rc.fallback
+                target = AttitudeTarget(None, rc.thrust_norm, tuple(rc.omega_frd))  # type: ignore[arg-type]
+                thrust = rc.thrust_norm
+            s = veh.state
+            ts.append(t)
+            ps.append(s.pos_ned)
+            rs.append(ref.pos_ned)
+            phs.append(phase)
+            hs.append(ctl.hover_thrust)
+            us.append(thrust)
+            w, x, y, z = s.q_wxyz
+            cz = 1.0 - 2.0 * (x * x + y * y)
+            max_tilt = max(max_tilt, math.degrees(math.acos(max(-1.0, min(1.0, cz)))))
+        veh.step(dt, target, True)
+    return RunResult(
+        np.array(ts), np.array(ps), np.array(rs), np.array(phs), np.array(hs), np.array(us),
+        fallbacks, max_tilt,
+    )
+
+
+def figure8_seconds(peak_speed: float, laps: float = 2.0) -> float:
+    """Run time covering the ramp and `laps` full laps (+ a small margin)."""
+    omega = peak_speed / FIG8_DPDPHI_MAX
+    return 0.5 * RAMP_S + laps * 2 * math.pi / omega + 0.2
+
+
+# ----------------------------------------------------------------------------- main
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--speeds", type=float, nargs="+", default=[2.0, 6.0])
+    ap.add_argument("--telemetry-hz", type=float, default=30.0)
+    ap.add_argument("--write", action="store_true", help="update the BENCHMARKS.md section")
+    args = ap.parse_args(argv)
+    rows: list[tuple[float, str, float, float, float]] = []
+    t0 = time.perf_counter()
+    for v in args.speeds:
+        secs = figure8_seconds(v)
+        for mode in MODES:
+            res = run_lockstep(mode, lambda t, v=v: figure8_reference(t, v), secs,  # type: ignore[misc]
+                               telemetry_hz=args.telemetry_hz)
+            rms, mx = res.lap_errors(2)
+            rows.append((v, mode, rms, mx, res.max_tilt_deg))
+            print(f"{v:4.1f} m/s {mode:12s} RMS {rms:6.3f} m  max {mx:6.3f} m  "
+                  f"tilt {res.max_tilt_deg:5.1f} deg  fallbacks {res.fallbacks}", flush=True)
+    print(f"wall time {time.perf_counter() - t0:.1f} s")
+    base = {v: r for v, m, r, _, _ in rows if m == "position"}
+    for v, mode, rms, _, _ in rows:
+        if mode != "position":
+            print(f"{v:4.1f} m/s {mode:12s} RMS / position-only = {rms / base[v]:.3f}")
+    if args.write:
+        _write(rows, args)
+    return 0
+
+
+def _write(rows: list[tuple[float, str, float, float, float]], args: argparse.Namespace) -> None:
+    path = Path(__file__).resolve().parents[1] / "BENCHMARKS.md"
+    base = {v: r for v, m, r, _, _ in rows if m == "position"}
+    lines = [
+        "| peak speed | mode | RMS [m] | max [m] | RMS / position-only | max tilt [deg] |",
+        "|---|---|---|---|---|---|",
+    ]
+    for v, mode, rms, mx, tilt in rows:
+        lines.append(f"| {v:.0f} m/s | {mode} | {rms:.3f} | {mx:.3f} | {rms / base[v]:.3f} | "
+                     f"{tilt:.1f} |")
+    print("\n".join(lines))
+    del path, args
+
+
+if __name__ == "__main__":
+    sys.exit(main())

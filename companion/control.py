@@ -1,0 +1,878 @@
+"""Tracking control for the companion: multirotor attitude/rates setpoints and rover velocity.
+
+Pure: every call takes `now` [s] (the companion clock, the same clock the telemetry time stamps
+`t_s` are expressed in); no clock reads, no IO. Frames: world NED, body FRD, SI units.
+
+Multirotor pipeline (`TrackingController`):
+
+1. Latency compensation: the last state estimate (stamped `t_s`) is extrapolated to `now` with
+   its velocity and the acceleration (measured if given, else the last commanded one); the
+   attitude with the body rates.
+2. Acceleration command `a = a_ref + Kp e_p + Kd e_v + Ki int(e_p)` (errors reference minus
+   extrapolated estimate), optionally with the reference feed-forward shifted ahead by
+   `lead_s` (Taylor, compensates the attitude loop lag).
+3. Thrust vector `t = m (g e3 - a) - D v` (drag feed-forward, D configured or estimated), then
+   saturation: minimum upward thrust, tilt limit (horizontal part scaled down), maximum thrust
+   with vertical priority; the integrator is frozen while saturated (anti-windup) and clamped.
+4. The drag-aware flatness map (`companion.flatness.multirotor_setpoint`) turns the saturated
+   acceleration plus the reference jerk/snap/yaw into `q_wxyz`, normalised thrust (with the
+   estimated hover thrust) and the feed-forward body rates.
+5. `attitude` mode sends q + thrust + yaw-rate feed-forward; `rates` mode closes the attitude
+   loop here with a geometric SO(3) controller (Lee et al.) whose feed-forward is the flatness
+   body rate, and sends body rates + thrust.
+
+Bad input (non-finite or stale telemetry, singular flatness) never produces NaN: the output falls
+back to a level hover at the current heading with the hover-thrust estimate and is flagged
+(`fallback=True`, `reason`).
+
+Rover (`RoverController`): velocity + yaw-rate setpoints from rover flatness with a cross-track /
+along-track / heading correction.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from companion.estimation import (
+    DragConfig,
+    DragEstimator,
+    HoverThrustConfig,
+    HoverThrustEstimator,
+)
+from companion.flatness import MultirotorParams, multirotor_setpoint, rover_setpoint
+
+FloatArray = npt.NDArray[np.float64]
+
+_E3 = np.array([0.0, 0.0, 1.0])
+_NAN3 = np.full(3, math.nan)
+
+
+def _vec3(x: object, name: str) -> FloatArray:
+    a = np.asarray(x, dtype=np.float64).reshape(-1)
+    if a.shape != (3,):
+        raise ValueError(f"{name} must have 3 components, got shape {a.shape}")
+    return a
+
+
+def _finite(*arrays: FloatArray) -> bool:
+    return all(bool(np.isfinite(a).all()) for a in arrays)
+
+
+# ----------------------------------------------------------------------------- small SO(3) kit
+# Written out for (3,)/(4,) arrays: the controller runs at 100-250 Hz on single samples, where
+# the batched geometry helpers' generality costs more than the arithmetic.
+
+
+def quat_to_dcm(q_wxyz: FloatArray) -> FloatArray:
+    """DCM C_eb (3, 3) of a quaternion (w, x, y, z) (normalised first; zero -> identity)."""
+    n = float(np.linalg.norm(q_wxyz))
+    if not (math.isfinite(n) and n > 0.0):
+        return np.eye(3)
+    w, x, y, z = (float(c) / n for c in q_wxyz)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def quat_normalize(q_wxyz: FloatArray) -> FloatArray:
+    """Unit quaternion with w >= 0; non-finite or zero input gives the identity."""
+    q = np.asarray(q_wxyz, dtype=np.float64)
+    n = float(np.linalg.norm(q))
+    if not (math.isfinite(n) and n > 1e-12):
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    q = q / n
+    return -q if q[0] < 0.0 else q
+
+
+def quat_mul(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Hamilton product a * b (apply b first, then a)."""
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return np.array(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ]
+    )
+
+
+def quat_integrate(q_wxyz: FloatArray, omega_frd: FloatArray, dt: float) -> FloatArray:
+    """Attitude after rotating for `dt` [s] at constant body rate `omega_frd` [rad/s]."""
+    rv = np.asarray(omega_frd, dtype=np.float64) * dt
+    ang = float(np.linalg.norm(rv))
+    if ang < 1e-12:
+        return quat_normalize(q_wxyz)
+    dq = np.concatenate(([math.cos(0.5 * ang)], math.sin(0.5 * ang) / ang * rv))
+    return quat_normalize(quat_mul(np.asarray(q_wxyz, dtype=np.float64), dq))
+
+
+def yaw_quat(yaw: float) -> FloatArray:
+    """Level attitude with 3-2-1 yaw `yaw` [rad]."""
+    return quat_normalize(np.array([math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw)]))
+
+
+def yaw_of_dcm(C_eb: FloatArray) -> float:
+    """3-2-1 yaw [rad] of C_eb (heading of the body x axis; falls back to y near gimbal lock)."""
+    if math.hypot(C_eb[0, 0], C_eb[1, 0]) > 1e-6:
+        return math.atan2(C_eb[1, 0], C_eb[0, 0])
+    return math.atan2(-C_eb[0, 1], C_eb[1, 1])
+
+
+def _vee(M: FloatArray) -> FloatArray:
+    return np.array([M[2, 1], M[0, 2], M[1, 0]])
+
+
+def attitude_error(C_eb: FloatArray, C_eb_des: FloatArray) -> FloatArray:
+    """Lee et al. attitude error e_R = 1/2 vee(R_d^T R - R^T R_d), body FRD components.
+
+    R = C_eb (actual), R_d = C_eb_des. |e_R| = sin(angle of R_d^T R); the rate command
+    -k e_R rotates R towards R_d.
+    """
+    M = C_eb_des.T @ C_eb - C_eb.T @ C_eb_des
+    return 0.5 * _vee(M)
+
+
+# ----------------------------------------------------------------------------- values
+
+
+@dataclass(frozen=True)
+class StateEstimate:
+    """Vehicle state from telemetry (LOCAL_POSITION_NED + ATTITUDE / ODOMETRY).
+
+    t_s: time the estimate is valid at, in the companion clock [s].
+    pos_ned [m], vel_ned [m/s], acc_ned [m/s^2, kinematic, optional]: world NED (3,).
+    q_wxyz: attitude body FRD -> NED. omega_frd: body rates [rad/s].
+    airborne: False on the ground (holds the hover-thrust estimator).
+    """
+
+    t_s: float
+    pos_ned: FloatArray
+    vel_ned: FloatArray
+    q_wxyz: FloatArray
+    omega_frd: FloatArray
+    acc_ned: FloatArray | None = None
+    airborne: bool = True
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "pos_ned", _vec3(self.pos_ned, "pos_ned"))
+        object.__setattr__(self, "vel_ned", _vec3(self.vel_ned, "vel_ned"))
+        object.__setattr__(self, "omega_frd", _vec3(self.omega_frd, "omega_frd"))
+        q = np.asarray(self.q_wxyz, dtype=np.float64).reshape(-1)
+        if q.shape != (4,):
+            raise ValueError(f"q_wxyz must have 4 components, got shape {q.shape}")
+        object.__setattr__(self, "q_wxyz", q)
+        if self.acc_ned is not None:
+            object.__setattr__(self, "acc_ned", _vec3(self.acc_ned, "acc_ned"))
+
+    def is_finite(self) -> bool:
+        """All fields finite and the quaternion not degenerate."""
+        ok = math.isfinite(self.t_s) and _finite(
+            self.pos_ned, self.vel_ned, self.q_wxyz, self.omega_frd
+        )
+        if self.acc_ned is not None:
+            ok = ok and _finite(self.acc_ned)
+        return ok and float(np.linalg.norm(self.q_wxyz)) > 0.5
+
+
+Telemetry = StateEstimate
+"""Alias: the controller's telemetry input."""
+
+
+@dataclass(frozen=True)
+class Reference:
+    """Flat-output reference at one time: NED position and derivatives, 3-2-1 yaw and derivatives.
+
+    pos_ned [m], vel_ned [m/s], acc_ned [m/s^2], jerk_ned [m/s^3], snap_ned [m/s^4] (3,);
+    yaw [rad], yaw_rate = d(yaw)/dt [rad/s], yaw_acc [rad/s^2].
+    """
+
+    pos_ned: FloatArray
+    vel_ned: FloatArray = field(default_factory=lambda: np.zeros(3))
+    acc_ned: FloatArray = field(default_factory=lambda: np.zeros(3))
+    jerk_ned: FloatArray = field(default_factory=lambda: np.zeros(3))
+    snap_ned: FloatArray = field(default_factory=lambda: np.zeros(3))
+    yaw: float = 0.0
+    yaw_rate: float = 0.0
+    yaw_acc: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("pos_ned", "vel_ned", "acc_ned", "jerk_ned", "snap_ned"):
+            object.__setattr__(self, name, _vec3(getattr(self, name), name))
+
+    def is_finite(self) -> bool:
+        """All fields finite."""
+        return _finite(
+            self.pos_ned, self.vel_ned, self.acc_ned, self.jerk_ned, self.snap_ned
+        ) and all(math.isfinite(v) for v in (self.yaw, self.yaw_rate, self.yaw_acc))
+
+
+def reference_from_trajectory(traj: object, t: float, yaw: float = 0.0) -> Reference:
+    """Sample a `PiecewiseBezier`-like trajectory (NED, 3-D) at time `t` [s].
+
+    Needs `.duration`, `.evaluate(t, order)` and `.yaw` (a 1-D trajectory or None). Beyond the
+    ends the position holds and the derivatives are zero. Without a yaw channel `yaw` is used.
+    """
+    duration = float(getattr(traj, "duration"))  # noqa: B009
+    evaluate: Callable[[float, int], FloatArray] = getattr(traj, "evaluate")  # noqa: B009
+    tc = min(max(t, 0.0), duration)
+    inside = 0.0 <= t <= duration
+    d = [np.asarray(evaluate(tc, k), dtype=np.float64).reshape(3) for k in range(5)]
+    if not inside:
+        d[1:] = [np.zeros(3)] * 4
+    yaw_traj = getattr(traj, "yaw", None)
+    psi, psi_d, psi_dd = yaw, 0.0, 0.0
+    if yaw_traj is not None:
+        ev: Callable[[float, int], FloatArray] = getattr(yaw_traj, "evaluate")  # noqa: B009
+        psi = float(np.asarray(ev(tc, 0)).reshape(-1)[0])
+        if inside:
+            psi_d = float(np.asarray(ev(tc, 1)).reshape(-1)[0])
+            psi_dd = float(np.asarray(ev(tc, 2)).reshape(-1)[0])
+    return Reference(d[0], d[1], d[2], d[3], d[4], psi, psi_d, psi_dd)
+
+
+@dataclass(frozen=True)
+class AttitudeCommand:
+    """SET_ATTITUDE_TARGET with attitude (type_mask 3): q + normalised thrust + yaw-rate ff.
+
+    q_wxyz: unit quaternion body FRD -> NED, w >= 0. thrust_norm: 0..1, no hover scaling.
+    yaw_rate_ff: yaw rate feed-forward [rad/s]. fallback/reason: a hover fallback was produced.
+    saturated: the tilt/thrust limits were active.
+    """
+
+    q_wxyz: FloatArray
+    thrust_norm: float
+    yaw_rate_ff: float
+    fallback: bool = False
+    reason: str = ""
+    saturated: bool = False
+
+
+@dataclass(frozen=True)
+class RateCommand:
+    """SET_ATTITUDE_TARGET with attitude ignored (type_mask 128): body rates + thrust.
+
+    omega_frd: body rates [rad/s]. thrust_norm: 0..1, no hover scaling.
+    """
+
+    omega_frd: FloatArray
+    thrust_norm: float
+    fallback: bool = False
+    reason: str = ""
+    saturated: bool = False
+
+
+@dataclass(frozen=True)
+class PositionCommand:
+    """SET_POSITION_TARGET_LOCAL_NED: NaN components mean "not given" (ignore bit set).
+
+    pos_ned [m], vel_ned [m/s], acc_ned [m/s^2] world NED (3,); yaw [rad]; yaw_rate [rad/s].
+    """
+
+    pos_ned: FloatArray = field(default_factory=lambda: _NAN3.copy())
+    vel_ned: FloatArray = field(default_factory=lambda: _NAN3.copy())
+    acc_ned: FloatArray = field(default_factory=lambda: _NAN3.copy())
+    yaw: float = math.nan
+    yaw_rate: float = math.nan
+    fallback: bool = False
+    reason: str = ""
+
+
+def position_command(ref: Reference, feedforward: bool = True) -> PositionCommand:
+    """`position` mode: the reference as a PX4 position setpoint (PX4 closes the loop).
+
+    feedforward False sends position + yaw only (the naive baseline); True adds velocity,
+    acceleration and the yaw rate.
+    """
+    if not ref.is_finite():
+        raise ValueError("reference is not finite; refusing to build a position setpoint")
+    if feedforward:
+        return PositionCommand(
+            ref.pos_ned.copy(), ref.vel_ned.copy(), ref.acc_ned.copy(), ref.yaw, ref.yaw_rate
+        )
+    return PositionCommand(pos_ned=ref.pos_ned.copy(), yaw=ref.yaw)
+
+
+# ----------------------------------------------------------------------------- configuration
+
+
+@dataclass(frozen=True)
+class TrackingGains:
+    """Position-loop gains: a = a_ref + kp e_p + kd e_v + ki int(e_p) (per axis, xy and z).
+
+    kp [1/s^2], kd [1/s], ki [1/s^3]; i_max_xy / i_max_z: clamp of the integrator's
+    acceleration contribution [m/s^2].
+    """
+
+    kp_xy: float = 6.0
+    kd_xy: float = 4.5
+    ki_xy: float = 1.0
+    kp_z: float = 8.0
+    kd_z: float = 5.5
+    ki_z: float = 2.0
+    i_max_xy: float = 2.0
+    i_max_z: float = 4.0
+
+    def kp(self) -> FloatArray:
+        """(3,) proportional gains."""
+        return np.array([self.kp_xy, self.kp_xy, self.kp_z])
+
+    def kd(self) -> FloatArray:
+        """(3,) derivative gains."""
+        return np.array([self.kd_xy, self.kd_xy, self.kd_z])
+
+    def ki(self) -> FloatArray:
+        """(3,) integral gains."""
+        return np.array([self.ki_xy, self.ki_xy, self.ki_z])
+
+    def i_max(self) -> FloatArray:
+        """(3,) integrator clamps [m/s^2]."""
+        return np.array([self.i_max_xy, self.i_max_xy, self.i_max_z])
+
+
+@dataclass(frozen=True)
+class AttitudeGains:
+    """Companion-side SO(3) attitude loop producing body-rate commands.
+
+    k_roll/k_pitch/k_yaw: attitude gains [1/s] (PX4 MC_ROLL_P/MC_PITCH_P/MC_YAW_P defaults).
+    max_rate_rp / max_rate_yaw: rate command limits [rad/s] (MC_*RATE_MAX).
+    large_angle: scale e_R by 1/cos(angle/2) so the error grows monotonically up to 180 deg
+    (Lee 2011's alternative error function; small-angle behaviour unchanged).
+    """
+
+    k_roll: float = 6.5
+    k_pitch: float = 6.5
+    k_yaw: float = 2.8
+    max_rate_rp: float = math.radians(220.0)
+    max_rate_yaw: float = math.radians(200.0)
+    large_angle: bool = True
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    """Configuration of `TrackingController`.
+
+    params: vehicle (mass [kg], inertia, hover_thrust prior, drag D [N/(m/s)] prior).
+    drag_feedforward: include -D v in the thrust vector (D from params or the estimator).
+    drag_velocity: velocity used in the drag term: "reference" (smooth feed-forward) or
+        "estimate" (the extrapolated measured velocity).
+    estimate_hover_thrust / estimate_drag: run the online estimators.
+    latency_compensation: extrapolate the last estimate to `now`.
+    max_extrapolation_s: cap of the extrapolation horizon [s].
+    stale_after_s: older telemetry -> hover fallback [s].
+    lead_s: feed-forward evaluated this far ahead (Taylor) to offset the attitude-loop lag [s].
+    thrust_delay_s: delay between a thrust command and its effect, used to pair commands with
+        measured accelerations for the hover-thrust estimator [s].
+    max_tilt_rad: tilt limit of the commanded thrust vector.
+    thrust_min / thrust_max: normalised thrust bounds.
+    """
+
+    params: MultirotorParams
+    gains: TrackingGains = TrackingGains()
+    attitude_gains: AttitudeGains = AttitudeGains()
+    drag_feedforward: bool = True
+    drag_velocity: Literal["reference", "estimate"] = "estimate"
+    estimate_hover_thrust: bool = True
+    estimate_drag: bool = False
+    hover_thrust_config: HoverThrustConfig | None = None
+    drag_config: DragConfig | None = None
+    latency_compensation: bool = True
+    max_extrapolation_s: float = 0.25
+    stale_after_s: float = 0.5
+    lead_s: float = 0.0
+    thrust_delay_s: float = 0.05
+    max_tilt_rad: float = math.radians(60.0)
+    thrust_min: float = 0.08
+    thrust_max: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.max_tilt_rad < math.radians(89.0):
+            raise ValueError("max_tilt_rad must be in (0, 89) deg")
+        if not 0.0 <= self.thrust_min < self.thrust_max <= 1.0:
+            raise ValueError("thrust bounds must satisfy 0 <= min < max <= 1")
+        if not 0.0 < self.params.hover_thrust < 1.0:
+            raise ValueError("params.hover_thrust must be in (0, 1)")
+
+
+@dataclass(frozen=True)
+class TrackingDiagnostics:
+    """What the last `TrackingController` update computed (for logs and tests)."""
+
+    t_s: float
+    pos_err_ned: FloatArray
+    vel_err_ned: FloatArray
+    acc_cmd_ned: FloatArray
+    integrator_ned: FloatArray
+    hover_thrust: float
+    drag: float
+    extrapolation_s: float
+    saturated: bool
+    attitude_err_frd: FloatArray
+    fallback: bool
+    reason: str
+
+
+# ----------------------------------------------------------------------------- SO(3) loop
+
+
+def so3_rate_command(
+    q_wxyz: FloatArray,
+    q_des_wxyz: FloatArray,
+    omega_ff_frd: FloatArray,
+    gains: AttitudeGains,
+) -> tuple[FloatArray, FloatArray]:
+    """Geometric attitude controller: body-rate command and the attitude error.
+
+    omega_cmd = R^T R_d omega_ff - K e_R (optionally e_R / cos(angle/2)), limited per axis.
+    q_wxyz: actual attitude; q_des_wxyz: desired; omega_ff_frd: desired body rates (in the
+    desired body frame) [rad/s]. Returns (omega_cmd_frd [rad/s], e_R).
+    """
+    R = quat_to_dcm(q_wxyz)
+    Rd = quat_to_dcm(q_des_wxyz)
+    Rt_Rd = R.T @ Rd
+    e_R = attitude_error(R, Rd)
+    k = np.array([gains.k_roll, gains.k_pitch, gains.k_yaw])
+    err = e_R
+    if gains.large_angle:
+        # 1 + tr(R_d^T R) = 4 cos^2(angle / 2)
+        c_half = 0.5 * math.sqrt(max(1.0 + float(np.trace(Rt_Rd)), 0.0))
+        err = e_R / max(c_half, 0.05)
+    ff = np.asarray(omega_ff_frd, dtype=np.float64)
+    if not _finite(ff):
+        ff = np.zeros(3)
+    omega = Rt_Rd @ ff - k * err
+    lim = np.array([gains.max_rate_rp, gains.max_rate_rp, gains.max_rate_yaw])
+    omega = np.clip(omega, -lim, lim)
+    return omega, e_R
+
+
+# ----------------------------------------------------------------------------- controller
+
+
+class TrackingController:
+    """Multirotor trajectory-tracking controller (see the module docstring).
+
+    Call `attitude(now, estimate, ref)` or `rates(now, estimate, ref)` at the setpoint rate;
+    pass the newest estimate each time (a repeated estimate is recognised by its `t_s`).
+    """
+
+    def __init__(self, config: TrackingConfig) -> None:
+        self.config = config
+        p = config.params
+        htc = config.hover_thrust_config or HoverThrustConfig(
+            initial_hover_thrust=p.hover_thrust,
+            drag_over_mass=p.drag / p.mass if config.drag_feedforward else 0.0,
+            g=p.g,
+        )
+        self.hover_estimator = HoverThrustEstimator(htc)
+        dc = config.drag_config or DragConfig(initial_drag_over_mass=p.drag / p.mass, g=p.g)
+        self.drag_estimator = DragEstimator(dc)
+        self._integ = np.zeros(3)
+        self._t_last_update: float | None = None
+        self._last_est: StateEstimate | None = None
+        self._prev_est: StateEstimate | None = None
+        self._last_acc_cmd = np.zeros(3)
+        self._thrust_hist: deque[tuple[float, float]] = deque(maxlen=256)
+        self._last_yaw = 0.0
+        self.last: TrackingDiagnostics | None = None
+
+    # -- state --------------------------------------------------------------------------------
+    @property
+    def hover_thrust(self) -> float:
+        """Hover thrust in use (estimate if enabled, else the configured value)."""
+        if self.config.estimate_hover_thrust:
+            return self.hover_estimator.hover_thrust
+        return self.config.params.hover_thrust
+
+    @property
+    def drag(self) -> float:
+        """Linear drag coefficient in use [N/(m/s)] (0 without drag feed-forward)."""
+        if not self.config.drag_feedforward:
+            return 0.0
+        if self.config.estimate_drag:
+            return self.drag_estimator.drag_over_mass * self.config.params.mass
+        return self.config.params.drag
+
+    def reset(self) -> None:
+        """Clear the integrator and the telemetry history (e.g. on entering offboard)."""
+        self._integ = np.zeros(3)
+        self._t_last_update = None
+        self._last_est = None
+        self._prev_est = None
+        self._last_acc_cmd = np.zeros(3)
+        self._thrust_hist.clear()
+
+    # -- public API ---------------------------------------------------------------------------
+    def attitude(self, now: float, est: StateEstimate, ref: Reference) -> AttitudeCommand:
+        """`attitude` mode setpoint at `now`: q + normalised thrust + yaw-rate feed-forward."""
+        out = self._core(now, est, ref)
+        if out is None:
+            return self._fallback_attitude(now, est)
+        q_des, thrust, _omega_ff, sat = out
+        self._record_thrust(now, thrust)
+        rate_ff = ref.yaw_rate if math.isfinite(ref.yaw_rate) else 0.0
+        return AttitudeCommand(q_des, thrust, rate_ff, saturated=sat)
+
+    def rates(self, now: float, est: StateEstimate, ref: Reference) -> RateCommand:
+        """`rates` mode setpoint at `now`: body rates from the SO(3) loop + thrust."""
+        out = self._core(now, est, ref)
+        if out is None:
+            return self._fallback_rates(now, est)
+        q_des, thrust, omega_ff, sat = out
+        q_now = self._q_now
+        omega, e_R = so3_rate_command(q_now, q_des, omega_ff, self.config.attitude_gains)
+        # Thrust along the actual body z (Lee): project the desired thrust direction.
+        zb_des = quat_to_dcm(q_des)[:, 2]
+        zb = quat_to_dcm(q_now)[:, 2]
+        proj = float(zb_des @ zb)
+        thrust = float(np.clip(thrust * max(proj, 0.5), self.config.thrust_min,
+                               self.config.thrust_max))
+        if self.last is not None:
+            self.last = replace(self.last, attitude_err_frd=e_R)
+        if not (_finite(omega) and math.isfinite(thrust)):
+            return self._fallback_rates(now, est, "non-finite rate command")
+        self._record_thrust(now, thrust)
+        return RateCommand(omega, thrust, saturated=sat)
+
+    # -- internals ----------------------------------------------------------------------------
+    def _record_thrust(self, now: float, thrust: float) -> None:
+        self._thrust_hist.append((now, thrust))
+
+    def _mean_thrust(self, t0: float, t1: float) -> float:
+        """Time average of the (zero-order-hold) thrust command history over [t0, t1]."""
+        h = self._thrust_hist
+        if not h or t1 <= t0:
+            return math.nan
+        total = 0.0
+        covered = 0.0
+        items = list(h)
+        for i, (ti, ui) in enumerate(items):
+            t_next = items[i + 1][0] if i + 1 < len(items) else math.inf
+            a = max(ti, t0)
+            b = min(t_next, t1)
+            if b > a:
+                total += ui * (b - a)
+                covered += b - a
+        if covered < 0.5 * (t1 - t0):
+            return math.nan
+        return total / covered
+
+    def _ingest(self, est: StateEstimate) -> None:
+        """Remember a new telemetry sample and feed the estimators."""
+        last = self._last_est
+        if last is not None and est.t_s <= last.t_s:
+            return
+        self._prev_est, self._last_est = last, est
+        if last is None:
+            return
+        dt = est.t_s - last.t_s
+        if not (1e-3 < dt < 0.5):
+            return
+        acc = est.acc_ned if est.acc_ned is not None else (est.vel_ned - last.vel_ned) / dt
+        delay = self.config.thrust_delay_s
+        if est.acc_ned is not None:
+            u = self._mean_thrust(est.t_s - delay - 0.01, est.t_s - delay + 0.01)
+        else:
+            u = self._mean_thrust(last.t_s - delay, est.t_s - delay)
+        zb = quat_to_dcm(est.q_wxyz)[:, 2]
+        zb_prev = quat_to_dcm(last.q_wxyz)[:, 2]
+        zb_mid = 0.5 * (zb + zb_prev)
+        v_mid = 0.5 * (est.vel_ned + last.vel_ned) if est.acc_ned is None else est.vel_ned
+        airborne = est.airborne and last.airborne
+        if self.config.estimate_hover_thrust and math.isfinite(u):
+            self.hover_estimator.update(
+                est.t_s, float(acc[2]), u, float(zb_mid[2]), float(v_mid[2]), airborne
+            )
+        if self.config.estimate_drag and math.isfinite(u):
+            self.drag_estimator.update(
+                est.t_s, acc, v_mid, u, zb_mid, self.hover_thrust, airborne
+            )
+
+    def _core(
+        self, now: float, est: StateEstimate, ref: Reference
+    ) -> tuple[FloatArray, float, FloatArray, bool] | None:
+        """q_des, thrust_norm, omega_ff_frd, saturated; None -> fallback (reason in self.last)."""
+        c = self.config
+        p = c.params
+        self._fallback_reason = ""
+        if not (math.isfinite(now) and est.is_finite()):
+            self._fallback_reason = "telemetry not finite"
+            return None
+        if not ref.is_finite():
+            self._fallback_reason = "reference not finite"
+            return None
+        age = now - est.t_s
+        if age > c.stale_after_s:
+            self._fallback_reason = f"telemetry stale ({age:.2f} s old)"
+            return None
+        self._ingest(est)
+        self._last_yaw = yaw_of_dcm(quat_to_dcm(est.q_wxyz))
+
+        dt_ctrl = 0.0 if self._t_last_update is None else now - self._t_last_update
+        dt_ctrl = min(max(dt_ctrl, 0.0), 0.1)
+        self._t_last_update = now
+
+        # 1. latency compensation
+        tau = min(max(age, 0.0), c.max_extrapolation_s) if c.latency_compensation else 0.0
+        acc_x = est.acc_ned if est.acc_ned is not None else self._last_acc_cmd
+        pos = est.pos_ned + est.vel_ned * tau + 0.5 * acc_x * tau * tau
+        vel = est.vel_ned + acc_x * tau
+        self._q_now = quat_integrate(est.q_wxyz, est.omega_frd, tau) if tau > 0 else quat_normalize(
+            est.q_wxyz
+        )
+
+        # 2. acceleration command
+        g = c.gains
+        e_p = ref.pos_ned - pos
+        e_v = ref.vel_ned - vel
+        L = c.lead_s
+        a_ff = ref.acc_ned + ref.jerk_ned * L + 0.5 * ref.snap_ned * L * L
+        j_ff = ref.jerk_ned + ref.snap_ned * L
+        a_cmd = a_ff + g.kp() * e_p + g.kd() * e_v + self._integ
+
+        # 3. thrust vector with drag, saturation
+        h = self.hover_thrust
+        D = self.drag
+        v_drag = vel if c.drag_velocity == "estimate" else ref.vel_ned
+        m = p.mass
+        t_vec = m * (p.g * _E3 - a_cmd) - D * v_drag
+        t_sat, sat = self._saturate(t_vec, h)
+        a_sat = p.g * _E3 - (t_sat + D * v_drag) / m
+
+        # anti-windup: integrate only when not saturated (or when it unwinds)
+        if dt_ctrl > 0.0:
+            di = g.ki() * e_p * dt_ctrl
+            if sat:
+                # allow only the components that reduce the integrator magnitude
+                di = np.where(di * self._integ < 0.0, di, 0.0)
+            self._integ = np.clip(self._integ + di, -g.i_max(), g.i_max())
+        self._last_acc_cmd = a_sat
+
+        # 4. flatness map
+        params = self._params_for_drag(D)
+        jerk = np.zeros(3) if sat else j_ff
+        snap = np.zeros(3) if sat else ref.snap_ned
+        yaw_rate = ref.yaw_rate
+        yaw_acc = 0.0 if sat else ref.yaw_acc
+        sp = multirotor_setpoint(v_drag, a_sat, jerk, snap, ref.yaw, yaw_rate, yaw_acc, params)
+        q_des = np.asarray(sp.q_wxyz, dtype=np.float64).reshape(4)
+        # normalised thrust with the hover thrust in use (MATH.md "MAVLink thrust")
+        thrust = h * float(np.asarray(sp.thrust).reshape(-1)[0]) / (m * p.g)
+        omega_ff = np.asarray(sp.omega_frd, dtype=np.float64).reshape(3)
+        singular = bool(np.asarray(sp.singular).reshape(-1)[0])
+        if not (_finite(q_des, omega_ff) and math.isfinite(thrust)):
+            self._fallback_reason = "flatness output not finite"
+            return None
+        if singular:
+            omega_ff = np.zeros(3)
+        q_des = quat_normalize(q_des)
+        thrust = float(np.clip(thrust, c.thrust_min, c.thrust_max))
+        self.last = TrackingDiagnostics(
+            t_s=now,
+            pos_err_ned=e_p,
+            vel_err_ned=e_v,
+            acc_cmd_ned=a_sat,
+            integrator_ned=self._integ.copy(),
+            hover_thrust=h,
+            drag=D,
+            extrapolation_s=tau,
+            saturated=sat,
+            attitude_err_frd=np.zeros(3),
+            fallback=False,
+            reason="singular flatness point" if singular else "",
+        )
+        return q_des, thrust, omega_ff, sat
+
+    def _params_for_drag(self, drag: float) -> MultirotorParams:
+        """Flatness parameters with drag `drag` (cached: constructing them validates inertia)."""
+        key = round(drag, 4)
+        cached = self._params_cache
+        if cached is None or cached[0] != key:
+            cached = (key, replace(self.config.params, drag=key))
+            self._params_cache = cached
+        return cached[1]
+
+    def _saturate(self, t_vec: FloatArray, hover_thrust: float) -> tuple[FloatArray, bool]:
+        """Limit the thrust vector [N]: min upward, tilt, max magnitude (vertical first)."""
+        c = self.config
+        p = c.params
+        n_per_norm = p.mass * p.g / hover_thrust  # N per unit normalised thrust
+        T_min = c.thrust_min * n_per_norm
+        T_max = c.thrust_max * n_per_norm
+        th = np.array([t_vec[0], t_vec[1]])
+        # t = T z_b points along body z (down when level); the lift is -t. Vertical part: t_z.
+        tz = float(t_vec[2])
+        sat = False
+        if tz < T_min * math.cos(c.max_tilt_rad):
+            tz = T_min * math.cos(c.max_tilt_rad)
+            sat = True
+        if tz > T_max:
+            tz = T_max
+            sat = True
+        h_lim = min(tz * math.tan(c.max_tilt_rad), math.sqrt(max(T_max * T_max - tz * tz, 0.0)))
+        hn = float(np.linalg.norm(th))
+        if hn > h_lim:
+            th = th * (h_lim / hn)
+            sat = True
+        T = math.hypot(float(np.linalg.norm(th)), tz)
+        if T < T_min:
+            tz = math.sqrt(max(T_min * T_min - float(th @ th), 0.0))
+            sat = True
+        return np.array([th[0], th[1], tz]), sat
+
+    def _fallback_q(self, est: StateEstimate) -> FloatArray:
+        yaw = self._last_yaw
+        if _finite(est.q_wxyz) and float(np.linalg.norm(est.q_wxyz)) > 0.5:
+            yaw = yaw_of_dcm(quat_to_dcm(est.q_wxyz))
+        return yaw_quat(yaw if math.isfinite(yaw) else 0.0)
+
+    def _fallback_attitude(self, now: float, est: StateEstimate) -> AttitudeCommand:
+        reason = self._fallback_reason or "fallback"
+        h = self.hover_thrust
+        self._record_fb(now, reason)
+        self._record_thrust(now, h)
+        return AttitudeCommand(self._fallback_q(est), h, 0.0, fallback=True, reason=reason)
+
+    def _fallback_rates(
+        self, now: float, est: StateEstimate, reason: str | None = None
+    ) -> RateCommand:
+        reason = reason or self._fallback_reason or "fallback"
+        h = self.hover_thrust
+        omega = np.zeros(3)
+        if _finite(est.q_wxyz) and float(np.linalg.norm(est.q_wxyz)) > 0.5:
+            omega, _ = so3_rate_command(
+                quat_normalize(est.q_wxyz), self._fallback_q(est), np.zeros(3),
+                self.config.attitude_gains,
+            )
+            if not _finite(omega):
+                omega = np.zeros(3)
+        self._record_fb(now, reason)
+        self._record_thrust(now, h)
+        return RateCommand(omega, h, fallback=True, reason=reason)
+
+    def _record_fb(self, now: float, reason: str) -> None:
+        z = np.zeros(3)
+        self.last = TrackingDiagnostics(
+            t_s=now if math.isfinite(now) else math.nan,
+            pos_err_ned=z,
+            vel_err_ned=z,
+            acc_cmd_ned=z,
+            integrator_ned=self._integ.copy(),
+            hover_thrust=self.hover_thrust,
+            drag=self.drag,
+            extrapolation_s=0.0,
+            saturated=False,
+            attitude_err_frd=z,
+            fallback=True,
+            reason=reason,
+        )
+
+    _fallback_reason: str = ""
+    _params_cache: tuple[float, MultirotorParams] | None = None
+    _q_now: FloatArray = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+# ----------------------------------------------------------------------------- rover
+
+
+@dataclass(frozen=True)
+class RoverGains:
+    """Rover path-following gains.
+
+    k_along [1/s]: speed correction per metre of along-track error.
+    k_cross [1/m]: heading correction atan(k_cross * cross-track error).
+    k_heading [1/s]: yaw-rate correction per radian of heading error.
+    max_speed [m/s], max_yaw_rate [rad/s]: command limits.
+    """
+
+    k_along: float = 1.0
+    k_cross: float = 0.8
+    k_heading: float = 2.0
+    max_speed: float = 3.0
+    max_yaw_rate: float = math.radians(90.0)
+
+
+class RoverController:
+    """Rover tracking: velocity + yaw-rate setpoints from rover flatness plus a correction."""
+
+    def __init__(self, gains: RoverGains | None = None) -> None:
+        self.gains = gains or RoverGains()
+        self._last_heading: float | None = None
+
+    def update(self, now: float, est: StateEstimate, ref: Reference) -> PositionCommand:
+        """Velocity (NED, z NaN), yaw and yaw-rate setpoint at `now`.
+
+        The reference heading/speed/yaw rate come from rover flatness of the xy reference;
+        the along-track error corrects the speed, the cross-track error the heading, the heading
+        error the yaw rate. Bad input -> stop (zero velocity, zero yaw rate), flagged.
+        """
+        k = self.gains
+        if not (math.isfinite(now) and est.is_finite() and ref.is_finite()):
+            return PositionCommand(
+                vel_ned=np.array([0.0, 0.0, math.nan]), yaw_rate=0.0,
+                fallback=True, reason="input not finite",
+            )
+        rs = rover_setpoint(ref.vel_ned[:2], ref.acc_ned[:2], ref.jerk_ned[:2])
+        speed = float(np.asarray(rs.speed).reshape(-1)[0])
+        psi_ref = float(np.asarray(rs.yaw).reshape(-1)[0])
+        r_ref = float(np.asarray(rs.yaw_rate).reshape(-1)[0])
+        if not (math.isfinite(psi_ref) and math.isfinite(r_ref) and math.isfinite(speed)):
+            psi_ref, r_ref, speed = ref.yaw, 0.0, 0.0
+        if speed < 1e-3 and self._last_heading is not None:
+            psi_ref = self._last_heading
+        self._last_heading = psi_ref
+        # latency: extrapolate the position with the measured velocity
+        tau = min(max(now - est.t_s, 0.0), 0.25)
+        pos = est.pos_ned[:2] + est.vel_ned[:2] * tau
+        e = ref.pos_ned[:2] - pos
+        t_hat = np.array([math.cos(psi_ref), math.sin(psi_ref)])
+        n_hat = np.array([-math.sin(psi_ref), math.cos(psi_ref)])
+        e_at = float(e @ t_hat)
+        e_ct = float(e @ n_hat)
+        speed_cmd = min(max(speed + k.k_along * e_at, 0.0), k.max_speed)
+        heading_cmd = psi_ref + math.atan(k.k_cross * e_ct)
+        yaw_now = yaw_of_dcm(quat_to_dcm(est.q_wxyz))
+        yaw_now += float(est.omega_frd[2]) * tau
+        herr = math.remainder(heading_cmd - yaw_now, 2.0 * math.pi)
+        yaw_rate = r_ref + k.k_heading * herr
+        yaw_rate = min(max(yaw_rate, -k.max_yaw_rate), k.max_yaw_rate)
+        vel = np.array(
+            [speed_cmd * math.cos(heading_cmd), speed_cmd * math.sin(heading_cmd), math.nan]
+        )
+        return PositionCommand(vel_ned=vel, yaw_rate=yaw_rate)
+
+
+__all__ = [
+    "AttitudeCommand",
+    "AttitudeGains",
+    "PositionCommand",
+    "RateCommand",
+    "Reference",
+    "RoverController",
+    "RoverGains",
+    "StateEstimate",
+    "Telemetry",
+    "TrackingConfig",
+    "TrackingController",
+    "TrackingDiagnostics",
+    "TrackingGains",
+    "attitude_error",
+    "position_command",
+    "quat_integrate",
+    "quat_to_dcm",
+    "reference_from_trajectory",
+    "so3_rate_command",
+    "yaw_quat",
+]

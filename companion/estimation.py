@@ -1,0 +1,339 @@
+"""Online estimators for the tracking controller: hover thrust and linear drag.
+
+Pure: every call takes the sample time `now` [s]; no clock, no IO.
+
+Hover thrust: a scalar Kalman filter on the vertical specific-force balance (the idea of PX4's
+mc_hover_thrust_estimator, written here in NED with tilt and linear drag). With the linear
+thrust model of MATH.md (`T = m g u / h`, `u` the normalised thrust, `h` the hover thrust) the
+vertical acceleration in NED is
+
+    a_z = g - g * u * (z_b . e3) / h - (D / m) * v_z
+
+so a measured `a_z` (down positive) together with the commanded `u` and the attitude tells
+`h`. The state is `h` itself (random walk); the measurement is non-linear in `h` and is
+linearised at the current estimate (extended KF). Innovations outside `gate_sigma` standard
+deviations are rejected; if they stay rejected (the hover thrust really changed, e.g. a payload
+was added) the variance is inflated so the filter re-converges. No update is made on the
+ground, at low thrust, at large tilt, or while the vehicle accelerates hard vertically (the
+linear model is worst there).
+
+Drag: `DragEstimator` estimates `k = D / m` [1/s] from the horizontal balance
+`a_h + g u z_b_h / h = -k v_h` with the current hover-thrust estimate.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+
+G0 = 9.80665
+"""Standard gravity [m/s^2]."""
+
+
+@dataclass(frozen=True)
+class HoverThrustConfig:
+    """Tuning of `HoverThrustEstimator` (defaults follow PX4's HTE_* parameters in spirit).
+
+    initial_hover_thrust: prior, normalised 0..1 (PX4 MPC_THR_HOVER).
+    initial_std: 1-sigma of the prior [normalised thrust].
+    process_noise_std: random-walk intensity [normalised thrust / sqrt(s)].
+    acc_noise_std: initial 1-sigma of the vertical acceleration measurement [m/s^2].
+    acc_noise_min_std / acc_noise_max_std: bounds of the adaptive measurement noise [m/s^2].
+    noise_time_constant_s: time constant of the measurement-noise adaptation [s] (0 = fixed).
+    gate_sigma: innovation gate [standard deviations].
+    recover_after_s: continuous rejection longer than this inflates the variance [s].
+    hover_thrust_min / hover_thrust_max: bounds of the estimate.
+    min_thrust_norm: no update below this commanded thrust (ground, idle, free fall).
+    max_tilt_rad: no update above this tilt (thrust model and drag least certain).
+    max_vertical_acc: no update when |a_z - g ... | i.e. the measured vertical acceleration
+        exceeds this magnitude [m/s^2].
+    drag_over_mass: known linear drag D/m [1/s] used in the measurement model.
+    g: gravity [m/s^2].
+    """
+
+    initial_hover_thrust: float = 0.5
+    initial_std: float = 0.1
+    process_noise_std: float = 0.01
+    acc_noise_std: float = 1.0
+    acc_noise_min_std: float = 0.2
+    acc_noise_max_std: float = 20.0
+    noise_time_constant_s: float = 2.0
+    gate_sigma: float = 3.0
+    recover_after_s: float = 1.0
+    hover_thrust_min: float = 0.1
+    hover_thrust_max: float = 0.9
+    min_thrust_norm: float = 0.05
+    max_tilt_rad: float = math.radians(60.0)
+    max_vertical_acc: float = 5.0
+    drag_over_mass: float = 0.0
+    g: float = G0
+
+    def __post_init__(self) -> None:
+        if not self.hover_thrust_min < self.hover_thrust_max:
+            raise ValueError("hover thrust bounds must satisfy min < max")
+        if not self.hover_thrust_min <= self.initial_hover_thrust <= self.hover_thrust_max:
+            raise ValueError(
+                f"initial hover thrust {self.initial_hover_thrust} outside "
+                f"[{self.hover_thrust_min}, {self.hover_thrust_max}]"
+            )
+        for name in ("initial_std", "process_noise_std", "acc_noise_std", "gate_sigma", "g"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0.0):
+                raise ValueError(f"{name} must be positive and finite, got {v}")
+
+
+@dataclass(frozen=True)
+class HoverThrustStatus:
+    """Result of one `HoverThrustEstimator.update` call.
+
+    hover_thrust: current estimate [normalised 0..1]; hover_thrust_std its 1-sigma.
+    innovation: measured minus predicted vertical acceleration [m/s^2] (NaN if not computed).
+    innovation_std: 1-sigma of the innovation [m/s^2] (NaN if not computed).
+    test_ratio: innovation^2 / (gate^2 * innovation variance); > 1 means rejected.
+    fused: the measurement updated the estimate.
+    reason: why it was not fused ("" when fused).
+    """
+
+    t_s: float
+    hover_thrust: float
+    hover_thrust_std: float
+    innovation: float
+    innovation_std: float
+    test_ratio: float
+    fused: bool
+    reason: str
+
+
+class HoverThrustEstimator:
+    """Scalar extended Kalman filter for the normalised hover thrust (see module docstring)."""
+
+    def __init__(self, config: HoverThrustConfig | None = None) -> None:
+        self.config = config or HoverThrustConfig()
+        self._h = self.config.initial_hover_thrust
+        self._var = self.config.initial_std**2
+        self._acc_var = self.config.acc_noise_std**2
+        self._t_last: float | None = None
+        self._rejecting_since: float | None = None
+        self._residual_lpf = 0.0
+
+    @property
+    def hover_thrust(self) -> float:
+        """Current estimate [normalised thrust 0..1]."""
+        return self._h
+
+    @property
+    def hover_thrust_std(self) -> float:
+        """1-sigma uncertainty of the estimate [normalised thrust]."""
+        return math.sqrt(self._var)
+
+    def reset(self, hover_thrust: float | None = None) -> None:
+        """Back to the prior (or to `hover_thrust` with the prior's uncertainty)."""
+        c = self.config
+        h = c.initial_hover_thrust if hover_thrust is None else float(hover_thrust)
+        self._h = min(max(h, c.hover_thrust_min), c.hover_thrust_max)
+        self._var = c.initial_std**2
+        self._acc_var = c.acc_noise_std**2
+        self._t_last = None
+        self._rejecting_since = None
+        self._residual_lpf = 0.0
+
+    def predict_acc_z(
+        self, thrust_norm: float, cos_tilt: float, vel_z_ned: float = 0.0
+    ) -> float:
+        """Vertical acceleration [m/s^2, NED, down positive] the model predicts."""
+        c = self.config
+        return c.g - c.g * thrust_norm * cos_tilt / self._h - c.drag_over_mass * vel_z_ned
+
+    def update(
+        self,
+        now: float,
+        acc_z_ned: float,
+        thrust_norm: float,
+        cos_tilt: float = 1.0,
+        vel_z_ned: float = 0.0,
+        airborne: bool = True,
+    ) -> HoverThrustStatus:
+        """Fuse one sample taken at `now` [s].
+
+        acc_z_ned: measured vertical acceleration, NED (down positive) [m/s^2].
+        thrust_norm: normalised collective thrust acting over the sample (0..1).
+        cos_tilt: z_b . e3 of the attitude over the sample (1 = level).
+        vel_z_ned: vertical velocity (for the drag term) [m/s].
+        airborne: False holds the estimate (on the ground the thrust does not lift).
+        """
+        c = self.config
+        dt = 0.0 if self._t_last is None else max(0.0, now - self._t_last)
+        if self._t_last is None or now >= self._t_last:
+            self._t_last = now
+        # Random-walk prediction (variance grows even while holding, bounded).
+        self._var = min(self._var + c.process_noise_std**2 * dt, 0.25)
+
+        values = (acc_z_ned, thrust_norm, cos_tilt, vel_z_ned, now)
+        reason = ""
+        if not all(math.isfinite(v) for v in values):
+            reason = "non-finite input"
+        elif not airborne:
+            reason = "not airborne"
+        elif thrust_norm < c.min_thrust_norm:
+            reason = "thrust too low"
+        elif cos_tilt < math.cos(c.max_tilt_rad):
+            reason = "tilt too large"
+        elif abs(acc_z_ned) > c.max_vertical_acc:
+            reason = "vertical acceleration too large"
+        if reason:
+            self._rejecting_since = None
+            return self._status(now, math.nan, math.nan, math.nan, False, reason)
+
+        u = thrust_norm * cos_tilt
+        innov = acc_z_ned - self.predict_acc_z(thrust_norm, cos_tilt, vel_z_ned)
+        # d(a_z)/dh of a_z = g - g u / h: + g u / h^2
+        H = c.g * u / (self._h * self._h)
+        S = max(H * H * self._var + self._acc_var, self._acc_var)
+        ratio = innov * innov / (c.gate_sigma**2 * S)
+        fused = ratio < 1.0
+        residual = innov
+        if fused:
+            K = self._var * H / S
+            self._h = min(max(self._h + K * innov, c.hover_thrust_min), c.hover_thrust_max)
+            self._var = min(max((1.0 - K * H) * self._var, 1e-12), 0.25)
+            residual = acc_z_ned - self.predict_acc_z(thrust_norm, cos_tilt, vel_z_ned)
+            self._rejecting_since = None
+        else:
+            if self._rejecting_since is None:
+                self._rejecting_since = now
+            elif now - self._rejecting_since > c.recover_after_s:
+                # Persistent rejection: the hover thrust changed or the filter is overconfident.
+                self._var = min(self._var + 100.0 * c.process_noise_std**2 * max(dt, 1e-3), 0.25)
+        self._adapt_noise(dt, residual, H)
+        return self._status(
+            now, innov, math.sqrt(S), ratio, fused, "" if fused else "innovation gate"
+        )
+
+    def _adapt_noise(self, dt: float, residual: float, H: float) -> None:
+        c = self.config
+        if c.noise_time_constant_s <= 0.0 or dt <= 0.0:
+            return
+        alpha = dt / (c.noise_time_constant_s + dt)
+        self._residual_lpf += alpha * (residual - self._residual_lpf)
+        r = residual - self._residual_lpf
+        target = r * r + H * H * self._var
+        var = (1.0 - alpha) * self._acc_var + alpha * target
+        self._acc_var = min(max(var, c.acc_noise_min_std**2), c.acc_noise_max_std**2)
+
+    def _status(
+        self, now: float, innov: float, innov_std: float, ratio: float, fused: bool, reason: str
+    ) -> HoverThrustStatus:
+        return HoverThrustStatus(
+            t_s=now,
+            hover_thrust=self._h,
+            hover_thrust_std=math.sqrt(self._var),
+            innovation=innov,
+            innovation_std=innov_std,
+            test_ratio=ratio,
+            fused=fused,
+            reason=reason,
+        )
+
+
+@dataclass(frozen=True)
+class DragConfig:
+    """Tuning of `DragEstimator`.
+
+    initial_drag_over_mass: prior D/m [1/s]; initial_std its 1-sigma.
+    process_noise_std: random walk [1/s / sqrt(s)].
+    acc_noise_std: horizontal acceleration measurement noise [m/s^2].
+    min_speed: no update below this horizontal speed [m/s] (no information).
+    gate_sigma: innovation gate [standard deviations].
+    max_value: upper bound of the estimate [1/s].
+    """
+
+    initial_drag_over_mass: float = 0.0
+    initial_std: float = 0.5
+    process_noise_std: float = 0.005
+    acc_noise_std: float = 1.0
+    min_speed: float = 1.0
+    gate_sigma: float = 4.0
+    max_value: float = 5.0
+    g: float = G0
+
+
+class DragEstimator:
+    """Scalar Kalman filter for the linear drag per unit mass `k = D / m` [1/s].
+
+    Measurement per horizontal axis i: `y_i = a_i + g u (z_b)_i / h = -k v_i`, linear in `k`.
+    """
+
+    def __init__(self, config: DragConfig | None = None) -> None:
+        self.config = config or DragConfig()
+        self._k = self.config.initial_drag_over_mass
+        self._var = self.config.initial_std**2
+        self._t_last: float | None = None
+
+    @property
+    def drag_over_mass(self) -> float:
+        """Current estimate of D/m [1/s]."""
+        return self._k
+
+    @property
+    def std(self) -> float:
+        """1-sigma of the estimate [1/s]."""
+        return math.sqrt(self._var)
+
+    def update(
+        self,
+        now: float,
+        acc_ned: FloatArray,
+        vel_ned: FloatArray,
+        thrust_norm: float,
+        z_b_ned: FloatArray,
+        hover_thrust: float,
+        airborne: bool = True,
+    ) -> bool:
+        """Fuse the horizontal balance at `now`; returns True if anything was fused.
+
+        acc_ned, vel_ned: measured acceleration [m/s^2] and velocity [m/s], NED (3,).
+        thrust_norm: normalised thrust acting; z_b_ned: body z axis in NED (3,);
+        hover_thrust: current hover-thrust estimate (0..1).
+        """
+        c = self.config
+        dt = 0.0 if self._t_last is None else max(0.0, now - self._t_last)
+        self._t_last = now if self._t_last is None else max(now, self._t_last)
+        self._var = min(self._var + c.process_noise_std**2 * dt, 4.0)
+        a = np.asarray(acc_ned, dtype=float)
+        v = np.asarray(vel_ned, dtype=float)
+        zb = np.asarray(z_b_ned, dtype=float)
+        if not (airborne and np.all(np.isfinite(a)) and np.all(np.isfinite(v))
+                and np.all(np.isfinite(zb)) and math.isfinite(thrust_norm)
+                and math.isfinite(hover_thrust) and hover_thrust > 0.0):
+            return False
+        if math.hypot(v[0], v[1]) < c.min_speed:
+            return False
+        fused_any = False
+        R = c.acc_noise_std**2
+        for i in (0, 1):
+            y = a[i] + c.g * thrust_norm * zb[i] / hover_thrust
+            H = -v[i]
+            innov = y - H * self._k
+            S = H * H * self._var + R
+            if innov * innov > c.gate_sigma**2 * S:
+                continue
+            K = self._var * H / S
+            self._k = min(max(self._k + K * innov, 0.0), c.max_value)
+            self._var = max((1.0 - K * H) * self._var, 1e-12)
+            fused_any = True
+        return fused_any
+
+
+__all__ = [
+    "G0",
+    "DragConfig",
+    "DragEstimator",
+    "HoverThrustConfig",
+    "HoverThrustEstimator",
+    "HoverThrustStatus",
+]

@@ -1,0 +1,203 @@
+"""VehicleLink: the whole sans-IO vehicle protocol in one object (aioquic-style).
+
+Feed bytes with ``receive_bytes(data, now)`` (or decoded messages with ``handle_message``),
+drain ``frames_to_send()``, run ``handle_timer(now)`` at ``get_timer()``. Requests (arm,
+set_mode, takeoff, land, mission transfers) queue messages and return nothing; their outcomes
+come back as events. Never reads a clock, never touches a socket.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from .codec import DEFAULT_COMPID, DEFAULT_SYSID, PX4_COMPID, PX4_SYSID, Codec, MavMessage
+from .commands import (
+    ARM_FORCE_MAGIC,
+    MAV_CMD_COMPONENT_ARM_DISARM,
+    MAV_CMD_DO_SET_MODE,
+    MAV_CMD_NAV_LAND,
+    MAV_CMD_NAV_TAKEOFF,
+    MAV_CMD_REQUEST_MESSAGE,
+    CommandClient,
+    CommandEvent,
+)
+from .heartbeat import HeartbeatEvent, HeartbeatTracker
+from .mission_client import MissionClient, MissionTransferDone
+from .px4_mode import FlightMode, custom_mode_of, set_mode_params
+from .setpoints import SetpointCommand, build_setpoint
+from .telemetry import TelemetryEvent, TelemetryState
+from .timesync import TimeSync, TimesyncUpdate
+
+MAV_TYPE_ONBOARD_CONTROLLER = 18
+MAV_AUTOPILOT_INVALID = 8
+MAV_STATE_ACTIVE = 4
+
+LinkEvent = (HeartbeatEvent | CommandEvent | MissionTransferDone | TelemetryEvent
+             | TimesyncUpdate)
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    """Ids and timing of the companion link (seconds)."""
+
+    sysid: int = DEFAULT_SYSID
+    compid: int = DEFAULT_COMPID
+    target_sysid: int = PX4_SYSID
+    target_compid: int = PX4_COMPID
+    heartbeat_timeout_s: float = 3.0
+    heartbeat_interval_s: float = 1.0
+    command_timeout_s: float = 0.5
+    command_retries: int = 3
+    ack_window_s: float = 1.0
+    mode_confirm_s: float = 2.5
+    mission_timeout_s: float = 0.25
+    mission_retries: int = 20
+    timesync_interval_s: float = 1.0
+
+
+class VehicleLink:
+    """Companion side of one MAVLink link to a PX4 autopilot."""
+
+    def __init__(self, config: LinkConfig | None = None, codec: Codec | None = None) -> None:
+        self.config = cfg = config or LinkConfig()
+        self.codec = codec or Codec(cfg.sysid, cfg.compid)
+        self._out: list[bytes] = []
+        self.heartbeat = HeartbeatTracker(cfg.target_sysid, cfg.target_compid,
+                                          cfg.heartbeat_timeout_s)
+        self.commands = CommandClient(
+            self._queue, cfg.sysid, cfg.compid, cfg.target_sysid, cfg.target_compid,
+            timeout_s=cfg.command_timeout_s, retries=cfg.command_retries,
+            ack_window_s=cfg.ack_window_s, mode_confirm_s=cfg.mode_confirm_s)
+        self.mission = MissionClient(self._queue, cfg.target_sysid, cfg.target_compid,
+                                     timeout_s=cfg.mission_timeout_s,
+                                     retries=cfg.mission_retries)
+        self.telemetry = TelemetryState(cfg.target_sysid, cfg.target_compid)
+        self.timesync = TimeSync(self._queue, interval_s=cfg.timesync_interval_s)
+        self._next_heartbeat: float | None = None
+        self._t0: float | None = None
+
+    # -- output -----------------------------------------------------------------------------
+    def _queue(self, msg: MavMessage) -> None:
+        self._out.append(self.codec.encode(msg))
+
+    def send_message(self, msg: MavMessage) -> None:
+        """Queue an arbitrary message (encoded with our ids)."""
+        self._queue(msg)
+
+    def frames_to_send(self) -> list[bytes]:
+        """Encoded frames queued since the last call (one MAVLink frame each)."""
+        out, self._out = self._out, []
+        return out
+
+    def time_boot_ms(self, now: float) -> int:
+        """Milliseconds since the first call with ``now`` (for message time fields)."""
+        if self._t0 is None:
+            self._t0 = now
+        return int((now - self._t0) * 1000.0)
+
+    def encode_setpoint(self, sp: SetpointCommand, now: float) -> bytes:
+        """Validate and encode one setpoint frame (thread-safe; raises SetpointError)."""
+        msg = build_setpoint(sp, self.config.target_sysid, self.config.target_compid,
+                             self.time_boot_ms(now))
+        return self.codec.encode(msg)
+
+    # -- input ------------------------------------------------------------------------------
+    def receive_bytes(self, data: bytes, now: float) -> list[LinkEvent]:
+        """Decode bytes from the transport and handle every complete message."""
+        events: list[LinkEvent] = []
+        for msg in self.codec.decode(data):
+            events += self.handle_message(msg, now)
+        return events
+
+    def handle_message(self, msg: MavMessage, now: float) -> list[LinkEvent]:
+        """Dispatch one decoded message."""
+        kind = msg.get_type()
+        events: list[LinkEvent] = []
+        if kind == "HEARTBEAT":
+            hb_events = self.heartbeat.on_heartbeat(msg, now)
+            events += hb_events
+            last = self.heartbeat.last
+            if last is not None and last.t_s == now:
+                events += self.commands.on_heartbeat_mode(last.custom_mode, now)
+        elif kind == "COMMAND_ACK":
+            events += self.commands.on_command_ack(msg, now)
+        elif kind == "TIMESYNC":
+            events += self.timesync.on_timesync(msg, now)
+        elif kind.startswith("MISSION_"):
+            events += self.mission.on_message(msg, now)
+        else:
+            events += self.telemetry.update(msg, now)
+        return events
+
+    # -- timers -----------------------------------------------------------------------------
+    def get_timer(self) -> float | None:
+        """Earliest local time at which ``handle_timer`` has work."""
+        ds = [self._next_heartbeat, self.heartbeat.next_deadline(), self.commands.next_deadline(),
+              self.mission.next_deadline(), self.timesync.next_deadline(),
+              self.telemetry.next_deadline()]
+        return min((d for d in ds if d is not None), default=None)
+
+    def handle_timer(self, now: float) -> list[LinkEvent]:
+        """Run retries/timeouts, send our HEARTBEAT and TIMESYNC when due."""
+        if self._next_heartbeat is None or now >= self._next_heartbeat:
+            self._queue(mavlink2.MAVLink_heartbeat_message(
+                MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0, MAV_STATE_ACTIVE, 3))
+            self._next_heartbeat = now + self.config.heartbeat_interval_s
+        events: list[LinkEvent] = []
+        events += self.heartbeat.check(now)
+        events += self.commands.handle_timer(now)
+        events += self.mission.handle_timer(now)
+        events += self.telemetry.handle_timer(now)
+        self.timesync.handle_timer(now)
+        return events
+
+    # -- vehicle state shortcuts ----------------------------------------------------------------
+    @property
+    def mode(self) -> FlightMode | None:
+        """Flight mode from the last HEARTBEAT (None before the first)."""
+        return None if self.heartbeat.last is None else self.heartbeat.last.mode
+
+    @property
+    def armed(self) -> bool:
+        """Armed flag from the last HEARTBEAT."""
+        return self.heartbeat.last is not None and self.heartbeat.last.armed
+
+    # -- requests ---------------------------------------------------------------------------
+    def command_long(self, command: int, params: list[float] | tuple[float, ...],
+                     now: float) -> None:
+        """Send a COMMAND_LONG with retries (outcome: CommandFinished event)."""
+        self.commands.send_command(command, params, now)
+
+    def arm(self, now: float, force: bool = False) -> None:
+        """MAV_CMD_COMPONENT_ARM_DISARM(1)."""
+        self.commands.send_command(MAV_CMD_COMPONENT_ARM_DISARM,
+                                   [1.0, ARM_FORCE_MAGIC if force else 0.0], now)
+
+    def disarm(self, now: float, force: bool = False) -> None:
+        """MAV_CMD_COMPONENT_ARM_DISARM(0)."""
+        self.commands.send_command(MAV_CMD_COMPONENT_ARM_DISARM,
+                                   [0.0, ARM_FORCE_MAGIC if force else 0.0], now)
+
+    def set_mode(self, mode: FlightMode, now: float) -> None:
+        """DO_SET_MODE to ``mode``; success needs the last ack ACCEPTED and a HEARTBEAT in it."""
+        p1, p2, p3 = set_mode_params(mode, self.armed)
+        self.commands.send_command(MAV_CMD_DO_SET_MODE, [p1, p2, p3], now,
+                                   mode_custom=custom_mode_of(mode))
+
+    def takeoff(self, now: float, alt_amsl_m: float = math.nan) -> None:
+        """NAV_TAKEOFF to alt_amsl_m (NaN: PX4's MIS_TAKEOFF_ALT above the current altitude)."""
+        nan = math.nan
+        self.commands.send_command(MAV_CMD_NAV_TAKEOFF,
+                                   [nan, 0.0, 0.0, nan, nan, nan, alt_amsl_m], now)
+
+    def land(self, now: float) -> None:
+        """NAV_LAND at the current position."""
+        nan = math.nan
+        self.commands.send_command(MAV_CMD_NAV_LAND, [0.0, 0.0, 0.0, nan, nan, nan, nan], now)
+
+    def request_message(self, message_id: int, now: float) -> None:
+        """MAV_CMD_REQUEST_MESSAGE (e.g. 242 HOME_POSITION)."""
+        self.commands.send_command(MAV_CMD_REQUEST_MESSAGE, [float(message_id)], now)

@@ -1,0 +1,250 @@
+"""Telemetry state from the autopilot's streams (sans-IO, injected receive time).
+
+Every value records the local receive time ``t_s`` [s] so that callers can judge staleness.
+NED world, FRD body, SI units; quaternions (w, x, y, z) body FRD -> NED.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from .codec import MavMessage
+
+Vec3 = tuple[float, float, float]
+Quat = tuple[float, float, float, float]
+
+MAV_FRAME_BODY_FRD = 12
+MAV_FRAME_BODY_NED = 8
+MAV_FRAME_BODY_OFFSET_NED = 9
+
+
+@dataclass(frozen=True)
+class LocalPosition:
+    """Vehicle position pos_ned [m] and velocity vel_ned [m/s] (LOCAL_POSITION_NED/ODOMETRY)."""
+
+    t_s: float
+    time_boot_s: float
+    pos_ned: Vec3
+    vel_ned: Vec3
+    source: str
+
+
+@dataclass(frozen=True)
+class Attitude:
+    """Attitude q_wxyz (body FRD -> NED) and body rates omega_frd [rad/s]."""
+
+    t_s: float
+    q_wxyz: Quat
+    omega_frd: Vec3
+
+
+@dataclass(frozen=True)
+class GlobalPosition:
+    """GLOBAL_POSITION_INT: lat/lon [deg], alt_amsl_m, relative_alt_m, vel_ned [m/s]."""
+
+    t_s: float
+    lat_deg: float
+    lon_deg: float
+    alt_amsl_m: float
+    relative_alt_m: float
+    vel_ned: Vec3
+
+
+@dataclass(frozen=True)
+class HomePosition:
+    """HOME_POSITION: lat/lon [deg], alt_amsl_m, local pos_ned [m]."""
+
+    t_s: float
+    lat_deg: float
+    lon_deg: float
+    alt_amsl_m: float
+    pos_ned: Vec3
+
+
+@dataclass(frozen=True)
+class SystemStatus:
+    """SYS_STATUS sensor bitmasks, battery and derived readiness."""
+
+    t_s: float
+    present: int
+    enabled: int
+    health: int
+    battery_remaining_pct: int
+    voltage_v: float
+
+    @property
+    def armable(self) -> bool:
+        """PREARM_CHECK health bit (what MAVSDK calls is_armable)."""
+        return bool(self.health & 268435456)
+
+
+@dataclass(frozen=True)
+class ExtendedState:
+    """EXTENDED_SYS_STATE landed_state: 0 undefined, 1 on ground, 2 in air, 3 takeoff, 4 landing."""
+
+    t_s: float
+    landed_state: int
+    vtol_state: int
+
+    @property
+    def in_air(self) -> bool:
+        """MAVSDK's in_air: anything but undefined or on ground."""
+        return self.landed_state not in (0, 1)
+
+
+@dataclass(frozen=True)
+class StatusText:
+    """A complete STATUSTEXT (chunks reassembled). severity: MAV_SEVERITY (0 emergency..7 debug)."""
+
+    t_s: float
+    severity: int
+    text: str
+
+
+TelemetryEvent = (LocalPosition | Attitude | GlobalPosition | HomePosition | SystemStatus
+                  | ExtendedState | StatusText)
+
+
+@dataclass(frozen=True)
+class TelemetrySnapshot:
+    """Immutable view of the latest telemetry handed to setpoint sources."""
+
+    position: LocalPosition | None = None
+    attitude: Attitude | None = None
+    global_position: GlobalPosition | None = None
+    home: HomePosition | None = None
+    extended: ExtendedState | None = None
+
+
+def _rotate(q: Quat, v: Vec3) -> Vec3:
+    """Rotate v by unit quaternion q (w, x, y, z): R(q) v."""
+    w, x, y, z = q
+    vx, vy, vz = v
+    # t = 2 * cross(q_vec, v); v' = v + w t + cross(q_vec, t)
+    tx, ty, tz = 2 * (y * vz - z * vy), 2 * (z * vx - x * vz), 2 * (x * vy - y * vx)
+    return (vx + w * tx + (y * tz - z * ty), vy + w * ty + (z * tx - x * tz),
+            vz + w * tz + (x * ty - y * tx))
+
+
+@dataclass
+class _Chunks:
+    severity: int
+    parts: dict[int, str] = field(default_factory=dict)
+    t_first: float = 0.0
+
+
+class TelemetryState:
+    """Latest value of each telemetry stream, updated by ``update(msg, now)``."""
+
+    def __init__(self, target_sysid: int = 1, target_compid: int = 1,
+                 statustext_timeout_s: float = 1.0) -> None:
+        self.target_sysid, self.target_compid = target_sysid, target_compid
+        self.position: LocalPosition | None = None
+        self.attitude: Attitude | None = None
+        self.global_position: GlobalPosition | None = None
+        self.home: HomePosition | None = None
+        self.sys_status: SystemStatus | None = None
+        self.extended: ExtendedState | None = None
+        self.statustext_timeout_s = statustext_timeout_s
+        self._chunks: dict[int, _Chunks] = {}
+
+    def snapshot(self) -> TelemetrySnapshot:
+        """Immutable copy of the kinematic state (cheap; values are already frozen)."""
+        return TelemetrySnapshot(self.position, self.attitude, self.global_position, self.home,
+                                 self.extended)
+
+    def update(self, msg: MavMessage, now: float) -> list[TelemetryEvent]:
+        """Feed any message from the vehicle; returns the telemetry values it produced."""
+        if msg.get_srcSystem() != self.target_sysid:
+            return []
+        kind = msg.get_type()
+        handler = getattr(self, "_on_" + kind.lower(), None)
+        if handler is None:
+            return []
+        out: list[TelemetryEvent] = handler(msg, now)
+        return out
+
+    def _on_local_position_ned(self, m: MavMessage, now: float) -> list[TelemetryEvent]:
+        v = LocalPosition(now, m.time_boot_ms * 1e-3, (float(m.x), float(m.y), float(m.z)),
+                          (float(m.vx), float(m.vy), float(m.vz)), "LOCAL_POSITION_NED")
+        self.position = v
+        return [v]
+
+    def _on_odometry(self, m: MavMessage, now: float) -> list[TelemetryEvent]:
+        if int(m.frame_id) not in (1, 18, 20):  # LOCAL_NED, ESTIM_NED, LOCAL_FRD
+            return []
+        q: Quat = (float(m.q[0]), float(m.q[1]), float(m.q[2]), float(m.q[3]))
+        vel: Vec3 = (float(m.vx), float(m.vy), float(m.vz))
+        if int(m.child_frame_id) in (MAV_FRAME_BODY_FRD, MAV_FRAME_BODY_NED) and all(
+                math.isfinite(c) for c in q):
+            vel = _rotate(q, vel)
+        out: list[TelemetryEvent] = []
+        pos: Vec3 = (float(m.x), float(m.y), float(m.z))
+        if all(math.isfinite(c) for c in pos + vel):
+            self.position = LocalPosition(now, m.time_usec * 1e-6, pos, vel, "ODOMETRY")
+            out.append(self.position)
+        if all(math.isfinite(c) for c in q):
+            self.attitude = Attitude(now, q, (float(m.rollspeed), float(m.pitchspeed),
+                                              float(m.yawspeed)))
+            out.append(self.attitude)
+        return out
+
+    def _on_attitude_quaternion(self, m: MavMessage, now: float) -> list[TelemetryEvent]:
+        v = Attitude(now, (float(m.q1), float(m.q2), float(m.q3), float(m.q4)),
+                     (float(m.rollspeed), float(m.pitchspeed), float(m.yawspeed)))
+        self.attitude = v
+        return [v]
+
+    def _on_global_position_int(self, m: MavMessage, now: float) -> list[TelemetryEvent]:
+        v = GlobalPosition(now, m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3, m.relative_alt * 1e-3,
+                           (m.vx * 1e-2, m.vy * 1e-2, m.vz * 1e-2))
+        self.global_position = v
+        return [v]
+
+    def _on_home_position(self, m: MavMessage, now: float) -> list[TelemetryEvent]:
+        v = HomePosition(now, m.latitude * 1e-7, m.longitude * 1e-7, m.altitude * 1e-3,
+                         (float(m.x), float(m.y), float(m.z)))
+        self.home = v
+        return [v]
+
+    def _on_sys_status(self, m: MavMessage, now: float) -> list[TelemetryEvent]:
+        v = SystemStatus(now, int(m.onboard_control_sensors_present),
+                         int(m.onboard_control_sensors_enabled),
+                         int(m.onboard_control_sensors_health), int(m.battery_remaining),
+                         m.voltage_battery * 1e-3)
+        self.sys_status = v
+        return [v]
+
+    def _on_extended_sys_state(self, m: MavMessage, now: float) -> list[TelemetryEvent]:
+        v = ExtendedState(now, int(m.landed_state), int(m.vtol_state))
+        self.extended = v
+        return [v]
+
+    def _on_statustext(self, m: MavMessage, now: float) -> list[TelemetryEvent]:
+        text = m.text if isinstance(m.text, str) else bytes(m.text).decode("utf-8", "replace")
+        text = text.split("\x00", 1)[0]
+        sid = int(getattr(m, "id", 0))
+        sev = int(m.severity)
+        if sid == 0:
+            return [StatusText(now, sev, text)]
+        ch = self._chunks.setdefault(sid, _Chunks(sev, t_first=now))
+        ch.parts[int(getattr(m, "chunk_seq", 0))] = text
+        if len(text) < 50:  # the last chunk is shorter than the 50-char field
+            return [self._flush(sid, now)]
+        return []
+
+    def _flush(self, sid: int, now: float) -> StatusText:
+        ch = self._chunks.pop(sid)
+        return StatusText(now, ch.severity, "".join(ch.parts[k] for k in sorted(ch.parts)))
+
+    def handle_timer(self, now: float) -> list[TelemetryEvent]:
+        """Emit chunked STATUSTEXTs whose final chunk never came."""
+        old = [sid for sid, ch in self._chunks.items()
+               if now - ch.t_first >= self.statustext_timeout_s]
+        return [self._flush(sid, now) for sid in old]
+
+    def next_deadline(self) -> float | None:
+        """When pending STATUSTEXT chunks time out."""
+        return min((c.t_first + self.statustext_timeout_s for c in self._chunks.values()),
+                   default=None)

@@ -1,0 +1,43 @@
+/* ecca_setpoint.c: the stable API of ecca_setpoint.h over the generated CasADi code
+ * (hand-written). The wrapper bodies live in ecca_setpoint_impl.inc and are compiled twice:
+ * once in double (ecca_gen_d.c) and once in float (ecca_gen_f.c, names with suffix _f).
+ * C99, <math.h> only, no allocation, no mutable globals, re-entrant.
+ */
+#include <math.h>
+
+#include "ecca_setpoint.h"
+#include "ecca_setpoint_gen.h"
+#include "ecca_gen_d.h"
+#include "ecca_gen_f.h"
+
+#if ECCA_GEN_BEZIER_DEGREE != ECCA_BEZIER_DEGREE
+#error "generated code and ecca_setpoint.h disagree on the Bezier degree: run python -m gen_c"
+#endif
+
+const char *ecca_setpoint_casadi_version(void) { return ECCA_GEN_CASADI_VERSION; }
+
+/* double */
+#define ECCA_REAL double
+#define ECCA_API(n) n
+#define ECCA_GEN(n) ecca_d_##n
+#define ECCA_SZ(n, k) ecca_d_##n##_SZ_##k
+#define ECCA_ISFINITE(x) isfinite(x)
+#include "ecca_setpoint_impl.inc"
+#undef ECCA_REAL
+#undef ECCA_API
+#undef ECCA_GEN
+#undef ECCA_SZ
+#undef ECCA_ISFINITE
+
+/* float */
+#define ECCA_REAL float
+#define ECCA_API(n) n##_f
+#define ECCA_GEN(n) ecca_f_##n
+#define ECCA_SZ(n, k) ecca_f_##n##_SZ_##k
+#define ECCA_ISFINITE(x) isfinite(x)
+#include "ecca_setpoint_impl.inc"
+#undef ECCA_REAL
+#undef ECCA_API
+#undef ECCA_GEN
+#undef ECCA_SZ
+#undef ECCA_ISFINITE

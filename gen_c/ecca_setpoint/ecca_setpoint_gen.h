@@ -1,0 +1,11 @@
+/* ecca_setpoint: ecca_setpoint_gen.h
+ * GENERATED FILE, DO NOT EDIT. Regenerate with `python -m gen_c` (check: `--check`).
+ * Facts about the generated ecca_gen_d.c / ecca_gen_f.c.
+ */
+#ifndef ECCA_SETPOINT_GEN_H
+#define ECCA_SETPOINT_GEN_H
+
+#define ECCA_GEN_CASADI_VERSION "3.8.2"
+#define ECCA_GEN_BEZIER_DEGREE 7
+
+#endif /* ECCA_SETPOINT_GEN_H */

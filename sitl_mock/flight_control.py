@@ -1,0 +1,457 @@
+"""PX4-like multicopter control cascade, written independently of PX4 and of `companion`.
+
+position P -> velocity PID (+ feed-forward) -> acceleration -> thrust vector (hover thrust
+MPC_THR_HOVER, linear mapping, tilt limit) -> attitude (body z + yaw) -> quaternion attitude P
+(reduced yaw weight) -> body-rate PID -> normalised torque -> quad-X mixing with saturation.
+
+Everything works on plain Python floats (tuples) for speed: the mock steps at up to 1 kHz and
+must run far faster than real time. Frames: world NED, body FRD; quaternions (w, x, y, z) rotate
+body FRD -> NED (Hamilton).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from sitl_mock.setpoints import PositionTarget, Quat, Vec3
+
+G = 9.80665  # standard gravity [m/s^2] (PX4 CONSTANTS_ONE_G)
+_SQRT1_2 = math.sqrt(0.5)
+_isfinite = math.isfinite
+
+# ---------------------------------------------------------------------------------------------
+# Quaternion helpers (w, x, y, z), body -> world
+# ---------------------------------------------------------------------------------------------
+
+
+def quat_mul(a: Quat, b: Quat) -> Quat:
+    """Hamilton product a * b."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+def quat_conj(q: Quat) -> Quat:
+    """Conjugate (inverse of a unit quaternion)."""
+    return (q[0], -q[1], -q[2], -q[3])
+
+
+def quat_normalize(q: Quat) -> Quat:
+    """Unit quaternion with non-negative w (canonical); identity if degenerate."""
+    w, x, y, z = q
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if not n > 1e-12 or not _isfinite(n):
+        return (1.0, 0.0, 0.0, 0.0)
+    if w < 0.0:
+        n = -n
+    return (w / n, x / n, y / n, z / n)
+
+
+def quat_rotate(q: Quat, v: Vec3) -> Vec3:
+    """Rotate body vector v to the world frame: R(q) v."""
+    w, x, y, z = q
+    vx, vy, vz = v
+    # t = 2 * cross(q_vec, v); v' = v + w t + cross(q_vec, t)
+    tx = 2.0 * (y * vz - z * vy)
+    ty = 2.0 * (z * vx - x * vz)
+    tz = 2.0 * (x * vy - y * vx)
+    return (
+        vx + w * tx + (y * tz - z * ty),
+        vy + w * ty + (z * tx - x * tz),
+        vz + w * tz + (x * ty - y * tx),
+    )
+
+
+def quat_body_z(q: Quat) -> Vec3:
+    """Body z axis expressed in the world frame (third column of R)."""
+    w, x, y, z = q
+    return (2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y))
+
+
+def quat_yaw(q: Quat) -> float:
+    """Yaw (heading) of the 3-2-1 Euler decomposition [rad]."""
+    w, x, y, z = q
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def quat_from_yaw(yaw: float) -> Quat:
+    """Level attitude with the given heading."""
+    return (math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw))
+
+
+def quat_from_euler(roll: float, pitch: float, yaw: float) -> Quat:
+    """Quaternion from 3-2-1 (yaw, pitch, roll) Euler angles [rad]."""
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
+
+
+def quat_from_two_vectors(a: Vec3, b: Vec3) -> Quat:
+    """Shortest rotation taking direction a to direction b (both non-zero)."""
+    cx = a[1] * b[2] - a[2] * b[1]
+    cy = a[2] * b[0] - a[0] * b[2]
+    cz = a[0] * b[1] - a[1] * b[0]
+    d = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    na = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    nb = math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
+    w = d + na * nb
+    if w < 1e-9 * na * nb:
+        # opposite: rotate by pi about any axis perpendicular to a
+        if abs(a[0]) < abs(a[2]):
+            return quat_normalize((0.0, 0.0, -a[2], a[1]))
+        return quat_normalize((0.0, -a[1], a[0], 0.0))
+    return quat_normalize((w, cx, cy, cz))
+
+
+def body_z_to_attitude(body_z: Vec3, yaw: float) -> Quat:
+    """Attitude whose body z axis is `body_z` (unit, world) and whose heading is `yaw`."""
+    bzx, bzy, bzz = body_z
+    ycx, ycy = -math.sin(yaw), math.cos(yaw)  # y axis of the yaw-only frame
+    # body_x = y_C x body_z
+    bxx = ycy * bzz
+    bxy = -ycx * bzz
+    bxz = ycx * bzy - ycy * bzx
+    if bzz < 0.0:
+        bxx, bxy, bxz = -bxx, -bxy, -bxz
+    n = math.sqrt(bxx * bxx + bxy * bxy + bxz * bxz)
+    if n < 1e-6:
+        bxx, bxy, bxz, n = 0.0, 0.0, 1.0, 1.0
+    bxx, bxy, bxz = bxx / n, bxy / n, bxz / n
+    # body_y = body_z x body_x
+    byx = bzy * bxz - bzz * bxy
+    byy = bzz * bxx - bzx * bxz
+    byz = bzx * bxy - bzy * bxx
+    return dcm_to_quat(((bxx, byx, bzx), (bxy, byy, bzy), (bxz, byz, bzz)))
+
+
+def dcm_to_quat(r: tuple[Vec3, Vec3, Vec3]) -> Quat:
+    """Quaternion of a rotation matrix given as rows (Shepperd's method)."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = r
+    tr = r00 + r11 + r22
+    if tr > 0.0:
+        s = math.sqrt(tr + 1.0) * 2.0
+        q = (0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s)
+    elif r00 > r11 and r00 > r22:
+        s = math.sqrt(1.0 + r00 - r11 - r22) * 2.0
+        q = ((r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s)
+    elif r11 > r22:
+        s = math.sqrt(1.0 + r11 - r00 - r22) * 2.0
+        q = ((r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s)
+    else:
+        s = math.sqrt(1.0 + r22 - r00 - r11) * 2.0
+        q = ((r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s)
+    return quat_normalize(q)
+
+
+def wrap_pi(a: float) -> float:
+    """Wrap an angle to [-pi, pi)."""
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _clamp(v: float, lo: float, hi: float) -> float:
+    return lo if v < lo else hi if v > hi else v
+
+
+# ---------------------------------------------------------------------------------------------
+# Gains (cached from the ParamStore; refreshed at the position-loop rate)
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class McGains:
+    """Multicopter controller parameters, in SI units (rates in rad/s, angles in rad)."""
+
+    hover: float
+    thr_min: float
+    thr_max: float
+    xy_marg: float
+    pos_p: Vec3
+    vel_p: Vec3
+    vel_i: Vec3
+    vel_d: Vec3
+    vel_xy_max: float
+    vel_up_max: float
+    vel_dn_max: float
+    tilt_max: float
+    att_p: Vec3
+    yaw_w: float
+    rate_max: Vec3
+    rate_p: Vec3
+    rate_i: Vec3
+    rate_d: Vec3
+    rate_int_lim: float
+    tko_ramp_t: float
+    spoolup_t: float
+    tko_speed: float
+
+    @staticmethod
+    def from_params(p: Mapping[str, float]) -> McGains:
+        """Read every gain the cascade needs from a parameter mapping (PX4 names/units)."""
+        d2r = math.pi / 180.0
+        xy_p, z_p = p["MPC_XY_P"], p["MPC_Z_P"]
+        yaw_w = _clamp(p["MC_YAW_WEIGHT"], 0.0, 1.0)
+        yaw_p = p["MC_YAW_P"] / yaw_w if yaw_w > 1e-4 else p["MC_YAW_P"]
+        return McGains(
+            hover=_clamp(p["MPC_THR_HOVER"], 0.05, 0.95),
+            thr_min=p["MPC_THR_MIN"],
+            thr_max=p["MPC_THR_MAX"],
+            xy_marg=p["MPC_THR_XY_MARG"],
+            pos_p=(xy_p, xy_p, z_p),
+            vel_p=(p["MPC_XY_VEL_P_ACC"], p["MPC_XY_VEL_P_ACC"], p["MPC_Z_VEL_P_ACC"]),
+            vel_i=(p["MPC_XY_VEL_I_ACC"], p["MPC_XY_VEL_I_ACC"], p["MPC_Z_VEL_I_ACC"]),
+            vel_d=(p["MPC_XY_VEL_D_ACC"], p["MPC_XY_VEL_D_ACC"], p["MPC_Z_VEL_D_ACC"]),
+            vel_xy_max=p["MPC_XY_VEL_MAX"],
+            vel_up_max=p["MPC_Z_VEL_MAX_UP"],
+            vel_dn_max=p["MPC_Z_VEL_MAX_DN"],
+            tilt_max=_clamp(p["MPC_TILTMAX_AIR"], 1.0, 89.0) * d2r,
+            att_p=(p["MC_ROLL_P"], p["MC_PITCH_P"], yaw_p),
+            yaw_w=yaw_w,
+            rate_max=(
+                p["MC_ROLLRATE_MAX"] * d2r,
+                p["MC_PITCHRATE_MAX"] * d2r,
+                p["MC_YAWRATE_MAX"] * d2r,
+            ),
+            rate_p=(p["MC_ROLLRATE_P"], p["MC_PITCHRATE_P"], p["MC_YAWRATE_P"]),
+            rate_i=(p["MC_ROLLRATE_I"], p["MC_PITCHRATE_I"], p["MC_YAWRATE_I"]),
+            rate_d=(p["MC_ROLLRATE_D"], p["MC_PITCHRATE_D"], p["MC_YAWRATE_D"]),
+            rate_int_lim=0.3,
+            tko_ramp_t=p["MPC_TKO_RAMP_T"],
+            spoolup_t=p["COM_SPOOLUP_TIME"],
+            tko_speed=p["MPC_TKO_SPEED"],
+        )
+
+
+# ---------------------------------------------------------------------------------------------
+# Position / velocity controller
+# ---------------------------------------------------------------------------------------------
+
+
+class PositionVelocityController:
+    """PX4-style position P + velocity PID producing a thrust vector and an attitude."""
+
+    def __init__(self) -> None:
+        self.vel_int: list[float] = [0.0, 0.0, 0.0]
+        self.vel_sp: Vec3 = (0.0, 0.0, 0.0)
+        self.acc_sp: Vec3 = (0.0, 0.0, 0.0)
+
+    def reset(self) -> None:
+        """Zero the velocity integrators."""
+        self.vel_int = [0.0, 0.0, 0.0]
+
+    def velocity_setpoint(
+        self, g: McGains, pos: Vec3, tgt: PositionTarget, up_limit: float
+    ) -> tuple[float, float, float]:
+        """Velocity setpoint [m/s NED] from position error + feed-forward (NaN = acc only)."""
+        out = [0.0, 0.0, 0.0]
+        tp, tv, ta = tgt.pos_ned, tgt.vel_ned, tgt.acc_ned
+        for i in range(3):
+            ps, vs = tp[i], tv[i]
+            if _isfinite(ps):
+                out[i] = g.pos_p[i] * (ps - pos[i]) + (vs if _isfinite(vs) else 0.0)
+            elif _isfinite(vs):
+                out[i] = vs
+            elif _isfinite(ta[i]):
+                out[i] = math.nan  # acceleration only on this axis
+            else:
+                out[i] = 0.0  # nothing given on this axis: hold (zero velocity)
+        vx, vy, vz = out
+        if _isfinite(vx) and _isfinite(vy):
+            n = math.hypot(vx, vy)
+            if n > g.vel_xy_max:
+                s = g.vel_xy_max / n
+                vx, vy = vx * s, vy * s
+        if _isfinite(vz):
+            vz = _clamp(vz, -up_limit, g.vel_dn_max)
+        return (vx, vy, vz)
+
+    def update(
+        self,
+        g: McGains,
+        dt: float,
+        pos: Vec3,
+        vel: Vec3,
+        vel_dot: Vec3,
+        tgt: PositionTarget,
+        up_limit: float,
+    ) -> tuple[Vec3, float]:
+        """One position-loop update. Returns (body_z unit vector in NED, collective thrust 0..1)."""
+        vsp = self.velocity_setpoint(g, pos, tgt, up_limit)
+        self.vel_sp = vsp
+        ta = tgt.acc_ned
+        acc = [0.0, 0.0, 0.0]
+        err = [0.0, 0.0, 0.0]
+        vi = self.vel_int
+        for i in range(3):
+            if _isfinite(vsp[i]):
+                e = vsp[i] - vel[i]
+                err[i] = e
+                acc[i] = g.vel_p[i] * e + vi[i] - g.vel_d[i] * vel_dot[i]
+            if _isfinite(ta[i]):
+                acc[i] += ta[i]
+        ax, ay, az = acc
+        self.acc_sp = (ax, ay, az)
+        # acceleration -> body z direction (thrust points along -body_z) with tilt limit
+        bzx, bzy, bzz = -ax, -ay, G - az
+        n = math.sqrt(bzx * bzx + bzy * bzy + bzz * bzz)
+        if n < 1e-9:
+            bzx, bzy, bzz = 0.0, 0.0, 1.0
+        else:
+            bzx, bzy, bzz = bzx / n, bzy / n, bzz / n
+        ang = math.acos(_clamp(bzz, -1.0, 1.0))
+        if ang > g.tilt_max:
+            rej = math.hypot(bzx, bzy)
+            if rej < 1e-9:
+                rx, ry = 1.0, 0.0
+            else:
+                rx, ry = bzx / rej, bzy / rej
+            s = math.sin(g.tilt_max)
+            bzx, bzy, bzz = s * rx, s * ry, math.cos(g.tilt_max)
+        # linear hover-thrust mapping of the vertical acceleration (NED: negative = up)
+        thr_z = az * (g.hover / G) - g.hover
+        coll = min(thr_z / bzz, -g.thr_min)
+        tx, ty, tz = bzx * coll, bzy * coll, bzz * coll
+        # vertical anti-windup
+        if (tz >= -g.thr_min and err[2] >= 0.0) or (tz <= -g.thr_max and err[2] <= 0.0):
+            err[2] = 0.0
+        # keep a horizontal margin, then saturate the horizontal thrust
+        txy = math.hypot(tx, ty)
+        tmax2 = g.thr_max * g.thr_max
+        alloc_xy = min(txy, g.xy_marg)
+        tz = max(tz, -math.sqrt(max(tmax2 - alloc_xy * alloc_xy, 0.0)))
+        txy_max = math.sqrt(max(tmax2 - tz * tz, 0.0))
+        if txy > txy_max:
+            s = txy_max / txy
+            tx, ty = tx * s, ty * s
+        # tracking anti-windup for the horizontal integrator
+        k = G / g.hover
+        px, py = tx * k, ty * k
+        if ax * ax + ay * ay > px * px + py * py and g.vel_p[0] > 0.0:
+            arw = 2.0 / g.vel_p[0]
+            err[0] -= arw * (ax - px)
+            err[1] -= arw * (ay - py)
+        for i in range(3):
+            vi[i] += err[i] * g.vel_i[i] * dt
+        vi[2] = _clamp(vi[2], -G, G)
+        thrust = math.sqrt(tx * tx + ty * ty + tz * tz)
+        if thrust < 1e-6:
+            return (0.0, 0.0, 1.0), 0.0
+        return (-tx / thrust, -ty / thrust, -tz / thrust), thrust
+
+
+# ---------------------------------------------------------------------------------------------
+# Attitude and rate control
+# ---------------------------------------------------------------------------------------------
+
+
+def attitude_control(g: McGains, q: Quat, q_sp: Quat, yaw_rate_ff: float) -> Vec3:
+    """Quaternion attitude P with reduced yaw weight; returns body rate setpoint [rad/s FRD]."""
+    ez = quat_body_z(q)
+    ezd = quat_body_z(q_sp)
+    qd_red = quat_from_two_vectors(ez, ezd)
+    if abs(qd_red[1]) > 1.0 - 1e-5 or abs(qd_red[2]) > 1.0 - 1e-5:
+        qd = q_sp  # body z flipped: use the full attitude
+    else:
+        qd_red = quat_mul(qd_red, q)
+        q_mix = quat_normalize(quat_mul(quat_conj(qd_red), q_sp))
+        w0 = _clamp(q_mix[0], -1.0, 1.0)
+        w3 = _clamp(q_mix[3], -1.0, 1.0)
+        yw = g.yaw_w
+        qd = quat_mul(qd_red, (math.cos(yw * math.acos(w0)), 0.0, 0.0, math.sin(yw * math.asin(w3))))
+    qe = quat_normalize(quat_mul(quat_conj(q), qd))
+    rx = 2.0 * qe[1] * g.att_p[0]
+    ry = 2.0 * qe[2] * g.att_p[1]
+    rz = 2.0 * qe[3] * g.att_p[2]
+    if _isfinite(yaw_rate_ff):
+        # world z axis in body coordinates = third row of R
+        w, x, y, z = q
+        rx += 2.0 * (x * z - w * y) * yaw_rate_ff
+        ry += 2.0 * (y * z + w * x) * yaw_rate_ff
+        rz += (1.0 - 2.0 * (x * x + y * y)) * yaw_rate_ff
+    rm = g.rate_max
+    return (_clamp(rx, -rm[0], rm[0]), _clamp(ry, -rm[1], rm[1]), _clamp(rz, -rm[2], rm[2]))
+
+
+class RateController:
+    """Body-rate PID with PX4's integrator shaping; output is normalised torque [-1, 1]."""
+
+    def __init__(self) -> None:
+        self.integral: list[float] = [0.0, 0.0, 0.0]
+        self._prev_rate: Vec3 | None = None
+
+    def reset(self) -> None:
+        """Zero the integrators and the derivative memory."""
+        self.integral = [0.0, 0.0, 0.0]
+        self._prev_rate = None
+
+    def update(
+        self, g: McGains, rate: Vec3, rate_sp: Vec3, dt: float, freeze_integral: bool
+    ) -> Vec3:
+        """Torque (normalised) for the rate error; D acts on the measured angular acceleration."""
+        prev = self._prev_rate if self._prev_rate is not None else rate
+        self._prev_rate = rate
+        inv_dt = 1.0 / dt if dt > 0.0 else 0.0
+        out = [0.0, 0.0, 0.0]
+        integ = self.integral
+        lim = g.rate_int_lim
+        for i in range(3):
+            e = rate_sp[i] - rate[i]
+            out[i] = g.rate_p[i] * e + integ[i] - g.rate_d[i] * (rate[i] - prev[i]) * inv_dt
+            if not freeze_integral:
+                f = e / 6.981317007977318  # 400 deg/s
+                f = max(0.0, 1.0 - f * f)
+                integ[i] = _clamp(integ[i] + f * g.rate_i[i] * e * dt, -lim, lim)
+        return (_clamp(out[0], -1.0, 1.0), _clamp(out[1], -1.0, 1.0), _clamp(out[2], -1.0, 1.0))
+
+
+def mix_quad_x(torque: Vec3, thrust: float) -> tuple[float, float, float, float]:
+    """Normalised torque + collective -> four motor commands 0..1 (PX4 quad X order).
+
+    Motors: 0 front-right (CCW), 1 rear-left (CCW), 2 front-left (CW), 3 rear-right (CW).
+    Roll/pitch have priority: the collective is shifted, then roll/pitch scaled, to fit [0, 1];
+    yaw gets what headroom is left.
+    """
+    r = torque[0] * _SQRT1_2
+    p = torque[1] * _SQRT1_2
+    rp = (-r + p, r - p, r + p, -r - p)
+    hi = max(rp)
+    lo = min(rp)
+    span = hi - lo
+    if span > 1.0:
+        s = 1.0 / span
+        rp = (rp[0] * s, rp[1] * s, rp[2] * s, rp[3] * s)
+        hi *= s
+        lo *= s
+    t = _clamp(thrust, 0.0, 1.0)
+    if t + hi > 1.0:
+        t = 1.0 - hi
+    elif t + lo < 0.0:
+        t = -lo
+    u0, u1, u2, u3 = t + rp[0], t + rp[1], t + rp[2], t + rp[3]
+    y = torque[2]
+    if y > 0.0:  # motors 0,1 up, 2,3 down
+        k = min(y, 1.0 - u0, 1.0 - u1, u2, u3)
+    elif y < 0.0:
+        k = max(y, -u0, -u1, u2 - 1.0, u3 - 1.0)
+    else:
+        k = 0.0
+    if (y > 0.0 and k < 0.0) or (y < 0.0 and k > 0.0):
+        k = 0.0
+    return (
+        _clamp(u0 + k, 0.0, 1.0),
+        _clamp(u1 + k, 0.0, 1.0),
+        _clamp(u2 - k, 0.0, 1.0),
+        _clamp(u3 - k, 0.0, 1.0),
+    )

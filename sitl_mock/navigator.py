@@ -1,0 +1,254 @@
+"""AUTO-mode setpoint generation (takeoff, land, loiter/hold, goto, RTL): pure, no clock.
+
+The navigator turns a goal into a smooth, velocity- and acceleration-limited PositionTarget
+stream: a reference point ("carrot") moves toward the goal at most at the cruise speed
+(MPC_XY_CRUISE horizontally, MPC_Z_VEL_MAX_UP / MPC_Z_VEL_MAX_DN or MPC_TKO_SPEED vertically),
+accelerating at most MPC_ACC_HOR and braking so that it stops on the goal. The target carries
+the reference position, velocity and acceleration (feed-forward), like PX4's auto flight tasks.
+
+The autopilot core owns modes and mission sequencing and calls these methods; `update(dt, state)`
+is called every control period and returns the target for the vehicle. Frame: local NED about
+home (home at (0, 0, 0) unless `home_ned` is set), SI units.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+from sitl_mock.setpoints import NAN3, PositionTarget, Vec3
+from sitl_mock.vehicle import VehicleState
+
+_isfinite = math.isfinite
+_NAN = math.nan
+FACE_WAYPOINT_MIN_DIST_M = 1.0  # below this horizontal distance the heading is held
+
+
+class Navigator:
+    """Target generator for AUTO modes; see the module docstring.
+
+    Phases: "idle", "takeoff", "loiter", "goto", "land", "landed", "rtl_climb", "rtl_return".
+    `reached` is True once a takeoff altitude, a goto goal (within the acceptance radius and
+    NAV_MC_ALT_RAD vertically), a landing (vehicle landed) or an RTL (landed at home) is done;
+    it is always True while loitering.
+    """
+
+    def __init__(self, params: Mapping[str, float], home_ned: Vec3 = (0.0, 0.0, 0.0)) -> None:
+        self._p = params
+        self.home_ned: Vec3 = home_ned
+        self.phase = "idle"
+        self.reached = False
+        self._goal: Vec3 = (0.0, 0.0, 0.0)
+        self._acc_rad = 2.0
+        self._yaw_goal = _NAN
+        self._yaw_hold = _NAN
+        self._ref_pos: list[float] | None = None
+        self._ref_vel = [0.0, 0.0, 0.0]
+        self._ref_acc = [0.0, 0.0, 0.0]
+        self._up_limit = 0.0
+        self._rtl_alt = 0.0
+        self._land_xy: tuple[float, float] = (0.0, 0.0)
+
+    # ------------------------------------------------------------------ commands
+    def takeoff(self, alt_rel_m: float, state: VehicleState) -> None:
+        """Climb vertically to `alt_rel_m` above home (z = -alt) at MPC_TKO_SPEED, then hold."""
+        if not _isfinite(alt_rel_m):
+            raise ValueError("takeoff altitude must be finite")
+        x, y, _ = state.pos_ned
+        self._start(state, (x, y, self.home_ned[2] - alt_rel_m), _NAN, 0.0, "takeoff")
+        self._up_limit = self._p["MPC_TKO_SPEED"]
+        if state.on_ground or state.landed:
+            self._ref_pos = None  # the reference starts climbing when the vehicle lifts off
+
+    def land(self, state: VehicleState) -> None:
+        """Descend at the current horizontal position (MPC_LAND_SPEED near the ground)."""
+        self._begin_hold(state)
+        assert self._ref_pos is not None
+        self._land_xy = self._stop_point(state)[:2]
+        self.phase = "land"
+        self.reached = bool(state.landed)
+
+    def loiter(self, state: VehicleState) -> None:
+        """Brake and hold at the stopping point (PX4 Hold / AUTO.LOITER)."""
+        stop = self._stop_point(state)
+        self._start(state, stop, _NAN, 0.0, "loiter")
+        self.reached = True
+
+    def goto(self, pos_ned: Vec3, yaw: float, acceptance_m: float, state: VehicleState) -> None:
+        """Fly to `pos_ned` [m NED]; `yaw` [rad] or NaN to face the goal; reached within radius."""
+        if not all(_isfinite(c) for c in pos_ned):
+            raise ValueError("goto position must be finite")
+        acc = acceptance_m if _isfinite(acceptance_m) and acceptance_m > 0 else self._p[
+            "NAV_ACC_RAD"
+        ]
+        self._start(state, pos_ned, yaw, acc, "goto")
+
+    def rtl(self, state: VehicleState) -> None:
+        """Return: climb to max(RTL_RETURN_ALT, current height), fly home, land."""
+        height = self.home_ned[2] - state.pos_ned[2]
+        self._rtl_alt = max(self._p["RTL_RETURN_ALT"], height)
+        x, y, _ = state.pos_ned
+        self._start(state, (x, y, self.home_ned[2] - self._rtl_alt), _NAN, 0.0, "rtl_climb")
+
+    # ------------------------------------------------------------------ internals
+    def _stop_point(self, state: VehicleState) -> Vec3:
+        """Where the vehicle stops when braking at MPC_ACC_HOR from its current velocity."""
+        a = max(self._p["MPC_ACC_HOR"], 0.1)
+        (x, y, z), (vx, vy, vz) = state.pos_ned, state.vel_ned
+        if state.on_ground:
+            return (x, y, z)
+        return (x + vx * abs(vx) / (2 * a), y + vy * abs(vy) / (2 * a), z + vz * abs(vz) / (2 * a))
+
+    def _begin_hold(self, state: VehicleState) -> None:
+        if self._ref_pos is None or self._dist(self._ref_pos, state.pos_ned) > 3.0:
+            self._ref_pos = list(state.pos_ned)
+            self._ref_vel = list(state.vel_ned)
+        if not _isfinite(self._yaw_hold):
+            self._yaw_hold = state.yaw
+
+    @staticmethod
+    def _dist(a: list[float] | Vec3, b: Vec3) -> float:
+        return math.sqrt((a[0] - b[0]) ** 2 + (a[1] - b[1]) ** 2 + (a[2] - b[2]) ** 2)
+
+    def _start(self, state: VehicleState, goal: Vec3, yaw: float, acc_rad: float, phase: str) -> None:
+        self._begin_hold(state)
+        self._goal = (float(goal[0]), float(goal[1]), float(goal[2]))
+        self._yaw_goal = yaw
+        self._acc_rad = acc_rad
+        self._up_limit = self._p["MPC_Z_VEL_MAX_UP"]
+        self.phase = phase
+        self.reached = False
+
+    def _advance_ref(self, dt: float) -> None:
+        """Move the reference toward the goal with speed and acceleration limits."""
+        p = self._p
+        ref = self._ref_pos
+        assert ref is not None
+        a_max = max(p["MPC_ACC_HOR"], 0.1)
+        dx, dy, dz = self._goal[0] - ref[0], self._goal[1] - ref[1], self._goal[2] - ref[2]
+        dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+        rv = self._ref_vel
+        if dist < 1e-4 and rv[0] ** 2 + rv[1] ** 2 + rv[2] ** 2 < 1e-6:
+            ref[0], ref[1], ref[2] = self._goal
+            self._ref_vel = [0.0, 0.0, 0.0]
+            self._ref_acc = [0.0, 0.0, 0.0]
+            return
+        dxy = math.hypot(dx, dy)
+        s = math.sqrt(2.0 * a_max * 0.9 * dist)
+        if dxy > 1e-9:
+            s = min(s, max(p["MPC_XY_CRUISE"], 0.1) * dist / dxy)
+        if dz < -1e-9:
+            s = min(s, max(self._up_limit, 0.1) * dist / -dz)
+        elif dz > 1e-9:
+            s = min(s, max(p["MPC_Z_VEL_MAX_DN"], 0.1) * dist / dz)
+        if dist > 1e-9:
+            want = (dx / dist * s, dy / dist * s, dz / dist * s)
+        else:
+            want = (0.0, 0.0, 0.0)
+        ex, ey, ez = want[0] - rv[0], want[1] - rv[1], want[2] - rv[2]
+        e = math.sqrt(ex * ex + ey * ey + ez * ez)
+        lim = a_max * dt
+        if e > lim:
+            k = lim / e
+            ex, ey, ez = ex * k, ey * k, ez * k
+        nv = [rv[0] + ex, rv[1] + ey, rv[2] + ez]
+        step = [0.5 * (rv[i] + nv[i]) * dt for i in range(3)]
+        # never step past the goal
+        if step[0] ** 2 + step[1] ** 2 + step[2] ** 2 >= dist * dist:
+            ref[0], ref[1], ref[2] = self._goal
+            nv = [0.0, 0.0, 0.0]
+            self._ref_acc = [0.0, 0.0, 0.0]
+        else:
+            for i in range(3):
+                ref[i] += step[i]
+            self._ref_acc = [ex / dt, ey / dt, ez / dt]
+        self._ref_vel = nv
+
+    def _yaw_target(self, state: VehicleState) -> float:
+        if _isfinite(self._yaw_goal):
+            self._yaw_hold = self._yaw_goal
+            return self._yaw_goal
+        if self.phase in ("goto", "rtl_return"):
+            dx, dy = self._goal[0] - state.pos_ned[0], self._goal[1] - state.pos_ned[1]
+            if math.hypot(dx, dy) > FACE_WAYPOINT_MIN_DIST_M:
+                self._yaw_hold = math.atan2(dy, dx)
+        if not _isfinite(self._yaw_hold):
+            self._yaw_hold = state.yaw
+        return self._yaw_hold
+
+    def _land_speed(self, height_m: float) -> float:
+        p = self._p
+        slow, fast = p["MPC_LAND_SPEED"], max(p["MPC_Z_VEL_MAX_DN"], p["MPC_LAND_SPEED"])
+        alt1, alt2 = p["MPC_LAND_ALT1"], p["MPC_LAND_ALT2"]
+        if height_m <= alt2:
+            return slow
+        if height_m >= alt1 or alt1 <= alt2:
+            return fast
+        return slow + (fast - slow) * (height_m - alt2) / (alt1 - alt2)
+
+    # ------------------------------------------------------------------ update
+    def update(self, dt: float, state: VehicleState) -> PositionTarget:
+        """Advance by dt [s] and return the target for the vehicle."""
+        if not dt > 0.0:
+            raise ValueError("navigator dt must be positive")
+        if self.phase == "idle":
+            self.loiter(state)
+        if self._ref_pos is None:
+            if self.phase == "takeoff" and (state.on_ground or state.landed):
+                # ask for a climb; the vehicle's takeoff ramp shapes the lift-off
+                x, y, _ = self._goal
+                self._yaw_target(state)
+                return PositionTarget(
+                    pos_ned=(x, y, _NAN),
+                    vel_ned=(_NAN, _NAN, -self._p["MPC_TKO_SPEED"]),
+                    yaw=self._yaw_hold,
+                )
+            self._ref_pos = list(state.pos_ned)
+            self._ref_vel = list(state.vel_ned)
+        if self.phase in ("land", "landed"):
+            return self._update_land(state)
+        self._advance_ref(dt)
+        ref = self._ref_pos
+        gx, gy, gz = self._goal
+        px, py, pz = state.pos_ned
+        at_ref_goal = ref[0] == gx and ref[1] == gy and ref[2] == gz
+        if self.phase == "takeoff":
+            self.reached = at_ref_goal and abs(pz - gz) <= 0.5
+        elif self.phase == "goto":
+            self.reached = (
+                math.hypot(px - gx, py - gy) <= self._acc_rad
+                and abs(pz - gz) <= self._p["NAV_MC_ALT_RAD"]
+            )
+        elif self.phase == "loiter":
+            self.reached = True
+        elif self.phase == "rtl_climb":
+            if abs(pz - gz) <= self._p["NAV_MC_ALT_RAD"] and at_ref_goal:
+                hx, hy, _ = self.home_ned
+                self._goal = (hx, hy, gz)
+                self.phase = "rtl_return"
+        elif self.phase == "rtl_return" and at_ref_goal and math.hypot(px - gx, py - gy) < 1.0:
+            self._land_xy = (gx, gy)
+            self.phase = "land"
+            self.reached = False
+        yaw = self._yaw_target(state)
+        return PositionTarget(
+            pos_ned=(ref[0], ref[1], ref[2]),
+            vel_ned=(self._ref_vel[0], self._ref_vel[1], self._ref_vel[2]),
+            acc_ned=(self._ref_acc[0], self._ref_acc[1], self._ref_acc[2]),
+            yaw=yaw,
+        )
+
+    def _update_land(self, state: VehicleState) -> PositionTarget:
+        height = self.home_ned[2] - state.pos_ned[2]
+        if state.landed:
+            self.phase = "landed"
+            self.reached = True
+        self._ref_pos = [self._land_xy[0], self._land_xy[1], state.pos_ned[2]]
+        self._ref_vel = [0.0, 0.0, 0.0]
+        yaw = self._yaw_target(state)
+        return PositionTarget(
+            pos_ned=(self._land_xy[0], self._land_xy[1], _NAN),
+            vel_ned=(_NAN, _NAN, self._land_speed(height)),
+            acc_ned=NAN3,
+            yaw=yaw,
+        )

@@ -1,0 +1,506 @@
+"""Quadrotor model: PX4 SIH-like 6-DOF rigid body plus the PX4-like control cascade.
+
+Physics (world NED, body FRD, SI units), defaults from PX4 SIH (SIH_* parameters):
+- four rotors in X configuration, rotor i thrust = SIH_T_MAX * u_i with a first-order lag
+  SIH_T_TAU on u_i; roll/pitch torque from the arm lengths SIH_L_ROLL/SIH_L_PITCH, yaw torque
+  SIH_Q_MAX * u_i with the rotor's spin sign (PX4 quad X: 0 FR ccw, 1 RL ccw, 2 FL cw, 3 RR cw);
+- linear drag -SIH_KDV * (v - wind) in the world frame, angular drag -SIH_KDW * omega;
+- rigid-body rotation with the full Euler equations (gyroscopic term), quaternion attitude
+  integrated with the exponential map and renormalised each step;
+- flat ground at z = 0 (home altitude): no sinking; on contact the vehicle stops (friction) and
+  sits level, like SIH; it lifts off as soon as the thrust exceeds the weight.
+
+Control: flight_control.py (position loop <= 100 Hz, attitude loop <= 250 Hz, rate loop every
+physics step), PX4's takeoff handling (spool-up, ready, thrust ramp, flight) and a PX4-like land
+detector. Sensor noise (SIM_*_NOISE) is added to what the controller and `state` see.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+
+from sitl_mock.flight_control import (
+    G,
+    McGains,
+    PositionVelocityController,
+    RateController,
+    attitude_control,
+    body_z_to_attitude,
+    mix_quad_x,
+    quat_from_yaw,
+    quat_yaw,
+)
+from sitl_mock.params import ParamStore
+from sitl_mock.setpoints import AttitudeTarget, PositionTarget, Quat, Target, Vec3
+from sitl_mock.vehicle import AttitudeTargetReport, VehicleState, ned_to_geodetic
+
+_isfinite = math.isfinite
+
+# takeoff states (PX4 TakeoffHandling)
+DISARMED, SPOOLUP, READY, RAMPUP, FLIGHT = range(5)
+_TAKEOFF_STATE_NAMES = ("disarmed", "spoolup", "ready_for_takeoff", "rampup", "flight")
+
+POS_LOOP_PERIOD_S = 0.01
+ATT_LOOP_PERIOD_S = 0.004
+LAND_DETECT_TIME_S = 0.5
+
+
+class Quadrotor:
+    """PX4 SIH-like quadrotor with a PX4-like controller; see the module docstring."""
+
+    kind = "quad"
+
+    def __init__(
+        self,
+        params: ParamStore,
+        home_lat_lon_alt: tuple[float, float, float] = (47.397742, 8.545594, 488.0),
+        seed: int = 0,
+    ) -> None:
+        self._params = params
+        self._home = home_lat_lon_alt
+        self._rng = random.Random(seed)
+        # rigid-body state
+        self._t = 0.0
+        self._px = self._py = self._pz = 0.0
+        self._vx = self._vy = self._vz = 0.0
+        self._ax = self._ay = 0.0
+        self._az = 0.0
+        self._qw, self._qx, self._qy, self._qz = 1.0, 0.0, 0.0, 0.0
+        self._wx = self._wy = self._wz = 0.0
+        self._u = [0.0, 0.0, 0.0, 0.0]  # actual rotor thrust fractions
+        self._on_ground = True
+        self._wind: Vec3 = (0.0, 0.0, 0.0)
+        # derived
+        self._battery = 1.0
+        self._local_pos_valid = True
+        self._landed = True
+        self._land_timer = 0.0
+        # controllers
+        self._gains = McGains.from_params(params)
+        self._pvc = PositionVelocityController()
+        self._rc = RateController()
+        self._pos_acc = math.inf
+        self._att_acc = math.inf
+        self._alpha_dt = -1.0
+        self._alpha = 0.0
+        self._armed_prev = False
+        self._arm_t = 0.0
+        self._tko_state = DISARMED
+        self._ramp_up_limit = 0.0
+        self._yaw_hold: float | None = None
+        self._q_sp: Quat = (1.0, 0.0, 0.0, 0.0)
+        self._thrust_sp = 0.0
+        self._yaw_ff = math.nan
+        self._rate_sp: Vec3 = (0.0, 0.0, 0.0)
+        self._idle = True
+        self._last_mode = ""
+        self._last_pos_target: PositionTarget | None = None
+        self._motor_cmd: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+        self._read_physical_params()
+        # measurement noise (sampled at the position-loop rate)
+        self._npos: Vec3 = (0.0, 0.0, 0.0)
+        self._nvel: Vec3 = (0.0, 0.0, 0.0)
+
+    # ------------------------------------------------------------------ interface
+    def set_wind(self, vel_ned: Vec3) -> None:
+        """Steady wind [m/s NED]."""
+        if not all(_isfinite(c) for c in vel_ned):
+            raise ValueError("wind velocity must be finite")
+        self._wind = (float(vel_ned[0]), float(vel_ned[1]), float(vel_ned[2]))
+
+    def set_local_position_valid(self, valid: bool) -> None:
+        """Fault injection flag only: the controller keeps using the true state."""
+        self._local_pos_valid = bool(valid)
+
+    def set_battery_remaining(self, fraction: float) -> None:
+        """Force the battery state of charge (0..1)."""
+        self._battery = min(max(float(fraction), 0.0), 1.0)
+
+    def reset_integrators(self) -> None:
+        """Reset velocity/rate integrators and the heading hold."""
+        self._pvc.reset()
+        self._rc.reset()
+        self._yaw_hold = None
+
+    @property
+    def takeoff_state(self) -> str:
+        """PX4 takeoff-handling state name (disarmed, spoolup, ready_for_takeoff, rampup, flight)."""
+        return _TAKEOFF_STATE_NAMES[self._tko_state]
+
+    @property
+    def motor_outputs(self) -> tuple[float, float, float, float]:
+        """Actual rotor thrust fractions 0..1 (after the motor lag)."""
+        u = self._u
+        return (u[0], u[1], u[2], u[3])
+
+    @property
+    def last_attitude_target(self) -> AttitudeTargetReport:
+        """(q_wxyz, body_rates_frd, thrust_norm) last commanded."""
+        return self._q_sp, self._rate_sp, self._thrust_sp
+
+    @property
+    def last_position_target(self) -> PositionTarget | None:
+        """Last PositionTarget tracked (None outside position control)."""
+        return self._last_pos_target
+
+    @property
+    def state(self) -> VehicleState:
+        """Snapshot of the vehicle state (geodetic position computed on demand)."""
+        pos = (self._px + self._npos[0], self._py + self._npos[1], self._pz + self._npos[2])
+        lat, lon, alt = ned_to_geodetic(pos, self._home)
+        u = self._u
+        return VehicleState(
+            t_s=self._t,
+            pos_ned=pos,
+            vel_ned=(self._vx + self._nvel[0], self._vy + self._nvel[1], self._vz + self._nvel[2]),
+            acc_ned=(self._ax, self._ay, self._az),
+            q_wxyz=(self._qw, self._qx, self._qy, self._qz),
+            omega_frd=(self._wx, self._wy, self._wz),
+            on_ground=self._on_ground,
+            landed=self._landed,
+            thrust_norm=0.25 * (u[0] + u[1] + u[2] + u[3]),
+            battery_remaining=self._battery,
+            lat_deg=lat,
+            lon_deg=lon,
+            alt_amsl_m=alt,
+            local_position_valid=self._local_pos_valid,
+        )
+
+    # ------------------------------------------------------------------ test helpers
+    def set_state(
+        self,
+        pos_ned: Vec3 = (0.0, 0.0, 0.0),
+        vel_ned: Vec3 = (0.0, 0.0, 0.0),
+        q_wxyz: Quat = (1.0, 0.0, 0.0, 0.0),
+        omega_frd: Vec3 = (0.0, 0.0, 0.0),
+        motors: float | None = None,
+    ) -> None:
+        """Place the vehicle (tests, replays); `motors` presets all rotor outputs 0..1."""
+        self._px, self._py, self._pz = (float(c) for c in pos_ned)
+        self._vx, self._vy, self._vz = (float(c) for c in vel_ned)
+        n = math.sqrt(sum(c * c for c in q_wxyz))
+        self._qw, self._qx, self._qy, self._qz = (float(c) / n for c in q_wxyz)
+        self._wx, self._wy, self._wz = (float(c) for c in omega_frd)
+        self._on_ground = self._pz >= 0.0 and self._vz >= 0.0
+        if motors is not None:
+            self._u = [float(motors)] * 4
+        if not self._on_ground:
+            self._landed = False
+            self._land_timer = 0.0
+
+    def mark_airborne(self, thrust: float) -> None:
+        """Tests: treat the vehicle as flying (takeoff handling in flight, motors at `thrust`)."""
+        self._tko_state = FLIGHT
+        self._armed_prev = True
+        self._landed = False
+        self._u = [float(thrust)] * 4
+
+    # ------------------------------------------------------------------ stepping
+    def _read_physical_params(self) -> None:
+        p = self._params
+        self._mass = max(p["SIH_MASS"], 1e-3)
+        self._ixx = max(p["SIH_IXX"], 1e-6)
+        self._iyy = max(p["SIH_IYY"], 1e-6)
+        self._izz = max(p["SIH_IZZ"], 1e-6)
+        self._tmax = p["SIH_T_MAX"]
+        self._qmax = p["SIH_Q_MAX"]
+        self._lroll = p["SIH_L_ROLL"]
+        self._lpitch = p["SIH_L_PITCH"]
+        self._kdv = p["SIH_KDV"]
+        self._kdw = p["SIH_KDW"]
+        tau = p["SIH_T_TAU"]
+        if tau != getattr(self, "_tau", None):
+            self._tau = tau
+            self._alpha_dt = -1.0
+        self._noise = (p["SIM_POS_NOISE"], p["SIM_VEL_NOISE"], p["SIM_GYRO_NOISE"])
+        self._bat_drain = max(p["SIM_BAT_DRAIN"], 1.0)
+        self._bat_min = min(max(p["SIM_BAT_MIN_PCT"] / 100.0, 0.0), 1.0)
+
+    def step(self, dt: float, target: Target, armed: bool) -> None:
+        """Run the controller for `target` and integrate the physics by `dt` [s]."""
+        if not (dt > 0.0 and dt < 1.0):
+            raise ValueError(f"physics step must be in (0, 1) s, got {dt!r}")
+        self._t += dt
+        # arming transitions
+        if armed and not self._armed_prev:
+            self._arm_t = self._t
+            self._tko_state = SPOOLUP if self._on_ground else FLIGHT
+            self.reset_integrators()
+        elif not armed:
+            self._tko_state = DISARMED
+        self._armed_prev = armed
+        if armed:
+            self._battery = max(self._bat_min, self._battery - dt / self._bat_drain)
+
+        # ---------------------------------------------------------------- control
+        if not armed or not isinstance(target, (PositionTarget, AttitudeTarget)):
+            self._control_idle()
+        elif isinstance(target, PositionTarget):
+            self._control_position(dt, target)
+        else:
+            self._control_attitude(dt, target)
+
+        self._integrate(dt)
+        self._land_detector(dt, armed)
+
+    def _control_idle(self) -> None:
+        if self._last_mode != "idle":
+            self._last_mode = "idle"
+            self.reset_integrators()
+        self._pos_acc = math.inf
+        self._att_acc = math.inf
+        self._last_pos_target = None
+        self._q_sp = quat_from_yaw(quat_yaw((self._qw, self._qx, self._qy, self._qz)))
+        self._rate_sp = (0.0, 0.0, 0.0)
+        self._thrust_sp = 0.0
+        self._motor_cmd = (0.0, 0.0, 0.0, 0.0)
+        self._idle = True
+
+    def _refresh(self) -> None:
+        self._gains = McGains.from_params(self._params)
+        self._read_physical_params()
+        if self._noise[0] > 0.0 or self._noise[1] > 0.0:
+            gauss = self._rng.gauss
+            sp, sv = self._noise[0], self._noise[1]
+            self._npos = (gauss(0.0, sp), gauss(0.0, sp), gauss(0.0, sp)) if sp > 0 else (0, 0, 0)
+            self._nvel = (gauss(0.0, sv), gauss(0.0, sv), gauss(0.0, sv)) if sv > 0 else (0, 0, 0)
+        else:
+            self._npos = (0.0, 0.0, 0.0)
+            self._nvel = (0.0, 0.0, 0.0)
+
+    def _want_takeoff(self, tgt: PositionTarget) -> bool:
+        pz, vz, az = tgt.pos_ned[2], tgt.vel_ned[2], tgt.acc_ned[2]
+        return (
+            (_isfinite(pz) and pz < self._pz - 0.2)
+            or (_isfinite(vz) and vz < -0.3)
+            or (_isfinite(az) and az < -0.3)
+        )
+
+    def _control_position(self, dt: float, tgt: PositionTarget) -> None:
+        g = self._gains
+        if self._last_mode != "pos":
+            self._last_mode = "pos"
+            self._pos_acc = math.inf
+            self._yaw_hold = None
+        self._last_pos_target = tgt
+        self._pos_acc += dt
+        if self._pos_acc >= POS_LOOP_PERIOD_S - 1e-9:
+            dtc = min(self._pos_acc, 0.05) if _isfinite(self._pos_acc) else dt
+            self._pos_acc = 0.0
+            self._refresh()
+            g = self._gains
+            q = (self._qw, self._qx, self._qy, self._qz)
+            yaw_now = quat_yaw(q)
+            # heading: yaw > yaw_rate (integrated) > hold
+            if _isfinite(tgt.yaw):
+                self._yaw_hold = tgt.yaw
+                yaw_ff = tgt.yaw_rate if _isfinite(tgt.yaw_rate) else math.nan
+            else:
+                if self._yaw_hold is None:
+                    self._yaw_hold = yaw_now
+                if _isfinite(tgt.yaw_rate):
+                    self._yaw_hold += tgt.yaw_rate * dtc
+                    yaw_ff = tgt.yaw_rate
+                else:
+                    yaw_ff = math.nan
+            yaw_sp = self._yaw_hold
+            # PX4 takeoff handling
+            st = self._tko_state
+            if st == SPOOLUP and self._t - self._arm_t >= g.spoolup_t:
+                st = READY
+            if st == READY:
+                if not self._landed:
+                    st = FLIGHT
+                elif self._want_takeoff(tgt):
+                    st = RAMPUP
+                    vzp = max(g.vel_p[2], 0.01)
+                    self._ramp_up_limit = -G / vzp
+            if st == RAMPUP:
+                if g.tko_ramp_t > dtc:
+                    self._ramp_up_limit += (g.vel_up_max + G / max(g.vel_p[2], 0.01)) * (
+                        dtc / g.tko_ramp_t
+                    )
+                else:
+                    self._ramp_up_limit = g.vel_up_max
+                if self._ramp_up_limit >= g.vel_up_max:
+                    self._ramp_up_limit = g.vel_up_max
+                    st = FLIGHT
+            elif st == FLIGHT and self._landed:
+                st = READY
+            self._tko_state = st
+            if st in (DISARMED, SPOOLUP, READY):
+                # motors idle on the ground until a takeoff is wanted
+                self._pvc.reset()
+                self._rc.reset()
+                self._idle = True
+                self._q_sp = quat_from_yaw(yaw_now)
+                self._thrust_sp = 0.0
+                self._yaw_ff = math.nan
+            else:
+                self._idle = False
+                up_limit = self._ramp_up_limit if st == RAMPUP else g.vel_up_max
+                pos = (self._px + self._npos[0], self._py + self._npos[1], self._pz + self._npos[2])
+                vel = (self._vx + self._nvel[0], self._vy + self._nvel[1], self._vz + self._nvel[2])
+                body_z, thrust = self._pvc.update(
+                    g, dtc, pos, vel, (self._ax, self._ay, self._az), tgt, up_limit
+                )
+                if self._landed:
+                    self._pvc.vel_int[0] = self._pvc.vel_int[1] = 0.0
+                self._q_sp = body_z_to_attitude(body_z, yaw_sp)
+                self._thrust_sp = thrust
+                self._yaw_ff = yaw_ff
+        if self._idle:
+            self._motor_cmd = (0.0, 0.0, 0.0, 0.0)
+            self._rate_sp = (0.0, 0.0, 0.0)
+            return
+        self._run_attitude_and_rate(dt, self._q_sp, self._yaw_ff, None)
+
+    def _control_attitude(self, dt: float, tgt: AttitudeTarget) -> None:
+        if self._last_mode != "att":
+            self._last_mode = "att"
+            self._att_acc = math.inf
+            self._refresh()
+        self._last_pos_target = None
+        self._idle = False
+        self._pos_acc += dt
+        if self._pos_acc >= POS_LOOP_PERIOD_S - 1e-9:
+            self._pos_acc = 0.0
+            self._refresh()
+        thrust = tgt.thrust_norm
+        self._thrust_sp = min(max(thrust, 0.0), 1.0) if _isfinite(thrust) else 0.0
+        q = (self._qw, self._qx, self._qy, self._qz)
+        if tgt.body_rates_frd is not None:
+            rates = tuple(r if _isfinite(r) else 0.0 for r in tgt.body_rates_frd)
+            self._q_sp = q if tgt.q_wxyz is None else tgt.q_wxyz
+            self._run_attitude_and_rate(dt, self._q_sp, math.nan, (rates[0], rates[1], rates[2]))
+        elif tgt.q_wxyz is not None:
+            self._q_sp = tgt.q_wxyz
+            self._run_attitude_and_rate(dt, tgt.q_wxyz, tgt.yaw_rate_ff, None)
+        else:
+            self._q_sp = q
+            self._run_attitude_and_rate(dt, q, math.nan, (0.0, 0.0, 0.0))
+
+    def _run_attitude_and_rate(
+        self, dt: float, q_sp: Quat, yaw_ff: float, rates: Vec3 | None
+    ) -> None:
+        g = self._gains
+        if rates is None:
+            self._att_acc += dt
+            if self._att_acc >= ATT_LOOP_PERIOD_S - 1e-9:
+                self._att_acc = 0.0
+                self._rate_sp = attitude_control(
+                    g, (self._qw, self._qx, self._qy, self._qz), q_sp, yaw_ff
+                )
+        else:
+            self._att_acc = math.inf
+            self._rate_sp = rates
+        if self._noise[2] > 0.0:
+            s = self._noise[2]
+            gauss = self._rng.gauss
+            omega = (
+                self._wx + gauss(0.0, s),
+                self._wy + gauss(0.0, s),
+                self._wz + gauss(0.0, s),
+            )
+        else:
+            omega = (self._wx, self._wy, self._wz)
+        torque = self._rc.update(g, omega, self._rate_sp, dt, self._landed)
+        self._motor_cmd = mix_quad_x(torque, self._thrust_sp)
+
+    def _land_detector(self, dt: float, armed: bool) -> None:
+        if not armed:
+            self._landed = self._on_ground
+            self._land_timer = 0.0
+            return
+        g = self._gains
+        low = self._thrust_sp <= g.thr_min + (g.hover - g.thr_min) * 0.3 or self._idle
+        if self._on_ground and low:
+            self._land_timer += dt
+            if self._land_timer >= LAND_DETECT_TIME_S or self._idle:
+                self._landed = True
+        else:
+            self._land_timer = 0.0
+            self._landed = False
+
+    def _integrate(self, dt: float) -> None:
+        # motor lag
+        if dt != self._alpha_dt:
+            self._alpha_dt = dt
+            self._alpha = 1.0 - math.exp(-dt / self._tau) if self._tau > 1e-6 else 1.0
+        a = self._alpha
+        u = self._u
+        c = self._motor_cmd
+        u0 = u[0] + (c[0] - u[0]) * a
+        u1 = u[1] + (c[1] - u[1]) * a
+        u2 = u[2] + (c[2] - u[2]) * a
+        u3 = u[3] + (c[3] - u[3]) * a
+        u[0], u[1], u[2], u[3] = u0, u1, u2, u3
+        tmax = self._tmax
+        thrust = tmax * (u0 + u1 + u2 + u3)
+        mx = self._lroll * tmax * (-u0 + u1 + u2 - u3)
+        my = self._lpitch * tmax * (u0 - u1 + u2 - u3)
+        mz = self._qmax * (u0 + u1 - u2 - u3)
+
+        qw, qx, qy, qz = self._qw, self._qx, self._qy, self._qz
+        # body z axis in world
+        bzx = 2.0 * (qx * qz + qw * qy)
+        bzy = 2.0 * (qy * qz - qw * qx)
+        bzz = 1.0 - 2.0 * (qx * qx + qy * qy)
+        m = self._mass
+        kdv = self._kdv
+        wnd = self._wind
+        vx, vy, vz = self._vx, self._vy, self._vz
+        ax = (-thrust * bzx - kdv * (vx - wnd[0])) / m
+        ay = (-thrust * bzy - kdv * (vy - wnd[1])) / m
+        az = (-thrust * bzz - kdv * (vz - wnd[2])) / m + G
+        hdt2 = 0.5 * dt * dt
+        px = self._px + vx * dt + ax * hdt2
+        py = self._py + vy * dt + ay * hdt2
+        pz = self._pz + vz * dt + az * hdt2
+        nvx, nvy, nvz = vx + ax * dt, vy + ay * dt, vz + az * dt
+
+        # rotational dynamics (Euler's equations), midpoint rule
+        ixx, iyy, izz, kdw = self._ixx, self._iyy, self._izz, self._kdw
+        wx, wy, wz = self._wx, self._wy, self._wz
+        dwx = (mx - kdw * wx - (izz - iyy) * wy * wz) / ixx
+        dwy = (my - kdw * wy - (ixx - izz) * wz * wx) / iyy
+        dwz = (mz - kdw * wz - (iyy - ixx) * wx * wy) / izz
+        hx, hy, hz = wx + 0.5 * dt * dwx, wy + 0.5 * dt * dwy, wz + 0.5 * dt * dwz
+        dwx = (mx - kdw * hx - (izz - iyy) * hy * hz) / ixx
+        dwy = (my - kdw * hy - (ixx - izz) * hz * hx) / iyy
+        dwz = (mz - kdw * hz - (iyy - ixx) * hx * hy) / izz
+        nwx, nwy, nwz = wx + dt * dwx, wy + dt * dwy, wz + dt * dwz
+        # attitude: q <- q * exp(omega_mid dt / 2)
+        ox, oy, oz = hx, hy, hz
+        ang = math.sqrt(ox * ox + oy * oy + oz * oz) * dt
+        if ang > 1e-12:
+            s = math.sin(0.5 * ang) * dt / ang
+            dw = math.cos(0.5 * ang)
+            dx, dy, dz = ox * s, oy * s, oz * s
+            qw, qx, qy, qz = (
+                qw * dw - qx * dx - qy * dy - qz * dz,
+                qw * dx + qx * dw + qy * dz - qz * dy,
+                qw * dy - qx * dz + qy * dw + qz * dx,
+                qw * dz + qx * dy - qy * dx + qz * dw,
+            )
+            n = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+            qw, qx, qy, qz = qw * n, qx * n, qy * n, qz * n
+
+        # ground contact
+        if pz >= 0.0 and nvz >= 0.0:
+            pz = 0.0
+            nvx = nvy = nvz = 0.0
+            nwx = nwy = nwz = 0.0
+            yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+            qw, qx, qy, qz = math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw)
+            px, py = self._px, self._py
+            self._on_ground = True
+        else:
+            self._on_ground = False
+        inv = 1.0 / dt
+        self._ax, self._ay, self._az = (nvx - vx) * inv, (nvy - vy) * inv, (nvz - vz) * inv
+        self._px, self._py, self._pz = px, py, pz
+        self._vx, self._vy, self._vz = nvx, nvy, nvz
+        self._wx, self._wy, self._wz = nwx, nwy, nwz
+        self._qw, self._qx, self._qy, self._qz = qw, qx, qy, qz

@@ -1,0 +1,388 @@
+"""Telemetry: stream tables (PX4 onboard / normal link rates) and message builders.
+
+The builders turn the autopilot's view (vehicle state, mode, targets) into pymavlink message
+objects; the autopilot packs them on a link. Attitude math here is the mock's own (explicit
+Euler 3-2-1 from the Hamilton quaternion body FRD -> NED), independent of `companion`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from pymavlink.dialects.v20 import common as mavlink
+
+if TYPE_CHECKING:
+    from sitl_mock.autopilot import Autopilot
+
+Msg = Any  # a pymavlink MAVLink_message
+
+# PX4 onboard-link stream rates [Hz] (mavlink_main.cpp, MAVLINK_MODE_ONBOARD) plus the extras
+# the mock needs (BATTERY_STATUS, MISSION_CURRENT, PING).
+ONBOARD_RATES_HZ: dict[int, float] = {
+    mavlink.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: 100.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 50.0,
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 50.0,
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 30.0,
+    mavlink.MAVLINK_MSG_ID_ODOMETRY: 30.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET: 10.0,
+    mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 10.0,
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: 5.0,
+    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 5.0,
+    mavlink.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+    mavlink.MAVLINK_MSG_ID_TIMESYNC: 10.0,
+    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0,
+    mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
+    mavlink.MAVLINK_MSG_ID_PING: 1.0,
+}
+
+# A lighter GCS-link set (PX4 "normal" mode, approximately).
+GCS_RATES_HZ: dict[int, float] = {
+    mavlink.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: 15.0,
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 5.0,
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 1.0,
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
+    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
+    mavlink.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 0.5,
+    mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
+}
+
+# SYS_STATUS sensor bits as seen on PX4 v1.16 SITL when ready to arm (PX4.md).
+SENSORS_PRESENT = 50348079
+SENSORS_ENABLED = 50413615
+SENSORS_HEALTH_READY = 320915519
+BIT_GPS = mavlink.MAV_SYS_STATUS_SENSOR_GPS
+BIT_PREARM = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+BIT_XY_POS = mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+
+UINT16_MAX = 65535
+INT16_MAX = 32767
+
+
+def euler_321(q_wxyz: tuple[float, float, float, float]) -> tuple[float, float, float]:
+    """Roll, pitch, yaw [rad] (body 3-2-1) of the body FRD -> NED quaternion."""
+    w, x, y, z = q_wxyz
+    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    s = max(-1.0, min(1.0, 2.0 * (w * y - z * x)))
+    pitch = math.asin(s)
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return roll, pitch, yaw
+
+
+def rotate_ned_to_body(
+    q_wxyz: tuple[float, float, float, float], v: tuple[float, float, float]
+) -> tuple[float, float, float]:
+    """Express an NED vector in body FRD: v_b = R(q)^T v (R rotates body -> NED)."""
+    w, x, y, z = q_wxyz
+    # rotation by the conjugate quaternion
+    x, y, z = -x, -y, -z
+    vx, vy, vz = v
+    # t = 2 q_vec x v
+    tx = 2.0 * (y * vz - z * vy)
+    ty = 2.0 * (z * vx - x * vz)
+    tz = 2.0 * (x * vy - y * vx)
+    return (
+        vx + w * tx + (y * tz - z * ty),
+        vy + w * ty + (z * tx - x * tz),
+        vz + w * tz + (x * ty - y * tx),
+    )
+
+
+def _f(v: float) -> float:
+    """Float field for the wire (NaN passes through as NaN, as PX4 sends it)."""
+    return float(v)
+
+
+def type_mask_of(target: Any) -> int:
+    """POSITION_TARGET_LOCAL_NED type_mask for a PositionTarget (ignore bits where NaN)."""
+    mask = 0
+    for i, c in enumerate(target.pos_ned):
+        if not math.isfinite(c):
+            mask |= 1 << i
+    for i, c in enumerate(target.vel_ned):
+        if not math.isfinite(c):
+            mask |= 8 << i
+    for i, c in enumerate(target.acc_ned):
+        if not math.isfinite(c):
+            mask |= 64 << i
+    if not math.isfinite(target.yaw):
+        mask |= 1024
+    if not math.isfinite(target.yaw_rate):
+        mask |= 2048
+    return mask
+
+
+@dataclass(frozen=True)
+class Stream:
+    """One periodic message: id, builder(autopilot) -> message or None (skip this time)."""
+
+    msg_id: int
+    build: Callable[[Autopilot], Msg | None]
+
+
+def build_heartbeat(ap: Autopilot) -> Msg:
+    return ap.heartbeat_message()
+
+
+def build_attitude(ap: Autopilot) -> Msg:
+    s = ap.state
+    roll, pitch, yaw = euler_321(s.q_wxyz)
+    p, q, r = s.omega_frd
+    return mavlink.MAVLink_attitude_message(ap.time_boot_ms, roll, pitch, yaw, p, q, r)
+
+
+def build_attitude_quaternion(ap: Autopilot) -> Msg:
+    s = ap.state
+    w, x, y, z = s.q_wxyz
+    p, q, r = s.omega_frd
+    return mavlink.MAVLink_attitude_quaternion_message(
+        ap.time_boot_ms, w, x, y, z, p, q, r, (0.0, 0.0, 0.0, 0.0)
+    )
+
+
+def build_local_position_ned(ap: Autopilot) -> Msg | None:
+    s = ap.state
+    if not ap.local_position_valid:
+        return None
+    x, y, z = s.pos_ned
+    vx, vy, vz = s.vel_ned
+    return mavlink.MAVLink_local_position_ned_message(ap.time_boot_ms, x, y, z, vx, vy, vz)
+
+
+def build_odometry(ap: Autopilot) -> Msg | None:
+    s = ap.state
+    if not ap.local_position_valid:
+        return None
+    x, y, z = s.pos_ned
+    vb = rotate_ned_to_body(s.q_wxyz, s.vel_ned)
+    p, q, r = s.omega_frd
+    nan21 = [math.nan] + [0.0] * 20
+    return mavlink.MAVLink_odometry_message(
+        ap.time_usec,
+        mavlink.MAV_FRAME_LOCAL_NED,
+        mavlink.MAV_FRAME_BODY_FRD,
+        x,
+        y,
+        z,
+        list(s.q_wxyz),
+        vb[0],
+        vb[1],
+        vb[2],
+        p,
+        q,
+        r,
+        nan21,
+        nan21,
+        0,
+        mavlink.MAV_ESTIMATOR_TYPE_AUTOPILOT,
+        100,
+    )
+
+
+def build_global_position_int(ap: Autopilot) -> Msg:
+    s = ap.state
+    _, _, yaw = euler_321(s.q_wxyz)
+    hdg = int(round(math.degrees(yaw) % 360.0 * 100.0)) % 36000
+    vx, vy, vz = s.vel_ned
+    return mavlink.MAVLink_global_position_int_message(
+        ap.time_boot_ms,
+        int(round(s.lat_deg * 1e7)),
+        int(round(s.lon_deg * 1e7)),
+        int(round(s.alt_amsl_m * 1000.0)),
+        int(round((s.alt_amsl_m - ap.home[2]) * 1000.0)),
+        _clamp_i16(vx * 100.0),
+        _clamp_i16(vy * 100.0),
+        _clamp_i16(vz * 100.0),
+        hdg,
+    )
+
+
+def _clamp_i16(v: float) -> int:
+    if not math.isfinite(v):
+        return 0
+    return max(-32768, min(32767, int(round(v))))
+
+
+def build_attitude_target(ap: Autopilot) -> Msg | None:
+    last = ap.vehicle.last_attitude_target
+    if last is None:
+        return None
+    q, rates, thrust = last
+    mask = 0
+    if q is None:
+        q = (1.0, 0.0, 0.0, 0.0)
+        mask |= 128
+    if rates is None:
+        rates = (0.0, 0.0, 0.0)
+        mask |= 7
+    return mavlink.MAVLink_attitude_target_message(
+        ap.time_boot_ms, mask, list(q), rates[0], rates[1], rates[2], float(thrust)
+    )
+
+
+def build_position_target_local_ned(ap: Autopilot) -> Msg | None:
+    t = ap.vehicle.last_position_target
+    if t is None:
+        return None
+    return mavlink.MAVLink_position_target_local_ned_message(
+        ap.time_boot_ms,
+        mavlink.MAV_FRAME_LOCAL_NED,
+        type_mask_of(t),
+        *(_f(c) for c in t.pos_ned),
+        *(_f(c) for c in t.vel_ned),
+        *(_f(c) for c in t.acc_ned),
+        _f(t.yaw),
+        _f(t.yaw_rate),
+    )
+
+
+def build_sys_status(ap: Autopilot) -> Msg:
+    health = SENSORS_HEALTH_READY
+    if not ap.estimator_ready:
+        health &= ~(BIT_GPS | BIT_PREARM | BIT_XY_POS)
+    elif not ap.prearm_ok():
+        health &= ~BIT_PREARM
+    if not ap.local_position_valid:
+        health &= ~(BIT_GPS | BIT_XY_POS)
+    rem = ap.battery_remaining
+    return mavlink.MAVLink_sys_status_message(
+        SENSORS_PRESENT,
+        SENSORS_ENABLED,
+        health,
+        250,
+        ap.battery_voltage_mv,
+        -1,
+        int(round(rem * 100.0)),
+        0,
+        min(ap.errors_comm, UINT16_MAX),
+        0,
+        0,
+        0,
+        0,
+    )
+
+
+def build_extended_sys_state(ap: Autopilot) -> Msg:
+    return mavlink.MAVLink_extended_sys_state_message(
+        mavlink.MAV_VTOL_STATE_UNDEFINED, ap.landed_state
+    )
+
+
+def build_home_position(ap: Autopilot) -> Msg | None:
+    if not ap.home_set:
+        return None
+    return ap.home_position_message()
+
+
+def build_timesync(ap: Autopilot) -> Msg:
+    return mavlink.MAVLink_timesync_message(0, ap.time_ns)
+
+
+def build_battery_status(ap: Autopilot) -> Msg:
+    rem = ap.battery_remaining
+    voltages = [ap.battery_voltage_mv] + [UINT16_MAX] * 9
+    charge = mavlink.MAV_BATTERY_CHARGE_STATE_OK
+    if rem < 0.07:
+        charge = mavlink.MAV_BATTERY_CHARGE_STATE_CRITICAL
+    elif rem < 0.15:
+        charge = mavlink.MAV_BATTERY_CHARGE_STATE_LOW
+    return mavlink.MAVLink_battery_status_message(
+        0,
+        mavlink.MAV_BATTERY_FUNCTION_ALL,
+        mavlink.MAV_BATTERY_TYPE_LIPO,
+        INT16_MAX,
+        voltages,
+        -1,
+        -1,
+        -1,
+        int(round(rem * 100.0)),
+        0,
+        charge,
+    )
+
+
+def build_mission_current(ap: Autopilot) -> Msg:
+    return ap.mission_current_message()
+
+
+def build_ping(ap: Autopilot) -> Msg:
+    ap.ping_seq = (ap.ping_seq + 1) & 0xFFFFFFFF
+    return mavlink.MAVLink_ping_message(ap.time_usec, ap.ping_seq, 0, 0)
+
+
+BUILDERS: dict[int, Callable[[Autopilot], Msg | None]] = {
+    mavlink.MAVLINK_MSG_ID_HEARTBEAT: build_heartbeat,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: build_attitude,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: build_attitude_quaternion,
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: build_global_position_int,
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: build_local_position_ned,
+    mavlink.MAVLINK_MSG_ID_ODOMETRY: build_odometry,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET: build_attitude_target,
+    mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: build_position_target_local_ned,
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: build_sys_status,
+    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: build_extended_sys_state,
+    mavlink.MAVLINK_MSG_ID_HOME_POSITION: build_home_position,
+    mavlink.MAVLINK_MSG_ID_TIMESYNC: build_timesync,
+    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: build_battery_status,
+    mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: build_mission_current,
+    mavlink.MAVLINK_MSG_ID_PING: build_ping,
+}
+
+# Messages that REQUEST_MESSAGE (512) can produce once, beyond the periodic builders.
+STREAMABLE = frozenset(BUILDERS)
+
+
+class StreamScheduler:
+    """Per-link periodic schedule: message id -> interval [s] and next due time (sim s)."""
+
+    def __init__(self, rates_hz: dict[int, float], now: float) -> None:
+        self.defaults = dict(rates_hz)
+        self.interval_s: dict[int, float] = {k: 1.0 / v for k, v in rates_hz.items() if v > 0}
+        # stagger the first emission a little so that not every stream fires on the same tick
+        self.next_due: dict[int, float] = {
+            k: now + (i % 7) * 1e-3 for i, k in enumerate(self.interval_s)
+        }
+        self.earliest = min(self.next_due.values(), default=math.inf)
+
+    def set_interval(self, msg_id: int, interval_us: float, now: float) -> None:
+        """SET_MESSAGE_INTERVAL semantics: -1 disable, 0 default rate, > 0 interval [us]."""
+        if interval_us < 0:
+            self.interval_s.pop(msg_id, None)
+            self.next_due.pop(msg_id, None)
+        else:
+            if interval_us == 0:
+                hz = self.defaults.get(msg_id, 0.0)
+                if hz <= 0:
+                    self.interval_s.pop(msg_id, None)
+                    self.next_due.pop(msg_id, None)
+                    self._refresh()
+                    return
+                interval_s = 1.0 / hz
+            else:
+                interval_s = max(interval_us * 1e-6, 1e-3)
+            self.interval_s[msg_id] = interval_s
+            self.next_due[msg_id] = now
+        self._refresh()
+
+    def _refresh(self) -> None:
+        self.earliest = min(self.next_due.values(), default=math.inf)
+
+    def due(self, now: float) -> list[int]:
+        """Message ids due at `now`; advances their schedule (no burst catch-up)."""
+        if now < self.earliest:
+            return []
+        out = []
+        for k, t in self.next_due.items():
+            if t <= now:
+                out.append(k)
+                nxt = t + self.interval_s[k]
+                if nxt <= now:  # fell behind: skip missed slots rather than bursting
+                    nxt = now + self.interval_s[k]
+                self.next_due[k] = nxt
+        self._refresh()
+        return out

@@ -1,0 +1,133 @@
+"""Vehicle model interface shared by the quadrotor and the rover.
+
+The autopilot core calls `vehicle.step(dt, target, armed)` at a fixed physics rate (>= 250 Hz)
+and reads `vehicle.state`. World frame NED about home (local origin at the home position, z = 0
+on the ground), body frame FRD, SI units.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal, Protocol
+
+from sitl_mock.params import ParamStore
+from sitl_mock.setpoints import PositionTarget, Quat, Target, Vec3
+
+EARTH_RADIUS_M = 6371000.0  # PX4 CONSTANTS_RADIUS_OF_EARTH
+DEFAULT_HOME: tuple[float, float, float] = (47.397742, 8.545594, 488.0)  # PX4 SITL home
+
+
+@dataclass(frozen=True)
+class VehicleState:
+    """Snapshot of the simulated vehicle.
+
+    t_s: simulated time since creation [s]; pos_ned [m], vel_ned [m/s], acc_ned [m/s^2]
+    (kinematic acceleration, world NED); q_wxyz: attitude body FRD -> NED; omega_frd: body rates
+    [rad/s]; on_ground: touching the ground; landed: PX4-like land detector output;
+    thrust_norm: actual collective thrust 0..1 (mean motor thrust / max); battery_remaining 0..1;
+    lat_deg, lon_deg, alt_amsl_m: geodetic position (azimuthal equidistant projection about home);
+    local_position_valid: False while a position-loss fault is injected.
+    """
+
+    t_s: float
+    pos_ned: Vec3
+    vel_ned: Vec3
+    acc_ned: Vec3
+    q_wxyz: Quat
+    omega_frd: Vec3
+    on_ground: bool
+    landed: bool
+    thrust_norm: float
+    battery_remaining: float
+    lat_deg: float
+    lon_deg: float
+    alt_amsl_m: float
+    local_position_valid: bool
+
+    @property
+    def yaw(self) -> float:
+        """Heading [rad] (0 = north, positive clockwise seen from above)."""
+        w, x, y, z = self.q_wxyz
+        return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+AttitudeTargetReport = tuple[Quat, Vec3, float]
+
+
+class Vehicle(Protocol):
+    """What the autopilot core needs from a vehicle model."""
+
+    kind: str
+
+    def step(self, dt: float, target: Target, armed: bool) -> None:
+        """Run the controller for `target` and integrate the physics by `dt` seconds."""
+        ...
+
+    @property
+    def state(self) -> VehicleState:
+        """Current state snapshot (with sensor noise if enabled)."""
+        ...
+
+    @property
+    def last_attitude_target(self) -> AttitudeTargetReport:
+        """(q_wxyz, body_rates_frd, thrust_norm) last commanded by the controller."""
+        ...
+
+    @property
+    def last_position_target(self) -> PositionTarget | None:
+        """Last position target tracked (None if not in a position-controlled mode)."""
+        ...
+
+    def reset_integrators(self) -> None:
+        """Reset controller integrators and holds (call on mode switches)."""
+        ...
+
+    def set_wind(self, vel_ned: Vec3) -> None:
+        """Steady wind [m/s NED] (air moves with this velocity)."""
+        ...
+
+    def set_local_position_valid(self, valid: bool) -> None:
+        """Fault injection: mark the local position estimate (in)valid."""
+        ...
+
+    def set_battery_remaining(self, fraction: float) -> None:
+        """Fault injection: force the battery state of charge (0..1); it keeps draining."""
+        ...
+
+
+def ned_to_geodetic(
+    pos_ned: Vec3, home_lat_lon_alt: tuple[float, float, float]
+) -> tuple[float, float, float]:
+    """Local NED [m] -> (lat deg, lon deg, alt AMSL m), azimuthal equidistant about home."""
+    lat0 = math.radians(home_lat_lon_alt[0])
+    lon0 = math.radians(home_lat_lon_alt[1])
+    xr = pos_ned[0] / EARTH_RADIUS_M
+    yr = pos_ned[1] / EARTH_RADIUS_M
+    c = math.sqrt(xr * xr + yr * yr)
+    if c > 0.0:
+        sc, cc = math.sin(c), math.cos(c)
+        s0, c0 = math.sin(lat0), math.cos(lat0)
+        lat = math.asin(cc * s0 + xr * sc * c0 / c)
+        lon = lon0 + math.atan2(yr * sc, c * c0 * cc - xr * s0 * sc)
+    else:
+        lat, lon = lat0, lon0
+    return math.degrees(lat), math.degrees(lon), home_lat_lon_alt[2] - pos_ned[2]
+
+
+def make_vehicle(
+    kind: Literal["quad", "rover"] | str,
+    params: ParamStore,
+    home_lat_lon_alt: tuple[float, float, float] = DEFAULT_HOME,
+    seed: int = 0,
+) -> Vehicle:
+    """Create the vehicle model `kind` ("quad" or "rover") at rest on the ground at home."""
+    if kind == "quad":
+        from sitl_mock.quad import Quadrotor
+
+        return Quadrotor(params, home_lat_lon_alt, seed)
+    if kind == "rover":
+        from sitl_mock.rover import Rover
+
+        return Rover(params, home_lat_lon_alt, seed)
+    raise ValueError(f"unknown vehicle kind {kind!r}: use 'quad' or 'rover'")

@@ -1,0 +1,329 @@
+"""Unit tests of companion.control against independent oracles (scipy Rotation, Newton, kinematics)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from companion.control import (
+    AttitudeGains,
+    Reference,
+    RoverController,
+    StateEstimate,
+    TrackingConfig,
+    TrackingController,
+    TrackingGains,
+    attitude_error,
+    position_command,
+    so3_rate_command,
+)
+from companion.flatness import MultirotorParams
+
+G = 9.80665
+E3 = np.array([0.0, 0.0, 1.0])
+
+
+def _wxyz(r: Rotation) -> np.ndarray:
+    x, y, z, w = r.as_quat()
+    return np.array([w, x, y, z])
+
+
+def _rot(q_wxyz: np.ndarray) -> Rotation:
+    w, x, y, z = q_wxyz
+    return Rotation.from_quat([x, y, z, w])
+
+
+def _params(drag: float = 0.0, mass: float = 1.0, hover: float = 0.5) -> MultirotorParams:
+    return MultirotorParams(mass, np.diag([0.025, 0.025, 0.03]), hover_thrust=hover, drag=drag)
+
+
+def _est(t: float, pos: object, vel: object = (0, 0, 0), q: object = (1, 0, 0, 0),
+         omega: object = (0, 0, 0), acc: object | None = None) -> StateEstimate:
+    return StateEstimate(t, np.asarray(pos, float), np.asarray(vel, float), np.asarray(q, float),
+                         np.asarray(omega, float), None if acc is None else np.asarray(acc, float))
+
+
+# ----------------------------------------------------------------------------- SO(3) error
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.floats(-1, 1), min_size=4, max_size=4),
+    st.lists(st.floats(-1, 1), min_size=3, max_size=3).filter(lambda v: np.linalg.norm(v) > 1e-3),
+    st.floats(0.0, 3.1),
+)
+def test_attitude_error_is_sin_angle_axis(qd: list[float], axis: list[float], ang: float) -> None:
+    """R = R_d exp(ang a): e_R = sin(ang) a in body components (scipy oracle for R)."""
+    if np.linalg.norm(qd) < 1e-3:
+        qd = [0.0, 0.0, 0.0, 1.0]
+    Rd = Rotation.from_quat(qd)
+    a = np.asarray(axis) / np.linalg.norm(axis)
+    R = Rd * Rotation.from_rotvec(ang * a)
+    e = attitude_error(R.as_matrix(), Rd.as_matrix())
+    np.testing.assert_allclose(e, math.sin(ang) * a, atol=1e-12)
+
+
+def _simulate_rates(q0: Rotation, qd_fn: object, wff_fn: object, seconds: float,
+                    gains: AttitudeGains, dt: float = 0.002, tau: float = 0.03
+                    ) -> list[float]:
+    """Own rigid-body kinematics with a first-order rate loop; returns the angle error history."""
+    R = q0
+    w = np.zeros(3)
+    hist = []
+    t = 0.0
+    while t < seconds:
+        Rd = qd_fn(t)  # type: ignore[operator]
+        cmd, _ = so3_rate_command(_wxyz(R), _wxyz(Rd), wff_fn(t), gains)  # type: ignore[operator]
+        w = w + (cmd - w) * dt / tau
+        R = R * Rotation.from_rotvec(w * dt)  # body-frame rate: R' = R hat(w)
+        t += dt
+        hist.append((Rd.inv() * R).magnitude())
+    return hist
+
+
+@pytest.mark.parametrize("angle_deg", [30.0, 90.0, 150.0, 175.0])
+def test_so3_converges_from_large_errors(angle_deg: float) -> None:
+    rng = np.random.default_rng(int(angle_deg))
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    Rd = Rotation.from_euler("ZYX", [0.3, 0.1, -0.2])
+    q0 = Rd * Rotation.from_rotvec(math.radians(angle_deg) * axis)
+    hist = _simulate_rates(q0, lambda t: Rd, lambda t: np.zeros(3), 3.0, AttitudeGains())
+    assert hist[-1] < math.radians(0.5)
+    # monotone-ish: never grows by more than a hair over 10 ms windows
+    coarse = hist[::5]
+    assert all(b <= a + 1e-3 for a, b in zip(coarse, coarse[1:], strict=False))
+
+
+def test_so3_feedforward_removes_tracking_lag() -> None:
+    """Desired attitude spinning at a constant body rate: the feed-forward rate removes the lag."""
+    w_d = np.array([0.8, -0.5, 1.2])
+    Rd0 = Rotation.from_euler("ZYX", [0.2, 0.2, 0.1])
+
+    def qd(t: float) -> Rotation:
+        return Rd0 * Rotation.from_rotvec(w_d * t)
+
+    with_ff = _simulate_rates(qd(0.0), qd, lambda t: w_d, 3.0, AttitudeGains())
+    without = _simulate_rates(qd(0.0), qd, lambda t: np.zeros(3), 3.0, AttitudeGains())
+    assert max(with_ff[-500:]) < 0.02
+    assert min(without[-500:]) > 5 * max(with_ff[-500:])
+
+
+# ----------------------------------------------------------------------------- tracking
+
+
+def _newton_residual(cmd_q: np.ndarray, thrust_norm: float, acc: np.ndarray, vel: np.ndarray,
+                     p: MultirotorParams, hover: float) -> np.ndarray:
+    """m a - (m g e3 - T z_b - D v) with T from the linear thrust model (MATH.md)."""
+    zb = _rot(cmd_q).apply([0.0, 0.0, 1.0])
+    T = thrust_norm / hover * p.mass * G
+    return p.mass * acc - (p.mass * G * E3 - T * zb - p.drag * vel)
+
+
+@pytest.mark.parametrize("drag", [0.0, 1.0])
+def test_on_reference_command_satisfies_newton(drag: float) -> None:
+    p = _params(drag=drag, mass=1.3, hover=0.45)
+    cfg = TrackingConfig(params=p, estimate_hover_thrust=False, drag_velocity="reference")
+    ctl = TrackingController(cfg)
+    vel = np.array([3.0, -2.0, 0.5])
+    acc = np.array([1.5, 2.0, -0.7])
+    ref = Reference(np.array([1.0, 2.0, -5.0]), vel, acc, np.zeros(3), np.zeros(3), 0.4)
+    est = _est(0.0, ref.pos_ned, vel, _wxyz(Rotation.identity()), acc=acc)
+    out = ctl.attitude(0.0, est, ref)
+    assert not out.fallback and not out.saturated
+    np.testing.assert_allclose(_newton_residual(out.q_wxyz, out.thrust_norm, acc, vel, p, 0.45),
+                               0.0, atol=1e-9)
+    # 3-2-1 yaw of the commanded attitude is the reference yaw (scipy oracle)
+    assert _rot(out.q_wxyz).as_euler("ZYX")[0] == pytest.approx(0.4, abs=1e-9)
+
+
+def test_hover_on_reference_is_level_at_hover_thrust() -> None:
+    ctl = TrackingController(TrackingConfig(params=_params(hover=0.6)))
+    ref = Reference(np.array([0.0, 0.0, -5.0]))
+    out = ctl.attitude(1.0, _est(1.0, [0, 0, -5]), ref)
+    assert out.thrust_norm == pytest.approx(0.6, abs=1e-12)
+    assert _rot(out.q_wxyz).magnitude() == pytest.approx(0.0, abs=1e-9)
+
+
+def test_position_error_tilts_toward_target() -> None:
+    ctl = TrackingController(TrackingConfig(params=_params(), estimate_hover_thrust=False))
+    ref = Reference(np.array([1.0, 0.0, -5.0]))
+    out = ctl.attitude(0.0, _est(0.0, [0, 0, -5]), ref)
+    # the lift (-z_b) must lean north
+    lift = -_rot(out.q_wxyz).apply([0.0, 0.0, 1.0])
+    assert lift[0] > 0.05 and abs(lift[1]) < 1e-9 and lift[2] < 0.0
+
+
+def test_saturation_tilt_thrust_and_antiwindup() -> None:
+    max_tilt = math.radians(35.0)
+    cfg = TrackingConfig(params=_params(), max_tilt_rad=max_tilt, thrust_max=0.9,
+                         estimate_hover_thrust=False)
+    ctl = TrackingController(cfg)
+    ref = Reference(np.array([100.0, -50.0, -30.0]))
+    est = _est(0.0, [0, 0, -5])
+    integ = []
+    for k in range(400):
+        out = ctl.attitude(0.01 * k, _est(0.01 * k, [0, 0, -5]), ref)
+        zb = _rot(out.q_wxyz).apply([0.0, 0.0, 1.0])
+        tilt = math.acos(np.clip(zb[2], -1, 1))
+        assert tilt <= max_tilt + 1e-9
+        assert 0.0 <= out.thrust_norm <= 0.9 + 1e-12
+        assert out.saturated
+        assert ctl.last is not None
+        integ.append(np.abs(ctl.last.integrator_ned).max())
+    # frozen while saturated: no wind-up at all
+    assert max(integ) < 1e-9
+    del est
+
+
+def test_integrator_clamped_without_saturation() -> None:
+    g = TrackingGains(ki_xy=5.0, i_max_xy=0.3)
+    ctl = TrackingController(TrackingConfig(params=_params(), gains=g,
+                                            estimate_hover_thrust=False))
+    ref = Reference(np.array([0.05, 0.0, -5.0]))
+    for k in range(2000):
+        ctl.attitude(0.01 * k, _est(0.01 * k, [0, 0, -5]), ref)
+    assert ctl.last is not None
+    assert ctl.last.integrator_ned[0] == pytest.approx(0.3)
+
+
+def test_latency_compensation_matches_current_state() -> None:
+    """A 0.1 s old estimate extrapolated by the controller = the true state now (kinematics)."""
+    p = _params(drag=1.0)
+    ref = Reference(np.array([2.0, 1.0, -5.0]), np.array([1.0, 0.5, 0.0]), yaw=0.2)
+    acc = np.array([0.5, -0.3, 0.1])
+    v0 = np.array([1.5, 0.2, -0.1])
+    p0 = np.array([0.3, 0.4, -4.8])
+    tau = 0.1
+    p1 = p0 + v0 * tau + 0.5 * acc * tau**2
+    v1 = v0 + acc * tau
+    w = np.array([0.0, 0.0, 0.7])
+    q0 = _wxyz(Rotation.from_euler("ZYX", [0.1, 0.05, -0.02]))
+    q1 = _wxyz(_rot(q0) * Rotation.from_rotvec(w * tau))
+    a = TrackingController(TrackingConfig(params=p, estimate_hover_thrust=False))
+    b = TrackingController(TrackingConfig(params=p, estimate_hover_thrust=False))
+    ra = a.rates(5.0, _est(5.0 - tau, p0, v0, q0, w, acc), ref)
+    rb = b.rates(5.0, _est(5.0, p1, v1, q1, w, acc), ref)
+    np.testing.assert_allclose(ra.omega_frd, rb.omega_frd, atol=1e-9)
+    assert ra.thrust_norm == pytest.approx(rb.thrust_norm, abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("est", "reason"),
+    [
+        (_est(0.0, [math.nan, 0, -5]), "telemetry not finite"),
+        (_est(0.0, [0, 0, -5], q=(0, 0, 0, 0)), "telemetry not finite"),
+        (_est(-2.0, [0, 0, -5]), "telemetry stale"),
+    ],
+)
+def test_fallback_on_bad_telemetry(est: StateEstimate, reason: str) -> None:
+    ctl = TrackingController(TrackingConfig(params=_params(hover=0.55)))
+    ref = Reference(np.array([0.0, 0.0, -5.0]))
+    a = ctl.attitude(0.0, est, ref)
+    assert a.fallback and a.reason.startswith(reason)
+    assert a.thrust_norm == pytest.approx(0.55)
+    assert np.linalg.norm(a.q_wxyz) == pytest.approx(1.0)
+    r = ctl.rates(0.0, est, ref)
+    assert r.fallback and np.all(np.isfinite(r.omega_frd))
+
+
+def test_fallback_keeps_heading_and_levels() -> None:
+    ctl = TrackingController(TrackingConfig(params=_params()))
+    q = _wxyz(Rotation.from_euler("ZYX", [1.0, 0.3, 0.2]))
+    bad_ref = Reference(np.array([math.inf, 0.0, 0.0]))
+    out = ctl.attitude(0.0, _est(0.0, [0, 0, -5], q=q), bad_ref)
+    assert out.fallback and out.reason == "reference not finite"
+    ypr = _rot(out.q_wxyz).as_euler("ZYX")
+    np.testing.assert_allclose(ypr, [1.0, 0.0, 0.0], atol=1e-12)
+    r = ctl.rates(0.0, _est(0.0, [0, 0, -5], q=q), bad_ref)
+    # the levelling rates reduce roll and pitch: p opposes roll, q opposes pitch
+    assert r.omega_frd[0] < 0.0 and r.omega_frd[1] < 0.0
+
+
+_f = st.floats(allow_nan=True, allow_infinity=True, width=64)
+_fb = st.floats(-1e3, 1e3)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    pos=st.lists(st.one_of(_fb, _f), min_size=3, max_size=3),
+    vel=st.lists(st.one_of(_fb, _f), min_size=3, max_size=3),
+    q=st.lists(st.one_of(st.floats(-1, 1), _f), min_size=4, max_size=4),
+    omega=st.lists(_fb, min_size=3, max_size=3),
+    rpos=st.lists(_fb, min_size=3, max_size=3),
+    racc=st.lists(st.floats(-100, 100), min_size=3, max_size=3),
+    rjerk=st.lists(st.floats(-1e3, 1e3), min_size=3, max_size=3),
+    yaw=st.floats(-10, 10),
+    age=st.floats(-1, 2),
+    rates_mode=st.booleans(),
+)
+def test_never_nan(pos: list[float], vel: list[float], q: list[float], omega: list[float],
+                   rpos: list[float], racc: list[float], rjerk: list[float], yaw: float,
+                   age: float, rates_mode: bool) -> None:
+    ctl = TrackingController(TrackingConfig(params=_params(drag=1.0)))
+    est = _est(10.0 - age, pos, vel, q, omega)
+    ref = Reference(np.asarray(rpos), np.asarray(rpos) * 0.1, np.asarray(racc),
+                    np.asarray(rjerk), np.zeros(3), yaw, 0.3, 0.0)
+    for k in range(2):
+        now = 10.0 + 0.01 * k
+        if rates_mode:
+            r = ctl.rates(now, est, ref)
+            assert np.all(np.isfinite(r.omega_frd))
+            assert 0.0 <= r.thrust_norm <= 1.0
+        else:
+            a = ctl.attitude(now, est, ref)
+            assert np.all(np.isfinite(a.q_wxyz))
+            assert np.linalg.norm(a.q_wxyz) == pytest.approx(1.0, abs=1e-12)
+            assert a.q_wxyz[0] >= 0.0
+            assert 0.0 <= a.thrust_norm <= 1.0 and math.isfinite(a.yaw_rate_ff)
+
+
+def test_position_command_modes() -> None:
+    ref = Reference(np.array([1.0, 2.0, -3.0]), np.array([0.5, 0.0, 0.0]),
+                    np.array([0.0, 0.1, 0.0]), yaw=0.3, yaw_rate=0.1)
+    naive = position_command(ref, feedforward=False)
+    assert np.all(np.isnan(naive.vel_ned)) and np.all(np.isnan(naive.acc_ned))
+    assert math.isnan(naive.yaw_rate) and naive.yaw == 0.3
+    ff = position_command(ref)
+    np.testing.assert_array_equal(ff.acc_ned, ref.acc_ned)
+    with pytest.raises(ValueError, match="not finite"):
+        position_command(Reference(np.array([math.nan, 0.0, 0.0])))
+
+
+# ----------------------------------------------------------------------------- rover
+
+
+def test_rover_tracks_circle_on_unicycle() -> None:
+    """Own unicycle model (speed and yaw rate follow the setpoint with a lag) tracks a circle."""
+    radius, speed = 6.0, 2.0
+    w = speed / radius
+    ctl = RoverController()
+    x, y, psi, v, r = 1.0, -1.5, 0.6, 0.0, 0.0  # start off the path
+    dt = 0.01
+    errs = []
+    for k in range(3000):
+        t = k * dt
+        ref = Reference(
+            np.array([radius * math.sin(w * t), radius * (1 - math.cos(w * t)), 0.0]),
+            np.array([speed * math.cos(w * t), speed * math.sin(w * t), 0.0]),
+            np.array([-speed * w * math.sin(w * t), speed * w * math.cos(w * t), 0.0]),
+            np.array([-speed * w * w * math.cos(w * t), -speed * w * w * math.sin(w * t), 0.0]),
+        )
+        q = _wxyz(Rotation.from_euler("Z", psi))
+        est = _est(t, [x, y, 0.0], [v * math.cos(psi), v * math.sin(psi), 0.0], q, [0, 0, r])
+        cmd = ctl.update(t, est, ref)
+        assert math.isnan(cmd.vel_ned[2]) and np.all(np.isfinite(cmd.vel_ned[:2]))
+        v_sp = float(np.hypot(*cmd.vel_ned[:2]))
+        v += (v_sp - v) * dt / 0.2
+        r += (cmd.yaw_rate - r) * dt / 0.1
+        psi += r * dt
+        x += v * math.cos(psi) * dt
+        y += v * math.sin(psi) * dt
+        errs.append(math.hypot(x - ref.pos_ned[0], y - ref.pos_ned[1]))
+    assert errs[0] > 1.0
+    assert max(errs[-1000:]) < 0.15
