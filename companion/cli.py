@@ -54,6 +54,132 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return EXIT_OK if result.limits_ok else EXIT_FAILURE
 
 
+def _replay_one(
+    path: str, out: str, config_kw: dict[str, object], queue: object | None
+) -> tuple[str, dict[str, object] | None, str | None]:
+    """Worker: replay one file; returns (path, report or None, error message or None)."""
+    from companion.mission import MissionError
+    from companion.replay import ReplayConfig, replay_file
+
+    def progress(t: float, t_max: float) -> None:
+        if queue is not None:
+            queue.put((path, t))  # type: ignore[attr-defined]
+
+    try:
+        result = replay_file(path, out, ReplayConfig(**config_kw), progress)  # type: ignore[arg-type]
+    except (MissionError, ValueError, OSError) as exc:
+        return path, None, str(exc)
+    return path, result.report, None
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from companion.mission import load_mission, mission_to_flight_plan
+
+    config_kw: dict[str, object] = {
+        "vehicle": args.vehicle,
+        "mode": args.mode,
+        "rate_hz": args.rate,
+        "wind_m_s": args.wind,
+        "seed": args.seed,
+        "compare_px4_mission": args.compare_px4_mission,
+    }
+    from companion.replay import ReplayConfig
+
+    ReplayConfig(**config_kw)  # type: ignore[arg-type]  # validate options before any work
+    # size the progress bars with the nominal mission durations (bad files fail later, cleanly)
+    totals: dict[str, float] = {}
+    for f in args.files:
+        try:
+            fp = mission_to_flight_plan(load_mission(f), vehicle=args.vehicle)
+            totals[f] = fp.nominal_duration_s() + 30.0
+        except Exception:  # noqa: BLE001 - reported by the worker with the file and item
+            totals[f] = 1.0
+    results: dict[str, tuple[dict[str, object] | None, str | None]] = {}
+    with Progress(
+        TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[sim]}"),
+        TimeElapsedColumn(), console=console, transient=False,
+    ) as progress:
+        tasks = {
+            f: progress.add_task(Path(f).name, total=totals[f], sim="") for f in args.files
+        }
+        if args.jobs <= 1:
+            for f in args.files:
+                def cb(t: float, t_max: float, f: str = f) -> None:
+                    progress.update(tasks[f], completed=min(t, totals[f]), sim=f"sim {t:6.0f} s")
+                from companion.mission import MissionError
+                from companion.replay import replay_file
+
+                try:
+                    r = replay_file(f, args.out, ReplayConfig(**config_kw), cb)  # type: ignore[arg-type]
+                    results[f] = (r.report, None)
+                except (MissionError, ValueError, OSError) as exc:
+                    results[f] = (None, str(exc))
+                progress.update(tasks[f], completed=totals[f])
+        else:
+            with mp.Manager() as manager, ProcessPoolExecutor(max_workers=args.jobs) as pool:
+                queue = manager.Queue()
+                futures = [pool.submit(_replay_one, f, args.out, config_kw, queue)
+                           for f in args.files]
+                pending = set(futures)
+                while pending:
+                    while not queue.empty():
+                        f, t = queue.get()
+                        progress.update(tasks[f], completed=min(t, totals[f]), sim=f"sim {t:6.0f} s")
+                    done = {fu for fu in pending if fu.done()}
+                    for fu in done:
+                        f, rep, err = fu.result()
+                        results[f] = (rep, err)
+                        progress.update(tasks[f], completed=totals[f])
+                    pending -= done
+                    if pending:
+                        import time
+
+                        time.sleep(0.1)  # UI refresh period, not synchronisation
+    table = Table(title=f"Replay summary ({args.mode} mode, {args.vehicle}); outputs in {args.out}")
+    for col in ("file", "result", "duration s", "RMS err m", "max err m", "waypoints",
+                "max tilt deg", "x real time"):
+        table.add_column(col)
+    exit_code = EXIT_OK
+    for f in args.files:
+        rep, err = results[f]
+        if rep is None:
+            table.add_row(Path(f).name, f"[red]error: {err}[/red]", "", "", "", "", "", "")
+            err_console.print(f"[red]error:[/red] {err}")
+            exit_code = EXIT_BAD_INPUT
+            continue
+        wps = rep["waypoints"]
+        assert isinstance(wps, list)
+        ok = rep["result"] == "ok" and rep["waypoints_reached"] == len(wps)
+        if not ok and exit_code == EXIT_OK:
+            exit_code = EXIT_FAILURE
+        rms = rep["rms_error_m"]
+        mx = rep["max_error_m"]
+        table.add_row(
+            Path(f).name,
+            "[green]ok[/green]" if ok else f"[yellow]{rep['result']}[/yellow]",
+            f"{rep['duration_s']:.1f}",
+            "-" if rms is None else f"{rms:.2f}",
+            "-" if mx is None else f"{mx:.2f}",
+            f"{rep['waypoints_reached']}/{len(wps)}",
+            f"{rep['max_tilt_deg']:.1f}",
+            f"{rep['real_time_factor']}",
+        )
+        px4 = rep.get("px4_mission")
+        if isinstance(px4, dict):
+            table.add_row(
+                "  (PX4 AUTO.MISSION)", str(px4["result"]), f"{px4['duration_s']:.1f}", "-", "-",
+                f"{px4['waypoints_reached']}/{len(px4['waypoints'])}",
+                f"{px4['max_tilt_deg']:.1f}", "",
+            )
+    console.print(table)
+    return exit_code
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `python -m companion`."""
     parser = argparse.ArgumentParser(
@@ -68,6 +194,24 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--rate", type=float, default=50.0, help="sample rate [Hz] (default 50)")
     demo.add_argument("--every", type=int, default=50, help="print every Nth sample")
     demo.set_defaults(func=_cmd_demo)
+
+    rp = sub.add_parser(
+        "replay",
+        help="fly mission files in the mock SITL faster than real time; write log, report, plot",
+    )
+    rp.add_argument("files", nargs="+", metavar="FILE", help=".plan or QGC WPL 110 files")
+    rp.add_argument("--vehicle", choices=("quad", "rover"), default="quad")
+    rp.add_argument("--mode", choices=("position", "attitude", "rates"), default="attitude",
+                    help="setpoint mode (default attitude)")
+    rp.add_argument("--rate", type=float, default=100.0, help="setpoint rate [Hz] (default 100)")
+    rp.add_argument("--compare-px4-mission", action="store_true",
+                    help="also fly the file in the mock's AUTO.MISSION and report both")
+    rp.add_argument("--wind", type=float, default=0.0, metavar="SPEED",
+                    help="steady wind speed [m/s] (default 0)")
+    rp.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    rp.add_argument("--jobs", type=int, default=1, help="files replayed in parallel (default 1)")
+    rp.add_argument("--out", default="replay_out", help="output folder (default ./replay_out)")
+    rp.set_defaults(func=_cmd_replay)
     return parser
 
 

@@ -10,7 +10,7 @@ Multirotor pipeline (`TrackingController`):
    attitude with the body rates.
 2. Acceleration command `a = a_ref + Kp e_p + Kd e_v + Ki int(e_p)` (errors reference minus
    extrapolated estimate), optionally with the reference feed-forward shifted ahead by
-   `lead_s` (Taylor, compensates the attitude loop lag).
+   `attitude_lead_s` in attitude mode (Taylor, compensates PX4's attitude-loop lag).
 3. Thrust vector `t = m (g e3 - a) - D v` (drag feed-forward, D configured or estimated), then
    saturation: minimum upward thrust, tilt limit (horizontal part scaled down), maximum thrust
    with vertical priority; the integrator is frozen while saturated (anti-windup) and clamped.
@@ -72,10 +72,11 @@ def _finite(*arrays: FloatArray) -> bool:
 
 def quat_to_dcm(q_wxyz: FloatArray) -> FloatArray:
     """DCM C_eb (3, 3) of a quaternion (w, x, y, z) (normalised first; zero -> identity)."""
-    n = float(np.linalg.norm(q_wxyz))
+    w, x, y, z = (float(c) for c in q_wxyz)
+    n = math.sqrt(w * w + x * x + y * y + z * z)
     if not (math.isfinite(n) and n > 0.0):
         return np.eye(3)
-    w, x, y, z = (float(c) / n for c in q_wxyz)
+    w, x, y, z = w / n, x / n, y / n, z / n
     return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
@@ -88,7 +89,7 @@ def quat_to_dcm(q_wxyz: FloatArray) -> FloatArray:
 def quat_normalize(q_wxyz: FloatArray) -> FloatArray:
     """Unit quaternion with w >= 0; non-finite or zero input gives the identity."""
     q = np.asarray(q_wxyz, dtype=np.float64)
-    n = float(np.linalg.norm(q))
+    n = math.sqrt(float(q @ q)) if bool(np.isfinite(q).all()) else math.nan
     if not (math.isfinite(n) and n > 1e-12):
         return np.array([1.0, 0.0, 0.0, 0.0])
     q = q / n
@@ -112,7 +113,7 @@ def quat_mul(a: FloatArray, b: FloatArray) -> FloatArray:
 def quat_integrate(q_wxyz: FloatArray, omega_frd: FloatArray, dt: float) -> FloatArray:
     """Attitude after rotating for `dt` [s] at constant body rate `omega_frd` [rad/s]."""
     rv = np.asarray(omega_frd, dtype=np.float64) * dt
-    ang = float(np.linalg.norm(rv))
+    ang = math.sqrt(float(rv @ rv))
     if ang < 1e-12:
         return quat_normalize(q_wxyz)
     dq = np.concatenate(([math.cos(0.5 * ang)], math.sin(0.5 * ang) / ang * rv))
@@ -290,13 +291,23 @@ class PositionCommand:
     reason: str = ""
 
 
-def position_command(ref: Reference, feedforward: bool = True) -> PositionCommand:
+def position_command(
+    ref: Reference, feedforward: bool = True, hold: StateEstimate | None = None
+) -> PositionCommand:
     """`position` mode: the reference as a PX4 position setpoint (PX4 closes the loop).
 
     feedforward False sends position + yaw only (the naive baseline); True adds velocity,
-    acceleration and the yaw rate.
+    acceleration and the yaw rate. A non-finite reference gives a flagged hold at `hold`'s
+    position and heading, or raises ValueError when no `hold` estimate is given.
     """
     if not ref.is_finite():
+        if hold is not None and hold.is_finite():
+            return PositionCommand(
+                pos_ned=hold.pos_ned.copy(),
+                yaw=yaw_of_dcm(quat_to_dcm(hold.q_wxyz)),
+                fallback=True,
+                reason="reference not finite",
+            )
         raise ValueError("reference is not finite; refusing to build a position setpoint")
     if feedforward:
         return PositionCommand(
@@ -372,7 +383,9 @@ class TrackingConfig:
     latency_compensation: extrapolate the last estimate to `now`.
     max_extrapolation_s: cap of the extrapolation horizon [s].
     stale_after_s: older telemetry -> hover fallback [s].
-    lead_s: feed-forward evaluated this far ahead (Taylor) to offset the attitude-loop lag [s].
+    attitude_lead_s: in `attitude` mode the feed-forward is evaluated this far ahead (Taylor in
+        jerk/snap) to offset the lag of PX4's attitude loop (~1/MC_ROLL_P) [s]. `rates` mode
+        needs no lead: it feeds the flatness body rates forward instead.
     thrust_delay_s: delay between a thrust command and its effect, used to pair commands with
         measured accelerations for the hover-thrust estimator [s].
     max_tilt_rad: tilt limit of the commanded thrust vector.
@@ -391,7 +404,7 @@ class TrackingConfig:
     latency_compensation: bool = True
     max_extrapolation_s: float = 0.25
     stale_after_s: float = 0.5
-    lead_s: float = 0.0
+    attitude_lead_s: float = 0.15
     thrust_delay_s: float = 0.05
     max_tilt_rad: float = math.radians(60.0)
     thrust_min: float = 0.08
@@ -441,6 +454,13 @@ def so3_rate_command(
     """
     R = quat_to_dcm(q_wxyz)
     Rd = quat_to_dcm(q_des_wxyz)
+    return so3_rate_command_dcm(R, Rd, omega_ff_frd, gains)
+
+
+def so3_rate_command_dcm(
+    R: FloatArray, Rd: FloatArray, omega_ff_frd: FloatArray, gains: AttitudeGains
+) -> tuple[FloatArray, FloatArray]:
+    """`so3_rate_command` with the attitudes given as DCMs C_eb (actual R, desired Rd)."""
     Rt_Rd = R.T @ Rd
     e_R = attitude_error(R, Rd)
     k = np.array([gains.k_roll, gains.k_pitch, gains.k_yaw])
@@ -454,7 +474,7 @@ def so3_rate_command(
         ff = np.zeros(3)
     omega = Rt_Rd @ ff - k * err
     lim = np.array([gains.max_rate_rp, gains.max_rate_rp, gains.max_rate_yaw])
-    omega = np.clip(omega, -lim, lim)
+    omega = np.minimum(np.maximum(omega, -lim), lim)
     return omega, e_R
 
 
@@ -479,6 +499,9 @@ class TrackingController:
         self.hover_estimator = HoverThrustEstimator(htc)
         dc = config.drag_config or DragConfig(initial_drag_over_mass=p.drag / p.mass, g=p.g)
         self.drag_estimator = DragEstimator(dc)
+        gains = config.gains
+        self._kp, self._kd = gains.kp(), gains.kd()
+        self._ki, self._imax = gains.ki(), gains.i_max()
         self._integ = np.zeros(3)
         self._t_last_update: float | None = None
         self._last_est: StateEstimate | None = None
@@ -517,30 +540,28 @@ class TrackingController:
     # -- public API ---------------------------------------------------------------------------
     def attitude(self, now: float, est: StateEstimate, ref: Reference) -> AttitudeCommand:
         """`attitude` mode setpoint at `now`: q + normalised thrust + yaw-rate feed-forward."""
-        out = self._core(now, est, ref)
+        out = self._core(now, est, ref, self.config.attitude_lead_s)
         if out is None:
             return self._fallback_attitude(now, est)
         q_des, thrust, _omega_ff, sat = out
         self._record_thrust(now, thrust)
         rate_ff = ref.yaw_rate if math.isfinite(ref.yaw_rate) else 0.0
+        self._publish_diag(np.zeros(3))
         return AttitudeCommand(q_des, thrust, rate_ff, saturated=sat)
 
     def rates(self, now: float, est: StateEstimate, ref: Reference) -> RateCommand:
         """`rates` mode setpoint at `now`: body rates from the SO(3) loop + thrust."""
-        out = self._core(now, est, ref)
+        out = self._core(now, est, ref, 0.0)
         if out is None:
             return self._fallback_rates(now, est)
         q_des, thrust, omega_ff, sat = out
-        q_now = self._q_now
-        omega, e_R = so3_rate_command(q_now, q_des, omega_ff, self.config.attitude_gains)
+        R = quat_to_dcm(self._q_now)
+        Rd = quat_to_dcm(q_des)
+        omega, e_R = so3_rate_command_dcm(R, Rd, omega_ff, self.config.attitude_gains)
         # Thrust along the actual body z (Lee): project the desired thrust direction.
-        zb_des = quat_to_dcm(q_des)[:, 2]
-        zb = quat_to_dcm(q_now)[:, 2]
-        proj = float(zb_des @ zb)
-        thrust = float(np.clip(thrust * max(proj, 0.5), self.config.thrust_min,
-                               self.config.thrust_max))
-        if self.last is not None:
-            self.last = replace(self.last, attitude_err_frd=e_R)
+        proj = float(Rd[:, 2] @ R[:, 2])
+        thrust = min(max(thrust * max(proj, 0.5), self.config.thrust_min), self.config.thrust_max)
+        self._publish_diag(e_R)
         if not (_finite(omega) and math.isfinite(thrust)):
             return self._fallback_rates(now, est, "non-finite rate command")
         self._record_thrust(now, thrust)
@@ -552,19 +573,20 @@ class TrackingController:
 
     def _mean_thrust(self, t0: float, t1: float) -> float:
         """Time average of the (zero-order-hold) thrust command history over [t0, t1]."""
-        h = self._thrust_hist
-        if not h or t1 <= t0:
+        if not self._thrust_hist or t1 <= t0:
             return math.nan
         total = 0.0
         covered = 0.0
-        items = list(h)
-        for i, (ti, ui) in enumerate(items):
-            t_next = items[i + 1][0] if i + 1 < len(items) else math.inf
-            a = max(ti, t0)
-            b = min(t_next, t1)
+        t_next = math.inf
+        for ti, ui in reversed(self._thrust_hist):  # newest first; stop once before t0
+            if t_next <= t0:
+                break
+            a = ti if ti > t0 else t0
+            b = t_next if t_next < t1 else t1
             if b > a:
                 total += ui * (b - a)
                 covered += b - a
+            t_next = ti
         if covered < 0.5 * (t1 - t0):
             return math.nan
         return total / covered
@@ -601,7 +623,7 @@ class TrackingController:
             )
 
     def _core(
-        self, now: float, est: StateEstimate, ref: Reference
+        self, now: float, est: StateEstimate, ref: Reference, lead_s: float
     ) -> tuple[FloatArray, float, FloatArray, bool] | None:
         """q_des, thrust_norm, omega_ff_frd, saturated; None -> fallback (reason in self.last)."""
         c = self.config
@@ -634,13 +656,12 @@ class TrackingController:
         )
 
         # 2. acceleration command
-        g = c.gains
         e_p = ref.pos_ned - pos
         e_v = ref.vel_ned - vel
-        L = c.lead_s
+        L = lead_s
         a_ff = ref.acc_ned + ref.jerk_ned * L + 0.5 * ref.snap_ned * L * L
         j_ff = ref.jerk_ned + ref.snap_ned * L
-        a_cmd = a_ff + g.kp() * e_p + g.kd() * e_v + self._integ
+        a_cmd = a_ff + self._kp * e_p + self._kd * e_v + self._integ
 
         # 3. thrust vector with drag, saturation
         h = self.hover_thrust
@@ -653,11 +674,11 @@ class TrackingController:
 
         # anti-windup: integrate only when not saturated (or when it unwinds)
         if dt_ctrl > 0.0:
-            di = g.ki() * e_p * dt_ctrl
+            di = self._ki * e_p * dt_ctrl
             if sat:
                 # allow only the components that reduce the integrator magnitude
                 di = np.where(di * self._integ < 0.0, di, 0.0)
-            self._integ = np.clip(self._integ + di, -g.i_max(), g.i_max())
+            self._integ = np.minimum(np.maximum(self._integ + di, -self._imax), self._imax)
         self._last_acc_cmd = a_sat
 
         # 4. flatness map
@@ -678,22 +699,27 @@ class TrackingController:
         if singular:
             omega_ff = np.zeros(3)
         q_des = quat_normalize(q_des)
-        thrust = float(np.clip(thrust, c.thrust_min, c.thrust_max))
+        thrust = min(max(thrust, c.thrust_min), c.thrust_max)
+        self._diag = (now, e_p, e_v, a_sat, self._integ.copy(), h, D, tau, sat,
+                      "singular flatness point" if singular else "")
+        return q_des, thrust, omega_ff, sat
+
+    def _publish_diag(self, e_R: FloatArray) -> None:
+        now, e_p, e_v, a_sat, integ, h, D, tau, sat, reason = self._diag
         self.last = TrackingDiagnostics(
             t_s=now,
             pos_err_ned=e_p,
             vel_err_ned=e_v,
             acc_cmd_ned=a_sat,
-            integrator_ned=self._integ.copy(),
+            integrator_ned=integ,
             hover_thrust=h,
             drag=D,
             extrapolation_s=tau,
             saturated=sat,
-            attitude_err_frd=np.zeros(3),
+            attitude_err_frd=e_R,
             fallback=False,
-            reason="singular flatness point" if singular else "",
+            reason=reason,
         )
-        return q_des, thrust, omega_ff, sat
 
     def _params_for_drag(self, drag: float) -> MultirotorParams:
         """Flatness parameters with drag `drag` (cached: constructing them validates inertia)."""
@@ -722,12 +748,12 @@ class TrackingController:
             tz = T_max
             sat = True
         h_lim = min(tz * math.tan(c.max_tilt_rad), math.sqrt(max(T_max * T_max - tz * tz, 0.0)))
-        hn = float(np.linalg.norm(th))
+        hn = math.hypot(float(th[0]), float(th[1]))
         if hn > h_lim:
             th = th * (h_lim / hn)
             sat = True
-        T = math.hypot(float(np.linalg.norm(th)), tz)
-        if T < T_min:
+        T = math.hypot(float(th[0]), float(th[1]), tz)
+        if T_min > T:
             tz = math.sqrt(max(T_min * T_min - float(th @ th), 0.0))
             sat = True
         return np.array([th[0], th[1], tz]), sat
@@ -781,6 +807,9 @@ class TrackingController:
 
     _fallback_reason: str = ""
     _params_cache: tuple[float, MultirotorParams] | None = None
+    _diag: tuple[
+        float, FloatArray, FloatArray, FloatArray, FloatArray, float, float, float, bool, str
+    ]
     _q_now: FloatArray = np.array([1.0, 0.0, 0.0, 0.0])
 
 
@@ -874,5 +903,6 @@ __all__ = [
     "quat_to_dcm",
     "reference_from_trajectory",
     "so3_rate_command",
+    "so3_rate_command_dcm",
     "yaw_quat",
 ]

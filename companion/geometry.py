@@ -219,7 +219,7 @@ def dcm_to_quat(C: ArrayLike) -> FloatArray:
 
 
 def quat_exp(rotvec: ArrayLike) -> FloatArray:
-    """Unit quaternion (w >= 0 for angles <= pi) of rotation vector(s) (..., 3) (axis * angle)."""
+    """Unit quaternion (w >= 0) of rotation vector(s) (..., 3) (axis * angle, rad)."""
     v = _as_float(rotvec)
     _check_last(v, 3, "rotation vector")
     theta = np.linalg.norm(v, axis=-1, keepdims=True)

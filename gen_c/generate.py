@@ -91,6 +91,14 @@ def _differences(points: list[ca.SX], order: int) -> list[ca.SX]:
     return pts
 
 
+def _pairwise_sum(terms: list[ca.SX]) -> ca.SX:
+    """Sum as a balanced tree (short dependency chains in the generated C)."""
+    while len(terms) > 1:
+        terms = [terms[i] + terms[i + 1] if i + 1 < len(terms) else terms[i]
+                 for i in range(0, len(terms), 2)]
+    return terms[0]
+
+
 def _falling(n: int, k: int) -> int:
     """n (n-1) ... (n-k+1)."""
     out = 1
@@ -130,9 +138,7 @@ def bezier_function(name: str) -> ca.Function:
         for k in range(orders):
             diffs = _differences(pts, k)
             b = basis[n - k]
-            val = diffs[0] * b[0]
-            for i in range(1, len(diffs)):
-                val = val + diffs[i] * b[i]
+            val = _pairwise_sum([d * bi for d, bi in zip(diffs, b, strict=True)])
             outs.append(val * (_falling(n, k) * inv_h_pow[k]) if k else val)
     outs = list(ca.cse(outs))
     return ca.Function(name, [cp, ycp, h, t], outs, list(BEZIER_IN), list(BEZIER_OUT))

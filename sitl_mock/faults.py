@@ -165,5 +165,7 @@ def parse_blackouts(text: str) -> tuple[tuple[float, float], ...]:
             a, b = part.split("-", 1)
             windows.append((float(a), float(b)))
         except ValueError as exc:
-            raise ValueError(f"blackout window {part!r} must look like START-END in seconds") from exc
+            raise ValueError(
+                f"blackout window {part!r} must look like START-END in seconds"
+            ) from exc
     return tuple(windows)

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 from sitl_mock.setpoints import PositionTarget, Quat, Vec3
 
 G = 9.80665  # standard gravity [m/s^2] (PX4 CONSTANTS_ONE_G)
+VEL_SP_ABS_MAX = 1000.0  # sanity clamp of absurd (finite) setpoints [m/s]
+ACC_FF_ABS_MAX = 100.0  # sanity clamp of acceleration feed-forward [m/s^2]
 _SQRT1_2 = math.sqrt(0.5)
 _isfinite = math.isfinite
 
@@ -267,7 +269,7 @@ class PositionVelocityController:
                 out[i] = math.nan  # acceleration only on this axis
             else:
                 out[i] = 0.0  # nothing given on this axis: hold (zero velocity)
-        vx, vy, vz = out
+        vx, vy, vz = (_clamp(c, -VEL_SP_ABS_MAX, VEL_SP_ABS_MAX) for c in out)  # NaN passes
         if _isfinite(vx) and _isfinite(vy):
             n = math.hypot(vx, vy)
             if n > g.vel_xy_max:
@@ -300,7 +302,7 @@ class PositionVelocityController:
                 err[i] = e
                 acc[i] = g.vel_p[i] * e + vi[i] - g.vel_d[i] * vel_dot[i]
             if _isfinite(ta[i]):
-                acc[i] += ta[i]
+                acc[i] += _clamp(ta[i], -ACC_FF_ABS_MAX, ACC_FF_ABS_MAX)
         ax, ay, az = acc
         self.acc_sp = (ax, ay, az)
         # acceleration -> body z direction (thrust points along -body_z) with tilt limit
@@ -369,7 +371,8 @@ def attitude_control(g: McGains, q: Quat, q_sp: Quat, yaw_rate_ff: float) -> Vec
         w0 = _clamp(q_mix[0], -1.0, 1.0)
         w3 = _clamp(q_mix[3], -1.0, 1.0)
         yw = g.yaw_w
-        qd = quat_mul(qd_red, (math.cos(yw * math.acos(w0)), 0.0, 0.0, math.sin(yw * math.asin(w3))))
+        q_yaw = (math.cos(yw * math.acos(w0)), 0.0, 0.0, math.sin(yw * math.asin(w3)))
+        qd = quat_mul(qd_red, q_yaw)
     qe = quat_normalize(quat_mul(quat_conj(q), qd))
     rx = 2.0 * qe[1] * g.att_p[0]
     ry = 2.0 * qe[2] * g.att_p[1]
@@ -399,59 +402,85 @@ class RateController:
     def update(
         self, g: McGains, rate: Vec3, rate_sp: Vec3, dt: float, freeze_integral: bool
     ) -> Vec3:
-        """Torque (normalised) for the rate error; D acts on the measured angular acceleration."""
-        prev = self._prev_rate if self._prev_rate is not None else rate
+        """Torque (normalised) for the rate error; D acts on the measured angular acceleration.
+
+        The integrator is frozen while `freeze_integral` (landed), shaped by PX4's
+        1 - (e / 400 deg/s)^2 factor and limited to +-0.3.
+        """
+        prev = self._prev_rate
+        if prev is None:
+            prev = rate
         self._prev_rate = rate
-        inv_dt = 1.0 / dt if dt > 0.0 else 0.0
-        out = [0.0, 0.0, 0.0]
+        inv_dt = 1.0 / dt
+        wx, wy, wz = rate
+        ex, ey, ez = rate_sp[0] - wx, rate_sp[1] - wy, rate_sp[2] - wz
+        kp, kd = g.rate_p, g.rate_d
         integ = self.integral
-        lim = g.rate_int_lim
-        for i in range(3):
-            e = rate_sp[i] - rate[i]
-            out[i] = g.rate_p[i] * e + integ[i] - g.rate_d[i] * (rate[i] - prev[i]) * inv_dt
-            if not freeze_integral:
-                f = e / 6.981317007977318  # 400 deg/s
-                f = max(0.0, 1.0 - f * f)
-                integ[i] = _clamp(integ[i] + f * g.rate_i[i] * e * dt, -lim, lim)
-        return (_clamp(out[0], -1.0, 1.0), _clamp(out[1], -1.0, 1.0), _clamp(out[2], -1.0, 1.0))
+        ix, iy, iz = integ
+        tx = kp[0] * ex + ix - kd[0] * (wx - prev[0]) * inv_dt
+        ty = kp[1] * ey + iy - kd[1] * (wy - prev[1]) * inv_dt
+        tz = kp[2] * ez + iz - kd[2] * (wz - prev[2]) * inv_dt
+        if not freeze_integral:
+            ki, lim = g.rate_i, g.rate_int_lim
+            k = 1.0 / 6.981317007977318  # 1 / (400 deg/s)
+            fx, fy, fz = ex * k, ey * k, ez * k
+            fx, fy, fz = 1.0 - fx * fx, 1.0 - fy * fy, 1.0 - fz * fz
+            if fx > 0.0:
+                ix += fx * ki[0] * ex * dt
+                ix = lim if ix > lim else -lim if ix < -lim else ix
+            if fy > 0.0:
+                iy += fy * ki[1] * ey * dt
+                iy = lim if iy > lim else -lim if iy < -lim else iy
+            if fz > 0.0:
+                iz += fz * ki[2] * ez * dt
+                iz = lim if iz > lim else -lim if iz < -lim else iz
+            integ[0], integ[1], integ[2] = ix, iy, iz
+        return (
+            1.0 if tx > 1.0 else -1.0 if tx < -1.0 else tx,
+            1.0 if ty > 1.0 else -1.0 if ty < -1.0 else ty,
+            1.0 if tz > 1.0 else -1.0 if tz < -1.0 else tz,
+        )
 
 
 def mix_quad_x(torque: Vec3, thrust: float) -> tuple[float, float, float, float]:
     """Normalised torque + collective -> four motor commands 0..1 (PX4 quad X order).
 
     Motors: 0 front-right (CCW), 1 rear-left (CCW), 2 front-left (CW), 3 rear-right (CW).
-    Roll/pitch have priority: the collective is shifted, then roll/pitch scaled, to fit [0, 1];
-    yaw gets what headroom is left.
+    A normalised roll/pitch torque of 1 moves each motor by 1/sqrt(2) (PX4's normalised
+    effectiveness), a yaw torque of 1 by 1. Roll/pitch have priority: the collective is shifted,
+    and roll/pitch scaled down if needed, to fit [0, 1]; yaw gets the headroom that is left.
     """
     r = torque[0] * _SQRT1_2
     p = torque[1] * _SQRT1_2
-    rp = (-r + p, r - p, r + p, -r - p)
-    hi = max(rp)
-    lo = min(rp)
-    span = hi - lo
-    if span > 1.0:
-        s = 1.0 / span
-        rp = (rp[0] * s, rp[1] * s, rp[2] * s, rp[3] * s)
-        hi *= s
-        lo *= s
-    t = _clamp(thrust, 0.0, 1.0)
-    if t + hi > 1.0:
-        t = 1.0 - hi
-    elif t + lo < 0.0:
-        t = -lo
-    u0, u1, u2, u3 = t + rp[0], t + rp[1], t + rp[2], t + rp[3]
+    a = p - r  # motors 0 (+) and 1 (-)
+    b = r + p  # motors 2 (+) and 3 (-)
+    m = abs(a) if abs(a) > abs(b) else abs(b)  # rp spans [-m, m]
+    if m > 0.5:
+        s = 0.5 / m
+        a *= s
+        b *= s
+        m = 0.5
+    t = 0.0 if thrust < 0.0 else 1.0 if thrust > 1.0 else thrust
+    if t + m > 1.0:
+        t = 1.0 - m
+    elif t - m < 0.0:
+        t = m
+    u0, u1, u2, u3 = t + a, t - a, t + b, t - b
     y = torque[2]
     if y > 0.0:  # motors 0,1 up, 2,3 down
         k = min(y, 1.0 - u0, 1.0 - u1, u2, u3)
+        if k < 0.0:
+            k = 0.0
     elif y < 0.0:
         k = max(y, -u0, -u1, u2 - 1.0, u3 - 1.0)
+        if k > 0.0:
+            k = 0.0
     else:
         k = 0.0
-    if (y > 0.0 and k < 0.0) or (y < 0.0 and k > 0.0):
-        k = 0.0
+    u0, u1, u2, u3 = u0 + k, u1 + k, u2 - k, u3 - k
     return (
-        _clamp(u0 + k, 0.0, 1.0),
-        _clamp(u1 + k, 0.0, 1.0),
-        _clamp(u2 - k, 0.0, 1.0),
-        _clamp(u3 - k, 0.0, 1.0),
+        0.0 if u0 < 0.0 else 1.0 if u0 > 1.0 else u0,
+        0.0 if u1 < 0.0 else 1.0 if u1 > 1.0 else u1,
+        0.0 if u2 < 0.0 else 1.0 if u2 > 1.0 else u2,
+        0.0 if u3 < 0.0 else 1.0 if u3 > 1.0 else u3,
     )

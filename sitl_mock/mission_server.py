@@ -31,8 +31,39 @@ TERRAIN_FRAMES = frozenset({10, 11})
 SUPPORTED_FRAMES = frozenset({0, 2, 3, 5, 6})
 # Commands the mock accepts in a mission (PX4 accepts these; the mock executes a subset).
 SUPPORTED_COMMANDS = frozenset(
-    {16, 17, 18, 19, 20, 21, 22, 31, 93, 112, 115, 177, 178, 179, 183, 184, 189, 195, 197,
-     201, 203, 205, 206, 530, 2000, 2001, 2003, 2004, 2500, 2501, 3000}
+    {
+        16,
+        17,
+        18,
+        19,
+        20,
+        21,
+        22,
+        31,
+        93,
+        112,
+        115,
+        177,
+        178,
+        179,
+        183,
+        184,
+        189,
+        195,
+        197,
+        201,
+        203,
+        205,
+        206,
+        530,
+        2000,
+        2001,
+        2003,
+        2004,
+        2500,
+        2501,
+        3000,
+    }
 )
 POSITION_COMMANDS = frozenset({16, 17, 18, 19, 21, 22, 31})
 
@@ -64,26 +95,50 @@ class MissionItem:
     def to_int_message(self, target_system: int, target_component: int) -> Msg:
         """MISSION_ITEM_INT for this item (x/y scaled by 1e7 for global frames)."""
         if self.is_global:
-            xi, yi = int(round(self.x * 1e7)), int(round(self.y * 1e7))
+            xi, yi = round(self.x * 1e7), round(self.y * 1e7)
         else:
             xi, yi = _int_or_zero(self.x), _int_or_zero(self.y)
         return mavlink.MAVLink_mission_item_int_message(
-            target_system, target_component, self.seq, self.frame, self.command, self.current,
-            self.autocontinue, self.param1, self.param2, self.param3, self.param4, xi, yi,
-            self.z, self.mission_type,
+            target_system,
+            target_component,
+            self.seq,
+            self.frame,
+            self.command,
+            self.current,
+            self.autocontinue,
+            self.param1,
+            self.param2,
+            self.param3,
+            self.param4,
+            xi,
+            yi,
+            self.z,
+            self.mission_type,
         )
 
     def to_float_message(self, target_system: int, target_component: int) -> Msg:
         """MISSION_ITEM (float) for this item."""
         return mavlink.MAVLink_mission_item_message(
-            target_system, target_component, self.seq, self.frame, self.command, self.current,
-            self.autocontinue, self.param1, self.param2, self.param3, self.param4, self.x,
-            self.y, self.z, self.mission_type,
+            target_system,
+            target_component,
+            self.seq,
+            self.frame,
+            self.command,
+            self.current,
+            self.autocontinue,
+            self.param1,
+            self.param2,
+            self.param3,
+            self.param4,
+            self.x,
+            self.y,
+            self.z,
+            self.mission_type,
         )
 
 
 def _int_or_zero(v: float) -> int:
-    return int(round(v)) if math.isfinite(v) else 0
+    return round(v) if math.isfinite(v) else 0
 
 
 def item_from_message(msg: Msg) -> MissionItem:
@@ -93,31 +148,41 @@ def item_from_message(msg: Msg) -> MissionItem:
     if is_int and msg.frame in GLOBAL_FRAMES:
         x, y = x * 1e-7, y * 1e-7
     return MissionItem(
-        int(msg.seq), int(msg.frame), int(msg.command), int(msg.current), int(msg.autocontinue),
-        float(msg.param1), float(msg.param2), float(msg.param3), float(msg.param4), x, y,
-        float(msg.z), int(getattr(msg, "mission_type", 0)),
+        int(msg.seq),
+        int(msg.frame),
+        int(msg.command),
+        int(msg.current),
+        int(msg.autocontinue),
+        float(msg.param1),
+        float(msg.param2),
+        float(msg.param3),
+        float(msg.param4),
+        x,
+        y,
+        float(msg.z),
+        int(getattr(msg, "mission_type", 0)),
     )
 
 
 def validate_item(item: MissionItem) -> int:
     """MAV_MISSION_RESULT for one item (ACCEPTED if the mock can store it)."""
     if item.mission_type != MISSION:
-        return mavlink.MAV_MISSION_ACCEPTED
+        return int(mavlink.MAV_MISSION_ACCEPTED)
     if item.frame in TERRAIN_FRAMES:
-        return mavlink.MAV_MISSION_UNSUPPORTED_FRAME  # no terrain data in the mock
+        return int(mavlink.MAV_MISSION_UNSUPPORTED_FRAME)  # no terrain data in the mock
     if item.command not in SUPPORTED_COMMANDS:
-        return mavlink.MAV_MISSION_UNSUPPORTED
+        return int(mavlink.MAV_MISSION_UNSUPPORTED)
     if item.command in POSITION_COMMANDS:
         if item.frame not in SUPPORTED_FRAMES:
-            return mavlink.MAV_MISSION_UNSUPPORTED_FRAME
+            return int(mavlink.MAV_MISSION_UNSUPPORTED_FRAME)
         if item.frame != 2:
             if not (math.isfinite(item.x) and -90.0 <= item.x <= 90.0):
-                return mavlink.MAV_MISSION_INVALID_PARAM5_X
+                return int(mavlink.MAV_MISSION_INVALID_PARAM5_X)
             if not (math.isfinite(item.y) and -180.0 <= item.y <= 180.0):
-                return mavlink.MAV_MISSION_INVALID_PARAM6_Y
+                return int(mavlink.MAV_MISSION_INVALID_PARAM6_Y)
             if not math.isfinite(item.z):
-                return mavlink.MAV_MISSION_INVALID_PARAM7
-    return mavlink.MAV_MISSION_ACCEPTED
+                return int(mavlink.MAV_MISSION_INVALID_PARAM7)
+    return int(mavlink.MAV_MISSION_ACCEPTED)
 
 
 def project_to_ned(
@@ -175,9 +240,7 @@ class MissionServer:
     # ---------------------------------------------------------------- helpers
     def _ack(self, sys_comp: tuple[int, int], result: int, mission_type: int) -> None:
         self._send(
-            mavlink.MAVLink_mission_ack_message(
-                sys_comp[0], sys_comp[1], result, mission_type
-            )
+            mavlink.MAVLink_mission_ack_message(sys_comp[0], sys_comp[1], result, mission_type)
         )
 
     def _request(self, now: float) -> None:
@@ -315,11 +378,7 @@ class MissionServer:
             self._ack(src, mavlink.MAV_MISSION_DENIED, mtype)
             return
         items = self.items[mtype]
-        self._send(
-            mavlink.MAVLink_mission_count_message(
-                src[0], src[1], len(items), mtype
-            )
-        )
+        self._send(mavlink.MAVLink_mission_count_message(src[0], src[1], len(items), mtype))
         if items:
             self.state = "download"
             self._type = mtype
@@ -342,9 +401,7 @@ class MissionServer:
         self._partner = src
         self._last_recv = now
         item = items[seq]
-        self._send(
-            item.to_int_message(*src) if is_int else item.to_float_message(*src)
-        )
+        self._send(item.to_int_message(*src) if is_int else item.to_float_message(*src))
 
     def _on_mission_request_int(self, msg: Msg, src: tuple[int, int], now: float) -> None:
         self._answer_request(msg, src, now, True)
@@ -353,8 +410,19 @@ class MissionServer:
         self._answer_request(msg, src, now, False)
 
     def _on_mission_ack(self, msg: Msg, src: tuple[int, int], now: float) -> None:
-        if self.state != "idle" and src == self._partner:
-            self._idle()
+        if self.state == "idle" or src != self._partner:
+            return
+        if (
+            self.state == "upload"
+            and int(msg.type) == mavlink.MAV_MISSION_UNSUPPORTED
+            and not self._use_int
+        ):
+            # the client NACKs the float MISSION_REQUEST (MAVSDK does): switch to _INT requests
+            self._use_int = True
+            self._last_recv = now
+            self._request(now)
+            return
+        self._idle()  # the partner ended or cancelled the transfer
 
     # ---------------------------------------------------------------- clear
     def _on_mission_clear_all(self, msg: Msg, src: tuple[int, int], now: float) -> None:
@@ -406,6 +474,7 @@ class MissionExecutor:
         self._hold_until = 0.0
         self._jump_counts: dict[int, int] = {}
         self.active = False
+        self.last_goal_ned: tuple[float, float, float] | None = None
 
     def load(self, items: list[MissionItem]) -> None:
         self.items = list(items)
@@ -413,6 +482,7 @@ class MissionExecutor:
         self.finished = False
         self._jump_counts = {}
         self.active = False
+        self.last_goal_ned = None
 
     def set_current(self, seq: int) -> bool:
         if not 0 <= seq < len(self.items):
@@ -473,7 +543,7 @@ class MissionExecutor:
         self._on_current(self.current)
         return True
 
-    def _step(self, t: float, state: Any) -> bool:  # noqa: C901 - a flat item table
+    def _step(self, t: float, state: Any) -> bool:
         if not self.items:
             self.finished = True
             self.active = False
@@ -496,12 +566,18 @@ class MissionExecutor:
                     nav.takeoff(max(-pos[2], float(self.params["MIS_TAKEOFF_ALT"])), state)
                     self._phase = "takeoff_first"
                     return False
-                yaw = math.radians(item.param4) if cmd == 16 and math.isfinite(item.param4) else math.nan
+                yaw = (
+                    math.radians(item.param4)
+                    if cmd == 16 and math.isfinite(item.param4)
+                    else math.nan
+                )
                 nav.goto(pos, yaw, self._acceptance(item), state)
+                self.last_goal_ned = pos
                 self._phase = "fly"
             elif cmd == 21:  # LAND: fly over the land point, report reached, then descend
                 pos = self._pos_of(item, state)
-                nav.goto((pos[0], pos[1], state.pos_ned[2]), math.nan, self._acceptance(item), state)
+                # tight acceptance: the descent starts over the land point
+                nav.goto((pos[0], pos[1], state.pos_ned[2]), math.nan, 0.5, state)
                 self._phase = "fly"
             elif cmd == 20:  # RTL
                 nav.rtl(state)

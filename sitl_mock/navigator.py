@@ -31,11 +31,21 @@ class Navigator:
     `reached` is True once a takeoff altitude, a goto goal (within the acceptance radius and
     NAV_MC_ALT_RAD vertically), a landing (vehicle landed) or an RTL (landed at home) is done;
     it is always True while loitering.
+
+    ground_vehicle=True (rover): goals keep the vehicle's own height, the cruise speed is capped at
+    RO_MAX_SPEED, takeoff and land complete at once (phase "landed" = stopped), RTL drives home
+    and stops there.
     """
 
-    def __init__(self, params: Mapping[str, float], home_ned: Vec3 = (0.0, 0.0, 0.0)) -> None:
+    def __init__(
+        self,
+        params: Mapping[str, float],
+        home_ned: Vec3 = (0.0, 0.0, 0.0),
+        ground_vehicle: bool = False,
+    ) -> None:
         self._p = params
         self.home_ned: Vec3 = home_ned
+        self.ground_vehicle = ground_vehicle
         self.phase = "idle"
         self.reached = False
         self._goal: Vec3 = (0.0, 0.0, 0.0)
@@ -48,6 +58,22 @@ class Navigator:
         self._up_limit = 0.0
         self._rtl_alt = 0.0
         self._land_xy: tuple[float, float] = (0.0, 0.0)
+        self._cruise = math.nan
+
+    def set_cruise_speed(self, speed_m_s: float) -> None:
+        """Horizontal cruise speed for goto/RTL [m/s] (DO_CHANGE_SPEED); NaN or <= 0 restores
+        MPC_XY_CRUISE. Capped at MPC_XY_VEL_MAX."""
+        ok = _isfinite(speed_m_s) and speed_m_s > 0.0
+        self._cruise = float(speed_m_s) if ok else math.nan
+
+    @property
+    def cruise_speed(self) -> float:
+        """Horizontal cruise speed in use [m/s]."""
+        c = self._cruise if _isfinite(self._cruise) else self._p["MPC_XY_CRUISE"]
+        c = min(c, self._p["MPC_XY_VEL_MAX"])
+        if self.ground_vehicle:
+            c = min(c, self._p["RO_MAX_SPEED"])
+        return max(c, 0.1)
 
     # ------------------------------------------------------------------ commands
     def takeoff(self, alt_rel_m: float, state: VehicleState) -> None:
@@ -57,6 +83,9 @@ class Navigator:
         x, y, _ = state.pos_ned
         self._start(state, (x, y, self.home_ned[2] - alt_rel_m), _NAN, 0.0, "takeoff")
         self._up_limit = self._p["MPC_TKO_SPEED"]
+        if self.ground_vehicle:
+            self.reached = True
+            return
         if state.on_ground or state.landed:
             self._ref_pos = None  # the reference starts climbing when the vehicle lifts off
 
@@ -67,6 +96,9 @@ class Navigator:
         self._land_xy = self._stop_point(state)[:2]
         self.phase = "land"
         self.reached = bool(state.landed)
+        if self.ground_vehicle:
+            self._start(state, self._stop_point(state), _NAN, 0.0, "landed")
+            self.reached = True
 
     def loiter(self, state: VehicleState) -> None:
         """Brake and hold at the stopping point (PX4 Hold / AUTO.LOITER)."""
@@ -78,9 +110,9 @@ class Navigator:
         """Fly to `pos_ned` [m NED]; `yaw` [rad] or NaN to face the goal; reached within radius."""
         if not all(_isfinite(c) for c in pos_ned):
             raise ValueError("goto position must be finite")
-        acc = acceptance_m if _isfinite(acceptance_m) and acceptance_m > 0 else self._p[
-            "NAV_ACC_RAD"
-        ]
+        acc = (
+            acceptance_m if _isfinite(acceptance_m) and acceptance_m > 0 else self._p["NAV_ACC_RAD"]
+        )
         self._start(state, pos_ned, yaw, acc, "goto")
 
     def rtl(self, state: VehicleState) -> None:
@@ -88,6 +120,10 @@ class Navigator:
         height = self.home_ned[2] - state.pos_ned[2]
         self._rtl_alt = max(self._p["RTL_RETURN_ALT"], height)
         x, y, _ = state.pos_ned
+        if self.ground_vehicle:
+            hx, hy, _ = self.home_ned
+            self._start(state, (hx, hy, state.pos_ned[2]), _NAN, 0.0, "rtl_return")
+            return
         self._start(state, (x, y, self.home_ned[2] - self._rtl_alt), _NAN, 0.0, "rtl_climb")
 
     # ------------------------------------------------------------------ internals
@@ -110,21 +146,37 @@ class Navigator:
     def _dist(a: list[float] | Vec3, b: Vec3) -> float:
         return math.sqrt((a[0] - b[0]) ** 2 + (a[1] - b[1]) ** 2 + (a[2] - b[2]) ** 2)
 
-    def _start(self, state: VehicleState, goal: Vec3, yaw: float, acc_rad: float, phase: str) -> None:
+    def _start(
+        self, state: VehicleState, goal: Vec3, yaw: float, acc_rad: float, phase: str
+    ) -> None:
         self._begin_hold(state)
-        self._goal = (float(goal[0]), float(goal[1]), float(goal[2]))
+        gz = state.pos_ned[2] if self.ground_vehicle else goal[2]
+        self._goal = (float(goal[0]), float(goal[1]), float(gz))
         self._yaw_goal = yaw
         self._acc_rad = acc_rad
         self._up_limit = self._p["MPC_Z_VEL_MAX_UP"]
         self.phase = phase
         self.reached = False
 
+    def _vertical_acc(self, up: bool) -> float:
+        p = self._p
+        if not up:
+            return max(p["MPC_ACC_DOWN_MAX"], 0.1)
+        a = p["MPC_ACC_UP_MAX"]
+        if self.phase == "takeoff" and self.home_ned[2] - self._ref_z() < p["MPC_LAND_ALT1"]:
+            # PX4 emulates the motor ramp near the ground: MPC_TKO_SPEED / MPC_TKO_RAMP_T
+            a = min(a, p["MPC_TKO_SPEED"] / max(p["MPC_TKO_RAMP_T"], 0.1))
+        return max(a, 0.05)
+
+    def _ref_z(self) -> float:
+        return self._ref_pos[2] if self._ref_pos is not None else 0.0
+
     def _advance_ref(self, dt: float) -> None:
         """Move the reference toward the goal with speed and acceleration limits."""
         p = self._p
         ref = self._ref_pos
         assert ref is not None
-        a_max = max(p["MPC_ACC_HOR"], 0.1)
+        a_h = max(p["MPC_ACC_HOR"], 0.1)
         dx, dy, dz = self._goal[0] - ref[0], self._goal[1] - ref[1], self._goal[2] - ref[2]
         dist = math.sqrt(dx * dx + dy * dy + dz * dz)
         rv = self._ref_vel
@@ -134,23 +186,26 @@ class Navigator:
             self._ref_acc = [0.0, 0.0, 0.0]
             return
         dxy = math.hypot(dx, dy)
-        s = math.sqrt(2.0 * a_max * 0.9 * dist)
+        a_v = self._vertical_acc(dz < 0.0)
+        # speed along the line: braking distance and per-axis speed limits
+        a_line = math.inf
+        s = math.inf
         if dxy > 1e-9:
-            s = min(s, max(p["MPC_XY_CRUISE"], 0.1) * dist / dxy)
-        if dz < -1e-9:
-            s = min(s, max(self._up_limit, 0.1) * dist / -dz)
-        elif dz > 1e-9:
-            s = min(s, max(p["MPC_Z_VEL_MAX_DN"], 0.1) * dist / dz)
-        if dist > 1e-9:
-            want = (dx / dist * s, dy / dist * s, dz / dist * s)
-        else:
-            want = (0.0, 0.0, 0.0)
-        ex, ey, ez = want[0] - rv[0], want[1] - rv[1], want[2] - rv[2]
-        e = math.sqrt(ex * ex + ey * ey + ez * ez)
-        lim = a_max * dt
-        if e > lim:
-            k = lim / e
-            ex, ey, ez = ex * k, ey * k, ez * k
+            a_line = a_h * dist / dxy
+            s = self.cruise_speed * dist / dxy
+        if abs(dz) > 1e-9:
+            a_line = min(a_line, a_v * dist / abs(dz))
+            vz_lim = self._up_limit if dz < 0.0 else p["MPC_Z_VEL_MAX_DN"]
+            s = min(s, max(vz_lim, 0.1) * dist / abs(dz))
+        s = min(s, math.sqrt(2.0 * 0.9 * a_line * dist))
+        k = s / dist if dist > 1e-9 else 0.0
+        ex, ey, ez = dx * k - rv[0], dy * k - rv[1], dz * k - rv[2]
+        exy = math.hypot(ex, ey)
+        if exy > a_h * dt:
+            f = a_h * dt / exy
+            ex, ey = ex * f, ey * f
+        a_vz = self._vertical_acc(ez < 0.0) * dt
+        ez = max(-a_vz, min(a_vz, ez))
         nv = [rv[0] + ex, rv[1] + ey, rv[2] + ez]
         step = [0.5 * (rv[i] + nv[i]) * dt for i in range(3)]
         # never step past the goal
@@ -205,7 +260,7 @@ class Navigator:
                 )
             self._ref_pos = list(state.pos_ned)
             self._ref_vel = list(state.vel_ned)
-        if self.phase in ("land", "landed"):
+        if self.phase in ("land", "landed") and not self.ground_vehicle:
             return self._update_land(state)
         self._advance_ref(dt)
         ref = self._ref_pos
@@ -219,7 +274,7 @@ class Navigator:
                 math.hypot(px - gx, py - gy) <= self._acc_rad
                 and abs(pz - gz) <= self._p["NAV_MC_ALT_RAD"]
             )
-        elif self.phase == "loiter":
+        elif self.phase in ("loiter", "landed"):
             self.reached = True
         elif self.phase == "rtl_climb":
             if abs(pz - gz) <= self._p["NAV_MC_ALT_RAD"] and at_ref_goal:
@@ -228,8 +283,8 @@ class Navigator:
                 self.phase = "rtl_return"
         elif self.phase == "rtl_return" and at_ref_goal and math.hypot(px - gx, py - gy) < 1.0:
             self._land_xy = (gx, gy)
-            self.phase = "land"
-            self.reached = False
+            self.phase = "landed" if self.ground_vehicle else "land"
+            self.reached = self.ground_vehicle
         yaw = self._yaw_target(state)
         return PositionTarget(
             pos_ned=(ref[0], ref[1], ref[2]),

@@ -139,3 +139,16 @@ class ParamStore(Mapping[str, float]):
     def index(self, name: str) -> int:
         """Position of `name` in the stable parameter list (MAVLink param_index)."""
         return list(PARAMS).index(name)
+
+
+# Appended by the autopilot side (battery failsafe thresholds and action, PX4 names/defaults).
+PARAMS.update(
+    {
+        "BAT_LOW_THR": ParamSpec(0.15, False, "low battery threshold [0..1]"),
+        "BAT_CRIT_THR": ParamSpec(0.07, False, "critical battery threshold [0..1]"),
+        "BAT_EMERGEN_THR": ParamSpec(0.05, False, "emergency battery threshold [0..1]"),
+        "COM_LOW_BAT_ACT": ParamSpec(
+            0, True, "battery failsafe: 0 warning, 2 land, 3 return at critical / land at emergency"
+        ),
+    }
+)

@@ -29,11 +29,13 @@ from sitl_mock.flight_control import (
     body_z_to_attitude,
     mix_quad_x,
     quat_from_yaw,
+    quat_normalize,
     quat_yaw,
+    wrap_pi,
 )
 from sitl_mock.params import ParamStore
 from sitl_mock.setpoints import AttitudeTarget, PositionTarget, Quat, Target, Vec3
-from sitl_mock.vehicle import AttitudeTargetReport, VehicleState, ned_to_geodetic
+from sitl_mock.vehicle import AttitudeTargetReport, VehicleState
 
 _isfinite = math.isfinite
 
@@ -42,6 +44,7 @@ DISARMED, SPOOLUP, READY, RAMPUP, FLIGHT = range(5)
 _TAKEOFF_STATE_NAMES = ("disarmed", "spoolup", "ready_for_takeoff", "rampup", "flight")
 
 POS_LOOP_PERIOD_S = 0.01
+PARAM_REFRESH_S = 0.1
 ATT_LOOP_PERIOD_S = 0.004
 LAND_DETECT_TIME_S = 0.5
 
@@ -50,6 +53,73 @@ class Quadrotor:
     """PX4 SIH-like quadrotor with a PX4-like controller; see the module docstring."""
 
     kind = "quad"
+    __slots__ = (
+        "_alpha",
+        "_alpha_dt",
+        "_arm_t",
+        "_armed_prev",
+        "_att_acc",
+        "_ax",
+        "_ay",
+        "_az",
+        "_bat_drain",
+        "_bat_min",
+        "_battery",
+        "_gains",
+        "_home",
+        "_idle",
+        "_ixx",
+        "_iyy",
+        "_izz",
+        "_kdv",
+        "_kdw",
+        "_land_timer",
+        "_landed",
+        "_last_mode",
+        "_last_pos_target",
+        "_local_pos_valid",
+        "_lpitch",
+        "_lroll",
+        "_mass",
+        "_motor_cmd",
+        "_noise",
+        "_npos",
+        "_nvel",
+        "_on_ground",
+        "_param_acc",
+        "_params",
+        "_pos_acc",
+        "_pvc",
+        "_px",
+        "_py",
+        "_pz",
+        "_q_sp",
+        "_qmax",
+        "_qw",
+        "_qx",
+        "_qy",
+        "_qz",
+        "_ramp_up_limit",
+        "_rate_sp",
+        "_rc",
+        "_rng",
+        "_state_cache",
+        "_t",
+        "_tau",
+        "_thrust_sp",
+        "_tko_state",
+        "_tmax",
+        "_u",
+        "_vx",
+        "_vy",
+        "_vz",
+        "_wind",
+        "_wx",
+        "_wy",
+        "_wz",
+        "_yaw_ff",
+        "_yaw_hold",
+    )
 
     def __init__(
         self,
@@ -60,6 +130,7 @@ class Quadrotor:
         self._params = params
         self._home = home_lat_lon_alt
         self._rng = random.Random(seed)
+        self._state_cache: VehicleState | None = None
         # rigid-body state
         self._t = 0.0
         self._px = self._py = self._pz = 0.0
@@ -82,6 +153,7 @@ class Quadrotor:
         self._rc = RateController()
         self._pos_acc = math.inf
         self._att_acc = math.inf
+        self._param_acc = 0.0
         self._alpha_dt = -1.0
         self._alpha = 0.0
         self._armed_prev = False
@@ -112,10 +184,12 @@ class Quadrotor:
     def set_local_position_valid(self, valid: bool) -> None:
         """Fault injection flag only: the controller keeps using the true state."""
         self._local_pos_valid = bool(valid)
+        self._state_cache = None
 
     def set_battery_remaining(self, fraction: float) -> None:
         """Force the battery state of charge (0..1)."""
         self._battery = min(max(float(fraction), 0.0), 1.0)
+        self._state_cache = None
 
     def reset_integrators(self) -> None:
         """Reset velocity/rate integrators and the heading hold."""
@@ -125,7 +199,7 @@ class Quadrotor:
 
     @property
     def takeoff_state(self) -> str:
-        """PX4 takeoff-handling state name (disarmed, spoolup, ready_for_takeoff, rampup, flight)."""
+        """PX4 takeoff state: disarmed, spoolup, ready_for_takeoff, rampup or flight."""
         return _TAKEOFF_STATE_NAMES[self._tko_state]
 
     @property
@@ -146,11 +220,12 @@ class Quadrotor:
 
     @property
     def state(self) -> VehicleState:
-        """Snapshot of the vehicle state (geodetic position computed on demand)."""
+        """Snapshot of the vehicle state (built once per step; geodetic fields on demand)."""
+        if self._state_cache is not None:
+            return self._state_cache
         pos = (self._px + self._npos[0], self._py + self._npos[1], self._pz + self._npos[2])
-        lat, lon, alt = ned_to_geodetic(pos, self._home)
         u = self._u
-        return VehicleState(
+        self._state_cache = st = VehicleState(
             t_s=self._t,
             pos_ned=pos,
             vel_ned=(self._vx + self._nvel[0], self._vy + self._nvel[1], self._vz + self._nvel[2]),
@@ -161,11 +236,10 @@ class Quadrotor:
             landed=self._landed,
             thrust_norm=0.25 * (u[0] + u[1] + u[2] + u[3]),
             battery_remaining=self._battery,
-            lat_deg=lat,
-            lon_deg=lon,
-            alt_amsl_m=alt,
             local_position_valid=self._local_pos_valid,
+            home_lat_lon_alt=self._home,
         )
+        return st
 
     # ------------------------------------------------------------------ test helpers
     def set_state(
@@ -177,6 +251,7 @@ class Quadrotor:
         motors: float | None = None,
     ) -> None:
         """Place the vehicle (tests, replays); `motors` presets all rotor outputs 0..1."""
+        self._state_cache = None
         self._px, self._py, self._pz = (float(c) for c in pos_ned)
         self._vx, self._vy, self._vz = (float(c) for c in vel_ned)
         n = math.sqrt(sum(c * c for c in q_wxyz))
@@ -191,6 +266,7 @@ class Quadrotor:
 
     def mark_airborne(self, thrust: float) -> None:
         """Tests: treat the vehicle as flying (takeoff handling in flight, motors at `thrust`)."""
+        self._state_cache = None
         self._tko_state = FLIGHT
         self._armed_prev = True
         self._landed = False
@@ -222,6 +298,12 @@ class Quadrotor:
         if not (dt > 0.0 and dt < 1.0):
             raise ValueError(f"physics step must be in (0, 1) s, got {dt!r}")
         self._t += dt
+        self._state_cache = None
+        self._param_acc += dt
+        if self._param_acc >= PARAM_REFRESH_S:
+            self._param_acc = 0.0
+            self._gains = McGains.from_params(self._params)
+            self._read_physical_params()
         # arming transitions
         if armed and not self._armed_prev:
             self._arm_t = self._t
@@ -258,8 +340,6 @@ class Quadrotor:
         self._idle = True
 
     def _refresh(self) -> None:
-        self._gains = McGains.from_params(self._params)
-        self._read_physical_params()
         if self._noise[0] > 0.0 or self._noise[1] > 0.0:
             gauss = self._rng.gauss
             sp, sv = self._noise[0], self._noise[1]
@@ -300,8 +380,9 @@ class Quadrotor:
                 if self._yaw_hold is None:
                     self._yaw_hold = yaw_now
                 if _isfinite(tgt.yaw_rate):
-                    self._yaw_hold += tgt.yaw_rate * dtc
-                    yaw_ff = tgt.yaw_rate
+                    rmax = g.rate_max[2]
+                    yaw_ff = min(max(tgt.yaw_rate, -rmax), rmax)
+                    self._yaw_hold = wrap_pi(self._yaw_hold + yaw_ff * dtc)
                 else:
                     yaw_ff = math.nan
             yaw_sp = self._yaw_hold
@@ -317,13 +398,20 @@ class Quadrotor:
                     vzp = max(g.vel_p[2], 0.01)
                     self._ramp_up_limit = -G / vzp
             if st == RAMPUP:
+                # ramp the climb-rate limit from "zero thrust" to the requested climb speed
+                # (PX4: the flight task's speed_up constraint; here -vz of the target if it
+                # asks for a climb rate, else MPC_Z_VEL_MAX_UP)
+                vz_req = tgt.vel_ned[2]
+                ramp_end = g.vel_up_max
+                if _isfinite(vz_req) and vz_req < 0.0:
+                    ramp_end = min(ramp_end, -vz_req)
                 if g.tko_ramp_t > dtc:
-                    self._ramp_up_limit += (g.vel_up_max + G / max(g.vel_p[2], 0.01)) * (
+                    self._ramp_up_limit += (ramp_end + G / max(g.vel_p[2], 0.01)) * (
                         dtc / g.tko_ramp_t
                     )
                 else:
-                    self._ramp_up_limit = g.vel_up_max
-                if self._ramp_up_limit >= g.vel_up_max:
+                    self._ramp_up_limit = ramp_end
+                if self._ramp_up_limit >= ramp_end:
                     self._ramp_up_limit = g.vel_up_max
                     st = FLIGHT
             elif st == FLIGHT and self._landed:
@@ -360,7 +448,6 @@ class Quadrotor:
         if self._last_mode != "att":
             self._last_mode = "att"
             self._att_acc = math.inf
-            self._refresh()
         self._last_pos_target = None
         self._idle = False
         self._pos_acc += dt
@@ -370,13 +457,18 @@ class Quadrotor:
         thrust = tgt.thrust_norm
         self._thrust_sp = min(max(thrust, 0.0), 1.0) if _isfinite(thrust) else 0.0
         q = (self._qw, self._qx, self._qy, self._qz)
+        q_tgt = tgt.q_wxyz
+        if q_tgt is not None:
+            n2 = sum(c * c for c in q_tgt)
+            # an invalid quaternion is treated as "attitude not given"
+            q_tgt = quat_normalize(q_tgt) if _isfinite(n2) and n2 > 1e-6 else None
         if tgt.body_rates_frd is not None:
             rates = tuple(r if _isfinite(r) else 0.0 for r in tgt.body_rates_frd)
-            self._q_sp = q if tgt.q_wxyz is None else tgt.q_wxyz
+            self._q_sp = q if q_tgt is None else q_tgt
             self._run_attitude_and_rate(dt, self._q_sp, math.nan, (rates[0], rates[1], rates[2]))
-        elif tgt.q_wxyz is not None:
-            self._q_sp = tgt.q_wxyz
-            self._run_attitude_and_rate(dt, tgt.q_wxyz, tgt.yaw_rate_ff, None)
+        elif q_tgt is not None:
+            self._q_sp = q_tgt
+            self._run_attitude_and_rate(dt, q_tgt, tgt.yaw_rate_ff, None)
         else:
             self._q_sp = q
             self._run_attitude_and_rate(dt, q, math.nan, (0.0, 0.0, 0.0))
@@ -414,7 +506,13 @@ class Quadrotor:
             self._land_timer = 0.0
             return
         g = self._gains
-        low = self._thrust_sp <= g.thr_min + (g.hover - g.thr_min) * 0.3 or self._idle
+        # "landed": on the ground with low thrust, or on the ground while the position
+        # controller still commands a descent into it (PX4: hit ground while descending)
+        low = (
+            self._idle
+            or self._thrust_sp <= g.thr_min + (g.hover - g.thr_min) * 0.3
+            or (self._last_mode == "pos" and self._pvc.vel_sp[2] > 0.3)
+        )
         if self._on_ground and low:
             self._land_timer += dt
             if self._land_timer >= LAND_DETECT_TIME_S or self._idle:

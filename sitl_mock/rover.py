@@ -23,7 +23,7 @@ import math
 from sitl_mock.flight_control import quat_from_yaw, quat_yaw, wrap_pi
 from sitl_mock.params import ParamStore
 from sitl_mock.setpoints import AttitudeTarget, PositionTarget, Quat, Target, Vec3
-from sitl_mock.vehicle import AttitudeTargetReport, VehicleState, ned_to_geodetic
+from sitl_mock.vehicle import AttitudeTargetReport, VehicleState
 
 _isfinite = math.isfinite
 HEADING_GAIN = 2.5  # yaw-rate command per rad of heading error [1/s]
@@ -97,7 +97,6 @@ class Rover:
     def state(self) -> VehicleState:
         """Snapshot (z = 0, level attitude, on the ground; landed while disarmed)."""
         pos = (self._x, self._y, 0.0)
-        lat, lon, alt = ned_to_geodetic(pos, self._home)
         c, s = math.cos(self._yaw), math.sin(self._yaw)
         vmax = max(self._params["RO_MAX_SPEED"], 1e-6)
         return VehicleState(
@@ -111,10 +110,8 @@ class Rover:
             landed=not self._armed,
             thrust_norm=min(abs(self._v) / vmax, 1.0),
             battery_remaining=self._battery,
-            lat_deg=lat,
-            lon_deg=lon,
-            alt_amsl_m=alt,
             local_position_valid=self._local_pos_valid,
+            home_lat_lon_alt=self._home,
         )
 
     # ------------------------------------------------------------------ control

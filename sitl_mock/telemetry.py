@@ -187,14 +187,14 @@ def build_odometry(ap: Autopilot) -> Msg | None:
 def build_global_position_int(ap: Autopilot) -> Msg:
     s = ap.state
     _, _, yaw = euler_321(s.q_wxyz)
-    hdg = int(round(math.degrees(yaw) % 360.0 * 100.0)) % 36000
+    hdg = round(math.degrees(yaw) % 360.0 * 100.0) % 36000
     vx, vy, vz = s.vel_ned
     return mavlink.MAVLink_global_position_int_message(
         ap.time_boot_ms,
-        int(round(s.lat_deg * 1e7)),
-        int(round(s.lon_deg * 1e7)),
-        int(round(s.alt_amsl_m * 1000.0)),
-        int(round((s.alt_amsl_m - ap.home[2]) * 1000.0)),
+        round(s.lat_deg * 1e7),
+        round(s.lon_deg * 1e7),
+        round(s.alt_amsl_m * 1000.0),
+        round((s.alt_amsl_m - ap.home[2]) * 1000.0),
         _clamp_i16(vx * 100.0),
         _clamp_i16(vy * 100.0),
         _clamp_i16(vz * 100.0),
@@ -205,7 +205,7 @@ def build_global_position_int(ap: Autopilot) -> Msg:
 def _clamp_i16(v: float) -> int:
     if not math.isfinite(v):
         return 0
-    return max(-32768, min(32767, int(round(v))))
+    return max(-32768, min(32767, round(v)))
 
 
 def build_attitude_target(ap: Autopilot) -> Msg | None:
@@ -257,7 +257,7 @@ def build_sys_status(ap: Autopilot) -> Msg:
         250,
         ap.battery_voltage_mv,
         -1,
-        int(round(rem * 100.0)),
+        round(rem * 100.0),
         0,
         min(ap.errors_comm, UINT16_MAX),
         0,
@@ -300,7 +300,7 @@ def build_battery_status(ap: Autopilot) -> Msg:
         -1,
         -1,
         -1,
-        int(round(rem * 100.0)),
+        round(rem * 100.0),
         0,
         charge,
     )

@@ -18,7 +18,7 @@ EARTH_RADIUS_M = 6371000.0  # PX4 CONSTANTS_RADIUS_OF_EARTH
 DEFAULT_HOME: tuple[float, float, float] = (47.397742, 8.545594, 488.0)  # PX4 SITL home
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class VehicleState:
     """Snapshot of the simulated vehicle.
 
@@ -26,8 +26,9 @@ class VehicleState:
     (kinematic acceleration, world NED); q_wxyz: attitude body FRD -> NED; omega_frd: body rates
     [rad/s]; on_ground: touching the ground; landed: PX4-like land detector output;
     thrust_norm: actual collective thrust 0..1 (mean motor thrust / max); battery_remaining 0..1;
-    lat_deg, lon_deg, alt_amsl_m: geodetic position (azimuthal equidistant projection about home);
-    local_position_valid: False while a position-loss fault is injected.
+    local_position_valid: False while a position-loss fault is injected;
+    home_lat_lon_alt: the projection origin. lat_deg, lon_deg, alt_amsl_m (properties): geodetic
+    position (azimuthal equidistant projection about home, like PX4's map_projection).
     """
 
     t_s: float
@@ -40,10 +41,28 @@ class VehicleState:
     landed: bool
     thrust_norm: float
     battery_remaining: float
-    lat_deg: float
-    lon_deg: float
-    alt_amsl_m: float
     local_position_valid: bool
+    home_lat_lon_alt: tuple[float, float, float] = DEFAULT_HOME
+
+    @property
+    def lat_deg(self) -> float:
+        """Latitude [deg]."""
+        return ned_to_geodetic(self.pos_ned, self.home_lat_lon_alt)[0]
+
+    @property
+    def lon_deg(self) -> float:
+        """Longitude [deg]."""
+        return ned_to_geodetic(self.pos_ned, self.home_lat_lon_alt)[1]
+
+    @property
+    def alt_amsl_m(self) -> float:
+        """Altitude above mean sea level [m] (home altitude minus down)."""
+        return self.home_lat_lon_alt[2] - self.pos_ned[2]
+
+    @property
+    def lat_lon_alt(self) -> tuple[float, float, float]:
+        """(lat deg, lon deg, alt AMSL m) in one projection."""
+        return ned_to_geodetic(self.pos_ned, self.home_lat_lon_alt)
 
     @property
     def yaw(self) -> float:

@@ -25,10 +25,20 @@ def _vec_input(x: npt.ArrayLike, d: int, name: str) -> FloatArray:
     return a
 
 
+#: Inputs beyond this magnitude (SI units) are rejected: physically meaningless, and they could
+#: overflow the intermediate squares.
+INPUT_LIMIT = 1e12
+#: Samples per vectorised chunk of the batched path.
+_CHUNK = 8192
+
+
 def _check_finite(arrays: dict[str, FloatArray]) -> None:
     for name, a in arrays.items():
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"{name} contains NaN or inf: refusing to compute a setpoint from it")
+        if not np.all(np.abs(a) <= INPUT_LIMIT):  # False for NaN as well
+            raise ValueError(
+                f"{name} contains NaN, inf or a value beyond {INPUT_LIMIT:g}: refusing to "
+                "compute a setpoint from it"
+            )
 
 
 def multirotor_setpoint(
@@ -46,7 +56,8 @@ def multirotor_setpoint(
     vel, acc, jerk, snap: derivatives of the NED position (m/s, m/s^2, m/s^3, m/s^4), shape (3,)
     for one sample or (N, 3) for a batch. yaw, yaw_rate, yaw_acc: the 3-2-1 yaw and its first two
     time derivatives (rad, rad/s, rad/s^2; not body rates), scalars or (N,) (scalars broadcast
-    over a batch). Raises ValueError on shape mismatch or non-finite input; never returns NaN.
+    over a batch). Raises ValueError on shape mismatch or on a NaN, inf or |value| > 1e12 input;
+    never returns NaN.
     """
     v = _vec_input(vel, 3, "vel")
     a = _vec_input(acc, 3, "acc")
@@ -63,26 +74,29 @@ def multirotor_setpoint(
         for name, y in (("yaw", psi), ("yaw_rate", dpsi), ("yaw_acc", ddpsi)):
             if y.ndim != 0:
                 raise ValueError(f"{name} must be a scalar for a single sample, got {y.shape}")
-        _check_finite(
-            {
-                "vel": v,
-                "acc": a,
-                "jerk": j,
-                "snap": s,
-                "yaw": psi,
-                "yaw_rate": dpsi,
-                "yaw_acc": ddpsi,
-            }
-        )
+        vl, al, jl, sl = v.tolist(), a.tolist(), j.tolist(), s.tolist()
+        yl = (float(psi), float(dpsi), float(ddpsi))
+        if not all(abs(x) <= INPUT_LIMIT for x in (*vl, *al, *jl, *sl, *yl)):
+            _check_finite(
+                {
+                    "vel": v,
+                    "acc": a,
+                    "jerk": j,
+                    "snap": s,
+                    "yaw": psi,
+                    "yaw_rate": dpsi,
+                    "yaw_acc": ddpsi,
+                }
+            )
         r = fm.multirotor(
             fm.FLOAT,
-            (float(v[0]), float(v[1]), float(v[2])),
-            (float(a[0]), float(a[1]), float(a[2])),
-            (float(j[0]), float(j[1]), float(j[2])),
-            (float(s[0]), float(s[1]), float(s[2])),
-            float(psi),
-            float(dpsi),
-            float(ddpsi),
+            (vl[0], vl[1], vl[2]),
+            (al[0], al[1], al[2]),
+            (jl[0], jl[1], jl[2]),
+            (sl[0], sl[1], sl[2]),
+            yl[0],
+            yl[1],
+            yl[2],
             params.mass,
             J,
             params.g,
@@ -111,48 +125,72 @@ def multirotor_setpoint(
         elif y.shape != (n,):
             raise ValueError(f"{name} must be a scalar or have shape ({n},), got {y.shape}")
         yaws.append(y)
-    _check_finite(
-        {
-            "vel": v,
-            "acc": a,
-            "jerk": j,
-            "snap": s,
-            "yaw": yaws[0],
-            "yaw_rate": yaws[1],
-            "yaw_acc": yaws[2],
-        }
-    )
-    vT, aT, jT, sT = (np.ascontiguousarray(x.T) for x in (v, a, j, s))
-    r = fm.multirotor(
-        fm.NUMPY,
-        (vT[0], vT[1], vT[2]),
-        (aT[0], aT[1], aT[2]),
-        (jT[0], jT[1], jT[2]),
-        (sT[0], sT[1], sT[2]),
-        yaws[0],
-        yaws[1],
-        yaws[2],
-        params.mass,
-        J,
-        params.g,
-        params.hover_thrust,
-        params.drag,
-    )
-    Crows = r["C_eb"]
-    C = np.stack([c for row in Crows for c in row], axis=-1).reshape(n, 3, 3)
-    flags_arr = r["flags"].astype(np.int64)
+    thrust = np.empty(n)
+    thrust_dot = np.empty(n)
+    thrust_ddot = np.empty(n)
+    thrust_norm = np.empty(n)
+    q = np.empty((n, 4))
+    C = np.empty((n, 3, 3))
+    omega = np.empty((n, 3))
+    omega_dot = np.empty((n, 3))
+    moment = np.empty((n, 3))
+    flag_bits = np.empty(n, dtype=np.int64)
+    # Chunks keep the ~250 numpy temporaries in cache (about 2x faster than one pass at 1e5).
+    for start in range(0, n, _CHUNK):
+        sl = slice(start, start + _CHUNK)
+        vc, ac, jc, sc = v[sl], a[sl], j[sl], s[sl]
+        yc, yrc, yac = yaws[0][sl], yaws[1][sl], yaws[2][sl]
+        _check_finite(
+            {
+                "vel": vc,
+                "acc": ac,
+                "jerk": jc,
+                "snap": sc,
+                "yaw": yc,
+                "yaw_rate": yrc,
+                "yaw_acc": yac,
+            }
+        )
+        r = fm.multirotor(
+            fm.NUMPY,
+            (vc[:, 0], vc[:, 1], vc[:, 2]),
+            (ac[:, 0], ac[:, 1], ac[:, 2]),
+            (jc[:, 0], jc[:, 1], jc[:, 2]),
+            (sc[:, 0], sc[:, 1], sc[:, 2]),
+            yc,
+            yrc,
+            yac,
+            params.mass,
+            J,
+            params.g,
+            params.hover_thrust,
+            params.drag,
+        )
+        thrust[sl] = r["thrust"]
+        thrust_dot[sl] = r["thrust_dot"]
+        thrust_ddot[sl] = r["thrust_ddot"]
+        thrust_norm[sl] = r["thrust_norm"]
+        for k in range(4):
+            q[sl, k] = r["q_wxyz"][k]
+        for i in range(3):
+            omega[sl, i] = r["omega_frd"][i]
+            omega_dot[sl, i] = r["omega_dot_frd"][i]
+            moment[sl, i] = r["moment_frd"][i]
+            for k in range(3):
+                C[sl, i, k] = r["C_eb"][i][k]
+        flag_bits[sl] = r["flags"]
     return MultirotorSetpoint(
-        thrust=r["thrust"],
-        thrust_dot=r["thrust_dot"],
-        thrust_ddot=r["thrust_ddot"],
-        thrust_norm=r["thrust_norm"],
-        q_wxyz=np.stack(r["q_wxyz"], axis=-1),
+        thrust=thrust,
+        thrust_dot=thrust_dot,
+        thrust_ddot=thrust_ddot,
+        thrust_norm=thrust_norm,
+        q_wxyz=q,
         C_eb=C,
-        omega_frd=np.stack(r["omega_frd"], axis=-1),
-        omega_dot_frd=np.stack(r["omega_dot_frd"], axis=-1),
-        moment_frd=np.stack(r["moment_frd"], axis=-1),
-        singular=r["singular"] != 0.0,
-        flags=flags_arr,
+        omega_frd=omega,
+        omega_dot_frd=omega_dot,
+        moment_frd=moment,
+        singular=flag_bits != 0,
+        flags=flag_bits,
     )
 
 

@@ -115,6 +115,7 @@ class TelemetrySnapshot:
     global_position: GlobalPosition | None = None
     home: HomePosition | None = None
     extended: ExtendedState | None = None
+    now_s: float = math.nan  # local time of the consumer's cycle (set by the streamer)
 
 
 def _rotate(q: Quat, v: Vec3) -> Vec3:

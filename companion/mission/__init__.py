@@ -38,6 +38,7 @@ from companion.mission.model import (
     command_name,
     frame_name,
 )
+from companion.mission.upload import UploadItem, mission_upload_items
 
 __all__ = [
     "EARTH_RADIUS_M",
@@ -56,6 +57,7 @@ __all__ = [
     "MissionItem",
     "Phase",
     "RallyPoint",
+    "UploadItem",
     "command_name",
     "expand_jumps",
     "frame_name",
@@ -63,6 +65,7 @@ __all__ = [
     "load_mission",
     "loads_mission",
     "mission_to_flight_plan",
+    "mission_upload_items",
     "ned_to_geodetic",
     "parse_plan",
     "parse_wpl",

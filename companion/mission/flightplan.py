@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
@@ -179,12 +179,15 @@ def expand_jumps(mission: Mission, *, max_items: int = 10_000) -> list[MissionIt
         it = items[k]
         steps += 1
         if len(out) > max_items or steps > step_limit:
-            culprit = last_jump if last_jump is not None else it
+            if last_jump is None:
+                raise MissionError(
+                    mission.source, f"the mission has more than {max_items} items", item=it.index
+                )
             raise MissionError(
                 mission.source,
                 f"DO_JUMP expansion exceeds {max_items} items (repeat count "
-                f"{int(culprit.params[1])}); lower the repeat counts",
-                item=culprit.index,
+                f"{int(last_jump.params[1])}); lower the repeat counts",
+                item=last_jump.index,
             )
         if it.command == CMD_DO_JUMP:
             repeat = int(it.params[1])
@@ -416,13 +419,16 @@ def mission_to_flight_plan(
                 (n, e, cur[2]),
                 it=it,
                 command=cmd,
-                phase="land" if not rover else "mission",
+                phase="mission",
                 stop=True,
                 yaw=yaw_at(n, e, it.params[3]),
             )
             final, ended_by = "land", it
             touchdown = None if rover else (n, e, 0.0)
         elif cmd == CMD_RETURN_TO_LAUNCH:
+            # PX4 starts RTL from where the mission is: come to rest first
+            if wps:
+                wps[-1] = replace(wps[-1], stop=True)
             if not rover and -cur[2] < rtl_return_alt_m:
                 add(
                     (cur[0], cur[1], -rtl_return_alt_m),
@@ -449,7 +455,7 @@ def mission_to_flight_plan(
     # the end of the plan is a stop
     last = wps[-1]
     if not last.stop:
-        wps[-1] = FlightWaypoint(**{**last.__dict__, "stop": True})
+        wps[-1] = replace(last, stop=True)
 
     plan = FlightPlan(
         source=src,
@@ -469,7 +475,7 @@ def mission_to_flight_plan(
         raise MissionError(src, fence_msgs[0])
     for msg in fence_msgs:
         warn(msg)
-    return FlightPlan(**{**plan.__dict__, "warnings": tuple(warnings)})
+    return replace(plan, warnings=tuple(warnings))
 
 
 def _fence_messages(plan: FlightPlan) -> list[str]:
@@ -584,8 +590,6 @@ def _make_chunk(pts: list[_Pt]) -> FlightChunk:
     arr.setflags(write=False)
     last = pts[-1]
     phase: Phase = last.phase
-    if phase == "land" and not (last.pos[2] == 0.0 and pts[0].pos[2] != 0.0):
-        phase = "mission"
     return FlightChunk(
         points_ned_m=arr,
         yaw_deg=tuple(p.yaw for p in pts),

@@ -55,17 +55,21 @@ def geodetic_to_ned(
     lat0 = np.radians(home.lat_deg)
     lon0 = np.radians(home.lon_deg)
     sin_lat0, cos_lat0 = np.sin(lat0), np.cos(lat0)
-    sin_lat, cos_lat = np.sin(lat), np.cos(lat)
+    cos_lat = np.cos(lat)
     dlon = lon - lon0
-    cos_dlon = np.cos(dlon)
-    # central angle c between home and the point (the projection keeps c * R as the radius)
-    cos_c = np.clip(sin_lat0 * sin_lat + cos_lat0 * cos_lat * cos_dlon, -1.0, 1.0)
-    c = np.arccos(cos_c)
+    # central angle c between home and the point (the projection keeps c * R as the radius);
+    # PX4 takes acos(cos c), the haversine form below is the same angle without the round-off
+    # of acos near 0
+    hav = np.sin((lat - lat0) / 2.0) ** 2 + cos_lat0 * cos_lat * np.sin(dlon / 2.0) ** 2
+    c = 2.0 * np.arcsin(np.sqrt(np.clip(hav, 0.0, 1.0)))
     sin_c = np.sin(c)
     # k = c / sin(c), -> 1 as c -> 0 (series avoids 0/0 and cancellation near the origin)
     small = c < 1e-6
     k = np.where(small, 1.0 + c * c / 6.0, c / np.where(small, 1.0, sin_c))
-    north = k * (cos_lat0 * sin_lat - sin_lat0 * cos_lat * cos_dlon) * EARTH_RADIUS_M
+    # cos(lat0) sin(lat) - sin(lat0) cos(lat) cos(dlon), rewritten without the cancellation
+    north = (
+        k * (np.sin(lat - lat0) + 2.0 * sin_lat0 * cos_lat * np.sin(dlon / 2.0) ** 2)
+    ) * EARTH_RADIUS_M
     east = k * cos_lat * np.sin(dlon) * EARTH_RADIUS_M
     down = -(alt - home.alt_amsl_m)
     return np.stack([north, east, down], axis=-1)

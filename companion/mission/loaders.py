@@ -101,6 +101,8 @@ def loads_mission(
     else:
         text = data.removeprefix("\ufeff")
     head = text.lstrip()
+    if not head:
+        raise MissionError(src, "the file is empty")
     if head.startswith("QGC WPL"):
         return parse_wpl(text, source=src, home=home)
     if head.startswith("{") or src.suffix.lower() == ".plan":
@@ -154,10 +156,11 @@ def _latlon_check(
     if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
         raise fail(f"{what} latitude {lat} / longitude {lon} out of range")
     ne = geodetic_to_ned(lat, lon, home.alt_amsl_m, home)
-    dist = float(np.hypot(ne[0], ne[1]))
-    if dist > MAX_RANGE_M:
+    dist = float(np.hypot(ne[0], ne[1]))  # NaN exactly opposite home: rejected too
+    if not dist <= MAX_RANGE_M:
+        far = f"{dist / 1000.0:.1f} km" if math.isfinite(dist) else "about 20000 km"
         raise fail(
-            f"{what} is {dist / 1000.0:.1f} km from home ({home.lat_deg:.6f}, {home.lon_deg:.6f}); "
+            f"{what} is {far} from home ({home.lat_deg:.6f}, {home.lon_deg:.6f}); "
             "check the latitude/longitude order and the home position"
         )
 
@@ -168,10 +171,8 @@ def _ne(lat: float, lon: float, home: GeoPoint) -> tuple[float, float]:
 
 
 # ------------------------------------------------------------------------- item-level validation
-def _validate_item(
-    it: MissionItem, home: GeoPoint, src: Path, warnings: list[str], where: str = ""
-) -> None:
-    """Reject items the companion cannot fly; warn about and skip unknown non-position items."""
+def _validate_item(it: MissionItem, home: GeoPoint, src: Path, where: str = "") -> bool:
+    """Reject items the companion cannot fly; True for an unknown non-position item (skipped)."""
     suffix = f" ({where})" if where else ""
 
     def fail(msg: str) -> MissionError:
@@ -189,10 +190,7 @@ def _validate_item(
                 f"command {cmd} ({name}) is not supported and carries a position; "
                 "replace it with a waypoint (16) or remove it"
             )
-        msg = f"{src}: item {it.index}: command {cmd} ({name}) ignored (no position){suffix}"
-        warnings.append(msg)
-        _log.warning(msg)
-        return
+        return True
     if cmd in POSITION_COMMANDS:
         if frame in FRAMES_TERRAIN:
             raise fail(
@@ -228,6 +226,7 @@ def _validate_item(
             )
         if rep > _MAX_REPEAT:
             raise fail(f"DO_JUMP: repeat count {int(rep)} exceeds {_MAX_REPEAT}")
+    return False
 
 
 def _resolve_jumps(items: list[MissionItem], src: Path, by_do_jump_id: bool) -> list[MissionItem]:
@@ -286,8 +285,16 @@ def _finish(
     warnings: list[str] | None = None,
 ) -> Mission:
     warns = warnings if warnings is not None else []
+    ignored: dict[int, list[int]] = {}
     for it in items:
-        _validate_item(it, home, src, warns, wheres.get(it.index, ""))
+        if _validate_item(it, home, src, wheres.get(it.index, "")):
+            ignored.setdefault(it.command, []).append(it.index)
+    for cmd, idx in ignored.items():
+        shown = ", ".join(str(i) for i in idx[:20]) + (", ..." if len(idx) > 20 else "")
+        label = f"item {shown}" if len(idx) == 1 else f"items {shown}"
+        msg = f"{src}: {label}: command {cmd} ({command_name(cmd)}) ignored (no position)"
+        warns.append(msg)
+        _log.warning(msg)
     items = _resolve_jumps(items, src, by_do_jump_id)
     return Mission(
         source=src,
@@ -607,6 +614,8 @@ def parse_wpl(
             raise fail(f"expected 12 fields ({_WPL_FIELDS}), got {len(fields)}")
         index = _wpl_int(fields[0], "INDEX", fail, 0, 65_535)
         if index != expected:
+            if expected == 0:
+                raise fail(f"the first item must be home (INDEX 0), got INDEX {index}")
             raise fail(f"INDEX {index} out of order (expected {expected})")
         expected += 1
         current = _wpl_int(fields[1], "CURRENT", fail, 0, 1)

@@ -114,6 +114,10 @@ class MissionError(ValueError):
         where = f"{self.source}: item {item}: " if item is not None else f"{self.source}: "
         super().__init__(where + detail)
 
+    def __reduce__(self) -> tuple[type[MissionError], tuple[str, str, int | None]]:
+        # picklable with its parts (e.g. raised in a worker process of a parallel replay)
+        return (MissionError, (self.source, self.detail, self.item))
+
 
 @dataclass(frozen=True)
 class MissionItem:

@@ -185,9 +185,7 @@ class Bezier:
         return float(np.max(np.linalg.norm(pts, axis=1)))
 
     @classmethod
-    def hermite(
-        cls, start_derivs: ArrayLike, end_derivs: ArrayLike, duration: float
-    ) -> Bezier:
+    def hermite(cls, start_derivs: ArrayLike, end_derivs: ArrayLike, duration: float) -> Bezier:
         """See :func:`hermite`."""
         return hermite(start_derivs, end_derivs, duration)
 

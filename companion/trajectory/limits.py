@@ -64,9 +64,7 @@ class Limits:
         _positive("max_thrust_n", self.max_thrust_n, optional=True)
         _positive("max_body_rate_rad_s", self.max_body_rate_rad_s, optional=True)
         if self.max_tilt_rad is not None and self.max_tilt_rad >= math.pi / 2:
-            raise ValueError(
-                f"max_tilt_rad must be below pi/2 (90 deg), got {self.max_tilt_rad}"
-            )
+            raise ValueError(f"max_tilt_rad must be below pi/2 (90 deg), got {self.max_tilt_rad}")
         if self.min_thrust_n is not None:
             v = float(self.min_thrust_n)
             if not math.isfinite(v) or v < 0.0:
@@ -167,9 +165,7 @@ def _validate(traj: PiecewiseBezier, limits: Limits | RoverLimits, params: Any) 
             raise ValueError("tilt, thrust and body-rate limits apply to 3-D trajectories")
 
 
-def _thrust_vectors(
-    vel: FloatArray, acc: FloatArray, params: Any
-) -> FloatArray:
+def _thrust_vectors(vel: FloatArray, acc: FloatArray, params: Any) -> FloatArray:
     """Thrust vector t = m (g e3 - a) - D v (N), NED, shape (N, 3)."""
     m = float(params.mass)
     g = float(params.g)
@@ -179,38 +175,59 @@ def _thrust_vectors(
     return tv
 
 
-def _yaw_samples(traj: PiecewiseBezier, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+@dataclass(frozen=True)
+class _Samples:
+    """Flat-output derivatives sampled at some times (NED, SI; yaw in rad)."""
+
+    vel: FloatArray
+    acc: FloatArray
+    jerk: FloatArray | None
+    snap: FloatArray | None
+    yaw: FloatArray
+    yaw_rate: FloatArray
+    yaw_acc: FloatArray
+
+    def time_scaled(self, alpha: float) -> _Samples:
+        """The samples of the same trajectory slowed down by ``alpha`` (t -> alpha t)."""
+        return _Samples(
+            vel=self.vel / alpha,
+            acc=self.acc / alpha**2,
+            jerk=None if self.jerk is None else self.jerk / alpha**3,
+            snap=None if self.snap is None else self.snap / alpha**4,
+            yaw=self.yaw,
+            yaw_rate=self.yaw_rate / alpha,
+            yaw_acc=self.yaw_acc / alpha**2,
+        )
+
+
+def _sample(traj: PiecewiseBezier, t: FloatArray, names: list[str]) -> _Samples:
+    vel = traj.evaluate(t, 1)
+    acc = traj.evaluate(t, 2)
+    need_jerk = "jerk" in names or "body_rate" in names
+    jerk = traj.evaluate(t, 3) if need_jerk else None
+    snap = traj.evaluate(t, 4) if "body_rate" in names else None
     if traj.yaw is None:
         z = np.zeros(t.shape[0])
-        return z, z.copy(), z.copy()
-    return (
-        traj.yaw.evaluate(t, 0)[:, 0],
-        traj.yaw.evaluate(t, 1)[:, 0],
-        traj.yaw.evaluate(t, 2)[:, 0],
-    )
+        yaw, yaw_rate, yaw_acc = z, z, z
+    else:
+        yaw = traj.yaw.evaluate(t, 0)[:, 0]
+        yaw_rate = traj.yaw.evaluate(t, 1)[:, 0]
+        yaw_acc = traj.yaw.evaluate(t, 2)[:, 0]
+    return _Samples(vel, acc, jerk, snap, yaw, yaw_rate, yaw_acc)
 
 
-def _metrics(
-    traj: PiecewiseBezier,
-    t: FloatArray,
-    names: list[str],
-    params: Any,
-) -> dict[str, FloatArray]:
-    """Values of each named quantity at times ``t`` (s)."""
+def _metrics(smp: _Samples, names: list[str], params: Any) -> dict[str, FloatArray]:
+    """Values of each named quantity at the sampled times."""
     out: dict[str, FloatArray] = {}
-    vel = traj.evaluate(t, 1)
-    need_acc = any(n in names for n in ("acc", "tilt", "max_thrust", "min_thrust",
-                                         "body_rate", "yaw_rate", "lat_acc"))
-    acc = traj.evaluate(t, 2) if need_acc else vel
+    vel, acc = smp.vel, smp.acc
     if "speed" in names:
         out["speed"] = np.linalg.norm(vel, axis=1)
     if "acc" in names:
         out["acc"] = np.linalg.norm(acc, axis=1)
-    if "jerk" in names:
-        out["jerk"] = np.linalg.norm(traj.evaluate(t, 3), axis=1)
+    if "jerk" in names and smp.jerk is not None:
+        out["jerk"] = np.linalg.norm(smp.jerk, axis=1)
     if "yaw_rate" in names or "lat_acc" in names:
-        v2 = np.einsum("ij,ij->i", vel, vel)
-        speed = np.sqrt(v2)
+        speed = np.linalg.norm(vel, axis=1)
         cross = vel[:, 0] * acc[:, 1] - vel[:, 1] * acc[:, 0]
         ok = speed > ROVER_MIN_SPEED_M_S
         safe_v = np.where(ok, speed, 1.0)
@@ -224,20 +241,19 @@ def _metrics(
         out["max_thrust"] = thrust
         out["min_thrust"] = thrust
     if "body_rate" in names:
-        out["body_rate"] = _body_rate_norm(traj, t, vel, acc, params)
+        out["body_rate"] = _body_rate_norm(smp, params)
     return out
 
 
-def _body_rate_norm(
-    traj: PiecewiseBezier, t: FloatArray, vel: FloatArray, acc: FloatArray, params: Any
-) -> FloatArray:
-    """|omega_frd| (rad/s) from the flatness module (imported lazily)."""
+def _body_rate_norm(smp: _Samples, params: Any) -> FloatArray:
+    """|omega_frd| (rad/s) from the flatness module (imported lazily: flatness sits above
+    trajectory in the layering)."""
     from companion.flatness import multirotor_setpoint
 
-    jerk = traj.evaluate(t, 3)
-    snap = traj.evaluate(t, 4)
-    yaw, yaw_rate, yaw_acc = _yaw_samples(traj, t)
-    sp = multirotor_setpoint(vel, acc, jerk, snap, yaw, yaw_rate, yaw_acc, params)
+    assert smp.jerk is not None and smp.snap is not None
+    sp = multirotor_setpoint(
+        smp.vel, smp.acc, smp.jerk, smp.snap, smp.yaw, smp.yaw_rate, smp.yaw_acc, params
+    )
     omega = np.asarray(sp.omega_frd, dtype=np.float64).reshape(-1, 3)
     return np.asarray(np.linalg.norm(omega, axis=1), dtype=np.float64)
 
@@ -250,20 +266,28 @@ def _sample_times(traj: PiecewiseBezier, per_segment: int) -> tuple[FloatArray, 
     return t.reshape(-1), seg
 
 
+def segment_samples(
+    traj: PiecewiseBezier, limits: Limits | RoverLimits, per_segment: int = SAMPLES_PER_SEGMENT
+) -> _Samples:
+    """Samples (``per_segment`` per segment, ends included) for :func:`segment_worst`."""
+    names = [n for n, _, _ in _limit_table(limits)]
+    t, _ = _sample_times(traj, per_segment)
+    return _sample(traj, t, names)
+
+
 def segment_worst(
-    traj: PiecewiseBezier,
+    smp: _Samples,
+    num_segments: int,
     limits: Limits | RoverLimits,
     params: Any = None,
-    per_segment: int = SAMPLES_PER_SEGMENT,
 ) -> dict[str, FloatArray]:
     """Per-segment worst sampled value (M,) of every active limit (used by the planner)."""
     table = _limit_table(limits)
     names = [n for n, _, _ in table]
-    t, _ = _sample_times(traj, per_segment)
-    vals = _metrics(traj, t, names, params)
+    vals = _metrics(smp, names, params)
     out: dict[str, FloatArray] = {}
     for name, _, kind in table:
-        v = vals[name].reshape(traj.num_segments, per_segment)
+        v = vals[name].reshape(num_segments, -1)
         out[name] = v.min(axis=1) if kind == "min" else v.max(axis=1)
     return out
 
@@ -284,7 +308,7 @@ def check(
     table = _limit_table(limits)
     names = [n for n, _, _ in table]
     t, seg = _sample_times(traj, SAMPLES_PER_SEGMENT)
-    vals = _metrics(traj, t, names, params)
+    vals = _metrics(_sample(traj, t, names), names, params)
     hull_order = {"speed": 1, "acc": 2, "jerk": 3}
     reports: dict[str, LimitReport] = {}
     for name, limit, kind in table:
@@ -297,7 +321,7 @@ def check(
         lo = max(float(traj.breaks[k]), float(t[i]) - dt)
         hi = min(float(traj.breaks[k + 1]), float(t[i]) + dt)
         tf = np.linspace(lo, hi, 33)
-        vf = _metrics(traj, tf, [name], params)[name]
+        vf = _metrics(_sample(traj, tf, [name]), [name], params)[name]
         j = int(np.argmin(vf) if kind == "min" else np.argmax(vf))
         worst, t_worst = float(v[i]), float(t[i])
         if (kind == "min" and vf[j] < worst) or (kind == "max" and vf[j] > worst):

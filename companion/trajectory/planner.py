@@ -32,7 +32,13 @@ import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
 
 from companion.trajectory.bezier import FloatArray, PiecewiseBezier, _monomial_matrix, hermite
-from companion.trajectory.limits import Limits, RoverLimits, _validate, segment_worst
+from companion.trajectory.limits import (
+    Limits,
+    RoverLimits,
+    _validate,
+    segment_samples,
+    segment_worst,
+)
 
 __all__ = ["PlanResult", "plan", "plan_with_info"]
 
@@ -41,6 +47,15 @@ DerivSpec = Mapping[int, ArrayLike | None]
 
 #: Safety margin on limits used by the time allocation (sampling cannot see every peak exactly).
 ALLOCATION_MARGIN = 0.995
+#: Pieces per waypoint leg used by the time allocation (intermediate joints on the straight leg
+#: give the speed profile room to accelerate, cruise and brake).
+ALLOCATION_PIECES = 3
+#: Time-allocation objective sum(h) + rho J + w P: rho relative to the initial guess, w.
+REFINE_RHO = 0.01
+REFINE_PENALTY_WEIGHT = 1e4
+REFINE_MAXITER = 35
+#: yaw="velocity": heading rates are matched at joints faster than this fraction of the top speed.
+VELOCITY_YAW_MIN_FRACTION = 0.3
 #: Duration of the hover trajectory returned for a single waypoint (s), unless given.
 HOVER_DURATION_S = 1.0
 _MERGE_TOL_M = 1e-9
@@ -95,14 +110,33 @@ class _System:
         self.u = 2 * s - 1
         mask = (ai >= 0) & (bj >= 0) & (ai <= bj)
         self.band_mask = mask
-        self.band_flat = ((self.u + ai - bj) * self.nf + bj)[mask] if self.nf else None
+        self.band_flat = ((self.u + ai - bj) * self.nf + bj)[mask]
         self.fa = fa
         self.free_rows = fa >= 0  # (M, 2s)
+        self._factor: tuple[FloatArray, FloatArray] | None = None
+        self._q_cache: tuple[FloatArray, FloatArray] | None = None
+
+    def _q(self, h: FloatArray) -> FloatArray:
+        """Per-segment cost matrices Q_k = h^(1-2s) S Qt S, S = diag(h^o) (M, 2s, 2s)."""
+        cache = self._q_cache
+        if cache is not None and cache[0].shape == h.shape and np.array_equal(cache[0], h):
+            return cache[1]
+        hp = self.powers(h, 0)
+        Q = self.Qt[None, :, :] * (h ** (1.0 - 2.0 * self.s))[:, None, None]
+        Q = Q * hp[:, :, None] * hp[:, None, :]
+        self._q_cache = (h.copy(), Q)
+        return Q
+
+    def powers(self, h: FloatArray, r: int) -> FloatArray:
+        """h^(o_a - r) for the 2s Hermite inputs, shape (M, 2s)."""
+        half = np.cumprod(np.column_stack([np.ones_like(h)] + [h] * (self.s - 1)), axis=1)
+        hp = np.concatenate([half, half], axis=1)
+        return hp if r == 0 else hp / h[:, None] ** r
 
     def solve(self, h: FloatArray) -> tuple[FloatArray, float]:
         """Joint derivatives x (n_joints * s, d) and cost J for durations h (M,)."""
-        s, d = self.s, self.d
-        Q = self.Qt[None, :, :] * h[:, None, None] ** self.expo[None, :, :]
+        d = self.d
+        Q = self._q(h)
         x = self.x0.copy()
         if self.nf:
             xk = x[self.gidx]
@@ -129,25 +163,39 @@ class _System:
                     continue
                 ab[r, off:] *= sc[: self.nf - off] * sc[off:]
             try:
-                z = scipy.linalg.solveh_banded(ab, rhs * sc[:, None], check_finite=False)
+                cb = scipy.linalg.cholesky_banded(ab, lower=False, check_finite=False)
             except np.linalg.LinAlgError as exc:
                 raise ValueError(
                     "the trajectory problem is singular (under-determined free derivatives)"
                 ) from exc
+            self._factor = (cb, sc)
+            z = scipy.linalg.cho_solve_banded((cb, False), rhs * sc[:, None], check_finite=False)
             x[self.free] = z * sc[:, None]
         xk = x[self.gidx]
         cost = float(np.sum(xk * (Q @ xk)))
         return x, cost
 
+    def adjoint(self, g_full: FloatArray) -> FloatArray:
+        """lambda = A^-1 g_F for the last factorised system, scattered to all joint
+        derivatives (zeros at fixed ones); g_full has shape (n_joints * s, d)."""
+        lam = np.zeros_like(g_full)
+        if self.nf and self._factor is not None:
+            cb, sc = self._factor
+            z = scipy.linalg.cho_solve_banded(
+                (cb, False), g_full[self.free] * sc[:, None], check_finite=False
+            )
+            lam[self.free] = z * sc[:, None]
+        return lam
+
     def cost_grad(self, x: FloatArray, h: FloatArray) -> FloatArray:
         """dJ*/dh (M,) at the optimum x (envelope theorem: fixed joint derivatives)."""
-        dQ = self.Qt[None] * (self.expo[None] * h[:, None, None] ** (self.expo[None] - 1.0))
+        dQ = self._q(h) * self.expo[None] / h[:, None, None]
         xk = x[self.gidx]
         return np.asarray(np.sum(xk * (dQ @ xk), axis=(1, 2)), dtype=np.float64)
 
     def control_points(self, x: FloatArray, h: FloatArray) -> FloatArray:
         """Bezier control points (M, 2s, d) of the segments."""
-        xk = x[self.gidx] * (h[:, None] ** self.o[None, :])[:, :, None]
+        xk = x[self.gidx] * self.powers(h, 0)[:, :, None]
         return np.asarray(self.H @ xk, dtype=np.float64)
 
 
@@ -174,9 +222,7 @@ def _orders(spec: DerivSpec | None, s: int, d: int, what: str) -> dict[int, Floa
                 f"velocity..{'jerk' if s == 4 else 'acceleration'})"
             )
         names = {1: "velocity", 2: "acceleration", 3: "jerk"}
-        out[int(order)] = (
-            None if value is None else _vec(value, d, f"{what} {names[int(order)]}")
-        )
+        out[int(order)] = None if value is None else _vec(value, d, f"{what} {names[int(order)]}")
     return out
 
 
@@ -184,7 +230,9 @@ def _check_waypoints(waypoints: ArrayLike) -> FloatArray:
     try:
         wp = np.array(waypoints, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"waypoints must be a numeric array of shape (M, 2) or (M, 3): {exc}")
+        raise ValueError(
+            f"waypoints must be a numeric array of shape (M, 2) or (M, 3): {exc}"
+        ) from exc
     if wp.ndim != 2 or wp.shape[1] not in (2, 3):
         raise ValueError(
             f"waypoints must have shape (M, 2) for a rover or (M, 3) for a multirotor, "
@@ -206,31 +254,23 @@ def _trapezoid_durations(lengths: FloatArray, vmax: float, amax: float) -> Float
     return np.where(full, lengths / vmax + vmax / amax, 2.0 * np.sqrt(lengths / amax))
 
 
-def _scale_factor(name: str, ratio: FloatArray) -> FloatArray:
-    """Time-scale factor per segment that would bring the value to the limit (heuristic)."""
-    power = {"speed": 1.0, "acc": 0.5, "jerk": 1.0 / 3.0, "tilt": 0.5, "max_thrust": 0.5,
-             "min_thrust": 0.5, "body_rate": 1.0 / 3.0, "yaw_rate": 1.0, "lat_acc": 0.5}[name]
-    return np.asarray(np.maximum(ratio, 1e-6) ** power, dtype=np.float64)
-
-
 def _ratios(
     worst: dict[str, FloatArray], limits: Limits | RoverLimits, params: Any
 ) -> dict[str, FloatArray]:
-    """Per-segment 'value / allowed' ratio of each limit (>1 means exceeded)."""
+    """Per-segment 'value / allowed' ratio of each limit (> 1 means exceeded), with the
+    allocation margin applied."""
     out: dict[str, FloatArray] = {}
     margin = ALLOCATION_MARGIN
     for name, v in worst.items():
         if name == "tilt":
-            lim = float(limits.max_tilt_rad) * margin  # type: ignore[union-attr,arg-type]
-            out[name] = np.tan(np.minimum(v, 1.5)) / math.tan(lim)
-        elif name in ("max_thrust", "min_thrust"):
-            mg = float(params.mass) * float(params.g)
-            if name == "max_thrust":
-                cap = float(limits.max_thrust_n) * margin  # type: ignore[union-attr,arg-type]
-                out[name] = np.maximum(v - mg, 0.0) / max(cap - mg, 1e-9)
-            else:
-                floor = float(limits.min_thrust_n) / margin  # type: ignore[union-attr,arg-type]
-                out[name] = np.maximum(mg - v, 0.0) / max(mg - floor, 1e-9)
+            assert isinstance(limits, Limits) and limits.max_tilt_rad is not None
+            out[name] = v / (limits.max_tilt_rad * margin)
+        elif name == "max_thrust":
+            assert isinstance(limits, Limits) and limits.max_thrust_n is not None
+            out[name] = v / (limits.max_thrust_n * margin)
+        elif name == "min_thrust":
+            assert isinstance(limits, Limits) and limits.min_thrust_n is not None
+            out[name] = (limits.min_thrust_n / margin) / np.maximum(v, 1e-12)
         else:
             attr = {
                 "speed": "max_speed_m_s",
@@ -244,20 +284,141 @@ def _ratios(
     return out
 
 
+class _Penalty:
+    """Sampled smooth penalty ``P = sum_k h_k / n sum_j max(0, g)^3`` of the limit violations
+    ``g`` (dimensionless, > 0 when violated) of speed, acceleration, jerk, tilt and thrust, with
+    its exact gradient w.r.t. the durations through the optimal joint derivatives (adjoint of
+    the banded system). Used only to steer the time allocation; limits are enforced after."""
+
+    def __init__(
+        self, system: _System, limits: Limits | RoverLimits, params: Any, n_samples: int = 12
+    ) -> None:
+        self.system = system
+        self.n = n_samples
+        s = system.s
+        deg = 2 * s - 1
+        mono = _monomial_matrix(deg) @ system.H  # (deg+1, 2s): coefficient of tau^p
+        tau = (np.arange(n_samples) + 0.5) / n_samples
+        self.W: dict[int, FloatArray] = {}
+        for r in (1, 2, 3):
+            p = np.arange(r, deg + 1)
+            fall = np.array([math.factorial(int(i)) / math.factorial(int(i) - r) for i in p])
+            V = tau[:, None] ** (p - r)[None, :].astype(np.float64) * fall[None, :]
+            self.W[r] = V @ mono[r:, :]
+        m = ALLOCATION_MARGIN
+        self.terms: list[tuple[str, float]] = [("speed", (limits.max_speed_m_s * m) ** 2)]
+        self.params = params
+        self.limits = limits
+        if isinstance(limits, Limits):
+            self.terms.append(("acc", (limits.max_acc_m_s2 * m) ** 2))
+            if limits.max_jerk_m_s3 is not None:
+                self.terms.append(("jerk", (limits.max_jerk_m_s3 * m) ** 2))
+            if limits.max_tilt_rad is not None:
+                self.terms.append(("tilt", math.tan(limits.max_tilt_rad * m) ** 2))
+            if limits.max_thrust_n is not None:
+                self.terms.append(("max_thrust", (limits.max_thrust_n * m) ** 2))
+            if limits.min_thrust_n is not None and limits.min_thrust_n > 0.0:
+                self.terms.append(("min_thrust", (limits.min_thrust_n / m) ** 2))
+        self.orders = sorted(
+            {3 if n == "jerk" else 2 if n != "speed" else 1 for n, _ in self.terms} | {1}
+        )
+        if any(n in ("tilt", "max_thrust", "min_thrust") for n, _ in self.terms):
+            self.orders = sorted(set(self.orders) | {1, 2})
+
+    def value_grad(self, x: FloatArray, h: FloatArray) -> tuple[float, FloatArray]:
+        """Penalty P and its total derivative dP/dh (M,) at the optimum x(h)."""
+        sysm = self.system
+        s = sysm.s
+        xk = x[sysm.gidx]  # (M, 2s, d)
+        Y: dict[int, FloatArray] = {}
+        D: dict[int, FloatArray] = {}
+        m, d = xk.shape[0], xk.shape[2]
+        hp = sysm.powers(h, 0)
+        for r in self.orders:
+            Y[r] = xk * (hp / h[:, None] ** r)[:, :, None]
+            yt = Y[r].transpose(1, 0, 2).reshape(2 * s, m * d)
+            D[r] = (self.W[r] @ yt).reshape(self.n, m, d).transpose(1, 0, 2)  # (M, n, d)
+        phi = np.zeros(D[1].shape[:2])
+        G: dict[int, FloatArray] = {r: np.zeros_like(D[r]) for r in self.orders}
+
+        def add(g: FloatArray, dg: dict[int, FloatArray]) -> None:
+            pos = np.maximum(g, 0.0)
+            phi[...] += pos**3
+            w = 3.0 * pos**2
+            for r, v in dg.items():
+                G[r] += w[:, :, None] * v
+
+        tv: FloatArray | None = None
+        for name, lim2 in self.terms:
+            if name in ("speed", "acc", "jerk"):
+                r = {"speed": 1, "acc": 2, "jerk": 3}[name]
+                q = D[r]
+                add(np.sum(q * q, axis=2) / lim2 - 1.0, {r: 2.0 * q / lim2})
+                continue
+            if tv is None:
+                mass = float(self.params.mass)
+                drag = float(getattr(self.params, "drag", 0.0))
+                tv = -mass * D[2] - drag * D[1]
+                tv[:, :, 2] += mass * float(self.params.g)
+            mass = float(self.params.mass)
+            drag = float(getattr(self.params, "drag", 0.0))
+            if name == "tilt":
+                tz = np.maximum(tv[:, :, 2], 1e-3 * mass * float(self.params.g))
+                hor = tv[:, :, 0] ** 2 + tv[:, :, 1] ** 2
+                g = hor / (lim2 * tz * tz) - 1.0
+                dt = np.empty_like(tv)
+                dt[:, :, 0] = 2.0 * tv[:, :, 0] / (lim2 * tz * tz)
+                dt[:, :, 1] = 2.0 * tv[:, :, 1] / (lim2 * tz * tz)
+                dt[:, :, 2] = -2.0 * hor / (lim2 * tz**3)
+            elif name == "max_thrust":
+                g = np.sum(tv * tv, axis=2) / lim2 - 1.0
+                dt = 2.0 * tv / lim2
+            else:
+                g = 1.0 - np.sum(tv * tv, axis=2) / lim2
+                dt = -2.0 * tv / lim2
+            add(g, {2: -mass * dt, 1: -drag * dt})
+        value = float(np.sum(h[:, None] * phi) / self.n)
+        scale = h[:, None, None] / self.n
+        dxk = np.zeros_like(xk)
+        dh = np.sum(phi, axis=1) / self.n
+        for r in self.orders:
+            Gr = (G[r] * scale).transpose(1, 0, 2).reshape(self.n, m * d)
+            dY = (self.W[r].T @ Gr).reshape(2 * s, m, d).transpose(1, 0, 2)  # (M, 2s, d)
+            fac = (hp / h[:, None] ** r)[:, :, None]
+            dxk += dY * fac
+            dh += np.sum(dY * Y[r] * ((sysm.o[None, :] - r) / h[:, None])[:, :, None], axis=(1, 2))
+        g_full = np.zeros_like(x)
+        g_full[: m * s] += dxk[:, :s, :].reshape(-1, x.shape[1])
+        g_full[s:] += dxk[:, s:, :].reshape(-1, x.shape[1])
+        lam = sysm.adjoint(g_full)
+        dQ = sysm._q(h) * sysm.expo[None] / h[:, None, None]
+        dh -= np.sum(lam[sysm.gidx] * (dQ @ xk), axis=(1, 2))
+        return value, dh
+
+
 @dataclass(frozen=True)
 class PlanResult:
-    """A plan with diagnostics: the trajectory, its cost J (integral of the squared snap or
-    jerk, SI) and the number of fixed-duration solves used by the time allocation."""
+    """A plan with diagnostics.
+
+    ``trajectory``; ``cost`` J (integral of the squared snap or jerk, SI units);
+    ``waypoint_times`` (s) when each input waypoint is reached (duplicates share a time);
+    ``solves``: number of fixed-duration solves the time allocation used.
+    """
 
     trajectory: PiecewiseBezier
     cost: float
+    waypoint_times: FloatArray
     solves: int
 
 
 class _Planner:
+    """One planning problem: joints (waypoints and, for time allocation, intermediate points on
+    the straight legs), their fixed derivatives, and the yaw specification."""
+
     def __init__(
         self,
-        wp: FloatArray,
+        joints: FloatArray,
+        is_waypoint: NDArray[np.bool_],
         s: int,
         start: dict[int, FloatArray | None],
         end: dict[int, FloatArray | None],
@@ -265,13 +426,14 @@ class _Planner:
         yaw: YawSpec,
         yaw_wp: FloatArray | None,
     ) -> None:
-        self.wp = wp
+        self.joints = joints
+        self.is_waypoint = is_waypoint
         self.s = s
-        n_j, d = wp.shape
+        n_j, d = joints.shape
         mask = np.zeros((n_j, s), dtype=bool)
         vals = np.zeros((n_j, s, d))
         mask[:, 0] = True
-        vals[:, 0, :] = wp
+        vals[:, 0, :] = joints
         for j in range(1, s):
             for idx, spec in ((0, start), (n_j - 1, end)):
                 v = spec[j] if j in spec else np.zeros(d)
@@ -283,6 +445,9 @@ class _Planner:
                 if v is not None:
                     mask[idx, j] = True
                     vals[idx, j] = v
+        # uniform time scaling maps the optimum onto the optimum when every fixed
+        # non-position derivative is zero: limits can then be checked on scaled samples
+        self.homogeneous = bool(np.all(vals[:, 1:, :] == 0.0))
         self.system = _System(mask, vals, s)
         self.yaw = yaw
         self.yaw_wp = yaw_wp
@@ -296,132 +461,139 @@ class _Planner:
         x, cost = self.solve(h)
         cp = self.system.control_points(x, h)
         traj = PiecewiseBezier.from_control_points(cp, h)
-        yaw_traj = _yaw_channel(self.wp, x.reshape(-1, self.s, traj.dim), h, self.s,
-                                self.yaw, self.yaw_wp)
+        yaw_traj = _yaw_channel(
+            traj,
+            self.joints,
+            self.is_waypoint,
+            x.reshape(-1, self.s, traj.dim),
+            h,
+            self.s,
+            self.yaw,
+            self.yaw_wp,
+        )
         if yaw_traj is not None:
             traj = traj.with_yaw(yaw_traj)
         return traj, cost
 
     # ------------------------------------------------------------------ allocation
-    def allocate(
-        self, limits: Limits | RoverLimits, params: Any
-    ) -> FloatArray:
-        wp = self.wp
-        lengths = np.linalg.norm(np.diff(wp, axis=0), axis=1)
+    def allocate(self, limits: Limits | RoverLimits, params: Any) -> FloatArray:
+        """Durations (s) per segment: trapezoid guess, penalised refinement, saturation."""
+        joints = self.joints
+        lengths = np.linalg.norm(np.diff(joints, axis=0), axis=1)
         vmax = limits.max_speed_m_s
         amax = limits.max_lat_acc_m_s2 if isinstance(limits, RoverLimits) else limits.max_acc_m_s2
-        h0 = _trapezoid_durations(lengths, vmax, amax)
-        import os
-        if os.environ.get("NOREF"):
-            h = h0
-        else:
-            h = self._refine(h0)
-        h = self._saturate(h, limits, params)
-        h = self._balance(h, limits, params, int(os.environ.get("NBAL", "0")))
-        return h
+        # trapezoid per waypoint leg, shared equally among the leg's pieces
+        leg = np.cumsum(self.is_waypoint[:-1]) - 1
+        leg_len = np.asarray(np.bincount(leg, weights=lengths), dtype=np.float64)
+        pieces = np.bincount(leg).astype(np.float64)
+        h0 = (_trapezoid_durations(leg_len, vmax, amax) / pieces)[leg]
+        h0 = np.maximum(h0, 1e-3)
+        h = self._refine(h0, limits, params)
+        return self._saturate(h, limits, params)
 
-    def _balance(
-        self, h: FloatArray, limits: Limits | RoverLimits, params: Any, iterations: int
-    ) -> FloatArray:
-        """Shorten segments that have slack (their most active limit below its value), keeping
-        every limit satisfied; accept a step only when the total time decreases."""
-        ok, factor = self._feasible(h, limits, params)
-        step = 0.5
-        for _ in range(iterations):
-            trial = h * np.clip(factor, 0.5, 1.0) ** step
-            ok_t, f_t = self._feasible(trial, limits, params)
-            tries = 0
-            while not ok_t and tries < 6:
-                trial = trial * np.maximum(f_t, 1.0) ** 1.0 * np.where(f_t > 1.0, 1.002, 1.0)
-                ok_t, f_t = self._feasible(trial, limits, params)
-                tries += 1
-            if ok_t and trial.sum() < h.sum() * (1.0 - 1e-4):
-                h, factor = trial, f_t
-            else:
-                step *= 0.5
-                if step < 0.05:
-                    break
-        return h
-
-    def _refine(self, h0: FloatArray) -> FloatArray:
-        """Minimise sum(h) + rho J(h) (analytic gradient), rho balancing the initial guess."""
+    def _refine(self, h0: FloatArray, limits: Limits | RoverLimits, params: Any) -> FloatArray:
+        """Minimise ``sum(h) + rho J(h) + w P(h)`` over log-durations with L-BFGS-B and the
+        analytic gradient (envelope theorem for J, adjoint of the banded system for the
+        sampled limit penalty P). rho is set relative to the initial guess (small: time
+        dominates, the penalty keeps the limits)."""
         _, j0 = self.solve(h0)
         if not np.isfinite(j0) or j0 <= 0.0:
             return h0
         t0 = float(h0.sum())
-        rho = t0 / ((2 * self.s - 1) * j0)
+        rho = REFINE_RHO * t0 / ((2 * self.s - 1) * j0)
+        penalty = _Penalty(self.system, limits, params)
         lz = np.log(h0)
 
         def fun(z: FloatArray) -> tuple[float, FloatArray]:
             h = np.exp(z)
             x, j = self.solve(h)
-            g = 1.0 + rho * self.system.cost_grad(x, h)
-            return float(h.sum() + rho * j) / t0, g * h / t0
+            p, dp = penalty.value_grad(x, h)
+            g = 1.0 + rho * self.system.cost_grad(x, h) + REFINE_PENALTY_WEIGHT * dp
+            return float(h.sum() + rho * j + REFINE_PENALTY_WEIGHT * p) / t0, g * h / t0
 
         res = scipy.optimize.minimize(
             fun,
             lz,
             jac=True,
             method="L-BFGS-B",
-            bounds=[(z - 2.0, z + 2.0) for z in lz],
-            options={"maxiter": 60, "gtol": 1e-6},
+            bounds=[(z - 3.0, z + 3.0) for z in lz],
+            options={"maxiter": REFINE_MAXITER, "gtol": 1e-6},
         )
         return np.exp(np.asarray(res.x, dtype=np.float64))
 
-    def _feasible(
+    def _max_ratio(
         self, h: FloatArray, limits: Limits | RoverLimits, params: Any
-    ) -> tuple[bool, FloatArray]:
-        """Whether durations h satisfy every limit (sampled, with margin) and the per-segment
-        time-scale factor that would bring each segment to its most active limit."""
+    ) -> tuple[float, FloatArray]:
+        """Largest value/limit ratio (with margin) over the trajectory and per segment."""
         traj, _ = self.build(h)
-        ratios = _ratios(segment_worst(traj, limits, params), limits, params)
-        factor = np.full(h.shape[0], 1e-6)
-        for name, r in ratios.items():
-            factor = np.maximum(factor, _scale_factor(name, r))
-        return bool(np.all(factor <= 1.0)), factor
+        smp = segment_samples(traj, limits)
+        return self._ratio_of(smp, h.shape[0], limits, params)
 
-    def _saturate(
-        self, h: FloatArray, limits: Limits | RoverLimits, params: Any
-    ) -> FloatArray:
+    @staticmethod
+    def _ratio_of(
+        smp: Any, m: int, limits: Limits | RoverLimits, params: Any
+    ) -> tuple[float, FloatArray]:
+        ratios = _ratios(segment_worst(smp, m, limits, params), limits, params)
+        per_seg = np.max(np.stack(list(ratios.values())), axis=0)
+        return float(np.max(per_seg)), per_seg
+
+    def _saturate(self, h: FloatArray, limits: Limits | RoverLimits, params: Any) -> FloatArray:
         """Scale all durations by the smallest common factor that satisfies every limit
         (bisection; a uniform time scaling keeps the path shape), then stretch locally where a
-        limit is still exceeded."""
-        ok, factor = self._feasible(h, limits, params)
-        # bracket [lo (infeasible), hi (feasible)] around the factor predicted by the ratios
-        guess = float(np.max(factor))
-        lo, hi = None, None
-        alpha = guess
-        for _ in range(40):
-            ok, factor = self._feasible(h * alpha, limits, params)
-            if ok:
-                hi = alpha
-                if lo is not None:
-                    break
-                alpha *= 0.9
-                lo_try = alpha
-                ok2, _ = self._feasible(h * lo_try, limits, params)
-                if not ok2:
-                    lo = lo_try
-                    break
-                hi = lo_try
-                alpha = lo_try * 0.9
-            else:
-                lo = alpha
-                if hi is not None:
-                    break
-                alpha *= max(1.1, float(np.max(factor)))
-        if hi is None:
+        limit is still exceeded (feasibility pass)."""
+        m = h.shape[0]
+        if self.homogeneous:
+            traj, _ = self.build(h)
+            base = segment_samples(traj, limits)
+
+            def ratio(alpha: float) -> float:
+                return self._ratio_of(base.time_scaled(alpha), m, limits, params)[0]
+        else:
+
+            def ratio(alpha: float) -> float:
+                return self._max_ratio(h * alpha, limits, params)[0]
+
+        hi = 1.0
+        r = ratio(hi)
+        for _ in range(60):
+            if r <= 1.0:
+                break
+            hi *= min(max(r, 1.05), 4.0)
+            r = ratio(hi)
+        else:
             raise ValueError("time allocation could not satisfy the limits (check their values)")
-        if lo is not None:
-            for _ in range(10):
-                mid = math.sqrt(lo * hi)
-                if self._feasible(h * mid, limits, params)[0]:
-                    hi = mid
-                else:
-                    lo = mid
-                if hi / lo < 1.002:
-                    break
-        return h * hi
+        lo = hi
+        for _ in range(60):
+            lo *= 0.8
+            if lo < 1e-6:
+                raise ValueError("time allocation failed: the limits are never active")
+            if ratio(lo) > 1.0:
+                break
+            hi = lo
+        for _ in range(40):
+            if hi / lo < 1.0 + 1e-3:
+                break
+            mid = math.sqrt(lo * hi)
+            if ratio(mid) <= 1.0:
+                hi = mid
+            else:
+                lo = mid
+        h = h * hi
+        # feasibility pass on the real trajectory (re-solved, not scaled)
+        for _ in range(30):
+            worst, per_seg = self._max_ratio(h, limits, params)
+            if worst <= 1.0:
+                return h
+            bad = per_seg > 1.0
+            grow = np.where(bad, np.minimum(per_seg, 1.5) * 1.002, 1.0)
+            grow[1:] = np.maximum(grow[1:], np.where(bad[:-1], 1.002, 1.0))
+            grow[:-1] = np.maximum(grow[:-1], np.where(bad[1:], 1.002, 1.0))
+            h = h * grow
+        for _ in range(60):
+            if self._max_ratio(h, limits, params)[0] <= 1.0:
+                return h
+            h = h * 1.02
+        raise ValueError("time allocation could not satisfy the limits (check their values)")
 
 
 # =========================================================================== yaw channel
@@ -438,14 +610,20 @@ def _unwrap_sequence(yaw: FloatArray) -> FloatArray:
 
 
 def _solve_1d(
-    values: FloatArray, h: FloatArray, s: int, mask_extra: NDArray[np.bool_] | None = None,
+    values: FloatArray,
+    h: FloatArray,
+    s: int,
+    value_mask: NDArray[np.bool_] | None = None,
+    mask_extra: NDArray[np.bool_] | None = None,
     vals_extra: FloatArray | None = None,
 ) -> PiecewiseBezier:
+    """1-D minimum-derivative channel through ``values`` at the joints where ``value_mask``
+    (default: all), at rest at both ends, plus extra fixed derivatives."""
     n_j = values.shape[0]
     mask = np.zeros((n_j, s), dtype=bool)
     vals = np.zeros((n_j, s, 1))
-    mask[:, 0] = True
-    vals[:, 0, 0] = values
+    mask[:, 0] = True if value_mask is None else value_mask
+    vals[:, 0, 0] = np.where(mask[:, 0], values, 0.0)
     mask[0, :] = True
     mask[-1, :] = True
     if mask_extra is not None and vals_extra is not None:
@@ -456,11 +634,13 @@ def _solve_1d(
     return PiecewiseBezier.from_control_points(sys_.control_points(x, h), h)
 
 
-def _heading_at_joints(derivs: FloatArray, wp: FloatArray) -> tuple[FloatArray, FloatArray,
-                                                                     FloatArray]:
+def _heading_at_joints(
+    derivs: FloatArray, wp: FloatArray, traj: PiecewiseBezier | None = None
+) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Heading psi = atan2(v_y, v_x), its rate and acceleration at the joints (rad, rad/s,
-    rad/s^2). Where the horizontal speed vanishes the direction of the first non-zero
-    derivative (or of the neighbouring waypoint) is used and the rates are zero."""
+    rad/s^2). Where the horizontal speed vanishes the direction of the
+    motion just inside the neighbouring segment (or of the neighbouring waypoint) is used and
+    the rates are zero."""
     n_j = derivs.shape[0]
     s = derivs.shape[1]
     psi = np.zeros(n_j)
@@ -472,19 +652,23 @@ def _heading_at_joints(derivs: FloatArray, wp: FloatArray) -> tuple[FloatArray, 
         a = derivs[k, 2, :2] if s > 2 else np.zeros(2)
         j = derivs[k, 3, :2] if s > 3 else np.zeros(2)
         V2 = float(v @ v)
-        if V2 > (1e-6 * scale) ** 2:
+        if (1e-6 * scale) ** 2 < V2:
             psi[k] = math.atan2(v[1], v[0])
             cross = v[0] * a[1] - v[1] * a[0]
             dot = v[0] * a[0] + v[1] * a[1]
             rate[k] = cross / V2
             acc[k] = ((v[0] * j[1] - v[1] * j[0]) * V2 - 2.0 * cross * dot) / (V2 * V2)
             continue
+        # at rest: the direction the vehicle starts / ends moving in, just inside the segment
         direction = None
-        for order in range(2, s):
-            w = derivs[k, order, :2]
-            if float(w @ w) > 1e-18:
+        if traj is not None:
+            if k + 1 < n_j:
+                t_in = traj.breaks[k] + 1e-3 * traj.durations[k]
+            else:
+                t_in = traj.breaks[k] - 1e-3 * traj.durations[k - 1]
+            w = traj.evaluate(float(t_in), 1)[:2]
+            if float(w @ w) > 0.0:
                 direction = w
-                break
         if direction is None:
             other = wp[k + 1] if k + 1 < n_j else wp[k - 1] if k > 0 else wp[k]
             diff = (other - wp[k])[:2]
@@ -496,7 +680,9 @@ def _heading_at_joints(derivs: FloatArray, wp: FloatArray) -> tuple[FloatArray, 
 
 
 def _yaw_channel(
+    traj: PiecewiseBezier,
     wp: FloatArray,
+    is_waypoint: NDArray[np.bool_],
     derivs: FloatArray,
     h: FloatArray,
     s: int,
@@ -507,25 +693,29 @@ def _yaw_channel(
         return None
     m = h.shape[0]
     if isinstance(yaw, str):
-        psi, rate, acc = _heading_at_joints(derivs, wp)
-        psi_u = psi.copy()
-        for k in range(1, psi.shape[0]):
-            psi_u[k] = psi_u[k - 1] + float(_wrap_pi(np.array(psi[k] - psi_u[k - 1])))
+        psi, rate, acc = _heading_at_joints(derivs, wp, traj)
+        psi_u = _unwrap_sequence(psi)
         n_j = m + 1
+        # heading rates are matched only where the vehicle moves briskly; near stops (a sharp
+        # turn) the yaw rate is left free so the heading swings smoothly instead of spinning
+        speed = np.linalg.norm(derivs[:, 1, :2], axis=1)
+        brisk = speed >= VELOCITY_YAW_MIN_FRACTION * max(float(np.max(speed)), 1e-9)
         mask = np.zeros((n_j, s), dtype=bool)
         vals = np.zeros((n_j, s, 1))
-        mask[:, 1] = True
+        mask[:, 1] = brisk
         vals[:, 1, 0] = rate
         if s > 3:  # the heading acceleration needs the jerk, known only for snap plans
-            mask[:, 2] = True
+            mask[:, 2] = brisk
             vals[:, 2, 0] = acc
-        return _solve_1d(psi_u, h, s, mask, vals)
+        return _solve_1d(psi_u, h, s, None, mask, vals)
     if yaw_wp is None:
         raise AssertionError("per-waypoint yaw missing")  # pragma: no cover
     if yaw_wp.shape[0] == 1:
         cp = np.full((m, 2 * s, 1), float(yaw_wp[0]))
         return PiecewiseBezier.from_control_points(cp, h)
-    return _solve_1d(_unwrap_sequence(yaw_wp), h, s)
+    values = np.zeros(m + 1)
+    values[is_waypoint] = _unwrap_sequence(yaw_wp)
+    return _solve_1d(values, h, s, is_waypoint)
 
 
 # =========================================================================== public API
@@ -540,6 +730,7 @@ def plan(
     limits: Limits | RoverLimits | None = None,
     params: Any = None,
     yaw: YawSpec = None,
+    pieces: int | None = None,
 ) -> PiecewiseBezier:
     """Plan a minimum-snap (``order="snap"``, degree 7, C4+) or minimum-jerk (``"jerk"``,
     degree 5, C3+) piecewise Bezier trajectory through ``waypoints`` (M, d), d = 2 or 3, metres
@@ -556,6 +747,12 @@ def plan(
       unwrapped the short way round), or ``"velocity"`` (follow the horizontal velocity
       heading: matched in value, rate and acceleration at every waypoint).
 
+    - ``pieces``: segments per waypoint leg. Default 1 with ``durations``; with time
+      allocation ``ALLOCATION_PIECES`` (3): the extra joints lie on the straight leg between
+      the waypoints (at 1/3 and 2/3), which keeps the path close to the legs and lets the
+      speed profile accelerate, cruise and brake. ``PlanResult.waypoint_times`` says when each
+      waypoint is reached.
+
     Consecutive duplicate waypoints are merged with a warning; a single waypoint gives a hover
     trajectory of ``HOVER_DURATION_S`` (or ``durations[0]``). Raises ValueError with the
     offending waypoint on bad input.
@@ -570,6 +767,7 @@ def plan(
         limits=limits,
         params=params,
         yaw=yaw,
+        pieces=pieces,
     ).trajectory
 
 
@@ -584,6 +782,7 @@ def plan_with_info(
     limits: Limits | RoverLimits | None = None,
     params: Any = None,
     yaw: YawSpec = None,
+    pieces: int | None = None,
 ) -> PlanResult:
     """:func:`plan` returning a :class:`PlanResult` (trajectory, cost, number of solves)."""
     wp = _check_waypoints(waypoints)
@@ -634,8 +833,9 @@ def plan_with_info(
     yaw_wp: FloatArray | None = None
     if isinstance(yaw, str):
         if yaw != "velocity":
-            raise ValueError(f'yaw must be None, a number, per-waypoint values or "velocity", '
-                             f"got {yaw!r}")
+            raise ValueError(
+                f'yaw must be None, a number, per-waypoint values or "velocity", got {yaw!r}'
+            )
     elif yaw is not None:
         ya = np.asarray(yaw, dtype=np.float64).reshape(-1)
         if ya.shape[0] == 1:
@@ -673,6 +873,7 @@ def plan_with_info(
         else np.zeros(0, dtype=bool)
     )
     keep = list(range(n_in)) if not np.any(same) else [0]
+    owner = np.arange(n_in)  # original waypoint -> kept waypoint it merged into
     merged_segments: list[int] = []
     if np.any(same):
         for i in range(1, n_in):
@@ -691,6 +892,7 @@ def plan_with_info(
                     interior_in[keep[-1]] = interior_in[i]
                 del interior_in[i]
             merged_segments.append(i - 1)
+            owner[i] = keep[-1]
     if len(keep) < n_in:
         if keep[-1] != n_in - 1:
             # the last waypoint merged into an earlier one: interior constraints there are moot
@@ -718,8 +920,9 @@ def plan_with_info(
     n_j = wp.shape[0]
 
     if n_j == 1:
-        if any(v is not None and np.any(v != 0) for v in (*start_spec.values(),
-                                                            *end_spec.values())):
+        if any(
+            v is not None and np.any(v != 0) for v in (*start_spec.values(), *end_spec.values())
+        ):
             raise ValueError("a single waypoint gives a hover: start/end derivatives must be 0")
         hover = float(h_in.sum()) if h_in is not None else HOVER_DURATION_S
         cp = np.repeat(wp[None, :, :], 2 * s, axis=1)
@@ -730,16 +933,33 @@ def plan_with_info(
             traj = traj.with_yaw(
                 PiecewiseBezier.from_control_points(np.full((1, 2 * s, 1), psi0), h)
             )
-        return PlanResult(traj, 0.0, 0)
+        return PlanResult(traj, 0.0, np.zeros(n_in), 0)
 
-    planner = _Planner(wp, s, start_spec, end_spec, interior, yaw, yaw_wp)
+    if h_in is None and limits is None:
+        raise ValueError("give either durations or limits (for the time allocation)")
+    k = (1 if h_in is not None else ALLOCATION_PIECES) if pieces is None else int(pieces)
+    if k < 1:
+        raise ValueError(f"pieces must be >= 1, got {pieces}")
+    if h_in is not None and k != 1:
+        raise ValueError("pieces > 1 is only used by the time allocation (durations=None)")
+    if k > 1:
+        frac = np.arange(k, dtype=np.float64) / k
+        legs = wp[:-1, None, :] + frac[None, :, None] * (wp[1:] - wp[:-1])[:, None, :]
+        joints = np.concatenate([legs.reshape(-1, d), wp[-1:]])
+        interior = {idx * k: spec for idx, spec in interior.items()}
+    else:
+        joints = wp
+    is_waypoint = np.zeros(joints.shape[0], dtype=bool)
+    is_waypoint[::k] = True
+    planner = _Planner(joints, is_waypoint, s, start_spec, end_spec, interior, yaw, yaw_wp)
     if h_in is None:
-        if limits is None:
-            raise ValueError("give either durations or limits (for the time allocation)")
+        assert limits is not None
         h = planner.allocate(limits, params)
     else:
         h = h_in
     traj, cost = planner.build(h)
     if limits is not None:
         _validate(traj, limits, params)
-    return PlanResult(traj, cost, planner.solves)
+    kept_times = traj.breaks[::k]
+    kept_index = np.cumsum(np.isin(np.arange(n_in), keep)) - 1
+    return PlanResult(traj, cost, kept_times[kept_index[owner]], planner.solves)

@@ -1,6 +1,8 @@
 /* ecca_setpoint.c: the stable API of ecca_setpoint.h over the generated CasADi code
  * (hand-written). The wrapper bodies live in ecca_setpoint_impl.inc and are compiled twice:
- * once in double (ecca_gen_d.c) and once in float (ecca_gen_f.c, names with suffix _f).
+ * over the double code (ecca_gen_d.c) and over the float code (ecca_gen_f.c, names with
+ * suffix _f). Define ECCA_SETPOINT_NO_DOUBLE or ECCA_SETPOINT_NO_FLOAT to build one variant
+ * only (then ecca_gen_d.c resp. ecca_gen_f.c is not needed).
  * C99, <math.h> only, no allocation, no mutable globals, re-entrant.
  */
 #include <math.h>
@@ -16,7 +18,7 @@
 
 const char *ecca_setpoint_casadi_version(void) { return ECCA_GEN_CASADI_VERSION; }
 
-/* double */
+#ifndef ECCA_SETPOINT_NO_DOUBLE
 #define ECCA_REAL double
 #define ECCA_API(n) n
 #define ECCA_GEN(n) ecca_d_##n
@@ -29,7 +31,9 @@ const char *ecca_setpoint_casadi_version(void) { return ECCA_GEN_CASADI_VERSION;
 #undef ECCA_SZ
 #undef ECCA_ISFINITE
 
-/* float */
+#endif /* ECCA_SETPOINT_NO_DOUBLE */
+
+#ifndef ECCA_SETPOINT_NO_FLOAT
 #define ECCA_REAL float
 #define ECCA_API(n) n##_f
 #define ECCA_GEN(n) ecca_f_##n
@@ -41,3 +45,4 @@ const char *ecca_setpoint_casadi_version(void) { return ECCA_GEN_CASADI_VERSION;
 #undef ECCA_GEN
 #undef ECCA_SZ
 #undef ECCA_ISFINITE
+#endif /* ECCA_SETPOINT_NO_FLOAT */

@@ -16,7 +16,8 @@ pitch = st.one_of(
     st.floats(-np.pi / 2, np.pi / 2, allow_nan=False),
 )
 unit_axis = st.tuples(
-    st.floats(-1, 1, allow_nan=False), st.floats(-1, 1, allow_nan=False),
+    st.floats(-1, 1, allow_nan=False),
+    st.floats(-1, 1, allow_nan=False),
     st.floats(-1, 1, allow_nan=False),
 ).filter(lambda v: np.linalg.norm(v) > 1e-3)
 rot_angle = st.one_of(
@@ -37,8 +38,9 @@ def test_euler_dcm_quat_round_trips(psi: float, theta: float, phi: float) -> Non
     C = geo.euler321_to_dcm(psi, theta, phi)
     _orthonormal(C)
     # matrix oracle (scipy) and matrix round trips: compare matrices (gimbal lock safe)
-    np.testing.assert_allclose(C, Rotation.from_euler("ZYX", [psi, theta, phi]).as_matrix(),
-                               atol=1e-13)
+    np.testing.assert_allclose(
+        C, Rotation.from_euler("ZYX", [psi, theta, phi]).as_matrix(), atol=1e-13
+    )
     np.testing.assert_allclose(geo.euler321_to_dcm(*geo.dcm_to_euler321(C)), C, atol=1e-12)
     q = geo.dcm_to_quat(C)
     assert abs(np.linalg.norm(q) - 1.0) < 1e-15 and q[0] >= 0.0
@@ -75,9 +77,7 @@ def test_exp_log_round_trips(axis: tuple[float, float, float], ang: float) -> No
     assert min(np.abs(q2 - q).max(), np.abs(q2 + q).max()) < 1e-12
     # exp is a homomorphism along one axis: exp(s v) exp(t v) = exp((s + t) v)
     q_half = geo.quat_exp(0.5 * rv)
-    np.testing.assert_allclose(
-        geo.quat_to_dcm(geo.quat_multiply(q_half, q_half)), C, atol=1e-12
-    )
+    np.testing.assert_allclose(geo.quat_to_dcm(geo.quat_multiply(q_half, q_half)), C, atol=1e-12)
 
 
 @SETTINGS

@@ -1,7 +1,8 @@
-"""Unit tests of companion.control against independent oracles (scipy Rotation, Newton, kinematics)."""
+"""Unit tests of companion.control against independent oracles (scipy, Newton, kinematics)."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -97,7 +98,7 @@ def test_so3_converges_from_large_errors(angle_deg: float) -> None:
     assert hist[-1] < math.radians(0.5)
     # monotone-ish: never grows by more than a hair over 10 ms windows
     coarse = hist[::5]
-    assert all(b <= a + 1e-3 for a, b in zip(coarse, coarse[1:], strict=False))
+    assert all(b <= a + 1e-3 for a, b in itertools.pairwise(coarse))
 
 
 def test_so3_feedforward_removes_tracking_lag() -> None:
@@ -122,7 +123,7 @@ def _newton_residual(cmd_q: np.ndarray, thrust_norm: float, acc: np.ndarray, vel
     """m a - (m g e3 - T z_b - D v) with T from the linear thrust model (MATH.md)."""
     zb = _rot(cmd_q).apply([0.0, 0.0, 1.0])
     T = thrust_norm / hover * p.mass * G
-    return p.mass * acc - (p.mass * G * E3 - T * zb - p.drag * vel)
+    return np.asarray(p.mass * acc - (p.mass * G * E3 - T * zb - p.drag * vel), dtype=float)
 
 
 @pytest.mark.parametrize("drag", [0.0, 1.0])
@@ -291,8 +292,15 @@ def test_position_command_modes() -> None:
     assert math.isnan(naive.yaw_rate) and naive.yaw == 0.3
     ff = position_command(ref)
     np.testing.assert_array_equal(ff.acc_ned, ref.acc_ned)
+    bad = Reference(np.array([math.nan, 0.0, 0.0]))
     with pytest.raises(ValueError, match="not finite"):
-        position_command(Reference(np.array([math.nan, 0.0, 0.0])))
+        position_command(bad)
+    q = _wxyz(Rotation.from_euler("ZYX", [0.7, 0.1, 0.0]))
+    held = position_command(bad, hold=_est(0.0, [1.0, 2.0, -3.0], q=q))
+    assert held.fallback and held.reason == "reference not finite"
+    np.testing.assert_array_equal(held.pos_ned, [1.0, 2.0, -3.0])
+    assert held.yaw == pytest.approx(0.7, abs=1e-12)
+    assert np.all(np.isnan(held.vel_ned))
 
 
 # ----------------------------------------------------------------------------- rover

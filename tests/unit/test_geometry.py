@@ -122,7 +122,9 @@ def test_so3_exp_log_match_scipy_rotvec() -> None:
     np.testing.assert_allclose(geo.quat_to_dcm(geo.quat_exp(rv)), r.as_matrix(), atol=1e-14)
 
 
-@pytest.mark.parametrize("angle", [0.0, 1e-14, 1e-9, 1e-7, 1e-6, 1e-5, 1e-3, 1.0, np.pi - 1e-9, np.pi])
+@pytest.mark.parametrize(
+    "angle", [0.0, 1e-14, 1e-9, 1e-7, 1e-6, 1e-5, 1e-3, 1.0, np.pi - 1e-9, np.pi]
+)
 def test_exp_log_edges_against_scipy(angle: float) -> None:
     axes = RNG.normal(size=(20, 3))
     axes /= np.linalg.norm(axes, axis=1, keepdims=True)
@@ -142,9 +144,7 @@ def test_exp_log_edges_against_scipy(angle: float) -> None:
 def test_hat_vee() -> None:
     a = RNG.normal(size=(N, 3))
     b = RNG.normal(size=(N, 3))
-    np.testing.assert_allclose(
-        np.einsum("nij,nj->ni", geo.hat(a), b), np.cross(a, b), atol=1e-14
-    )
+    np.testing.assert_allclose(np.einsum("nij,nj->ni", geo.hat(a), b), np.cross(a, b), atol=1e-14)
     np.testing.assert_allclose(geo.vee(geo.hat(a)), a, atol=0.0)
     H = geo.hat(a)
     np.testing.assert_allclose(H, -np.swapaxes(H, -1, -2), atol=0.0)
@@ -170,7 +170,7 @@ def test_single_and_batched_shapes() -> None:
     assert geo.so3_log(np.eye(3)).shape == (3,)
     np.testing.assert_array_equal(geo.so3_log(np.eye(3)), [0.0, 0.0, 0.0])
     psi, th, ph = geo.dcm_to_euler321(np.eye(3))
-    assert np.shape(psi) == ()
+    assert np.shape(psi) == np.shape(th) == np.shape(ph) == ()
     with pytest.raises(ValueError):
         geo.quat_to_dcm([1.0, 0.0, 0.0])
     with pytest.raises(ValueError):
@@ -220,7 +220,8 @@ def test_se2_and_wrap() -> None:
 
     np.testing.assert_allclose(mat(ab), mat(a) @ mat(b), atol=1e-12)
     np.testing.assert_allclose(
-        mat(geo.se2_compose(a, geo.se2_inverse(a))), np.broadcast_to(np.eye(3), (N, 3, 3)),
+        mat(geo.se2_compose(a, geo.se2_inverse(a))),
+        np.broadcast_to(np.eye(3), (N, 3, 3)),
         atol=1e-12,
     )
     w = geo.wrap_pi(np.linspace(-20, 20, 101))

@@ -93,7 +93,7 @@ def test_in_progress_stops_retries_and_waits_for_final(px4: Px4Side) -> None:
 
 
 def test_in_progress_then_silence_fails() -> None:
-    cc, out = make()
+    cc, _out = make()
     px4 = Px4Side()
     cc.send_command(22, [], now=0.0)
     cc.on_command_ack(px4.msg(command_ack(22, 5)), 0.1)
@@ -157,7 +157,7 @@ def test_mode_single_ack_then_heartbeat_succeeds_early(px4: Px4Side) -> None:
 
 
 def test_mode_heartbeat_without_ack_is_not_success() -> None:
-    cc, out = _mode_client()
+    cc, _out = _mode_client()
     assert cc.on_heartbeat_mode(OFFBOARD, 1.2) == []
     # without any ack the command keeps being retried and finally times out
     for t in (1.5, 2.0, 2.5):

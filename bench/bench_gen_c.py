@@ -1,0 +1,209 @@
+"""Benchmark: the generated C setpoint library vs the Python numeric path, in one run.
+
+Builds ``bench/bench_gen_c.c`` against ``gen_c/ecca_setpoint`` with the system compiler
+(``cc -std=c99 -O2``), runs its 1e6-call loops (ns per call, best of 5, thread CPU time) for
+Bezier evaluation, multirotor flatness and the full setpoint (evaluate + flatness), in double
+and float; measures the Python path one sample at a time (``PiecewiseBezier.evaluate`` orders
+0..4 + yaw 0..2, ``multirotor_setpoint``) and the ctypes path (``gen_c.native``) in the same
+run; cross-compiles both variants for a Cortex-M7 (code size, worst stack). Prints the
+"## gen_c" section of BENCHMARKS.md and writes it there (``--no-write`` to skip).
+
+    python bench/bench_gen_c.py [--calls 1000000] [--no-write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from companion.flatness import MultirotorParams, multirotor_setpoint
+from companion.trajectory import Bezier, PiecewiseBezier
+from gen_c import crossbuild, native
+
+ROOT = Path(__file__).resolve().parents[1]
+LIB = ROOT / "gen_c" / "ecca_setpoint"
+GOAL_FULL_NS = 250.0
+GOAL_SPEEDUP = 100.0
+CFLAGS = ["-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic"]
+
+# The segment and vehicle of bench_gen_c.c (kept identical).
+CTRL_PTS = np.array([[0, 0, -2], [1, 0.5, -2.2], [2.5, 1.5, -2.5], [4, 1, -3], [5, -0.5, -3.2],
+                     [6.5, -1, -3], [8, 0, -2.8], [9, 0.5, -2.5]], dtype=np.float64)
+YAW_PTS = 0.1 * np.arange(8.0)
+H = 4.0
+PARAMS = MultirotorParams(mass=1.5, inertia=[[0.03, 0.001, 0], [0.001, 0.03, 0], [0, 0, 0.05]],
+                          g=9.80665, hover_thrust=0.5, drag=1.0)
+
+
+def _best(fn: Callable[[], object], repeat: int) -> float:
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def run_c(calls: int, reps: int) -> tuple[dict[str, float], str]:
+    with tempfile.TemporaryDirectory(prefix="bench_gen_c_") as tmp:
+        exe = Path(tmp) / "bench_gen_c"
+        cmd = ["cc", *CFLAGS, f"-I{LIB}", str(ROOT / "bench" / "bench_gen_c.c"),
+               *(str(LIB / s) for s in native.SOURCES), "-lm", "-o", str(exe)]
+        subprocess.run(cmd, check=True, timeout=300)
+        out = subprocess.run([str(exe), str(calls), str(reps)], check=True, capture_output=True,
+                             text=True, timeout=600).stdout
+    version = subprocess.run(["cc", "--version"], capture_output=True, text=True,
+                             check=True).stdout.splitlines()[0]
+    return {k: float(v) for k, v in (line.split() for line in out.splitlines())}, version
+
+
+def run_python(m: int) -> dict[str, float]:
+    """Seconds -> ns per sample of the Python path, one sample at a time."""
+    traj = PiecewiseBezier([Bezier(CTRL_PTS, H)], yaw=PiecewiseBezier([Bezier(YAW_PTS, H)]))
+    ts = H * (np.arange(m) % 1024) / 1024.0
+    yaw = traj.yaw
+    assert yaw is not None
+
+    def bezier() -> None:
+        for t in ts:
+            for k in range(5):
+                traj.evaluate(t, k)
+            for k in range(3):
+                yaw.evaluate(t, k)
+
+    states = [[traj.evaluate(t, k) for k in range(5)] + [float(yaw.evaluate(t, k)[0])
+                                                          for k in range(3)] for t in ts]
+
+    def flat() -> None:
+        for s in states:
+            multirotor_setpoint(s[1], s[2], s[3], s[4], s[5], s[6], s[7], PARAMS)
+
+    def full() -> None:
+        for t in ts:
+            d = [traj.evaluate(t, k) for k in range(5)]
+            y = [float(yaw.evaluate(t, k)[0]) for k in range(3)]
+            multirotor_setpoint(d[1], d[2], d[3], d[4], y[0], y[1], y[2], PARAMS)
+
+    lib = native.NativeSetpoint(native.build_library())
+
+    def ct_flat() -> None:
+        for s in states:
+            lib.multirotor(s[1], s[2], s[3], s[4], s[5], s[6], s[7], PARAMS)
+
+    def ct_full() -> None:
+        for t in ts:
+            lib.full(CTRL_PTS, YAW_PTS, H, float(t), PARAMS)
+
+    out = {}
+    for name, fn in (("py_bezier", bezier), ("py_flat", flat), ("py_full", full),
+                     ("ctypes_flat", ct_flat), ("ctypes_full", ct_full)):
+        fn()
+        out[name] = _best(fn, 3) / m * 1e9
+    return out
+
+
+def render(c: dict[str, float], py: dict[str, float], arm: list[crossbuild.ArmReport],
+           env: str, cmd: str) -> str:
+    lines = [
+        "## gen_c",
+        "",
+        f"Command: `{cmd}` ({env}).",
+        "C: `bench/bench_gen_c.c` built with `cc " + " ".join(CFLAGS) + "`, 1e6 calls per loop "
+        "on a degree-7 segment swept over [0, h] (drag on), best of 5 repetitions, thread CPU "
+        "time. Python: the companion's numeric path one sample at a time "
+        "(`PiecewiseBezier.evaluate` orders 0..4 + yaw 0..2, `multirotor_setpoint`), and the "
+        "compiled library through `gen_c.native` (ctypes), measured in the same run.",
+        "",
+        "| operation | C double [ns] | C float [ns] | Python [ns] | Python / C double | "
+        "ctypes [ns] |",
+        "| --- | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    rows = (("Bezier evaluation (pos..snap, yaw..yaw_acc)", "bezier_eval", "py_bezier", None),
+            ("multirotor flatness", "multirotor_setpoint", "py_flat", "ctypes_flat"),
+            ("full setpoint (evaluate + flatness)", "full_setpoint", "py_full", "ctypes_full"))
+    for label, ck, pk, tk in rows:
+        d, f, p = c[f"{ck}_double"], c[f"{ck}_float"], py[pk]
+        ct = f"{py[tk]:.0f}" if tk else "-"
+        lines.append(f"| {label} | {d:.1f} | {f:.1f} | {p:.0f} | {p / d:.0f}x | {ct} |")
+    lines.append(f"| rover flatness | {c['rover_setpoint_double']:.1f} | - | - | - | - |")
+    full_d = c["full_setpoint_double"]
+    speed = py["py_full"] / full_d
+    lines += [
+        "",
+        f"Goals: full multirotor setpoint <= {GOAL_FULL_NS:g} ns in double: "
+        f"{'met' if full_d <= GOAL_FULL_NS else 'NOT met'} ({full_d:.0f} ns); >= "
+        f"{GOAL_SPEEDUP:g}x the single-sample Python path: "
+        f"{'met' if speed >= GOAL_SPEEDUP else 'NOT met'} ({speed:.0f}x).",
+        "",
+        "Cortex-M7 cross-build (`arm-none-eabi-gcc -mcpu=cortex-m7 -mfpu=fpv5-d16 "
+        "-mfloat-abi=hard -mthumb -O2 -fstack-usage`, one variant per build, linked against "
+        "newlib's libm; `gen_c.crossbuild`, checked by `tests/golden/test_gen_c_arm.py`). Code "
+        "size is `arm-none-eabi-size` text of the library objects before `--gc-sections` "
+        "(includes CasADi's unused metadata functions); worst stack = own frame + deepest callee "
+        "chain in the library (from `-fstack-usage`/`-fcallgraph-info`, libm excluded). No "
+        ".data/.bss.",
+        "",
+        "| variant | text [B] | worst stack, full setpoint [B] | bezier | multirotor | rover |",
+        "| --- | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for r in arm:
+        s = "" if r.variant == "double" else "_f"
+        ws = r.worst_stack
+        lines.append(
+            f"| {r.variant} | {r.text} | {ws['ecca_full_setpoint' + s]} | "
+            f"{ws['ecca_bezier_eval' + s]} | {ws['ecca_multirotor_setpoint' + s]} | "
+            f"{ws['ecca_rover_setpoint' + s]} |")
+    if arm:
+        lines += ["", f"Cross compiler: {arm[0].compiler}."]
+    lines.append("")
+    return "\n".join(lines)
+
+
+def write_section(text: str) -> None:
+    path = ROOT / "BENCHMARKS.md"
+    old = path.read_text() if path.exists() else "# Benchmarks\n"
+    pat = re.compile(r"^## gen_c\n.*?(?=^## |\Z)", re.S | re.M)
+    if pat.search(old):
+        new = pat.sub(lambda _: text + "\n", old, count=1)
+    else:
+        new = old.rstrip("\n") + "\n\n" + text + "\n"
+    path.write_text(new.rstrip("\n") + "\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--calls", type=int, default=1_000_000, help="C calls per loop (1e6)")
+    ap.add_argument("--samples", type=int, default=2000, help="Python samples (2000)")
+    ap.add_argument("--no-write", action="store_true", help="do not update BENCHMARKS.md")
+    ns = ap.parse_args(argv)
+    c, cc_version = run_c(ns.calls, 5)
+    py = run_python(ns.samples)
+    arm = []
+    if crossbuild.have_arm_toolchain():
+        with tempfile.TemporaryDirectory(prefix="bench_gen_c_arm_") as tmp:
+            arm = [crossbuild.build_arm(v, Path(tmp) / v) for v in ("double", "float")]
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    env = (f"{platform.machine()}, {os.cpu_count()} cores, load average {load:.1f} during the "
+           f"run, {cc_version}, Python {platform.python_version()}")
+    cmd = "python bench/bench_gen_c.py" + ("" if ns.calls == 1_000_000 else
+                                           f" --calls {ns.calls}")
+    text = render(c, py, arm, env, cmd)
+    print(text)
+    if not ns.no_write:
+        write_section(text)
+        print(f"updated {ROOT / 'BENCHMARKS.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,71 @@
+"""Exceptions of the asyncio façade; each carries what a pilot needs to understand it."""
+
+from __future__ import annotations
+
+from companion.mavlink import MissionResult, result_name
+
+
+class VehicleError(Exception):
+    """Base class of vehicle failures."""
+
+
+class ConnectTimeoutError(VehicleError):
+    """No autopilot HEARTBEAT within the connect timeout."""
+
+
+class CommandError(VehicleError):
+    """A COMMAND_LONG failed. ``result`` is the MAV_RESULT (None: no acknowledgement)."""
+
+    def __init__(self, command: int, result: int | None, reason: str, what: str = "") -> None:
+        self.command = command
+        self.result = result
+        self.reason = reason
+        name = what or f"command {command}"
+        super().__init__(f"{name} failed: {result_name(result)} ({reason})")
+
+
+class ModeChangeError(CommandError):
+    """A flight mode change was refused or not confirmed by the HEARTBEAT."""
+
+
+class OffboardError(VehicleError):
+    """OFFBOARD could not be entered (result: MAV_RESULT of the refusal, if any)."""
+
+    def __init__(self, message: str, result: int | None = None) -> None:
+        self.result = result
+        super().__init__(message)
+
+
+class OffboardExitedError(OffboardError):
+    """The vehicle left OFFBOARD (pilot takeover, failsafe): streaming stopped, not re-entered."""
+
+    def __init__(self, message: str, mode: str) -> None:
+        self.mode = mode
+        super().__init__(message)
+
+
+class LinkLostError(VehicleError):
+    """The link to the autopilot was lost during a flight (streaming stopped)."""
+
+    def __init__(self, message: str, regained: bool) -> None:
+        self.regained = regained
+        super().__init__(message)
+
+
+class TelemetryStaleError(VehicleError):
+    """Position telemetry stopped arriving; the vehicle was told to hold."""
+
+
+class SetpointSourceError(VehicleError):
+    """The setpoint source produced an invalid setpoint; the vehicle was told to hold."""
+
+
+class MissionError(VehicleError):
+    """A mission transfer failed."""
+
+    def __init__(self, operation: str, result: MissionResult, mav_result: int | None,
+                 detail: str) -> None:
+        self.operation = operation
+        self.result = result
+        self.mav_result = mav_result
+        super().__init__(f"mission {operation} failed: {result.value} ({detail})")

@@ -1,0 +1,52 @@
+"""MAVLink ``.tlog`` writer: every frame received and sent, each prefixed by its 8-byte
+big-endian UNIX timestamp in microseconds (the format pymavlink, MAVExplorer and QGroundControl
+read). Thread-safe: the sender thread and the asyncio side both write."""
+
+from __future__ import annotations
+
+import struct
+import threading
+import time
+from pathlib import Path
+from typing import BinaryIO
+
+_TS = struct.Struct(">Q")
+
+
+class TlogWriter:
+    """Append-only .tlog file."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._f: BinaryIO | None = open(self.path, "ab")  # noqa: SIM115 - closed in close()
+        self._lock = threading.Lock()
+        self.frames = 0
+
+    def write(self, frame: bytes, unix_time_s: float | None = None) -> None:
+        """Record one complete MAVLink frame (timestamp defaults to now)."""
+        t = time.time() if unix_time_s is None else unix_time_s
+        rec = _TS.pack(int(t * 1e6)) + frame
+        with self._lock:
+            if self._f is None:
+                return
+            self._f.write(rec)
+            self.frames += 1
+
+    def flush(self) -> None:
+        """Push buffered records to the OS."""
+        with self._lock:
+            if self._f is not None:
+                self._f.flush()
+
+    def close(self) -> None:
+        """Flush and close (idempotent)."""
+        with self._lock:
+            if self._f is not None:
+                self._f.close()
+                self._f = None
+
+    def __enter__(self) -> TlogWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

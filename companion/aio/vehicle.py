@@ -1,0 +1,763 @@
+"""The ``Vehicle`` façade: connect, arm, takeoff, fly a trajectory in OFFBOARD, land.
+
+    async with Vehicle.connect("udpin://0.0.0.0:14540") as v:
+        await v.arm()
+        await v.takeoff(2.5)
+        await v.fly(trajectory, mode="position")
+        await v.land()
+
+Thin asyncio adapter over the sans-IO :class:`companion.mavlink.VehicleLink`: a receive task
+feeds bytes in, a timer task runs retries/heartbeats, a sender thread streams setpoints at a
+fixed rate during ``fly``. Safety: OFFBOARD is requested once, only after the stream is primed;
+if the vehicle leaves OFFBOARD the stream stops and ``OffboardExitedError`` is raised (never
+re-requested); stale position telemetry -> hold setpoint, then Hold mode; link loss -> stop
+streaming, wait for the link, raise ``LinkLostError``; cancellation (SIGINT/SIGTERM via
+:func:`safe_exit`) -> Hold or Land before returning.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import logging
+import math
+import signal
+import time
+from collections.abc import AsyncIterator, Callable, Generator, Sequence
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
+
+from companion.mavlink import (
+    ArmedChanged,
+    Attitude,
+    CommandFinished,
+    ExtendedState,
+    FlightMode,
+    GlobalPosition,
+    LinkConfig,
+    LinkLost,
+    LinkUp,
+    LocalPosition,
+    MissionItem,
+    MissionResult,
+    MissionTransferDone,
+    ModeChanged,
+    OffboardMachine,
+    OffboardState,
+    PositionSetpoint,
+    SetpointCommand,
+    StatusText,
+    SystemStatus,
+    TelemetrySnapshot,
+    VehicleLink,
+    raw_frame,
+)
+from companion.mavlink.commands import (
+    MAV_CMD_COMPONENT_ARM_DISARM,
+    MAV_CMD_DO_SET_MODE,
+    MAV_CMD_NAV_LAND,
+    MAV_CMD_NAV_TAKEOFF,
+)
+
+from .errors import (
+    CommandError,
+    ConnectTimeoutError,
+    LinkLostError,
+    MissionError,
+    ModeChangeError,
+    OffboardError,
+    OffboardExitedError,
+    SetpointSourceError,
+    TelemetryStaleError,
+    VehicleError,
+)
+from .sources import SetpointSource, TrajectoryLike, TrajectoryPositionSource, hold_setpoint
+from .streamer import FixedRateStreamer, StreamStats
+from .tlog import TlogWriter
+from .transports import Transport, TransportError, open_transport
+
+log = logging.getLogger("companion.aio")
+
+T = TypeVar("T")
+MODES = ("position", "attitude", "rates", "rover")
+_CAN_NOT_ARM = {FlightMode.OFFBOARD, FlightMode.POSCTL, FlightMode.ALTCTL,
+                FlightMode.STABILIZED, FlightMode.MANUAL, FlightMode.ACRO}
+
+
+@dataclass(frozen=True)
+class VehicleConfig:
+    """Façade behaviour (seconds, metres, Hz)."""
+
+    rate_hz: float = 100.0
+    realtime_priority: int | None = None  # SCHED_FIFO priority of the sender thread (Linux)
+    prime_s: float = 0.5
+    prime_timeout_s: float = 3.0
+    stale_telemetry_s: float = 0.5
+    stale_abort_s: float = 2.0
+    connect_timeout_s: float = 10.0
+    reconnect_timeout_s: float = 30.0
+    max_start_error_m: float = 2.0
+    settle_s: float = 2.0  # after the trajectory: keep streaming its end until within settle_m
+    settle_m: float = 0.2
+    armable_timeout_s: float = 15.0
+    takeoff_timeout_s: float = 40.0
+    land_timeout_s: float = 90.0
+    command_timeout_s: float = 15.0
+    exit_action: str = "hold"  # "hold" or "land" on cancellation / signals
+    tlog_path: str | None = None
+
+
+@dataclass(frozen=True)
+class FlightReport:
+    """Outcome of a completed ``fly``."""
+
+    mode: str
+    duration_s: float
+    stream: StreamStats
+    held_at_end: bool
+
+
+class _Broadcast(Generic[T]):
+    """Fan-out of values to ``async for`` subscribers (each keeps the latest ``maxsize``)."""
+
+    def __init__(self, maxsize: int = 1) -> None:
+        self._subs: set[asyncio.Queue[T]] = set()
+        self._maxsize = maxsize
+
+    def publish(self, value: T) -> None:
+        for q in self._subs:
+            if q.full():
+                with contextlib.suppress(asyncio.QueueEmpty):
+                    q.get_nowait()
+            q.put_nowait(value)
+
+    async def stream(self, initial: T | None = None) -> AsyncIterator[T]:
+        q: asyncio.Queue[T] = asyncio.Queue(self._maxsize)
+        if initial is not None:
+            q.put_nowait(initial)
+        self._subs.add(q)
+        try:
+            while True:
+                yield await q.get()
+        finally:
+            self._subs.discard(q)
+
+
+def _as_item(obj: Any) -> MissionItem:
+    if isinstance(obj, MissionItem):
+        return obj
+    fields = [f.name for f in dataclasses.fields(MissionItem)]
+    return MissionItem(**{f: getattr(obj, f) for f in fields if hasattr(obj, f)})
+
+
+class MissionAPI:
+    """``vehicle.mission``: upload / download / clear / start."""
+
+    def __init__(self, vehicle: Vehicle) -> None:
+        self._v = vehicle
+
+    async def _run(self, start: Callable[[float], list[MissionTransferDone]],
+                   timeout_s: float = 30.0) -> MissionTransferDone:
+        v = self._v
+        if v._mission_waiter is not None:
+            raise VehicleError("a mission transfer is already running")
+        fut: asyncio.Future[MissionTransferDone] = asyncio.get_running_loop().create_future()
+        v._mission_waiter = fut
+        try:
+            immediate = start(time.monotonic())
+            v._flush()
+            v._wake.set()
+            done = immediate[0] if immediate else await asyncio.wait_for(fut, timeout_s)
+        except (asyncio.CancelledError, TimeoutError):
+            v._dispatch(v.link.mission.cancel(time.monotonic()))
+            v._flush()
+            raise
+        finally:
+            v._mission_waiter = None
+        if done.result is not MissionResult.SUCCESS:
+            raise MissionError(done.operation, done.result, done.mav_result, done.detail)
+        return done
+
+    async def upload(self, items: Sequence[Any], mission_type: int = 0) -> None:
+        """Upload MISSION_ITEM_INT items (``MissionItem`` or objects with the same fields)."""
+        its = [_as_item(i) for i in items]
+        await self._run(lambda now: self._v.link.mission.upload(its, now, mission_type))
+
+    async def download(self, mission_type: int = 0) -> list[MissionItem]:
+        """Download the vehicle's mission."""
+        done = await self._run(lambda now: self._v.link.mission.download(now, mission_type))
+        return list(done.items)
+
+    async def clear(self, mission_type: int = 0) -> None:
+        """Clear the vehicle's mission."""
+        await self._run(lambda now: self._v.link.mission.clear(now, mission_type))
+
+    async def start(self) -> None:
+        """Switch to AUTO.MISSION."""
+        await self._v.set_mode(FlightMode.MISSION)
+
+
+class _Connect:
+    """Result of ``Vehicle.connect``: ``await`` it or use it as ``async with``."""
+
+    def __init__(self, vehicle: Vehicle) -> None:
+        self._vehicle = vehicle
+
+    def __await__(self) -> Generator[Any, None, Vehicle]:
+        return self._open().__await__()
+
+    async def _open(self) -> Vehicle:
+        await self._vehicle._open()
+        return self._vehicle
+
+    async def __aenter__(self) -> Vehicle:
+        return await self._open()
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self._vehicle.close()
+
+
+class Vehicle:
+    """Asyncio façade over one PX4 link (see module doc)."""
+
+    def __init__(self, url: str, config: VehicleConfig | None = None,
+                 link_config: LinkConfig | None = None) -> None:
+        self.url = url
+        self.config = config or VehicleConfig()
+        self.link = VehicleLink(link_config)
+        self.mission = MissionAPI(self)
+        self.transport: Transport | None = None
+        self.tlog: TlogWriter | None = None
+        self._tasks: list[asyncio.Task[None]] = []
+        self._cmd_waiters: dict[int, asyncio.Future[CommandFinished]] = {}
+        self._mission_waiter: asyncio.Future[MissionTransferDone] | None = None
+        self._wake = asyncio.Event()
+        self._changed = asyncio.Event()
+        self._link_up = asyncio.Event()
+        self._snapshot = TelemetrySnapshot()
+        self._closed = False
+        self._flying = False
+        self._link_lost_at: float | None = None
+        self._pos_bc: _Broadcast[LocalPosition] = _Broadcast()
+        self._att_bc: _Broadcast[Attitude] = _Broadcast()
+        self._gpos_bc: _Broadcast[GlobalPosition] = _Broadcast()
+        self._mode_bc: _Broadcast[FlightMode] = _Broadcast(8)
+        self._armed_bc: _Broadcast[bool] = _Broadcast(8)
+        self._text_bc: _Broadcast[StatusText] = _Broadcast(64)
+        self.last_status_text: StatusText | None = None
+
+    # -- connection ---------------------------------------------------------------------------
+    @classmethod
+    def connect(cls, url: str, *, config: VehicleConfig | None = None,
+                link_config: LinkConfig | None = None) -> _Connect:
+        """Open ``url`` and wait for the autopilot HEARTBEAT (``await`` or ``async with``)."""
+        return _Connect(cls(url, config, link_config))
+
+    async def _open(self) -> None:
+        self.transport = await open_transport(self.url)
+        if self.config.tlog_path:
+            self.tlog = TlogWriter(self.config.tlog_path)
+        loop = asyncio.get_running_loop()
+        self._tasks = [loop.create_task(self._rx_loop(), name="mavlink-rx"),
+                       loop.create_task(self._timer_loop(), name="mavlink-timer")]
+        try:
+            await asyncio.wait_for(self._link_up.wait(), self.config.connect_timeout_s)
+        except TimeoutError:
+            await self.close()
+            raise ConnectTimeoutError(
+                f"no PX4 heartbeat on {self.url} within {self.config.connect_timeout_s:g} s "
+                "(is the autopilot running and sending to this address?)") from None
+
+    async def close(self) -> None:
+        """Stop tasks, close the transport and the .tlog (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        for t in self._tasks:
+            t.cancel()
+        for t in self._tasks:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await t
+        if self.transport is not None:
+            self.transport.close()
+        if self.tlog is not None:
+            self.tlog.close()
+
+    # -- plumbing -----------------------------------------------------------------------------
+    def _flush(self) -> None:
+        tr = self.transport
+        for frame in self.link.frames_to_send():
+            if tr is not None:
+                tr.send(frame)
+            if self.tlog is not None:
+                self.tlog.write(frame)
+
+    def _dispatch(self, events: Sequence[Any]) -> None:
+        for e in events:
+            if isinstance(e, CommandFinished):
+                fut = self._cmd_waiters.pop(e.command, None)
+                if fut is not None and not fut.done():
+                    fut.set_result(e)
+            elif isinstance(e, MissionTransferDone):
+                mw = self._mission_waiter
+                if mw is not None and not mw.done():
+                    mw.set_result(e)
+            elif isinstance(e, LocalPosition):
+                self._pos_bc.publish(e)
+            elif isinstance(e, Attitude):
+                self._att_bc.publish(e)
+            elif isinstance(e, GlobalPosition):
+                self._gpos_bc.publish(e)
+            elif isinstance(e, ModeChanged):
+                self._mode_bc.publish(e.new)
+                log.info("flight mode %s", e.new.name)
+            elif isinstance(e, ArmedChanged):
+                self._armed_bc.publish(e.armed)
+            elif isinstance(e, StatusText):
+                self.last_status_text = e
+                self._text_bc.publish(e)
+                log.info("vehicle says [%d]: %s", e.severity, e.text)
+            elif isinstance(e, LinkUp):
+                self._link_up.set()
+                self._link_lost_at = None
+                if e.regained:
+                    log.warning("link to the autopilot regained")
+            elif isinstance(e, LinkLost):
+                self._link_up.clear()
+                self._link_lost_at = e.t_s
+                log.warning("link to the autopilot lost (%.1f s silent)", e.silent_for_s)
+        if events:
+            self._snapshot = self.link.telemetry.snapshot()
+            self._changed.set()
+
+    async def _rx_loop(self) -> None:
+        assert self.transport is not None
+        codec = self.link.codec
+        while True:
+            try:
+                data = await self.transport.recv()
+            except TransportError as exc:
+                log.warning("transport failed: %s; reconnecting", exc)
+                await self._reopen()
+                continue
+            now = time.monotonic()
+            events: list[Any] = []
+            for msg in codec.decode(data):
+                if self.tlog is not None:
+                    self.tlog.write(raw_frame(msg))
+                events += self.link.handle_message(msg, now)
+            self._dispatch(events)
+            self._flush()
+
+    async def _reopen(self) -> None:
+        old = self.transport
+        while not self._closed:
+            await asyncio.sleep(1.0)
+            try:
+                new = await open_transport(self.url)
+            except (TransportError, ValueError) as exc:
+                log.info("reconnect failed: %s", exc)
+                continue
+            if old is not None:
+                old.close()
+            self.transport = new
+            return
+
+    async def _timer_loop(self) -> None:
+        while True:
+            now = time.monotonic()
+            self._dispatch(self.link.handle_timer(now))
+            self._flush()
+            deadline = self.link.get_timer()
+            delay = 0.05 if deadline is None else min(max(deadline - time.monotonic(), 0.001), 0.05)
+            self._wake.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._wake.wait(), delay)
+
+    async def _wait_for(self, cond: Callable[[], bool], timeout_s: float, what: str) -> None:
+        """Wait until ``cond()`` holds (re-checked on every telemetry batch and every 50 ms)."""
+        deadline = time.monotonic() + timeout_s
+        while not cond():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise VehicleError(f"timed out after {timeout_s:g} s waiting for {what}")
+            self._changed.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._changed.wait(), min(left, 0.05))
+
+    async def _command(self, start: Callable[[float], None], command: int, what: str,
+                       *, check: bool = True, error: type[CommandError] = CommandError
+                       ) -> CommandFinished:
+        if command in self._cmd_waiters:
+            raise VehicleError(f"{what}: the previous request is still pending")
+        fut: asyncio.Future[CommandFinished] = asyncio.get_running_loop().create_future()
+        self._cmd_waiters[command] = fut
+        try:
+            start(time.monotonic())
+            self._flush()
+            self._wake.set()
+            fin = await asyncio.wait_for(fut, self.config.command_timeout_s)
+        except (asyncio.CancelledError, TimeoutError):
+            self.link.commands.cancel(command)
+            raise
+        finally:
+            self._cmd_waiters.pop(command, None)
+        if check and not fin.ok:
+            raise error(command, fin.result, fin.reason, what)
+        return fin
+
+    # -- state --------------------------------------------------------------------------------
+    @property
+    def telemetry(self) -> TelemetrySnapshot:
+        """Latest telemetry snapshot."""
+        return self._snapshot
+
+    @property
+    def mode(self) -> FlightMode | None:
+        """Current flight mode from the HEARTBEAT."""
+        return self.link.mode
+
+    @property
+    def is_armed(self) -> bool:
+        """Armed flag from the HEARTBEAT."""
+        return self.link.armed
+
+    @property
+    def link_ok(self) -> bool:
+        """True while autopilot heartbeats arrive."""
+        return self._link_up.is_set()
+
+    # -- telemetry streams ------------------------------------------------------------------
+    def position(self) -> AsyncIterator[LocalPosition]:
+        """Local NED position/velocity updates."""
+        return self._pos_bc.stream()
+
+    def attitude(self) -> AsyncIterator[Attitude]:
+        """Attitude quaternion / body-rate updates."""
+        return self._att_bc.stream()
+
+    def global_position(self) -> AsyncIterator[GlobalPosition]:
+        """GLOBAL_POSITION_INT updates."""
+        return self._gpos_bc.stream()
+
+    def flight_mode(self) -> AsyncIterator[FlightMode]:
+        """Current mode, then every change."""
+        return self._mode_bc.stream(self.mode)
+
+    def armed(self) -> AsyncIterator[bool]:
+        """Current armed state, then every change."""
+        return self._armed_bc.stream(self.is_armed if self.mode is not None else None)
+
+    def status_text(self) -> AsyncIterator[StatusText]:
+        """STATUSTEXT messages (chunks reassembled)."""
+        return self._text_bc.stream()
+
+    # -- commands -----------------------------------------------------------------------------
+    async def set_mode(self, mode: FlightMode) -> None:
+        """Change flight mode; raises ModeChangeError with the deciding MAV_RESULT."""
+        await self._command(lambda now: self.link.set_mode(mode, now), MAV_CMD_DO_SET_MODE,
+                            f"switch to {mode.name}", error=ModeChangeError)
+
+    async def hold(self) -> None:
+        """Switch to Hold (AUTO.LOITER)."""
+        await self.set_mode(FlightMode.HOLD)
+
+    def _armable(self) -> bool:
+        st: SystemStatus | None = self.link.telemetry.sys_status
+        return (st is None or st.armable) and self.link.telemetry.position is not None
+
+    async def arm(self, force: bool = False) -> None:
+        """Arm (after the vehicle reports it is armable); switches to Hold first if the current
+        mode cannot arm without RC (PX4 returns to OFFBOARD/POSCTL after a landing)."""
+        if self.is_armed:
+            return
+        await self._wait_for(self._armable, self.config.armable_timeout_s,
+                             "the vehicle to be ready to arm (estimator / preflight checks)")
+        if self.mode in _CAN_NOT_ARM:
+            await self.set_mode(FlightMode.HOLD)
+        await self._command(lambda now: self.link.arm(now, force), MAV_CMD_COMPONENT_ARM_DISARM,
+                            "arming")
+        await self._wait_for(lambda: self.is_armed, 3.0, "the HEARTBEAT to show armed")
+
+    async def disarm(self, force: bool = False) -> None:
+        """Disarm."""
+        await self._command(lambda now: self.link.disarm(now, force),
+                            MAV_CMD_COMPONENT_ARM_DISARM, "disarming")
+
+    async def takeoff(self, alt_m: float = 2.5, wait: bool = True) -> None:
+        """NAV_TAKEOFF to ``alt_m`` above the current position; waits until reached."""
+        tel = self.link.telemetry
+        pos0 = tel.position
+        alt_amsl = math.nan
+        if tel.global_position is not None:
+            alt_amsl = tel.global_position.alt_amsl_m + alt_m
+        await self._command(lambda now: self.link.takeoff(now, alt_amsl), MAV_CMD_NAV_TAKEOFF,
+                            "takeoff")
+        if not wait or pos0 is None:
+            return
+        z_goal = pos0.pos_ned[2] - alt_m + max(0.3, 0.1 * alt_m)
+        await self._wait_for(
+            lambda: (self.link.telemetry.position is not None
+                     and self.link.telemetry.position.pos_ned[2] <= z_goal),
+            self.config.takeoff_timeout_s, f"the takeoff to {alt_m:g} m")
+
+    async def land(self, wait: bool = True) -> None:
+        """NAV_LAND here; waits until landed and disarmed."""
+        await self._command(self.link.land, MAV_CMD_NAV_LAND, "landing")
+        if not wait:
+            return
+
+        def landed() -> bool:
+            ext: ExtendedState | None = self.link.telemetry.extended
+            return not self.is_armed and (ext is None or ext.landed_state == 1)
+
+        await self._wait_for(landed, self.config.land_timeout_s, "landing and disarm")
+
+    async def exit_action(self, action: str | None = None) -> None:
+        """The configured safe action (Hold or Land), best effort, bounded in time."""
+        act = action or self.config.exit_action
+        mode = FlightMode.LAND if act == "land" else FlightMode.HOLD
+        try:
+            await asyncio.wait_for(self.set_mode(mode), 5.0)
+        except (VehicleError, TimeoutError) as exc:
+            log.error("could not switch to %s on exit: %s", mode.name, exc)
+
+    # -- offboard flight ------------------------------------------------------------------------
+    async def fly(self, trajectory: TrajectoryLike | None = None, *, mode: str = "position",
+                  setpoint_source: SetpointSource | None = None, rate_hz: float | None = None,
+                  duration_s: float | None = None, feedforward: str = "acc") -> FlightReport:
+        """Fly ``trajectory`` (or ``setpoint_source`` for ``duration_s``) in OFFBOARD, then Hold.
+
+        mode: "position" (built-in: trajectory -> SET_POSITION_TARGET_LOCAL_NED), or
+        "attitude" / "rates" / "rover" with a ``setpoint_source`` (see ``sources``). The
+        stream is primed for ``prime_s`` before OFFBOARD is requested once.
+        """
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        if self._flying:
+            raise VehicleError("already flying a trajectory")
+        if not self.link_ok:
+            raise LinkLostError("no link to the autopilot", regained=False)
+        snap = self.link.telemetry.snapshot()
+        now = time.monotonic()
+        if snap.position is None or now - snap.position.t_s > self.config.stale_telemetry_s:
+            raise TelemetryStaleError("no fresh local position from the vehicle: cannot fly")
+        source: SetpointSource
+        if setpoint_source is not None:
+            source = setpoint_source
+        elif trajectory is not None and mode in ("position",):
+            yaw0 = hold_setpoint(snap)
+            source = TrajectoryPositionSource(
+                trajectory, yaw=None if yaw0 is None else yaw0.yaw, feedforward=feedforward)
+        else:
+            raise ValueError(f"mode {mode!r} needs a setpoint_source (e.g. from companion.control)")
+        total = duration_s if duration_s is not None else (
+            float(trajectory.duration) if trajectory is not None else math.inf)
+        if trajectory is not None:
+            p0 = trajectory.evaluate(0.0, 0)
+            d = math.dist((float(p0[0]), float(p0[1]), float(p0[2])), snap.position.pos_ned)
+            if d > self.config.max_start_error_m:
+                raise VehicleError(
+                    f"trajectory starts {d:.1f} m from the vehicle (limit "
+                    f"{self.config.max_start_error_m:g} m): fly there first")
+        self._flying = True
+        try:
+            end_pos: tuple[float, float, float] | None = None
+            if trajectory is not None and math.isfinite(total):
+                pe = trajectory.evaluate(total, 0)
+                end_pos = (float(pe[0]), float(pe[1]), float(pe[2]))
+            return await self._fly(source, mode, rate_hz or self.config.rate_hz, total, end_pos)
+        finally:
+            self._flying = False
+
+    async def _fly(self, source: SetpointSource, mode: str, rate: float, total_s: float,
+                   end_pos: tuple[float, float, float] | None) -> FlightReport:
+        cfg = self.config
+        sm = OffboardMachine(rate, cfg.prime_s)
+        state: dict[str, Any] = {"t0": None, "hold": None, "error": ""}
+        link = self.link
+
+        def producer(now: float) -> bytes | None:
+            snap = dataclasses.replace(self._snapshot, now_s=now)
+            hold: PositionSetpoint | None = state["hold"]
+            if hold is None:
+                t0 = state["t0"]
+                t = 0.0 if t0 is None else now - t0
+                try:
+                    sp: SetpointCommand = source(t, snap)
+                    return link.encode_setpoint(sp, now)
+                except Exception as exc:  # invalid setpoint: hold instead, never send it
+                    state["error"] = f"{type(exc).__name__}: {exc}"
+                    hold = hold_setpoint(snap)
+                    state["hold"] = hold
+                    if hold is None:
+                        raise
+            return link.encode_setpoint(hold, now)
+
+        def on_sent(frame: bytes, _t: float) -> None:
+            if self.tlog is not None:
+                self.tlog.write(frame)
+
+        assert self.transport is not None
+        tr = self.transport
+        streamer = FixedRateStreamer(rate, lambda b: tr.send(b), producer, on_sent=on_sent,
+                                     realtime_priority=cfg.realtime_priority)
+        sm.start(time.monotonic())
+        streamer.start()
+
+        def pump() -> None:
+            while streamer.sent_times:
+                sm.on_setpoint_sent(streamer.sent_times.popleft())
+
+        async def tick() -> None:
+            self._changed.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._changed.wait(), 0.02)
+            pump()
+
+        held_at_end = False
+        try:
+            # PRIMING
+            t_prime = time.monotonic()
+            while not sm.is_primed(time.monotonic()):
+                if state["error"]:
+                    raise SetpointSourceError(f"setpoint source failed: {state['error']}")
+                if time.monotonic() - t_prime > cfg.prime_timeout_s:
+                    raise OffboardError(f"could not prime the setpoint stream at {rate:g} Hz "
+                                        f"(sent {streamer.sent}, last error "
+                                        f"{streamer.last_error or 'none'})")
+                await tick()
+            # REQUESTED
+            sm.request(time.monotonic())
+            log.info("stream primed (%d setpoints); requesting OFFBOARD", streamer.sent)
+            pump_task = asyncio.get_running_loop().create_task(self._pump_forever(pump))
+            try:
+                fin = await self._command(lambda now: link.set_mode(FlightMode.OFFBOARD, now),
+                                          MAV_CMD_DO_SET_MODE, "switch to OFFBOARD", check=False)
+            finally:
+                pump_task.cancel()
+            if not fin.ok:
+                sm.on_mode_result(False, time.monotonic(), fin.reason)
+                text = self.last_status_text.text if self.last_status_text else ""
+                raise OffboardError(f"OFFBOARD refused: {fin.reason}"
+                                    + (f" (vehicle: {text})" if text else ""), fin.result)
+            t_start = time.monotonic()
+            state["t0"] = t_start
+            sm.on_mode_result(True, t_start, "HEARTBEAT shows OFFBOARD")
+            log.info("OFFBOARD active (%s mode, %g Hz)", mode, rate)
+            stale_since: float | None = None
+            # ACTIVE
+            while True:
+                await tick()
+                now = time.monotonic()
+                if self._link_lost_at is not None or not self.link_ok:
+                    sm.on_link_lost(now)
+                    streamer.stop()
+                    await self._after_link_loss()
+                hb = link.heartbeat.last
+                if hb is not None and hb.t_s > t_start and hb.mode is not FlightMode.OFFBOARD:
+                    sm.on_heartbeat_offboard(False, now, hb.mode.name)
+                    streamer.stop()
+                    raise OffboardExitedError(
+                        f"vehicle left OFFBOARD for {hb.mode.name} (pilot takeover or failsafe);"
+                        " setpoint stream stopped, OFFBOARD not re-requested", hb.mode.name)
+                if state["error"]:
+                    await self._hold_and_stop(streamer, sm, "invalid setpoint")
+                    raise SetpointSourceError(
+                        f"setpoint source failed ({state['error']}); vehicle told to hold")
+                pos = link.telemetry.position
+                age = math.inf if pos is None else now - pos.t_s
+                if age > cfg.stale_telemetry_s:
+                    if stale_since is None:
+                        stale_since = now
+                        state["hold"] = hold_setpoint(self._snapshot)
+                        log.warning("position telemetry stale (%.2f s): holding", age)
+                    if now - stale_since > cfg.stale_abort_s:
+                        await self._hold_and_stop(streamer, sm, "stale telemetry")
+                        raise TelemetryStaleError(
+                            f"no position telemetry for {age:.1f} s; vehicle told to hold")
+                elif stale_since is not None:
+                    await self._hold_and_stop(streamer, sm, "telemetry was stale")
+                    raise TelemetryStaleError("position telemetry was interrupted; vehicle told "
+                                              "to hold")
+                if now - t_start >= total_s and (
+                        end_pos is None or now - t_start >= total_s + cfg.settle_s
+                        or (pos is not None
+                            and math.dist(pos.pos_ned, end_pos) <= cfg.settle_m)):
+                    await self._hold_and_stop(streamer, sm, "trajectory complete")
+                    held_at_end = True
+                    break
+        except asyncio.CancelledError:
+            if sm.state in (OffboardState.ACTIVE, OffboardState.REQUESTED):
+                state["hold"] = hold_setpoint(self._snapshot) or state["hold"]
+                await asyncio.shield(self.exit_action())
+            raise
+        finally:
+            streamer.stop()
+            pump()
+            sm.stop(time.monotonic(), "fly() ended")
+        return FlightReport(mode, time.monotonic() - t_start, streamer.stats(), held_at_end)
+
+    async def _pump_forever(self, pump: Callable[[], None]) -> None:
+        while True:
+            pump()
+            await asyncio.sleep(0.02)
+
+    async def _hold_and_stop(self, streamer: FixedRateStreamer, sm: OffboardMachine,
+                             why: str) -> None:
+        """Switch to Hold while still streaming, then stop the stream."""
+        log.info("%s: switching to HOLD", why)
+        try:
+            await self.hold()
+        except (VehicleError, TimeoutError) as exc:
+            log.error("HOLD after %s failed: %s", why, exc)
+        finally:
+            streamer.stop()
+            sm.stop(time.monotonic(), why)
+
+    async def _after_link_loss(self) -> None:
+        """Streaming is stopped; wait for the link (bounded), then report."""
+        log.error("link lost during OFFBOARD: stream stopped, waiting for the link")
+        try:
+            await asyncio.wait_for(self._link_up.wait(), self.config.reconnect_timeout_s)
+        except TimeoutError:
+            raise LinkLostError(f"link lost and not regained within "
+                                f"{self.config.reconnect_timeout_s:g} s", regained=False) from None
+        mode = self.mode.name if self.mode else "unknown"
+        raise LinkLostError(f"link lost during OFFBOARD and regained (vehicle now in {mode}); "
+                            "OFFBOARD not re-requested", regained=True)
+
+
+@contextlib.asynccontextmanager
+async def safe_exit(vehicle: Vehicle, action: str | None = None,
+                    signals: Sequence[int] = (signal.SIGINT, signal.SIGTERM)
+                    ) -> AsyncIterator[list[int]]:
+    """On SIGINT/SIGTERM: cancel the enclosed block, switch the vehicle to Hold (or Land), and
+    re-raise as KeyboardInterrupt. Yields the list of signals received (for the CLI's exit code).
+    """
+    loop = asyncio.get_running_loop()
+    task = asyncio.current_task()
+    hit: list[int] = []
+
+    def handler(sig: int) -> None:
+        if not hit and task is not None:
+            task.cancel()
+        hit.append(sig)
+
+    installed = []
+    for s in signals:
+        with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
+            loop.add_signal_handler(s, handler, s)
+            installed.append(s)
+    try:
+        yield hit
+    except asyncio.CancelledError:
+        if not hit:
+            raise
+        log.warning("signal %s: %s before exit", hit[0], (action or vehicle.config.exit_action))
+        await vehicle.exit_action(action)
+        raise KeyboardInterrupt from None
+    finally:
+        for s in installed:
+            loop.remove_signal_handler(s)

@@ -1,0 +1,752 @@
+"""Lockstep replay: the companion's protocol core and controllers fly a mission file against
+the `sitl_mock` autopilot core over an in-memory link on a simulated clock.
+
+Nothing here sleeps or reads a clock: both sides are sans-IO and advance together in steps of
+one setpoint period, so a replay runs as fast as the CPU allows and is deterministic for a seed.
+Every frame in both directions is written to a `.tlog` (8-byte big-endian microsecond
+timestamp + raw MAVLink frame), readable by pymavlink, MAVExplorer and QGroundControl.
+
+The companion side follows PX4's offboard protocol exactly as on a real vehicle: wait for a
+healthy vehicle, stream setpoints for 0.5 s (priming), switch to OFFBOARD, arm, fly the planned
+schedule, then hand over to PX4's NAV_LAND (or Hold for a loiter ending) and wait for disarm.
+"""
+
+from __future__ import annotations
+
+import enum
+import json
+import math
+import os
+import shutil
+import struct
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, BinaryIO, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from companion.control import (
+    Reference,
+    RoverController,
+    StateEstimate,
+    TrackingConfig,
+    TrackingController,
+    position_command,
+)
+from companion.flatness import MultirotorParams
+from companion.mavlink.commands import CommandFinished
+from companion.mavlink.link import LinkConfig, VehicleLink
+from companion.mavlink.mission_client import MissionItem as WireItem
+from companion.mavlink.mission_client import MissionTransferDone
+from companion.mavlink.px4_mode import FlightMode
+from companion.mavlink.setpoints import (
+    AttitudeSetpoint,
+    PositionSetpoint,
+    RatesSetpoint,
+    SetpointCommand,
+)
+from companion.mission import Mission, MissionError, load_mission, mission_to_flight_plan
+from companion.schedule import Schedule, VehicleLimits, build_schedule
+
+FloatArray = NDArray[np.float64]
+Mode = Literal["position", "attitude", "rates"]
+
+#: Offboard priming: setpoints streamed before OFFBOARD is requested [s].
+PRIME_S = 0.5
+#: Extra time after the schedule before handing over to PX4's landing [s].
+SETTLE_S = 1.0
+#: The companion's view of the default mock quadrotor (PX4 SIH: 1 kg, 4 x 5 N, drag 1 N/(m/s)).
+DEFAULT_QUAD = MultirotorParams(
+    mass=1.0, inertia=(0.025, 0.025, 0.030), hover_thrust=0.5, drag=1.0
+)
+_TLOG_EPOCH_US = 1_767_225_600_000_000  # 2026-01-01T00:00:00Z, for deterministic timestamps
+
+
+@dataclass(frozen=True)
+class ReplayConfig:
+    """How to replay: vehicle kind, setpoint mode and rate [Hz], mock physics rate [Hz],
+    constant wind speed [m/s] (from the north-west), RNG seed, and whether to also fly the
+    mission in the mock's own AUTO.MISSION for comparison."""
+
+    vehicle: Literal["quad", "rover"] = "quad"
+    mode: Mode = "attitude"
+    rate_hz: float = 100.0
+    physics_hz: float = 250.0
+    wind_m_s: float = 0.0
+    seed: int = 0
+    compare_px4_mission: bool = False
+    params: MultirotorParams = DEFAULT_QUAD
+    limits: VehicleLimits = VehicleLimits()
+    mock_params: tuple[tuple[str, float], ...] = ()
+    timeout_margin_s: float = 120.0
+
+    def __post_init__(self) -> None:
+        if self.vehicle not in ("quad", "rover"):
+            raise ValueError(f"vehicle must be 'quad' or 'rover', got {self.vehicle!r}")
+        if self.mode not in ("position", "attitude", "rates"):
+            raise ValueError(f"mode must be position, attitude or rates, got {self.mode!r}")
+        if not 20.0 <= self.rate_hz <= 500.0:
+            raise ValueError(f"setpoint rate must be 20..500 Hz, got {self.rate_hz}")
+        if not (math.isfinite(self.wind_m_s) and self.wind_m_s >= 0.0):
+            raise ValueError(f"wind speed must be >= 0 m/s, got {self.wind_m_s}")
+
+
+class Phase(enum.Enum):
+    """Companion flight sequence."""
+
+    WAIT_READY = "wait_ready"
+    PRIME = "prime"
+    REQUEST_OFFBOARD = "request_offboard"
+    ARM = "arm"
+    FLY = "fly"
+    HANDOVER = "handover"
+    WAIT_DISARM = "wait_disarm"
+    DONE = "done"
+    ABORTED = "aborted"
+
+
+class TlogWriter:
+    """Append MAVLink frames to a .tlog: 8-byte big-endian microsecond timestamp + frame."""
+
+    def __init__(self, stream: BinaryIO, epoch_us: int = _TLOG_EPOCH_US) -> None:
+        self._f = stream
+        self._epoch_us = epoch_us
+        self.frames = 0
+
+    def write(self, t_s: float, frame: bytes) -> None:
+        """Record `frame` at simulated time `t_s` [s]."""
+        self._f.write(struct.pack(">Q", self._epoch_us + int(round(t_s * 1e6))) + frame)
+        self.frames += 1
+
+
+@dataclass
+class FlightLog:
+    """Time series recorded during a flight (simulated time, s; NED m; rad)."""
+
+    t: list[float] = field(default_factory=list)
+    pos: list[tuple[float, float, float]] = field(default_factory=list)
+    vel: list[tuple[float, float, float]] = field(default_factory=list)
+    ref_t: list[float] = field(default_factory=list)
+    ref_pos: list[FloatArray] = field(default_factory=list)
+    flown_at_ref: list[tuple[float, float, float]] = field(default_factory=list)
+    att_t: list[float] = field(default_factory=list)
+    tilt: list[float] = field(default_factory=list)
+    rate_norm: list[float] = field(default_factory=list)
+    thrust_norm: list[float] = field(default_factory=list)
+    statustext: list[tuple[float, int, str]] = field(default_factory=list)
+    modes: list[tuple[float, str]] = field(default_factory=list)
+    armed_t: float | None = None
+    disarmed_t: float | None = None
+
+
+# ----------------------------------------------------------------------------- the engine
+
+
+class LockstepLink:
+    """In-memory link between a `VehicleLink` and a `sitl_mock` autopilot, with a tlog tap."""
+
+    def __init__(self, autopilot: Any, link: VehicleLink, tlog: TlogWriter | None) -> None:
+        self.ap = autopilot
+        self.link = link
+        self.tlog = tlog
+        self.now = 0.0
+        self.on_message: Callable[[Any, float], None] | None = None
+
+    def to_vehicle(self, frames: list[bytes]) -> None:
+        for fr in frames:
+            if self.tlog is not None:
+                self.tlog.write(self.now, fr)
+            self.ap.receive_datagram(fr, "companion", self.now)
+
+    def advance(self, t: float) -> list[Any]:
+        """Advance both sides to `t`; returns the link events produced."""
+        self.now = t
+        self.ap.advance(t)
+        events: list[Any] = []
+        for data, _addr in self.ap.datagrams_to_send(t):
+            if self.tlog is not None:
+                self.tlog.write(t, data)
+            for msg in self.link.codec.decode(data):
+                if self.on_message is not None:
+                    self.on_message(msg, t)
+                events += self.link.handle_message(msg, t)
+        events += self.link.handle_timer(t)
+        self.to_vehicle(self.link.frames_to_send())
+        return events
+
+
+def _make_autopilot(config: ReplayConfig, home: tuple[float, float, float]) -> Any:
+    from sitl_mock.autopilot import Autopilot
+    from sitl_mock.params import ParamStore
+
+    ap = Autopilot(
+        config.vehicle,
+        ParamStore(dict(config.mock_params)),
+        home,
+        config.seed,
+        physics_hz=config.physics_hz,
+        now=0.0,
+        remotes={"offboard": "companion"},
+    )
+    if config.wind_m_s > 0.0:
+        w = config.wind_m_s / math.sqrt(2.0)
+        ap.vehicle.set_wind((w, -w, 0.0))  # blowing from the north-west... towards south-east
+    return ap
+
+
+def _estimate(link: VehicleLink) -> StateEstimate | None:
+    tel = link.telemetry
+    if tel.position is None or tel.attitude is None:
+        return None
+    in_air = tel.extended.in_air if tel.extended is not None else True
+    return StateEstimate(
+        t_s=max(tel.position.t_s, tel.attitude.t_s),
+        pos_ned=np.array(tel.position.pos_ned),
+        vel_ned=np.array(tel.position.vel_ned),
+        q_wxyz=np.array(tel.attitude.q_wxyz),
+        omega_frd=np.array(tel.attitude.omega_frd),
+        airborne=in_air,
+    )
+
+
+def _nan_to_none3(v: FloatArray) -> tuple[float, float, float] | None:
+    if not np.all(np.isfinite(v)):
+        return None
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _opt(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
+
+
+class Flight:
+    """The companion's flight sequence over a `LockstepLink` (see the module docstring)."""
+
+    def __init__(
+        self,
+        config: ReplayConfig,
+        schedule: Schedule,
+        lk: LockstepLink,
+        log: FlightLog,
+    ) -> None:
+        self.config = config
+        self.schedule = schedule
+        self.lk = lk
+        self.link = lk.link
+        self.log = log
+        self.phase = Phase.WAIT_READY
+        self.reason = ""
+        self.t_phase = 0.0
+        self.t_fly0 = math.nan
+        self.origin = np.zeros(3)
+        self.tracker = TrackingController(
+            TrackingConfig(params=config.params, max_tilt_rad=math.radians(50.0))
+        )
+        self.rover = RoverController()
+        self.setpoints_sent = 0
+        self.offboard_seen = False
+        self._ref_cache: tuple[tuple[float, Phase], Reference] | None = None
+
+    # -- per-tick -----------------------------------------------------------------------------
+    def _go(self, phase: Phase, now: float, reason: str = "") -> None:
+        self.phase = phase
+        self.t_phase = now
+        if reason:
+            self.reason = reason
+
+    def _reference(self, now: float) -> Reference:
+        key = (now, self.phase)
+        if self._ref_cache is not None and self._ref_cache[0] == key:
+            return self._ref_cache[1]
+        ref = self._reference_uncached(now)
+        self._ref_cache = (key, ref)
+        return ref
+
+    def _reference_uncached(self, now: float) -> Reference:
+        if self.phase in (Phase.FLY, Phase.HANDOVER):
+            ref = self.schedule.reference(now - self.t_fly0)
+            return Reference(
+                ref.pos_ned + self.origin, ref.vel_ned, ref.acc_ned, ref.jerk_ned, ref.snap_ned,
+                ref.yaw, ref.yaw_rate, ref.yaw_acc,
+            )
+        first = self.schedule.reference(0.0)
+        return Reference(self.origin + first.pos_ned, yaw=first.yaw)
+
+    def _setpoint(self, now: float, est: StateEstimate) -> SetpointCommand:
+        ref = self._reference(now)
+        if self.config.vehicle == "rover":
+            cmd = self.rover.update(now, est, ref)
+            if self.phase not in (Phase.FLY,):
+                return PositionSetpoint(vel_ned=(0.0, 0.0, 0.0), yaw_rate=0.0)
+            return PositionSetpoint(
+                vel_ned=(float(cmd.vel_ned[0]), float(cmd.vel_ned[1]), 0.0),
+                yaw_rate=_opt(cmd.yaw_rate),
+            )
+        mode = self.config.mode
+        if mode == "position" or self.phase in (Phase.PRIME, Phase.REQUEST_OFFBOARD, Phase.ARM):
+            pc = position_command(ref, feedforward=True)
+            return PositionSetpoint(
+                pos_ned=_nan_to_none3(pc.pos_ned),
+                vel_ned=_nan_to_none3(pc.vel_ned),
+                acc_ned=_nan_to_none3(pc.acc_ned),
+                yaw=_opt(pc.yaw),
+                yaw_rate=_opt(pc.yaw_rate),
+            )
+        if mode == "attitude":
+            a = self.tracker.attitude(now, est, ref)
+            q = tuple(float(v) for v in a.q_wxyz)
+            return AttitudeSetpoint(
+                (q[0], q[1], q[2], q[3]), float(a.thrust_norm), _opt(a.yaw_rate_ff)
+            )
+        r = self.tracker.rates(now, est, ref)
+        w = r.omega_frd
+        return RatesSetpoint((float(w[0]), float(w[1]), float(w[2])), float(r.thrust_norm))
+
+    def _stream(self, now: float, est: StateEstimate) -> None:
+        sp = self._setpoint(now, est)
+        self.lk.to_vehicle([self.link.encode_setpoint(sp, now)])
+        self.setpoints_sent += 1
+        if isinstance(sp, (AttitudeSetpoint, RatesSetpoint)):
+            self.log.thrust_norm.append(sp.thrust_norm)
+        if self.phase == Phase.FLY:
+            self.log.ref_t.append(now - self.t_fly0)
+            self.log.ref_pos.append(self._reference(now).pos_ned)
+            self.log.flown_at_ref.append(tuple(float(v) for v in est.pos_ned))  # type: ignore[arg-type]
+
+    def on_events(self, events: list[Any], now: float) -> None:
+        for ev in events:
+            if isinstance(ev, CommandFinished):
+                if self.phase == Phase.REQUEST_OFFBOARD and ev.command == 176:
+                    if ev.ok:
+                        self._go(Phase.ARM, now)
+                        self.link.arm(now)
+                    else:
+                        self._go(Phase.ABORTED, now, f"OFFBOARD refused: {ev.reason}")
+                elif self.phase == Phase.ARM and ev.command == 400:
+                    if ev.ok:
+                        self._go(Phase.FLY, now)
+                        self.t_fly0 = now
+                        self.tracker.reset()
+                    else:
+                        self._go(Phase.ABORTED, now, f"arming refused: {ev.reason}")
+
+    def tick(self, now: float) -> None:
+        """One setpoint period."""
+        est = _estimate(self.link)
+        mode = self.link.mode
+        armed = self.link.armed
+        if self.log.armed_t is None and armed:
+            self.log.armed_t = now
+        if self.log.armed_t is not None and self.log.disarmed_t is None and not armed:
+            self.log.disarmed_t = now
+        if mode == FlightMode.OFFBOARD:
+            self.offboard_seen = True
+        ph = self.phase
+        if ph == Phase.WAIT_READY:
+            st = self.link.telemetry.sys_status
+            if est is not None and st is not None and st.armable and mode is not None:
+                self.origin = np.array(est.pos_ned)
+                self._go(Phase.PRIME, now)
+            return
+        if ph in (Phase.DONE, Phase.ABORTED):
+            return
+        if ph in (Phase.PRIME, Phase.REQUEST_OFFBOARD, Phase.ARM, Phase.FLY):
+            if est is None:
+                return
+            if ph == Phase.FLY and self.offboard_seen and mode != FlightMode.OFFBOARD:
+                # pilot takeover or failsafe: stop streaming, never fight back
+                name = mode.name if mode is not None else "unknown"
+                self._go(Phase.ABORTED, now, f"vehicle left OFFBOARD (now {name})")
+                return
+            self._stream(now, est)
+            if ph == Phase.PRIME and now - self.t_phase >= PRIME_S:
+                self._go(Phase.REQUEST_OFFBOARD, now)
+                self.link.set_mode(FlightMode.OFFBOARD, now)
+            elif ph == Phase.FLY and now - self.t_fly0 >= self.schedule.duration_s + SETTLE_S:
+                self._handover(now)
+            return
+        if ph == Phase.HANDOVER:
+            if self.config.vehicle == "rover" or self.schedule.final_action == "loiter":
+                if self.link.mode == FlightMode.HOLD or now - self.t_phase > 3.0:
+                    if self.config.vehicle == "rover":
+                        self.link.disarm(now)
+                        self._go(Phase.WAIT_DISARM, now)
+                    else:
+                        self._go(Phase.DONE, now)
+            elif self.link.mode == FlightMode.LAND:
+                self._go(Phase.WAIT_DISARM, now)
+            elif now - self.t_phase > 3.0:
+                self._go(Phase.ABORTED, now, "PX4 did not switch to LAND")
+            return
+        if ph == Phase.WAIT_DISARM and not armed:
+            self._go(Phase.DONE, now)
+
+    def _handover(self, now: float) -> None:
+        self._go(Phase.HANDOVER, now)
+        if self.config.vehicle == "quad" and self.schedule.final_action in ("land", "rtl"):
+            self.link.land(now)
+        else:
+            self.link.set_mode(FlightMode.HOLD, now)
+
+
+# ----------------------------------------------------------------------------- public API
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    """Outcome of one replayed file: output folder, report dict, and whether it succeeded."""
+
+    name: str
+    out_dir: Path
+    report: dict[str, Any]
+    ok: bool
+
+
+def _record_message(log: FlightLog, msg: Any, t: float) -> None:
+    kind = msg.get_type()
+    if kind == "LOCAL_POSITION_NED":
+        log.t.append(t)
+        log.pos.append((msg.x, msg.y, msg.z))
+        log.vel.append((msg.vx, msg.vy, msg.vz))
+    elif kind == "ATTITUDE_QUATERNION":
+        w, x, y, z = msg.q1, msg.q2, msg.q3, msg.q4
+        c33 = 1.0 - 2.0 * (x * x + y * y)  # z_b . e3 (C_eb[2, 2])
+        log.att_t.append(t)
+        log.tilt.append(math.acos(max(-1.0, min(1.0, c33))))
+        log.rate_norm.append(math.sqrt(msg.rollspeed**2 + msg.pitchspeed**2 + msg.yawspeed**2))
+    elif kind == "STATUSTEXT":
+        log.statustext.append((t, int(msg.severity), str(msg.text)))
+    elif kind == "ATTITUDE_TARGET" and not log.thrust_norm:
+        pass
+
+
+def fly_schedule(
+    config: ReplayConfig,
+    schedule: Schedule,
+    home: tuple[float, float, float],
+    tlog: TlogWriter | None,
+    progress: Callable[[float, float], None] | None = None,
+) -> tuple[Flight, FlightLog]:
+    """Fly `schedule` in lockstep against a fresh mock; returns the flight and its log."""
+    ap = _make_autopilot(config, home)
+    link = VehicleLink(LinkConfig())
+    log = FlightLog()
+    lk = LockstepLink(ap, link, tlog)
+    lk.on_message = lambda m, t: _record_message(log, m, t)
+    flight = Flight(config, schedule, lk, log)
+    dt = 1.0 / config.rate_hz
+    t_max = schedule.duration_s + config.timeout_margin_s
+    k = 0
+    while flight.phase not in (Phase.DONE, Phase.ABORTED):
+        k += 1
+        now = k * dt
+        if now > t_max:
+            flight._go(Phase.ABORTED, now, f"timed out after {t_max:.0f} s of simulated time")
+            break
+        flight.on_events(lk.advance(now), now)
+        flight.tick(now)
+        if progress is not None and k % 100 == 0:
+            progress(now, t_max)
+    # let the last frames out and record the landing
+    end = lk.now + 1.0
+    while lk.now < end:
+        lk.advance(lk.now + dt)
+    return flight, log
+
+
+def _wire_items(mission: Mission) -> list[WireItem]:
+    items = []
+    for seq, it in enumerate(mission.items):
+        p = [float(v) for v in it.params]
+        lat, lon, alt = (v if math.isfinite(v) else 0.0 for v in p[4:7])
+        items.append(
+            WireItem(
+                seq=seq, frame=it.frame, command=it.command, current=1 if seq == 0 else 0,
+                autocontinue=1 if it.autocontinue else 0,
+                param1=p[0], param2=p[1], param3=p[2], param4=p[3],
+                x=int(round(lat * 1e7)), y=int(round(lon * 1e7)), z=float(alt),
+            )
+        )
+    return items
+
+
+def fly_px4_mission(
+    config: ReplayConfig,
+    mission: Mission,
+    home: tuple[float, float, float],
+    duration_hint_s: float,
+) -> tuple[str, FlightLog]:
+    """Upload `mission` to a fresh mock and fly it in PX4's own AUTO.MISSION; returns
+    ("ok" or the failure reason, log)."""
+    ap = _make_autopilot(config, home)
+    link = VehicleLink(LinkConfig())
+    log = FlightLog()
+    lk = LockstepLink(ap, link, None)
+    lk.on_message = lambda m, t: _record_message(log, m, t)
+    dt = 0.02
+    t = 0.0
+    state = "wait"
+    t_state = 0.0
+    result = "ok"
+    t_max = duration_hint_s * 3.0 + config.timeout_margin_s
+    finished = False
+    while True:
+        t += dt
+        if t > t_max:
+            result = f"timed out after {t_max:.0f} s"
+            break
+        for ev in lk.advance(t):
+            if isinstance(ev, MissionTransferDone) and state == "upload":
+                if ev.result.name != "SUCCESS":
+                    return f"mission upload failed: {ev.result.name} {ev.detail}", log
+                state, t_state = "mode", t
+                link.set_mode(FlightMode.MISSION, t)
+            elif isinstance(ev, CommandFinished) and state == "mode" and ev.command == 176:
+                if not ev.ok:
+                    return f"AUTO.MISSION refused: {ev.reason}", log
+                state = "arm"
+                link.arm(t)
+            elif isinstance(ev, CommandFinished) and state == "arm" and ev.command == 400:
+                if not ev.ok:
+                    return f"arming refused: {ev.reason}", log
+                state, t_state = "flying", t
+                log.armed_t = t
+        st = link.telemetry.sys_status
+        if state == "wait" and st is not None and st.armable:
+            state = "upload"
+            link.mission.upload(_wire_items(mission), t)
+            lk.to_vehicle(link.frames_to_send())
+        if any("Mission finished" in s for _, _, s in log.statustext):
+            finished = True
+        if state == "flying":
+            if not link.armed and t - t_state > 2.0:
+                log.disarmed_t = t
+                break
+            if finished and link.mode == FlightMode.HOLD and t - t_state > 2.0:
+                log.disarmed_t = t
+                break
+    return result, log
+
+
+def _closest(points: FloatArray, wps: FloatArray) -> FloatArray:
+    if len(points) == 0 or len(wps) == 0:
+        return np.full(len(wps), math.inf)
+    out = np.empty(len(wps))
+    for i, w in enumerate(wps):
+        out[i] = float(np.min(np.linalg.norm(points - w, axis=1)))
+    return out
+
+
+def summarize(
+    log: FlightLog,
+    schedule: Schedule,
+    mission: Mission,
+    origin: FloatArray,
+    *,
+    thrust_from_log: bool = True,
+) -> dict[str, Any]:
+    """Report metrics of one flight (keys carry units)."""
+    pos = np.asarray(log.pos, dtype=np.float64).reshape(-1, 3)
+    vel = np.asarray(log.vel, dtype=np.float64).reshape(-1, 3)
+    t = np.asarray(log.t)
+    if log.armed_t is not None:
+        sel = (t >= log.armed_t) & (t <= (log.disarmed_t if log.disarmed_t is not None else t[-1]))
+        pos_f, vel_f = pos[sel], vel[sel]
+    else:
+        pos_f, vel_f = pos[:0], vel[:0]
+    wps = schedule.waypoints_ned + origin
+    closest = _closest(pos_f, wps)
+    waypoints = [
+        {
+            "item_index": schedule.item_indices[i],
+            "north_m": float(wps[i, 0]),
+            "east_m": float(wps[i, 1]),
+            "down_m": float(wps[i, 2]),
+            "acceptance_radius_m": schedule.acceptance_m[i],
+            "closest_approach_m": float(closest[i]),
+            "reached": bool(closest[i] <= schedule.acceptance_m[i]),
+        }
+        for i in range(len(wps))
+    ]
+    err = np.zeros(0)
+    if log.ref_pos:
+        err = np.linalg.norm(
+            np.asarray(log.flown_at_ref) - np.asarray(log.ref_pos), axis=1
+        )
+    fence = mission.geofence
+    violations = fence.violations(pos_f - origin) if len(pos_f) else []
+    failsafes = [
+        {"t_s": round(ts, 3), "text": s}
+        for ts, _sev, s in log.statustext
+        if "failsafe" in s.lower() or "lost" in s.lower()
+    ]
+    duration = (
+        (log.disarmed_t if log.disarmed_t is not None else (t[-1] if len(t) else 0.0))
+        - (log.armed_t or 0.0)
+        if log.armed_t is not None
+        else 0.0
+    )
+    return {
+        "duration_s": round(float(duration), 3),
+        "planned_duration_s": round(schedule.duration_s, 3),
+        "path_length_m": float(np.sum(np.linalg.norm(np.diff(pos_f, axis=0), axis=1)))
+        if len(pos_f) > 1
+        else 0.0,
+        "rms_error_m": float(np.sqrt(np.mean(err**2))) if len(err) else None,
+        "max_error_m": float(np.max(err)) if len(err) else None,
+        "waypoints": waypoints,
+        "waypoints_reached": int(sum(w["reached"] for w in waypoints)),
+        "max_speed_m_s": float(np.max(np.linalg.norm(vel_f, axis=1))) if len(vel_f) else 0.0,
+        "max_tilt_deg": float(np.degrees(np.max(log.tilt))) if log.tilt else 0.0,
+        "max_thrust_norm": float(np.max(log.thrust_norm)) if log.thrust_norm else None,
+        "max_body_rate_rad_s": float(np.max(log.rate_norm)) if log.rate_norm else 0.0,
+        "geofence_violations": len(violations),
+        "geofence_violation_zones": sorted({v.zone for v in violations}),
+        "failsafes": failsafes,
+    }
+
+
+def plot_flight(
+    path: Path,
+    title: str,
+    log: FlightLog,
+    schedule: Schedule,
+    origin: FloatArray,
+    px4_log: FlightLog | None = None,
+) -> None:
+    """flight.png: top view and altitude / tracking error vs time, planned vs flown."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pos = np.asarray(log.pos).reshape(-1, 3)
+    t = np.asarray(log.t)
+    ts = np.linspace(0.0, schedule.duration_s, max(int(schedule.duration_s * 20), 2))
+    plan_xyz = schedule.sample(ts) + origin
+    fig, ax = plt.subplots(1, 3, figsize=(16, 5.2))
+    ax[0].plot(plan_xyz[:, 1], plan_xyz[:, 0], "--", color="C0", label="planned")
+    ax[0].plot(pos[:, 1], pos[:, 0], color="C1", label="flown (companion)")
+    if px4_log is not None and px4_log.pos:
+        p4 = np.asarray(px4_log.pos).reshape(-1, 3)
+        ax[0].plot(p4[:, 1], p4[:, 0], color="C2", alpha=0.7, label="flown (PX4 mission)")
+    wps = schedule.waypoints_ned + origin
+    for w, r in zip(wps, schedule.acceptance_m, strict=True):
+        ax[0].add_patch(plt.Circle((w[1], w[0]), r, fill=False, color="C3", lw=0.8))
+    ax[0].plot(wps[:, 1], wps[:, 0], "x", color="C3", label="waypoints")
+    ax[0].set(xlabel="East [m]", ylabel="North [m]", title="Top view", aspect="equal")
+    ax[0].legend(fontsize=8)
+    t_fly0 = log.armed_t or 0.0
+    ax[1].plot(ts + t_fly0, -plan_xyz[:, 2], "--", label="planned")
+    ax[1].plot(t, -pos[:, 2], label="flown")
+    ax[1].set(xlabel="t [s]", ylabel="altitude above start [m]", title="Altitude")
+    ax[1].legend(fontsize=8)
+    if log.ref_pos:
+        err = np.linalg.norm(np.asarray(log.flown_at_ref) - np.asarray(log.ref_pos), axis=1)
+        ax[2].plot(np.asarray(log.ref_t) + t_fly0, err)
+    ax[2].set(xlabel="t [s]", ylabel="|flown - planned| [m]", title="Tracking error")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def replay_file(
+    path: str | os.PathLike[str],
+    out_root: str | os.PathLike[str],
+    config: ReplayConfig,
+    progress: Callable[[float, float], None] | None = None,
+) -> ReplayResult:
+    """Replay one mission file; writes `out_root/<name>/{flight.tlog, report.json, flight.png}`
+    atomically (a temporary folder renamed at the end). Raises MissionError on a bad file."""
+    src = Path(path)
+    mission = load_mission(src)
+    flight_plan = mission_to_flight_plan(mission, vehicle=config.vehicle)
+    params = None if config.vehicle == "rover" else config.params
+    schedule = build_schedule(flight_plan, params, config.limits)
+    home = (mission.home.lat_deg, mission.home.lon_deg, mission.home.alt_amsl_m)
+    name = src.stem
+    out_root = Path(out_root)
+    out_root.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=out_root))
+    wall0 = time.perf_counter()
+    try:
+        with open(tmp / "flight.tlog", "wb") as f:
+            tlog = TlogWriter(f)
+            flight, log = fly_schedule(config, schedule, home, tlog, progress)
+        wall = time.perf_counter() - wall0
+        report = summarize(log, schedule, mission, flight.origin)
+        sim_s = flight.lk.now
+        report.update(
+            {
+                "file": str(src),
+                "vehicle": config.vehicle,
+                "mode": config.mode,
+                "setpoint_rate_hz": config.rate_hz,
+                "setpoints_sent": flight.setpoints_sent,
+                "tlog_frames": tlog.frames,
+                "result": "ok" if flight.phase == Phase.DONE else f"aborted: {flight.reason}",
+                "simulated_s": round(sim_s, 3),
+                "wall_s": round(wall, 3),
+                "real_time_factor": round(sim_s / wall, 1) if wall > 0 else None,
+                "warnings": list(flight_plan.warnings),
+            }
+        )
+        px4_log = None
+        if config.compare_px4_mission:
+            res, px4_log = fly_px4_mission(config, mission, home, schedule.duration_s)
+            px4 = summarize(px4_log, schedule, mission, flight.origin)
+            px4["result"] = res
+            px4.pop("rms_error_m")
+            px4.pop("max_error_m")
+            report["px4_mission"] = px4
+        with open(tmp / "report.json", "w", encoding="utf-8") as f:
+            json.dump(report, f, indent=2, allow_nan=False, default=_json_default)
+        plot_flight(
+            tmp / "flight.png",
+            f"{src.name}: {config.vehicle}, {config.mode} mode",
+            log,
+            schedule,
+            flight.origin,
+            px4_log,
+        )
+        final = out_root / name
+        if final.exists():
+            old = out_root / f".{name}.old"
+            shutil.rmtree(old, ignore_errors=True)
+            final.rename(old)
+            tmp.rename(final)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            tmp.rename(final)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    ok = report["result"] == "ok" and report["waypoints_reached"] == len(report["waypoints"])
+    return ReplayResult(name=name, out_dir=final, report=report, ok=ok)
+
+
+def _json_default(o: object) -> object:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+__all__ = [
+    "FlightLog",
+    "LockstepLink",
+    "MissionError",
+    "ReplayConfig",
+    "ReplayResult",
+    "TlogWriter",
+    "fly_px4_mission",
+    "fly_schedule",
+    "replay_file",
+    "summarize",
+]

@@ -1,0 +1,327 @@
+"""Mission flight plan -> one time-indexed reference: planned trajectory pieces, yaw turns at
+stops, and holds. Pure (numpy + the planner); used by the replay and the `fly` command.
+
+The vehicle starts on the ground at the plan's start point. Each stop-to-stop chunk of the
+flight plan (`companion.mission.split_flight_plan`) becomes one minimum-snap trajectory that
+starts and ends at rest; where the heading changes at a stop, an in-place yaw turn is inserted;
+a hold keeps the last point. For multirotors the final descent is cut `handover_height_m`
+above the touchdown point, where PX4's own landing (NAV_LAND) takes over.
+"""
+
+from __future__ import annotations
+
+import bisect
+import functools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from companion.control import Reference
+from companion.flatness import MultirotorParams
+from companion.mission import FlightChunk, FlightPlan, split_flight_plan
+from companion.trajectory import Limits, PiecewiseBezier, RoverLimits, hermite, plan
+
+FloatArray = NDArray[np.float64]
+
+#: Yaw rate used for in-place turns at stops [rad/s].
+TURN_RATE_RAD_S = math.radians(60.0)
+
+
+@dataclass(frozen=True)
+class VehicleLimits:
+    """Planning limits of the vehicle (SI units). Cruise speed comes from the mission legs."""
+
+    max_acc_m_s2: float = 3.0
+    max_tilt_rad: float = math.radians(35.0)
+    max_body_rate_rad_s: float = 3.0
+    max_thrust_ratio: float = 1.8
+    """Peak collective thrust allowed in planning, as a multiple of the hover thrust m g."""
+    rover_max_yaw_rate_rad_s: float = math.radians(60.0)
+    rover_max_lat_acc_m_s2: float = 1.5
+
+
+class _ScalarEval:
+    """Fast single-time evaluation of a PiecewiseBezier and its first `orders` derivatives.
+
+    Precomputes, per segment, the monomial coefficients of every derivative in local time
+    (seconds) so one call is a segment lookup plus one small matrix product.
+    """
+
+    def __init__(self, traj: PiecewiseBezier, orders: int) -> None:
+        self.breaks = [float(b) for b in traj.breaks]
+        self.dim = traj.dim
+        mats = []
+        for seg in traj.segments:
+            c = np.asarray(seg.to_monomial(), dtype=np.float64)  # (n+1, d) ascending powers
+            n1 = c.shape[0]
+            m = np.zeros((orders + 1, n1, c.shape[1]))
+            cur = c
+            for k in range(orders + 1):
+                m[k, : cur.shape[0]] = cur
+                if cur.shape[0] > 1:
+                    cur = cur[1:] * np.arange(1, cur.shape[0])[:, None]
+                else:
+                    cur = np.zeros((1, c.shape[1]))
+            mats.append(m)
+        self.mats = mats
+        self.n1 = mats[0].shape[1]
+
+    def __call__(self, t: float) -> FloatArray:
+        """(orders+1, d) array: value and derivatives at global time t (clamped)."""
+        b = self.breaks
+        t = min(max(t, b[0]), b[-1])
+        i = min(max(bisect.bisect_right(b, t) - 1, 0), len(self.mats) - 1)
+        tl = t - b[i]
+        powers = tl ** np.arange(self.n1)
+        return np.einsum("j,kjd->kd", powers, self.mats[i])
+
+
+@dataclass(frozen=True, eq=False)
+class Piece:
+    """One timed piece: a trajectory (kind "traj"), an in-place yaw turn ("turn"), or a hold.
+
+    t0_s: start on the schedule clock [s]; duration_s [s]; pos_ned [m] for turn/hold;
+    yaw0/yaw1 [rad] for turns (yaw0 also the held yaw); traj for "traj"; phase as in the plan.
+    """
+
+    kind: str
+    t0_s: float
+    duration_s: float
+    phase: str
+    pos_ned: FloatArray
+    yaw0: float
+    yaw1: float
+    traj: PiecewiseBezier | None = None
+    turn: PiecewiseBezier | None = None
+
+    @functools.cached_property
+    def _eval(self) -> _ScalarEval | None:
+        return None if self.traj is None else _ScalarEval(self.traj, 4)
+
+    @functools.cached_property
+    def _eval_yaw(self) -> _ScalarEval | None:
+        src = self.turn if self.turn is not None else (self.traj.yaw if self.traj else None)
+        return None if src is None else _ScalarEval(src, 2)
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """A planned flight: pieces back to back from t = 0 to `duration_s`.
+
+    `waypoints_ned` (K, 3) with `acceptance_m` and `item_indices` are the points the flight must
+    pass (for reach checks); `final_action` is "land", "rtl" or "loiter".
+    """
+
+    pieces: tuple[Piece, ...]
+    duration_s: float
+    waypoints_ned: FloatArray
+    acceptance_m: tuple[float, ...]
+    item_indices: tuple[int | None, ...]
+    final_action: str
+    vehicle: str
+
+    def reference(self, t: float) -> Reference:
+        """Flat-output reference at schedule time `t` [s] (clamped to the schedule)."""
+        piece = self._piece_at(t)
+        tl = min(max(t - piece.t0_s, 0.0), piece.duration_s)
+        if piece.kind == "traj":
+            ev = piece._eval
+            assert ev is not None
+            d = ev(tl)
+            if d.shape[1] == 2:
+                d = np.column_stack([d, np.zeros(5)])
+            ey = piece._eval_yaw
+            y = ey(tl)[:, 0] if ey is not None else (piece.yaw0, 0.0, 0.0)
+            return Reference(d[0], d[1], d[2], d[3], d[4], float(y[0]), float(y[1]), float(y[2]))
+        if piece.kind == "turn":
+            ey = piece._eval_yaw
+            assert ey is not None
+            y = ey(tl)[:, 0]
+            return Reference(
+                piece.pos_ned, yaw=float(y[0]), yaw_rate=float(y[1]), yaw_acc=float(y[2])
+            )
+        return Reference(piece.pos_ned, yaw=piece.yaw0)
+
+    def phase(self, t: float) -> str:
+        """Flight-plan phase at schedule time `t`."""
+        return self._piece_at(t).phase
+
+    def sample(self, t: FloatArray) -> FloatArray:
+        """Planned positions (N, 3) NED at times `t` [s] (vectorised over trajectory pieces)."""
+        t = np.asarray(t, dtype=np.float64)
+        out = np.empty((len(t), 3))
+        for p in self.pieces:
+            sel = (t >= p.t0_s) & (t <= p.t0_s + p.duration_s)
+            if not sel.any():
+                continue
+            if p.kind == "traj":
+                assert p.traj is not None
+                v = p.traj.evaluate(t[sel] - p.t0_s, 0)
+                out[sel] = v if v.shape[1] == 3 else np.column_stack([v, np.zeros(len(v))])
+            else:
+                out[sel] = p.pos_ned
+        out[t > self.duration_s] = self.reference(self.duration_s).pos_ned
+        return out
+
+    def _piece_at(self, t: float) -> Piece:
+        for p in self.pieces:
+            if t < p.t0_s + p.duration_s:
+                return p
+        return self.pieces[-1]
+
+
+def _pad3(v: FloatArray) -> FloatArray:
+    v = np.asarray(v, dtype=np.float64).reshape(-1)
+    return v if v.shape[0] == 3 else np.array([v[0], v[1], 0.0])
+
+
+def _heading(a: FloatArray, b: FloatArray, fallback: float) -> float:
+    d = np.asarray(b, dtype=np.float64) - np.asarray(a, dtype=np.float64)
+    if math.hypot(d[0], d[1]) < 0.5:
+        return fallback
+    return math.atan2(d[1], d[0])
+
+
+def _unwrap_to(target: float, reference: float) -> float:
+    """`target` shifted by multiples of 2 pi to be within pi of `reference`."""
+    return reference + (target - reference + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _turn(yaw0: float, yaw1: float) -> tuple[PiecewiseBezier, float]:
+    """Rest-to-rest quintic yaw turn from yaw0 to yaw1 (peak rate <= TURN_RATE_RAD_S)."""
+    dy = abs(yaw1 - yaw0)
+    duration = max(1.875 * dy / TURN_RATE_RAD_S, 0.5)  # quintic peak rate = 1.875 dy / T
+    seg = hermite(
+        np.array([[yaw0], [0.0], [0.0]]), np.array([[yaw1], [0.0], [0.0]]), duration
+    )
+    return PiecewiseBezier([seg]), duration
+
+
+def _chunk_yaw(chunk: FlightChunk, yaw_in: float, vehicle: str) -> tuple[object, float, float]:
+    """Yaw spec for `plan` and the (start, end) yaw of the chunk [rad]."""
+    pts = chunk.points_ned_m
+    given = [None if y is None else math.radians(y) for y in chunk.yaw_deg]
+    if chunk.phase in ("takeoff", "land") or len(pts) < 2:
+        yaw = yaw_in if given[-1] is None else _unwrap_to(given[-1], yaw_in)
+        return yaw, yaw, yaw
+    if vehicle == "rover" or all(g is None for g in given[1:]):
+        start = _unwrap_to(_heading(pts[0], pts[1], yaw_in), yaw_in)
+        end = _heading(pts[-2], pts[-1], start)
+        return "velocity", start, end
+    # per-waypoint yaw: fill the free ones with the leg heading, unwrap along the way
+    seq: list[float] = []
+    prev = yaw_in
+    for i, g in enumerate(given):
+        if g is None:
+            g = _heading(pts[max(i - 1, 0)], pts[min(i + 1, len(pts) - 1)], prev) if i else prev
+        prev = _unwrap_to(g, prev)
+        seq.append(prev)
+    return seq, seq[0], seq[-1]
+
+
+def build_schedule(
+    flight: FlightPlan,
+    params: MultirotorParams | None,
+    limits: VehicleLimits | None = None,
+    *,
+    initial_yaw: float = 0.0,
+    handover_height_m: float = 1.0,
+) -> Schedule:
+    """Plan every chunk of `flight` and lay them on one clock (see the module docstring)."""
+    limits = limits or VehicleLimits()
+    rover = flight.vehicle == "rover"
+    chunks = list(split_flight_plan(flight))
+    if not chunks:
+        raise ValueError(f"{flight.source}: the mission has no positional item to fly")
+    pieces: list[Piece] = []
+    t = 0.0
+    yaw = initial_yaw
+    wps: list[FloatArray] = []
+    acc: list[float] = []
+    items: list[int | None] = []
+    for ci, chunk in enumerate(chunks):
+        pts = np.array(chunk.points_ned_m, dtype=np.float64)
+        if not rover and ci == len(chunks) - 1 and chunk.phase == "land" and (
+            flight.final_action in ("land", "rtl")
+        ):
+            # stop above the touchdown point; PX4's NAV_LAND does the last metre
+            pts[-1, 2] = min(pts[-1, 2], float(flight.start_ned_m[2]) - handover_height_m)
+            if np.linalg.norm(pts[-1] - pts[-2]) < 0.05:
+                pts = pts[:-1]
+        if len(pts) < 2:
+            continue
+        yaw_spec, y_start, y_end = _chunk_yaw(chunk, yaw, flight.vehicle)
+        traj = _plan_chunk(chunk, pts, params, limits, rover, yaw_spec)
+        if traj.yaw is not None:
+            # the planner unwraps on its own: shift its channel to start within pi of `yaw`
+            y0 = float(traj.yaw.evaluate(0.0, 0)[0])
+            y_start = _unwrap_to(y0, yaw)
+            if y_start != y0:
+                traj = traj.with_yaw(
+                    PiecewiseBezier.from_control_points(
+                        traj.yaw.control_points + (y_start - y0), traj.yaw.durations
+                    )
+                )
+            y_end = float(traj.yaw.evaluate(traj.duration, 0)[0])
+        if abs(y_start - yaw) > math.radians(1.0):
+            turn, dur = _turn(yaw, y_start)
+            pieces.append(Piece("turn", t, dur, chunk.phase, pts[0], yaw, y_start, turn=turn))
+            t += dur
+        yaw = y_start
+        pieces.append(Piece("traj", t, traj.duration, chunk.phase, pts[0], yaw, y_end, traj=traj))
+        t += traj.duration
+        yaw = y_end
+        if chunk.hold_after_s > 0.0:
+            pieces.append(Piece("hold", t, chunk.hold_after_s, chunk.phase, pts[-1], yaw, yaw))
+            t += chunk.hold_after_s
+        for k in range(1, len(chunk.points_ned_m)):
+            if chunk.item_indices[k] is not None:
+                wps.append(np.array(chunk.points_ned_m[k], dtype=np.float64))
+                acc.append(float(chunk.acceptance_radius_m[k]))
+                items.append(chunk.item_indices[k])
+    if not pieces:
+        raise ValueError(f"{flight.source}: nothing to fly (all points coincide)")
+    return Schedule(
+        pieces=tuple(pieces),
+        duration_s=t,
+        waypoints_ned=np.array(wps, dtype=np.float64).reshape(-1, 3),
+        acceptance_m=tuple(acc),
+        item_indices=tuple(items),
+        final_action=flight.final_action,
+        vehicle=flight.vehicle,
+    )
+
+
+def _plan_chunk(
+    chunk: FlightChunk,
+    pts: FloatArray,
+    params: MultirotorParams | None,
+    limits: VehicleLimits,
+    rover: bool,
+    yaw_spec: object,
+) -> PiecewiseBezier:
+    speed = max(min(chunk.leg_speed_m_s), 0.1)
+    lim: Limits | RoverLimits
+    if rover:
+        lim = RoverLimits(
+            max_speed_m_s=speed,
+            max_yaw_rate_rad_s=limits.rover_max_yaw_rate_rad_s,
+            max_lat_acc_m_s2=limits.rover_max_lat_acc_m_s2,
+        )
+        return plan(pts[:, :2], limits=lim, yaw="velocity")
+    vertical = chunk.phase in ("takeoff", "land")
+    hover_n = params.mass * params.g if params is not None else None
+    lim = Limits(
+        max_speed_m_s=speed,
+        max_acc_m_s2=min(limits.max_acc_m_s2, 1.5) if vertical else limits.max_acc_m_s2,
+        max_tilt_rad=limits.max_tilt_rad if params is not None else None,
+        max_thrust_n=limits.max_thrust_ratio * hover_n if hover_n is not None else None,
+        max_body_rate_rad_s=limits.max_body_rate_rad_s if params is not None else None,
+    )
+    yaw: object = yaw_spec
+    if isinstance(yaw_spec, Sequence) and not isinstance(yaw_spec, str):
+        yaw = [float(v) for v in yaw_spec]
+    return plan(pts, limits=lim, params=params, yaw=yaw)  # type: ignore[arg-type]

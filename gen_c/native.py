@@ -1,0 +1,430 @@
+"""Build the checked-in C setpoint library with the system C compiler and call it via ctypes.
+
+This module imports nothing from ``companion`` (so ``companion`` may import it without a
+cycle). The shared library is compiled on first use into a cache directory keyed by a hash of
+the sources, the compiler and the flags (``$ECCA_GEN_C_CACHE``, else
+``$XDG_CACHE_HOME/ecca-offboard/gen_c``, else ``~/.cache/ecca-offboard/gen_c``); later loads
+reuse it. :func:`load_setpoint_library` returns ``None`` when no compiler is available or the
+build fails, so callers can fall back to the pure-Python path::
+
+    native = load_setpoint_library()
+    if native is not None:
+        sp = native.multirotor(vel, acc, jerk, snap, yaw, yaw_rate, yaw_acc, params)
+    else:
+        sp = multirotor_setpoint(vel, acc, jerk, snap, yaw, yaw_rate, yaw_acc, params)
+
+Units, frames and field names are those of ``companion.flatness`` (NED, FRD, SI, q_wxyz).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import logging
+import os
+import shutil
+import subprocess
+import tempfile
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = [
+    "LIB_DIR",
+    "NativeBuildError",
+    "NativeFlatState",
+    "NativeMultirotorSetpoint",
+    "NativeRoverSetpoint",
+    "NativeSetpoint",
+    "build_library",
+    "cache_dir",
+    "find_compiler",
+    "load_setpoint_library",
+]
+
+log = logging.getLogger(__name__)
+
+LIB_DIR = Path(__file__).resolve().parent / "ecca_setpoint"
+SOURCES = ("ecca_setpoint.c", "ecca_gen_d.c", "ecca_gen_f.c")
+HEADERS = ("ecca_setpoint.h", "ecca_setpoint_gen.h", "ecca_gen_d.h", "ecca_gen_f.h",
+           "ecca_setpoint_impl.inc")
+CFLAGS = ("-std=c99", "-O2", "-fPIC", "-shared")
+NUM_CTRL_PTS = 8
+
+Precision = Literal["double", "float"]
+FloatArray = npt.NDArray[np.float64]
+
+
+class NativeBuildError(RuntimeError):
+    """The C library could not be compiled or loaded."""
+
+
+class MultirotorParamsLike(Protocol):
+    """Anything with the fields of ``companion.flatness.MultirotorParams``."""
+
+    @property
+    def mass(self) -> float: ...
+    @property
+    def inertia(self) -> Any: ...
+    @property
+    def g(self) -> float: ...
+    @property
+    def hover_thrust(self) -> float: ...
+    @property
+    def drag(self) -> float: ...
+
+
+def cache_dir() -> Path:
+    """Folder of compiled libraries (created on demand)."""
+    env = os.environ.get("ECCA_GEN_C_CACHE")
+    if env:
+        return Path(env)
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    base = Path(xdg) if xdg else Path.home() / ".cache"
+    return base / "ecca-offboard" / "gen_c"
+
+
+def find_compiler() -> str | None:
+    """``$CC`` if set, else the first of cc, gcc, clang on PATH; None if there is none."""
+    env = os.environ.get("CC")
+    if env:
+        return shutil.which(env) or env
+    for name in ("cc", "gcc", "clang"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+def _source_hash(lib_dir: Path, compiler: str, flags: tuple[str, ...]) -> str:
+    h = hashlib.sha256()
+    try:
+        version = subprocess.run([compiler, "--version"], capture_output=True, text=True,
+                                 timeout=30, check=False).stdout
+    except (OSError, subprocess.SubprocessError):
+        version = ""
+    h.update(compiler.encode() + b"\0" + version.encode() + b"\0" + " ".join(flags).encode())
+    for name in SOURCES + HEADERS:
+        h.update(b"\0" + name.encode() + b"\0" + (lib_dir / name).read_bytes())
+    return h.hexdigest()[:20]
+
+
+def build_library(lib_dir: Path = LIB_DIR, *, cache: Path | None = None,
+                  compiler: str | None = None, extra_flags: tuple[str, ...] = ()) -> Path:
+    """Compile ``lib_dir`` into a shared library in the cache (if not there yet); its path.
+
+    Raises :class:`NativeBuildError` with the compiler output if compilation fails.
+    """
+    cc = compiler or find_compiler()
+    if cc is None:
+        raise NativeBuildError("no C compiler found (set $CC or install cc/gcc/clang)")
+    flags = CFLAGS + tuple(extra_flags)
+    out_dir = cache or cache_dir()
+    key = _source_hash(lib_dir, cc, flags)
+    target = out_dir / f"libecca_setpoint-{key}.so"
+    if target.exists():
+        return target
+    out_dir.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=".build-", suffix=".so", dir=out_dir)
+    os.close(fd)
+    cmd = [cc, *flags, f"-I{lib_dir}", *(str(lib_dir / s) for s in SOURCES), "-o", tmp_name,
+           "-lm"]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, check=False)
+        if proc.returncode != 0:
+            raise NativeBuildError(
+                f"compiling the C setpoint library failed ({' '.join(cmd)}):\n{proc.stderr}")
+        os.replace(tmp_name, target)  # atomic: concurrent builders race harmlessly
+    finally:
+        if os.path.exists(tmp_name):
+            os.unlink(tmp_name)
+    return target
+
+
+# ---------------------------------------------------------------------- ctypes mirrors
+
+
+def _structs(real: type[Any]) -> dict[str, type[ctypes.Structure]]:
+    class Segment(ctypes.Structure):
+        _fields_ = [("ctrl_pts_ned_m", real * 3 * NUM_CTRL_PTS),
+                    ("yaw_ctrl_pts_rad", real * NUM_CTRL_PTS), ("duration_s", real)]
+
+    class FlatState(ctypes.Structure):
+        _fields_ = [("pos_ned_m", real * 3), ("vel_ned_m_s", real * 3),
+                    ("acc_ned_m_s2", real * 3), ("jerk_ned_m_s3", real * 3),
+                    ("snap_ned_m_s4", real * 3), ("yaw_rad", real), ("yaw_rate_rad_s", real),
+                    ("yaw_acc_rad_s2", real)]
+
+    class Params(ctypes.Structure):
+        _fields_ = [("mass_kg", real), ("inertia_frd_kg_m2", real * 3 * 3),
+                    ("gravity_m_s2", real), ("hover_thrust", real), ("drag_n_s_m", real)]
+
+    class Attitude(ctypes.Structure):
+        _fields_ = [("thrust_n", real), ("thrust_dot_n_s", real), ("thrust_ddot_n_s2", real),
+                    ("thrust_norm", real), ("q_wxyz", real * 4), ("omega_frd_rad_s", real * 3),
+                    ("omega_dot_frd_rad_s2", real * 3), ("moment_frd_n_m", real * 3),
+                    ("flags", ctypes.c_uint), ("singular", ctypes.c_int)]
+
+    class Heading(ctypes.Structure):
+        _fields_ = [("yaw_rad", real), ("speed_m_s", real), ("speed_dot_m_s2", real),
+                    ("yaw_rate_rad_s", real), ("yaw_acc_rad_s2", real),
+                    ("singular", ctypes.c_int)]
+
+    return {"segment": Segment, "state": FlatState, "params": Params, "attitude": Attitude,
+            "heading": Heading}
+
+
+_ERRORS = {
+    -1: "internal error: NULL pointer passed to the C setpoint library",
+    -2: "refusing to compute a setpoint from a non-finite or out-of-range input "
+        "(NaN/inf, duration <= 0, mass <= 0, g <= 0, hover_thrust outside (0, 1], drag < 0)",
+    -3: "the setpoint would be non-finite: inputs are far outside any flyable range",
+}
+
+
+@dataclass(frozen=True)
+class NativeFlatState:
+    """Evaluated Bezier segment: NED position..snap (m, m/s, ...), yaw (rad) and derivatives."""
+
+    pos: FloatArray
+    vel: FloatArray
+    acc: FloatArray
+    jerk: FloatArray
+    snap: FloatArray
+    yaw: float
+    yaw_rate: float
+    yaw_acc: float
+
+
+@dataclass(frozen=True)
+class NativeMultirotorSetpoint:
+    """Same fields, units and frames as ``companion.flatness.MultirotorSetpoint``."""
+
+    thrust: float
+    thrust_dot: float
+    thrust_ddot: float
+    thrust_norm: float
+    q_wxyz: FloatArray
+    omega_frd: FloatArray
+    omega_dot_frd: FloatArray
+    moment_frd: FloatArray
+    singular: bool
+    flags: int
+
+    @property
+    def C_eb(self) -> FloatArray:
+        """Attitude as a DCM (body FRD -> world NED), from ``q_wxyz``."""
+        return _quat_to_dcm(self.q_wxyz)
+
+
+@dataclass(frozen=True)
+class NativeRoverSetpoint:
+    """Same fields as ``companion.flatness.RoverSetpoint``."""
+
+    yaw: float
+    speed: float
+    speed_dot: float
+    yaw_rate: float
+    yaw_acc: float | None
+    singular: bool
+
+
+def _quat_to_dcm(q: FloatArray) -> FloatArray:
+    """C_eb (body FRD -> world NED) of a unit Hamilton quaternion (w, x, y, z)."""
+    w, x, y, z = (float(v) for v in q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def _vec(x: npt.ArrayLike, n: int, name: str) -> FloatArray:
+    a = np.asarray(x, dtype=np.float64)
+    if a.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},) (one sample), got {a.shape}")
+    return a
+
+
+class NativeSetpoint:
+    """The compiled library (double and float variants) behind a small Python API.
+
+    Methods take one sample (plain floats / length-n sequences), like the single-sample path of
+    ``companion.flatness``, and raise ``ValueError`` where it would (non-finite input).
+    Thread-safe: the C functions are re-entrant and every call uses its own structs.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._lib = ctypes.CDLL(str(path))
+        self._s = {"double": _structs(ctypes.c_double), "float": _structs(ctypes.c_float)}
+        self._fn: dict[tuple[str, str], Any] = {}
+        self._param_cache: dict[tuple[Any, ...], Any] = {}
+        for prec, sfx, real in (("double", "", ctypes.c_double), ("float", "_f", ctypes.c_float)):
+            s = self._s[prec]
+            P = ctypes.POINTER
+            sig = {
+                "bezier": ("ecca_bezier_eval", [P(s["segment"]), real, P(s["state"])]),
+                "multirotor": ("ecca_multirotor_setpoint",
+                               [P(s["state"]), P(s["params"]), P(s["attitude"])]),
+                "rover": ("ecca_rover_setpoint", [P(s["state"]), P(s["heading"])]),
+                "full": ("ecca_full_setpoint", [P(s["segment"]), real, P(s["params"]),
+                                                P(s["state"]), P(s["attitude"])]),
+                "full_rover": ("ecca_full_rover_setpoint",
+                               [P(s["segment"]), real, P(s["state"]), P(s["heading"])]),
+            }
+            for key, (cname, argtypes) in sig.items():
+                fn = getattr(self._lib, cname + sfx)
+                fn.argtypes = argtypes
+                fn.restype = ctypes.c_int
+                self._fn[(prec, key)] = fn
+        ver = self._lib.ecca_setpoint_casadi_version
+        ver.restype = ctypes.c_char_p
+        ver.argtypes = []
+        self.casadi_version: str = ver().decode()
+
+    # -- helpers ----------------------------------------------------------------------------
+    def _call(self, prec: str, key: str, *args: Any) -> None:
+        rc = self._fn[(prec, key)](*args)
+        if rc != 0:
+            raise ValueError(_ERRORS.get(rc, f"C setpoint library error {rc}"))
+
+    def _params(self, prec: str, params: MultirotorParamsLike) -> Any:
+        inertia = params.inertia
+        if not isinstance(inertia, tuple):
+            inertia = tuple(np.asarray(inertia, dtype=np.float64).ravel().tolist())
+        key = (prec, params.mass, inertia, params.g, params.hover_thrust, params.drag)
+        cached = self._param_cache.get(key)
+        if cached is None:
+            if len(self._param_cache) >= 16:
+                self._param_cache.clear()
+            cached = self._param_cache[key] = self._make_params(prec, params)
+        return cached
+
+    def _make_params(self, prec: str, params: MultirotorParamsLike) -> Any:
+        p = self._s[prec]["params"]()
+        p.mass_kg = float(params.mass)
+        J = np.asarray(params.inertia, dtype=np.float64)
+        if J.shape == (3,):
+            J = np.diag(J)
+        if J.shape != (3, 3):
+            raise ValueError(f"inertia must be 3x3 (kg m^2), got {J.shape}")
+        for i in range(3):
+            for k in range(3):
+                p.inertia_frd_kg_m2[i][k] = float(J[i, k])
+        p.gravity_m_s2 = float(params.g)
+        p.hover_thrust = float(params.hover_thrust)
+        p.drag_n_s_m = float(params.drag)
+        return p
+
+    def _segment(self, prec: str, ctrl_pts: npt.ArrayLike, yaw_ctrl_pts: npt.ArrayLike | None,
+                 duration: float) -> Any:
+        seg = self._s[prec]["segment"]()
+        cp = np.asarray(ctrl_pts, dtype=np.float64)
+        if cp.shape != (NUM_CTRL_PTS, 3):
+            raise ValueError(f"ctrl_pts must have shape ({NUM_CTRL_PTS}, 3) (degree 7, NED m); "
+                             f"elevate lower-degree segments first, got {cp.shape}")
+        ycp = (np.zeros(NUM_CTRL_PTS) if yaw_ctrl_pts is None
+               else np.asarray(yaw_ctrl_pts, dtype=np.float64).reshape(-1))
+        if ycp.shape != (NUM_CTRL_PTS,):
+            raise ValueError(f"yaw_ctrl_pts must have {NUM_CTRL_PTS} values, got {ycp.shape}")
+        x = np.frombuffer(seg, dtype=np.float64 if prec == "double" else np.float32)
+        x[: 3 * NUM_CTRL_PTS] = cp.ravel()  # layout: ctrl_pts[8][3], yaw_ctrl_pts[8], duration
+        x[3 * NUM_CTRL_PTS : 4 * NUM_CTRL_PTS] = ycp
+        x[4 * NUM_CTRL_PTS] = duration
+        return seg
+
+    @staticmethod
+    def _flat(st: Any, prec: str) -> NativeFlatState:
+        dt = np.float64 if prec == "double" else np.float32
+        y = np.frombuffer(st, dtype=dt, count=18).astype(np.float64)
+        return NativeFlatState(pos=y[0:3], vel=y[3:6], acc=y[6:9], jerk=y[9:12], snap=y[12:15],
+                               yaw=float(y[15]), yaw_rate=float(y[16]), yaw_acc=float(y[17]))
+
+    @staticmethod
+    def _attitude(a: Any, prec: str) -> NativeMultirotorSetpoint:
+        # The struct starts with 17 reals: thrust x4, q_wxyz[4], omega[3], omega_dot[3], moment[3]
+        dt = np.float64 if prec == "double" else np.float32
+        y = np.frombuffer(a, dtype=dt, count=17).astype(np.float64)
+        return NativeMultirotorSetpoint(
+            thrust=float(y[0]), thrust_dot=float(y[1]), thrust_ddot=float(y[2]),
+            thrust_norm=float(y[3]), q_wxyz=y[4:8], omega_frd=y[8:11], omega_dot_frd=y[11:14],
+            moment_frd=y[14:17], singular=bool(a.singular), flags=int(a.flags))
+
+    # -- public API -------------------------------------------------------------------------
+    def bezier(self, ctrl_pts: npt.ArrayLike, yaw_ctrl_pts: npt.ArrayLike | None,
+               duration: float, t: float, *, precision: Precision = "double") -> NativeFlatState:
+        """Evaluate a degree-7 segment (ctrl_pts (8, 3) NED m, yaw_ctrl_pts (8,) rad or None,
+        duration s) at local time t (s, clamped to [0, duration])."""
+        seg = self._segment(precision, ctrl_pts, yaw_ctrl_pts, duration)
+        st = self._s[precision]["state"]()
+        self._call(precision, "bezier", ctypes.byref(seg), float(t), ctypes.byref(st))
+        return self._flat(st, precision)
+
+    def multirotor(self, vel: npt.ArrayLike, acc: npt.ArrayLike, jerk: npt.ArrayLike,
+                   snap: npt.ArrayLike, yaw: float, yaw_rate: float, yaw_acc: float,
+                   params: MultirotorParamsLike, *,
+                   precision: Precision = "double") -> NativeMultirotorSetpoint:
+        """Same arguments as ``companion.flatness.multirotor_setpoint`` (one sample)."""
+        st = self._s[precision]["state"]()
+        x = np.frombuffer(st, dtype=np.float64 if precision == "double" else np.float32)
+        x[3:6] = _vec(vel, 3, "vel")  # layout: pos, vel, acc, jerk, snap, yaw, yaw_rate, yaw_acc
+        x[6:9] = _vec(acc, 3, "acc")
+        x[9:12] = _vec(jerk, 3, "jerk")
+        x[12:15] = _vec(snap, 3, "snap")
+        x[15], x[16], x[17] = yaw, yaw_rate, yaw_acc
+        att = self._s[precision]["attitude"]()
+        self._call(precision, "multirotor", ctypes.byref(st),
+                   ctypes.byref(self._params(precision, params)), ctypes.byref(att))
+        return self._attitude(att, precision)
+
+    def rover(self, vel_xy: npt.ArrayLike, acc_xy: npt.ArrayLike,
+              jerk_xy: npt.ArrayLike | None = None, *,
+              precision: Precision = "double") -> NativeRoverSetpoint:
+        """Same arguments as ``companion.flatness.rover_setpoint`` (one sample)."""
+        st = self._s[precision]["state"]()
+        x = np.frombuffer(st, dtype=np.float64 if precision == "double" else np.float32)
+        x[3:5] = _vec(vel_xy, 2, "vel_xy")
+        x[6:8] = _vec(acc_xy, 2, "acc_xy")
+        x[9:11] = 0.0 if jerk_xy is None else _vec(jerk_xy, 2, "jerk_xy")
+        hs = self._s[precision]["heading"]()
+        self._call(precision, "rover", ctypes.byref(st), ctypes.byref(hs))
+        return NativeRoverSetpoint(
+            yaw=float(hs.yaw_rad), speed=float(hs.speed_m_s), speed_dot=float(hs.speed_dot_m_s2),
+            yaw_rate=float(hs.yaw_rate_rad_s),
+            yaw_acc=None if jerk_xy is None else float(hs.yaw_acc_rad_s2),
+            singular=bool(hs.singular))
+
+    def full(self, ctrl_pts: npt.ArrayLike, yaw_ctrl_pts: npt.ArrayLike | None, duration: float,
+             t: float, params: MultirotorParamsLike, *, precision: Precision = "double",
+             ) -> tuple[NativeFlatState, NativeMultirotorSetpoint]:
+        """Evaluate a segment at t and compute the multirotor setpoint, in one C call."""
+        seg = self._segment(precision, ctrl_pts, yaw_ctrl_pts, duration)
+        st = self._s[precision]["state"]()
+        att = self._s[precision]["attitude"]()
+        self._call(precision, "full", ctypes.byref(seg), float(t),
+                   ctypes.byref(self._params(precision, params)), ctypes.byref(st),
+                   ctypes.byref(att))
+        return self._flat(st, precision), self._attitude(att, precision)
+
+
+_lock = threading.Lock()
+_loaded: dict[str, NativeSetpoint | None] = {}
+
+
+def load_setpoint_library(*, lib_dir: Path = LIB_DIR) -> NativeSetpoint | None:
+    """The compiled library, built on first use; ``None`` (with one warning logged) when no C
+    compiler is available or the build fails. Cached per process."""
+    key = str(lib_dir)
+    with _lock:
+        if key not in _loaded:
+            try:
+                _loaded[key] = NativeSetpoint(build_library(lib_dir))
+            except (NativeBuildError, OSError) as exc:
+                log.warning("native setpoint library unavailable, using the Python path: %s", exc)
+                _loaded[key] = None
+        return _loaded[key]

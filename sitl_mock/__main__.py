@@ -1,0 +1,182 @@
+"""Command line: `python -m sitl_mock serve [...]`, a PX4-like SITL vehicle on UDP.
+
+Exit codes: 0 clean stop (Ctrl-C / SIGTERM), 2 bad arguments, 1 runtime error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import signal
+import sys
+from collections.abc import Sequence
+
+from sitl_mock.autopilot import Autopilot
+from sitl_mock.faults import LinkFaults, ScenarioFaults, parse_blackouts
+from sitl_mock.params import PARAMS, ParamStore
+from sitl_mock.server import Addr, LinkConfig, MockServer, ServerConfig
+from sitl_mock.vehicle import DEFAULT_HOME
+
+
+def _addr(text: str) -> Addr:
+    host, sep, port = text.rpartition(":")
+    if not sep or not host:
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT, got {text!r}")
+    try:
+        p = int(port)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"bad port in {text!r}") from exc
+    if not 0 <= p <= 65535:
+        raise argparse.ArgumentTypeError(f"port out of range in {text!r}")
+    return host, p
+
+
+def _remote(text: str) -> Addr | None:
+    return None if text.lower() in ("none", "off", "") else _addr(text)
+
+
+def _param(text: str) -> tuple[str, float]:
+    name, sep, value = text.partition("=")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+    name = name.strip().upper()
+    if name not in PARAMS:
+        raise argparse.ArgumentTypeError(f"unknown parameter {name!r}")
+    try:
+        return name, float(value)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"parameter {name} needs a number, got {value!r}") from exc
+
+
+def _home(text: str) -> tuple[float, float, float]:
+    parts = text.split(",")
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError("expected LAT,LON,ALT (degrees, degrees, m AMSL)")
+    try:
+        lat, lon, alt = (float(p) for p in parts)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"bad number in --home {text!r}") from exc
+    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+        raise argparse.ArgumentTypeError("home latitude/longitude out of range")
+    return lat, lon, alt
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="python -m sitl_mock", description=__doc__)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    s = sub.add_parser("serve", help="run the mock vehicle on UDP (like PX4 SITL)")
+    s.add_argument("--vehicle", choices=("quad", "rover"), default="quad")
+    s.add_argument("--bind", type=_addr, default=("127.0.0.1", 14580), help="offboard link bind")
+    s.add_argument(
+        "--remote", type=_remote, default=("127.0.0.1", 14540), help="offboard link first peer"
+    )
+    s.add_argument("--gcs-bind", type=_addr, default=("127.0.0.1", 18570))
+    s.add_argument(
+        "--gcs-remote", type=_remote, default=("127.0.0.1", 14550), help="'none' disables"
+    )
+    s.add_argument("--no-gcs", action="store_true", help="run without the GCS link")
+    s.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE")
+    s.add_argument("--home", type=_home, default=DEFAULT_HOME, metavar="LAT,LON,ALT")
+    s.add_argument("--speed", type=float, default=1.0, help="simulated seconds per wall second")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--physics-hz", type=float, default=250.0)
+    s.add_argument("--estimator-ready", type=float, default=3.0, help="seconds after boot")
+    f = s.add_argument_group("fault injection (offboard link unless --fault-gcs)")
+    f.add_argument("--loss", type=float, default=0.0, help="packet loss [%%] both directions")
+    f.add_argument("--latency", type=float, default=0.0, help="one-way latency [s]")
+    f.add_argument("--jitter", type=float, default=0.0, help="extra random latency [s]")
+    f.add_argument("--duplicate", type=float, default=0.0, help="duplication [%%]")
+    f.add_argument("--reorder", type=float, default=0.0, help="reordering [%%]")
+    f.add_argument("--blackout", type=str, default="", help="windows 'T0-T1,T2-T3' [s]")
+    f.add_argument("--fault-gcs", action="store_true", help="apply the link faults to GCS too")
+    f.add_argument("--pilot-takeover", type=float, default=None, metavar="T")
+    f.add_argument("--position-loss", type=str, default=None, metavar="T0-T1")
+    f.add_argument("--low-battery", type=float, default=None, metavar="T")
+    f.add_argument("--low-battery-level", type=float, default=0.12, metavar="FRACTION")
+    return ap
+
+
+async def _serve(args: argparse.Namespace) -> int:
+    try:
+        params = ParamStore(dict(args.param))
+        faults = LinkFaults(
+            loss_pct=args.loss,
+            latency_s=args.latency,
+            jitter_s=args.jitter,
+            duplicate_pct=args.duplicate,
+            reorder_pct=args.reorder,
+            blackouts=parse_blackouts(args.blackout),
+        )
+        pos_loss = None
+        if args.position_loss:
+            w = parse_blackouts(args.position_loss)
+            if len(w) != 1:
+                raise ValueError("--position-loss takes one window T0-T1")
+            pos_loss = w[0]
+        scenario = ScenarioFaults(
+            pilot_takeover_s=args.pilot_takeover,
+            local_position_loss=pos_loss,
+            low_battery_s=args.low_battery,
+            low_battery_remaining=args.low_battery_level,
+        )
+    except ValueError as exc:
+        print(f"sitl_mock: {exc}", file=sys.stderr)
+        return 2
+    links = [LinkConfig("offboard", args.bind, args.remote)]
+    if not args.no_gcs:
+        links.append(LinkConfig("gcs", args.gcs_bind, args.gcs_remote))
+    link_faults = {"offboard": (faults, faults)}
+    if args.fault_gcs:
+        link_faults["gcs"] = (faults, faults)
+
+    def make(remotes: dict[str, Addr | None], now: float) -> Autopilot:
+        return Autopilot(
+            args.vehicle,
+            params,
+            args.home,
+            args.seed,
+            physics_hz=args.physics_hz,
+            now=now,
+            remotes=remotes,
+            link_faults=link_faults,
+            scenario=scenario,
+            estimator_ready_s=args.estimator_ready,
+        )
+
+    try:
+        server = MockServer(make, ServerConfig(links=links, speed=args.speed))
+        await server.start()
+    except (OSError, ValueError) as exc:
+        print(f"sitl_mock: cannot start: {exc}", file=sys.stderr)
+        return 1
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(sig, server.stop)
+    parts = []
+    for lk in links:
+        host, port = server.bound[lk.name]
+        remote = f"{lk.remote[0]}:{lk.remote[1]}" if lk.remote else "none"
+        parts.append(f"{lk.name}={host}:{port}->{remote}")
+    print(f"sitl_mock ready {args.vehicle} " + " ".join(parts), flush=True)
+    await server.run()
+    print("sitl_mock stopped", flush=True)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.cmd == "serve":
+        if not (args.speed > 0 and args.speed <= 100):
+            print("sitl_mock: --speed must be in (0, 100]", file=sys.stderr)
+            return 2
+        try:
+            return asyncio.run(_serve(args))
+        except KeyboardInterrupt:
+            return 0
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,112 @@
+"""Replay of a bundled mission in lockstep: waypoints reached (judged from the tlog's
+GLOBAL_POSITION_INT against the file's own coordinates), tlog integrity, report and plot."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pymavlink import mavutil
+
+from companion.cli import main as cli_main
+
+ROOT = Path(__file__).resolve().parents[2]
+MISSION = ROOT / "examples" / "missions" / "ten_waypoints.plan"
+R_EARTH = 6_371_000.0
+
+
+def _flat_ne(lat: float, lon: float, lat0: float, lon0: float) -> tuple[float, float]:
+    """Independent local projection (equirectangular about the home point) [m]."""
+    north = math.radians(lat - lat0) * R_EARTH
+    east = math.radians(lon - lon0) * R_EARTH * math.cos(math.radians(lat0))
+    return north, east
+
+
+@pytest.fixture(scope="module")
+def replayed(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("replay")
+    code = cli_main(["replay", str(MISSION), "--out", str(out)])
+    assert code == 0
+    return out / MISSION.stem
+
+
+def test_every_waypoint_reached_from_tlog_positions(replayed: Path) -> None:
+    plan = json.loads(MISSION.read_text())
+    lat0, lon0, alt0 = plan["mission"]["plannedHomePosition"]
+    wps = []
+    for it in plan["mission"]["items"]:
+        if it["command"] == 16:  # NAV_WAYPOINT, relative altitude frame 3
+            lat, lon, rel = it["params"][4:7]
+            n, e = _flat_ne(lat, lon, lat0, lon0)
+            radius = it["params"][1] or 2.0
+            wps.append((n, e, -rel, radius))
+    assert len(wps) == 10
+    mlog = mavutil.mavlink_connection(str(replayed / "flight.tlog"))
+    flown = []
+    while True:
+        m = mlog.recv_match(type="GLOBAL_POSITION_INT")
+        if m is None:
+            break
+        n, e = _flat_ne(m.lat * 1e-7, m.lon * 1e-7, lat0, lon0)
+        flown.append((n, e, -(m.alt * 1e-3 - alt0)))
+    assert len(flown) > 100
+    p = np.asarray(flown)
+    for i, (n, e, d, radius) in enumerate(wps):
+        closest = float(np.min(np.linalg.norm(p - np.array([n, e, d]), axis=1)))
+        assert closest <= radius, f"waypoint {i + 1}: closest approach {closest:.2f} m > {radius} m"
+
+
+def test_tlog_reads_back_with_expected_message_counts(replayed: Path) -> None:
+    report = json.loads((replayed / "report.json").read_text())
+    mlog = mavutil.mavlink_connection(str(replayed / "flight.tlog"))
+    hb_px4 = 0
+    setpoints = []
+    stamps = []
+    while True:
+        m = mlog.recv_match()
+        if m is None:
+            break
+        stamps.append(m._timestamp)
+        if m.get_type() == "HEARTBEAT" and m.get_srcSystem() == 1 and m.get_srcComponent() == 1:
+            hb_px4 += 1
+        if m.get_type() in ("SET_ATTITUDE_TARGET", "SET_POSITION_TARGET_LOCAL_NED"):
+            setpoints.append(m._timestamp)
+    assert stamps == sorted(stamps)  # timestamps monotonic
+    span = stamps[-1] - stamps[0]
+    assert abs(hb_px4 - span) <= 2.0  # PX4 HEARTBEAT at 1 Hz over the whole log
+    streamed = setpoints[-1] - setpoints[0]
+    rate = report["setpoint_rate_hz"]
+    assert len(setpoints) == pytest.approx(rate * streamed, rel=0.05)
+    assert report["setpoints_sent"] == len(setpoints)
+
+
+def test_report_and_plot(replayed: Path) -> None:
+    import matplotlib.image as mpimg
+
+    report = json.loads((replayed / "report.json").read_text())
+    for key in ("duration_s", "path_length_m", "rms_error_m", "max_error_m", "max_speed_m_s",
+                "max_tilt_deg", "max_thrust_norm", "max_body_rate_rad_s", "geofence_violations",
+                "failsafes", "waypoints"):
+        assert key in report
+    assert report["result"] == "ok"
+    assert report["failsafes"] == []
+    assert all("closest_approach_m" in w for w in report["waypoints"])
+    img = mpimg.imread(replayed / "flight.png")
+    assert img.ndim == 3 and img.shape[0] > 200 and img.shape[1] > 400
+    assert float(np.std(img[..., :3])) > 0.01  # not blank
+    # nothing half-written left behind
+    assert not [p for p in replayed.parent.iterdir() if p.name.startswith(".")]
+
+
+def test_malformed_file_exits_2_and_others_still_run(tmp_path: Path) -> None:
+    bad = tmp_path / "broken.plan"
+    bad.write_text('{"fileType": "Plan", "version": 1, "mission": {"items": [}')
+    good = ROOT / "examples" / "missions" / "square.plan"
+    out = tmp_path / "out"
+    code = cli_main(["replay", str(bad), str(good), "--out", str(out)])
+    assert code == 2
+    assert (out / "square" / "report.json").is_file()
+    assert not (out / "broken").exists()

@@ -1,0 +1,74 @@
+"""Hypothesis: waypoints hit exactly, boundary conditions met and continuity at every joint, for
+random, collinear and U-turn waypoint sets, with fixed durations."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from companion.trajectory import PiecewiseBezier, plan
+
+coord = st.floats(min_value=-100.0, max_value=100.0, allow_nan=False, allow_infinity=False)
+dur = st.floats(min_value=0.2, max_value=10.0)
+
+
+@st.composite
+def problems(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray]:
+    kind = draw(st.sampled_from(["random", "collinear", "uturn"]))
+    d = draw(st.sampled_from([2, 3]))
+    n = draw(st.integers(min_value=2, max_value=8))
+    if kind == "random":
+        wp = np.array([[draw(coord) for _ in range(d)] for _ in range(n)])
+    elif kind == "collinear":
+        direction = np.array([draw(coord) for _ in range(d)])
+        if np.linalg.norm(direction) < 1e-3:
+            direction = np.ones(d)
+        origin = np.array([draw(coord) for _ in range(d)])
+        steps = [draw(st.floats(min_value=-3.0, max_value=3.0)) for _ in range(n)]
+        wp = origin + np.outer(np.cumsum(steps), direction / np.linalg.norm(direction))
+    else:  # back and forth between two points
+        a = np.array([draw(coord) for _ in range(d)])
+        b = np.array([draw(coord) for _ in range(d)])
+        wp = np.array([a if i % 2 == 0 else b for i in range(n)])
+    h = np.array([draw(dur) for _ in range(n - 1)])
+    return wp, h
+
+
+def _check(tr: PiecewiseBezier, wp: np.ndarray, times: np.ndarray, s: int) -> None:
+    scale = 1.0 + float(np.max(np.abs(wp)))
+    np.testing.assert_allclose(tr.evaluate(times), wp, atol=1e-9 * scale)
+    for r in range(1, s):
+        v0, v1 = tr.evaluate(0.0, r), tr.evaluate(tr.duration, r)
+        ref = scale / float(np.min(tr.durations)) ** r
+        np.testing.assert_allclose(v0, 0.0, atol=1e-9 * ref)
+        np.testing.assert_allclose(v1, 0.0, atol=1e-9 * ref)
+    segs = tr.segments
+    for k in range(len(segs) - 1):
+        hmin = min(segs[k].duration, segs[k + 1].duration)
+        # continuity through snap (s = 4) / jerk (s = 3), and the free-joint optimality
+        # conditions through order 2s - 2
+        for r in range(0, 2 * s - 1):
+            left = segs[k].evaluate(segs[k].duration, r)
+            right = segs[k + 1].evaluate(0.0, r)
+            ref = scale / hmin**r
+            np.testing.assert_allclose(left, right, atol=1e-7 * ref, err_msg=f"joint {k}, order {r}")
+
+
+@settings(max_examples=40, deadline=None)
+@given(problems(), st.sampled_from(["snap", "jerk"]))
+def test_waypoints_boundaries_and_continuity(problem: tuple[np.ndarray, np.ndarray], order: str) -> None:
+    wp, h = problem
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # collinear steps of 0 are merged duplicates
+        keep = np.concatenate(([True], np.max(np.abs(np.diff(wp, axis=0)), axis=1) > 1e-9))
+        if keep.sum() < 2:
+            return
+        wp, h = wp[keep], h[keep[1:]]
+        tr = plan(wp, durations=h, order=order)
+    s = 4 if order == "snap" else 3
+    assert tr.degree == 2 * s - 1
+    assert tr.dim == wp.shape[1]
+    _check(tr, wp, tr.breaks, s)

@@ -1,0 +1,191 @@
+"""Vehicle façade against a scripted PX4 stand-in on loopback UDP: failures surface as
+exceptions carrying the MAVLink result; the stream never carries an invalid setpoint and stops
+when it must."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from collections.abc import AsyncIterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import pytest
+from pymavlink.dialects.v20 import common as m
+
+from companion.aio import (
+    CommandError,
+    OffboardError,
+    SetpointSourceError,
+    TelemetryStaleError,
+    Vehicle,
+    VehicleConfig,
+)
+from companion.mavlink import FlightMode, PositionSetpoint, TelemetrySnapshot, custom_mode_of
+
+
+@dataclass
+class Script:
+    arm_result: int = 0
+    reject_offboard: bool = False
+    send_position: bool = True
+    received: list[Any] = field(default_factory=list)
+
+
+class FakePx4(asyncio.DatagramProtocol):
+    """Minimal PX4 behaviour: HEARTBEAT 20 Hz, LOCAL_POSITION_NED 30 Hz, ARM and DO_SET_MODE
+    with PX4's double acknowledgement."""
+
+    def __init__(self, script: Script) -> None:
+        self.s = script
+        self.mav = m.MAVLink(None, srcSystem=1, srcComponent=1)
+        self.parser = m.MAVLink(None)
+        self.parser.robust_parsing = True
+        self.peer: Any = None
+        self.tr: Any = None
+        self.armed = False
+        self.custom_mode = custom_mode_of(FlightMode.HOLD)
+
+    def connection_made(self, transport: Any) -> None:
+        self.tr = transport
+
+    def send(self, msg: Any) -> None:
+        if self.peer is not None:
+            self.tr.sendto(bytes(msg.pack(self.mav)), self.peer)
+
+    def datagram_received(self, data: bytes, addr: Any) -> None:
+        self.peer = addr
+        for msg in self.parser.parse_buffer(data) or []:
+            self.s.received.append(msg)
+            if msg.get_type() == "COMMAND_LONG":
+                self.on_command(msg)
+
+    def on_command(self, c: Any) -> None:
+        loop = asyncio.get_running_loop()
+        if c.command == 400:
+            self.send(m.MAVLink_command_ack_message(400, self.s.arm_result, 0, 0, 1, 191))
+            if self.s.arm_result == 0:
+                self.armed = c.param1 == 1
+        elif c.command == 176:
+            self.send(m.MAVLink_command_ack_message(176, 0, 0, 0, 1, 191))
+            target = (int(c.param2) << 16) | (int(c.param3) << 24)
+            if target == custom_mode_of(FlightMode.OFFBOARD) and self.s.reject_offboard:
+                loop.call_later(0.01, self.send, m.MAVLink_statustext_message(
+                    4, b"Switching to Offboard is currently not available"))
+                loop.call_later(0.01, self.send,
+                                m.MAVLink_command_ack_message(176, 1, 0, 0, 1, 191))
+            else:
+                self.custom_mode = target
+                loop.call_later(0.01, self.send,
+                                m.MAVLink_command_ack_message(176, 0, 0, 0, 1, 191))
+
+    async def run(self) -> None:
+        k = 0
+        while True:
+            k += 1
+            if k % 3 == 0:
+                self.send(m.MAVLink_heartbeat_message(
+                    2, 12, 29 | (128 if self.armed else 0), self.custom_mode, 4, 3))
+            if k % 2 == 0 and self.s.send_position:
+                self.send(m.MAVLink_local_position_ned_message(k, 1.0, 2.0, -3.0, 0, 0, 0))
+            await asyncio.sleep(1 / 60)
+
+
+@pytest.fixture
+async def px4() -> AsyncIterator[tuple[Script, int, FakePx4]]:
+    script = Script()
+    loop = asyncio.get_running_loop()
+    tr, proto = await loop.create_datagram_endpoint(lambda: FakePx4(script),
+                                                    local_addr=("127.0.0.1", 0))
+    task = loop.create_task(proto.run())
+    try:
+        yield script, tr.get_extra_info("sockname")[1], proto
+    finally:
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        tr.close()
+
+
+CFG = VehicleConfig(connect_timeout_s=5.0, armable_timeout_s=2.0, rate_hz=50.0,
+                    stale_telemetry_s=0.3, stale_abort_s=0.5)
+
+
+def setpoints(script: Script) -> list[Any]:
+    return [x for x in script.received if x.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
+
+
+def mode_requests(script: Script, main: int) -> list[Any]:
+    return [x for x in script.received
+            if x.get_type() == "COMMAND_LONG" and x.command == 176 and x.param2 == main]
+
+
+async def test_arm_denied_raises_with_result(px4: tuple[Script, int, FakePx4]) -> None:
+    script, port, _ = px4
+    script.arm_result = 2
+    async with Vehicle.connect(f"udpout://127.0.0.1:{port}", config=CFG) as v:
+        with pytest.raises(CommandError) as info:
+            await v.arm()
+        assert info.value.result == 2 and "DENIED" in str(info.value)
+
+
+async def test_offboard_refused_after_double_ack(px4: tuple[Script, int, FakePx4]) -> None:
+    script, port, _ = px4
+    script.reject_offboard = True
+    async with Vehicle.connect(f"udpout://127.0.0.1:{port}", config=CFG) as v:
+        await v.arm()
+        with pytest.raises(OffboardError) as info:
+            await v.fly(setpoint_source=lambda t, tel: PositionSetpoint(pos_ned=(1.0, 2.0, -3.0)),
+                        duration_s=5.0)
+        assert info.value.result == 1
+        assert "currently not available" in str(info.value)
+        n = len(setpoints(script))
+        assert n >= 20  # it was primed before asking
+        await asyncio.sleep(0.2)
+        assert len(setpoints(script)) == n  # stream stopped
+        assert len([r for r in mode_requests(script, 6) if r.confirmation == 0]) == 1
+
+
+async def test_invalid_setpoint_never_sent_then_hold(px4: tuple[Script, int, FakePx4]) -> None:
+    script, port, _ = px4
+    t_bad = 0.3
+
+    def source(t: float, tel: TelemetrySnapshot) -> PositionSetpoint:
+        x = math.nan if t > t_bad else 1.0
+        return PositionSetpoint(pos_ned=(x, 2.0, -3.0), vel_ned=(0.0, 0.0, 0.0))
+
+    async with Vehicle.connect(f"udpout://127.0.0.1:{port}", config=CFG) as v:
+        await v.arm()
+        with pytest.raises(SetpointSourceError, match="not finite"):
+            await v.fly(setpoint_source=source, duration_s=5.0)
+        assert v.mode is FlightMode.HOLD
+    sps = setpoints(script)
+    assert sps and all(math.isfinite(s.x) for s in sps)
+    assert mode_requests(script, 4)  # Hold requested
+    # after the failure the stand-in got hold setpoints at the vehicle position, at rest
+    assert any(s.vx == 0.0 and s.x == 1.0 and s.type_mask & 8 == 0 for s in sps)
+
+
+async def test_stale_position_holds_then_reports(px4: tuple[Script, int, FakePx4]) -> None:
+    script, port, _ = px4
+    async with Vehicle.connect(f"udpout://127.0.0.1:{port}", config=CFG) as v:
+        await v.arm()
+
+        async def stop_position_later() -> None:
+            async for mode in v.flight_mode():
+                if mode is FlightMode.OFFBOARD:
+                    await asyncio.sleep(0.3)
+                    script.send_position = False
+                    return
+
+        task = asyncio.get_running_loop().create_task(stop_position_later())
+        try:
+            with pytest.raises(TelemetryStaleError):
+                await v.fly(setpoint_source=lambda t, tel: PositionSetpoint(
+                    pos_ned=(1.0 + t, 2.0, -3.0)), duration_s=10.0)
+        finally:
+            task.cancel()
+        assert v.mode is FlightMode.HOLD
+    sps = setpoints(script)
+    # the last setpoints are the hold setpoint: last known position, zero velocity
+    assert sps[-1].x == 1.0 and sps[-1].vx == 0.0

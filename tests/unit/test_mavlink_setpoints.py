@@ -1,0 +1,125 @@
+"""Setpoint builders: type_mask against PX4.md's observed masks, field round trip through a
+real MAVLink frame, and refusal of NaN/inf, unnormalised quaternions, thrust out of range."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from companion.mavlink import (
+    AttitudeSetpoint,
+    PositionSetpoint,
+    RatesSetpoint,
+    RoverVelocitySetpoint,
+    SetpointError,
+    build_setpoint,
+)
+
+from .mavlink_fakes import Px4Side
+
+P = (1.0, -2.0, -5.0)
+
+
+def wire(sp: Any) -> Any:
+    return Px4Side(1, 191).msg(build_setpoint(sp, 1, 1, 1234))
+
+
+@pytest.mark.parametrize(
+    ("sp", "mask"),
+    [
+        # PX4.md: MAVSDK position-only (with yaw) = 2552; accepted masks 2552, 3576, 2048.
+        (PositionSetpoint(pos_ned=P, yaw=0.3), 2552),
+        (PositionSetpoint(pos_ned=P), 3576),
+        (PositionSetpoint(pos_ned=P, vel_ned=P, acc_ned=P, yaw=0.3), 2048),
+        (PositionSetpoint(pos_ned=P, vel_ned=P, acc_ned=P, yaw=0.3, yaw_rate=0.1), 0),
+    ],
+)
+def test_position_masks_match_px4_observations(sp: PositionSetpoint, mask: int) -> None:
+    msg = wire(sp)
+    assert msg.type_mask == mask and msg.coordinate_frame == 1
+    assert (msg.target_system, msg.target_component) == (1, 1)
+    assert not msg.type_mask & 512  # never FORCE
+
+
+def test_position_fields_round_trip() -> None:
+    sp = PositionSetpoint(pos_ned=(1.5, -2.25, -5.0), vel_ned=(0.5, 0.25, -0.125),
+                          acc_ned=(0.0625, -1.0, 2.0), yaw=1.25, yaw_rate=-0.5)
+    msg = wire(sp)
+    got = (msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz, msg.afx, msg.afy, msg.afz,
+           msg.yaw, msg.yaw_rate)
+    assert got == (*sp.pos_ned, *sp.vel_ned, *sp.acc_ned, 1.25, -0.5)
+
+
+def test_attitude_and_rates_masks() -> None:
+    h = math.sqrt(0.5)
+    att = wire(AttitudeSetpoint(q_wxyz=(h, 0.0, 0.0, h), thrust_norm=0.55, yaw_rate=0.2))
+    assert att.type_mask == 3 and att.body_yaw_rate == pytest.approx(0.2)
+    assert list(att.q) == pytest.approx([h, 0, 0, h]) and att.thrust == pytest.approx(0.55)
+    att7 = wire(AttitudeSetpoint(q_wxyz=(1.0, 0.0, 0.0, 0.0), thrust_norm=0.5))
+    assert att7.type_mask == 7  # PX4.md: accepted SET_ATTITUDE_TARGET mask 7
+    rates = wire(RatesSetpoint(omega_frd=(0.1, -0.2, 0.3), thrust_norm=0.6))
+    assert rates.type_mask == 128
+    assert (rates.body_roll_rate, rates.body_pitch_rate, rates.body_yaw_rate) == pytest.approx(
+        (0.1, -0.2, 0.3))
+
+
+def test_rover_velocity() -> None:
+    msg = wire(RoverVelocitySetpoint(vel_ne=(1.0, 2.0), yaw_rate=0.25))
+    mask = msg.type_mask
+    # velocity and yaw rate used; position, acceleration and yaw ignored
+    assert mask & (8 | 16 | 32 | 2048) == 0 and mask & (1 | 2 | 4) == 7
+    assert mask & (64 | 128 | 256) == 448 and mask & 1024
+    assert (msg.vx, msg.vy, msg.vz, msg.yaw_rate) == (1.0, 2.0, 0.0, 0.25)
+
+
+BAD = st.sampled_from([math.nan, math.inf, -math.inf])
+FIN = st.floats(-100, 100)
+
+
+@given(bad=BAD, idx=st.integers(0, 10), vals=st.lists(FIN, min_size=11, max_size=11))
+@settings(max_examples=60, deadline=None)
+def test_position_refuses_non_finite(bad: float, idx: int, vals: list[float]) -> None:
+    v = list(vals)
+    v[idx] = bad
+    sp = PositionSetpoint(pos_ned=(v[0], v[1], v[2]), vel_ned=(v[3], v[4], v[5]),
+                          acc_ned=(v[6], v[7], v[8]), yaw=v[9], yaw_rate=v[10])
+    with pytest.raises(SetpointError):
+        build_setpoint(sp, 1, 1, 0)
+
+
+@given(bad=BAD, idx=st.integers(0, 5))
+@settings(max_examples=40, deadline=None)
+def test_attitude_and_rates_refuse_non_finite(bad: float, idx: int) -> None:
+    q = [1.0, 0.0, 0.0, 0.0]
+    if idx < 4:
+        q[idx] = bad
+        sp: Any = AttitudeSetpoint(q_wxyz=(q[0], q[1], q[2], q[3]), thrust_norm=0.5)
+    elif idx == 4:
+        sp = AttitudeSetpoint(q_wxyz=(1.0, 0.0, 0.0, 0.0), thrust_norm=bad)
+    else:
+        sp = RatesSetpoint(omega_frd=(0.0, bad, 0.0), thrust_norm=0.5)
+    with pytest.raises(SetpointError):
+        build_setpoint(sp, 1, 1, 0)
+
+
+@pytest.mark.parametrize("scale", [0.5, 0.99, 1.01, 2.0])
+def test_attitude_refuses_unnormalised_quaternion(scale: float) -> None:
+    with pytest.raises(SetpointError, match="normalised"):
+        build_setpoint(AttitudeSetpoint(q_wxyz=(scale, 0.0, 0.0, 0.0), thrust_norm=0.5), 1, 1, 0)
+
+
+@pytest.mark.parametrize("thrust", [-0.01, 1.01])
+def test_thrust_range(thrust: float) -> None:
+    with pytest.raises(SetpointError, match="thrust"):
+        build_setpoint(RatesSetpoint(omega_frd=(0.0, 0.0, 0.0), thrust_norm=thrust), 1, 1, 0)
+
+
+def test_position_needs_motion_and_rover_refuses_nan() -> None:
+    with pytest.raises(SetpointError):
+        build_setpoint(PositionSetpoint(yaw=0.0), 1, 1, 0)
+    with pytest.raises(SetpointError):
+        build_setpoint(RoverVelocitySetpoint(vel_ne=(math.nan, 0.0), yaw_rate=0.0), 1, 1, 0)

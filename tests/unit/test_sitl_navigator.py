@@ -1,0 +1,226 @@
+"""AUTO-mode navigator of the mock: takeoff, goto, loiter, land, RTL (flown on the quad model)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from sitl_mock.navigator import Navigator
+from sitl_mock.params import ParamStore
+from sitl_mock.quad import Quadrotor
+from sitl_mock.setpoints import PositionTarget
+from sitl_mock.vehicle import VehicleState, make_vehicle
+
+DT = 0.004
+
+
+class Flight:
+    """A quadrotor flown by the navigator; records states and targets."""
+
+    def __init__(self, params: ParamStore | None = None, z: float | None = None) -> None:
+        self.p = params or ParamStore()
+        self.v = Quadrotor(self.p, seed=0)
+        if z is not None:
+            self.v.set_state(pos_ned=(0.0, 0.0, z), motors=0.49)
+            self.v.mark_airborne(0.49)
+        self.nav = Navigator(self.p)
+        self.states: list[VehicleState] = []
+        self.targets: list[PositionTarget] = []
+
+    def run(self, seconds: float, until_reached: bool = True) -> float:
+        t = 0.0
+        for _ in range(round(seconds / DT)):
+            tgt = self.nav.update(DT, self.v.state)
+            self.v.step(DT, tgt, True)
+            t += DT
+            self.states.append(self.v.state)
+            self.targets.append(tgt)
+            if until_reached and self.nav.reached:
+                break
+        return t
+
+
+def test_takeoff_climbs_at_takeoff_speed_and_reaches_altitude() -> None:
+    f = Flight()
+    f.nav.takeoff(5.0, f.v.state)
+    assert f.nav.phase == "takeoff" and not f.nav.reached
+    t = f.run(20.0)
+    assert f.nav.reached
+    assert -f.v.state.pos_ned[2] == pytest.approx(5.0, abs=0.5)
+    assert t < 15.0
+    assert max(-s.vel_ned[2] for s in f.states) <= f.p["MPC_TKO_SPEED"] * 1.15
+    assert all(abs(s.pos_ned[0]) < 0.05 and abs(s.pos_ned[1]) < 0.05 for s in f.states)
+    for tg in f.targets:
+        assert tg.has_motion()
+
+
+def test_goto_smooth_and_within_limits() -> None:
+    f = Flight(z=-10.0)
+    f.nav.goto((30.0, -20.0, -15.0), math.nan, 2.0, f.v.state)
+    t = f.run(40.0)
+    assert f.nav.reached and f.nav.phase == "goto"
+    s = f.v.state
+    assert math.hypot(s.pos_ned[0] - 30.0, s.pos_ned[1] + 20.0) <= 2.0
+    cruise, acc = f.p["MPC_XY_CRUISE"], f.p["MPC_ACC_HOR"]
+    ref_speeds = [math.hypot(tg.vel_ned[0], tg.vel_ned[1]) for tg in f.targets]
+    assert max(ref_speeds) <= cruise + 1e-9
+    assert max(ref_speeds) > 0.9 * cruise  # the leg is long enough to reach cruise
+    ref_acc = [
+        math.hypot(b.vel_ned[0] - a.vel_ned[0], b.vel_ned[1] - a.vel_ned[1]) / DT
+        for a, b in zip(f.targets, f.targets[1:], strict=False)
+    ]
+    assert max(ref_acc) <= acc + 1e-6
+    assert max(math.hypot(s.vel_ned[0], s.vel_ned[1]) for s in f.states) <= cruise * 1.15
+    # ~36 m at 5 m/s plus acceleration/braking: finishes in a plausible time
+    assert 7.0 < t < 14.0
+    # faces the waypoint while flying (MPC_YAW_MODE 0)
+    bearing = math.atan2(-20.0, 30.0)
+    mid = f.states[len(f.states) // 2]
+    assert abs(math.remainder(mid.yaw - bearing, 2 * math.pi)) < math.radians(10.0)
+
+
+def test_goto_continue_to_hold_position() -> None:
+    f = Flight(z=-10.0)
+    f.nav.goto((10.0, 0.0, -10.0), 0.5, 1.0, f.v.state)
+    f.run(20.0)
+    f.run(10.0, until_reached=False)
+    s = f.v.state
+    # the velocity integral that carried the drag makes it overshoot, then bleed back (PX4+SIH)
+    assert max(st.pos_ned[0] for st in f.states) < 11.0
+    assert math.dist(s.pos_ned, (10.0, 0.0, -10.0)) < 0.4
+    assert s.yaw == pytest.approx(0.5, abs=0.02)
+
+
+def test_loiter_brakes_and_holds() -> None:
+    f = Flight(z=-10.0)
+    f.nav.goto((100.0, 0.0, -10.0), math.nan, 2.0, f.v.state)
+    f.run(6.0, until_reached=False)
+    v0 = f.v.state.vel_ned[0]
+    assert v0 > 3.0
+    f.nav.loiter(f.v.state)
+    assert f.nav.reached and f.nav.phase == "loiter"
+    x_start = f.v.state.pos_ned[0]
+    f.run(8.0, until_reached=False)
+    s = f.v.state
+    assert math.hypot(*s.vel_ned) < 0.2
+    # stopped within a plausible braking distance (v^2 / 2a plus controller lag)
+    assert 0.0 < s.pos_ned[0] - x_start < v0 * v0 / (2 * f.p["MPC_ACC_HOR"]) + v0 * 1.5
+
+
+def test_land_descends_slowly_near_ground_and_detects_landing() -> None:
+    f = Flight(z=-15.0)
+    f.nav.land(f.v.state)
+    assert f.nav.phase == "land"
+    f.run(60.0)
+    assert f.nav.reached and f.nav.phase == "landed"
+    s = f.v.state
+    assert s.landed and s.on_ground
+    assert math.hypot(s.pos_ned[0], s.pos_ned[1]) < 0.3
+    # descent speed: fast high up, MPC_LAND_SPEED below MPC_LAND_ALT2
+    high = [st.vel_ned[2] for st in f.states if -st.pos_ned[2] > 12.0]
+    low = [st.vel_ned[2] for st in f.states if 0.5 < -st.pos_ned[2] < 4.0]
+    assert max(high) > f.p["MPC_LAND_SPEED"] * 1.5
+    assert max(low) == pytest.approx(f.p["MPC_LAND_SPEED"], abs=0.1)
+    assert max(st.vel_ned[2] for st in f.states) <= f.p["MPC_Z_VEL_MAX_DN"] + 0.15
+
+
+def test_rtl_climbs_returns_and_lands_at_home() -> None:
+    p = ParamStore({"RTL_RETURN_ALT": 8.0})
+    f = Flight(p, z=-4.0)
+    f.v.set_state(pos_ned=(25.0, 10.0, -4.0), motors=0.49)
+    f.nav.rtl(f.v.state)
+    assert f.nav.phase == "rtl_climb"
+    phases = []
+    for _ in range(40):
+        f.run(2.0)
+        phases.append(f.nav.phase)
+        if f.nav.reached:
+            break
+    assert f.nav.reached and f.nav.phase == "landed"
+    assert "rtl_return" in phases
+    s = f.v.state
+    assert math.hypot(s.pos_ned[0], s.pos_ned[1]) < 1.0 and s.landed
+    # it climbed to the return altitude before flying home
+    far = [st for st in f.states if math.hypot(st.pos_ned[0], st.pos_ned[1]) > 20.0]
+    assert min(st.pos_ned[2] for st in f.states) == pytest.approx(-8.0, abs=0.5)
+    assert all(-st.pos_ned[2] >= 3.5 for st in far)
+
+
+def test_rtl_keeps_a_higher_current_altitude() -> None:
+    p = ParamStore({"RTL_RETURN_ALT": 5.0})
+    f = Flight(p, z=-12.0)
+    f.v.set_state(pos_ned=(15.0, 0.0, -12.0), motors=0.49)
+    f.nav.rtl(f.v.state)
+    f.run(4.0, until_reached=False)
+    assert f.nav.phase == "rtl_return"
+    assert f.v.state.pos_ned[2] == pytest.approx(-12.0, abs=0.5)
+
+
+def test_navigator_is_pure_and_deterministic() -> None:
+    def trace() -> list[PositionTarget]:
+        p = ParamStore()
+        v = make_vehicle("quad", p, seed=0)
+        nav = Navigator(p)
+        nav.takeoff(3.0, v.state)
+        out = []
+        for _ in range(2000):
+            tgt = nav.update(DT, v.state)
+            v.step(DT, tgt, True)
+            out.append(tgt)
+        return out
+
+    a, b = trace(), trace()
+    assert repr(a) == repr(b)
+
+
+def test_navigator_rejects_bad_input() -> None:
+    f = Flight(z=-5.0)
+    with pytest.raises(ValueError):
+        f.nav.goto((math.nan, 0.0, -5.0), 0.0, 2.0, f.v.state)
+    with pytest.raises(ValueError):
+        f.nav.takeoff(math.inf, f.v.state)
+    with pytest.raises(ValueError):
+        f.nav.update(0.0, f.v.state)
+
+
+def test_set_cruise_speed_changes_and_restores_speed() -> None:
+    f = Flight(z=-10.0)
+    f.nav.set_cruise_speed(2.0)
+    assert f.nav.cruise_speed == 2.0
+    f.nav.goto((40.0, 0.0, -10.0), 0.0, 2.0, f.v.state)
+    f.run(10.0, until_reached=False)
+    assert max(tg.vel_ned[0] for tg in f.targets) == pytest.approx(2.0, abs=1e-9)
+    f.nav.set_cruise_speed(math.nan)
+    assert f.nav.cruise_speed == f.p["MPC_XY_CRUISE"]
+    f.nav.set_cruise_speed(100.0)
+    assert f.nav.cruise_speed == f.p["MPC_XY_VEL_MAX"]
+
+
+def test_ground_vehicle_navigation_with_the_rover() -> None:
+    p = ParamStore()
+    rv = make_vehicle("rover", p, seed=0)
+    nav = Navigator(p, ground_vehicle=True)
+    nav.takeoff(10.0, rv.state)
+    assert nav.reached
+    nav.goto((20.0, -15.0, -30.0), math.nan, 1.0, rv.state)  # mission altitude is ignored
+    speeds = []
+    for _ in range(round(40.0 / 0.01)):
+        tgt = nav.update(0.01, rv.state)
+        assert tgt.pos_ned[2] == 0.0
+        rv.step(0.01, tgt, True)
+        speeds.append(math.hypot(*rv.state.vel_ned[:2]))
+        if nav.reached:
+            break
+    assert nav.reached and math.dist(rv.state.pos_ned[:2], (20.0, -15.0)) <= 1.0
+    assert max(speeds) <= p["RO_MAX_SPEED"] + 1e-9
+    assert nav.cruise_speed == p["RO_MAX_SPEED"]
+    nav.rtl(rv.state)
+    for _ in range(round(40.0 / 0.01)):
+        rv.step(0.01, nav.update(0.01, rv.state), True)
+        if nav.reached:
+            break
+    assert nav.phase == "landed" and nav.reached
+    assert math.hypot(*rv.state.pos_ned[:2]) < 1.0
+    nav.land(rv.state)
+    assert nav.reached and nav.phase == "landed"
