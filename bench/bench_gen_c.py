@@ -98,7 +98,7 @@ def run_python(m: int) -> dict[str, float]:
 
     def ct_flat() -> None:
         for s in states:
-            lib.multirotor(s[1], s[2], s[3], s[4], s[5], s[6], s[7], PARAMS)
+            lib.multirotor(s[1], s[2], s[3], s[4], float(s[5]), float(s[6]), float(s[7]), PARAMS)
 
     def ct_full() -> None:
         for t in ts:

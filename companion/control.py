@@ -185,7 +185,15 @@ class StateEstimate:
         )
         if self.acc_ned is not None:
             ok = ok and _finite(self.acc_ned)
-        return ok and float(np.linalg.norm(self.q_wxyz)) > 0.5
+        return ok and self.quat_ok()
+
+    def quat_ok(self) -> bool:
+        """Quaternion finite with norm in (0.5, 2) (telemetry sends unit quaternions)."""
+        q = self.q_wxyz
+        if not bool(np.isfinite(q).all()):
+            return False
+        n = math.hypot(float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+        return 0.5 < n < 2.0
 
 
 Telemetry = StateEstimate
@@ -687,7 +695,11 @@ class TrackingController:
         snap = np.zeros(3) if sat else ref.snap_ned
         yaw_rate = ref.yaw_rate
         yaw_acc = 0.0 if sat else ref.yaw_acc
-        sp = multirotor_setpoint(v_drag, a_sat, jerk, snap, ref.yaw, yaw_rate, yaw_acc, params)
+        try:
+            sp = multirotor_setpoint(v_drag, a_sat, jerk, snap, ref.yaw, yaw_rate, yaw_acc, params)
+        except ValueError as exc:  # e.g. absurd magnitudes the flatness map refuses
+            self._fallback_reason = f"flatness map refused the input: {exc}"
+            return None
         q_des = np.asarray(sp.q_wxyz, dtype=np.float64).reshape(4)
         # normalised thrust with the hover thrust in use (MATH.md "MAVLink thrust")
         thrust = h * float(np.asarray(sp.thrust).reshape(-1)[0]) / (m * p.g)
@@ -760,7 +772,7 @@ class TrackingController:
 
     def _fallback_q(self, est: StateEstimate) -> FloatArray:
         yaw = self._last_yaw
-        if _finite(est.q_wxyz) and float(np.linalg.norm(est.q_wxyz)) > 0.5:
+        if est.quat_ok():
             yaw = yaw_of_dcm(quat_to_dcm(est.q_wxyz))
         return yaw_quat(yaw if math.isfinite(yaw) else 0.0)
 
@@ -777,7 +789,7 @@ class TrackingController:
         reason = reason or self._fallback_reason or "fallback"
         h = self.hover_thrust
         omega = np.zeros(3)
-        if _finite(est.q_wxyz) and float(np.linalg.norm(est.q_wxyz)) > 0.5:
+        if est.quat_ok():
             omega, _ = so3_rate_command(
                 quat_normalize(est.q_wxyz), self._fallback_q(est), np.zeros(3),
                 self.config.attitude_gains,
@@ -853,7 +865,13 @@ class RoverController:
                 vel_ned=np.array([0.0, 0.0, math.nan]), yaw_rate=0.0,
                 fallback=True, reason="input not finite",
             )
-        rs = rover_setpoint(ref.vel_ned[:2], ref.acc_ned[:2], ref.jerk_ned[:2])
+        try:
+            rs = rover_setpoint(ref.vel_ned[:2], ref.acc_ned[:2], ref.jerk_ned[:2])
+        except ValueError as exc:
+            return PositionCommand(
+                vel_ned=np.array([0.0, 0.0, math.nan]), yaw_rate=0.0,
+                fallback=True, reason=f"rover flatness refused the input: {exc}",
+            )
         speed = float(np.asarray(rs.speed).reshape(-1)[0])
         psi_ref = float(np.asarray(rs.yaw).reshape(-1)[0])
         r_ref = float(np.asarray(rs.yaw_rate).reshape(-1)[0])

@@ -50,6 +50,7 @@ from companion.mavlink.setpoints import (
     SetpointCommand,
 )
 from companion.mission import Mission, MissionError, load_mission, mission_to_flight_plan
+from companion.mission.upload import mission_upload_items
 from companion.schedule import Schedule, VehicleLimits, build_schedule
 
 FloatArray = NDArray[np.float64]
@@ -130,9 +131,8 @@ class FlightLog:
     t: list[float] = field(default_factory=list)
     pos: list[tuple[float, float, float]] = field(default_factory=list)
     vel: list[tuple[float, float, float]] = field(default_factory=list)
-    ref_t: list[float] = field(default_factory=list)
-    ref_pos: list[FloatArray] = field(default_factory=list)
-    flown_at_ref: list[tuple[float, float, float]] = field(default_factory=list)
+    fly_t0: float | None = None
+    fly_t1: float | None = None
     att_t: list[float] = field(default_factory=list)
     tilt: list[float] = field(default_factory=list)
     rate_norm: list[float] = field(default_factory=list)
@@ -146,10 +146,45 @@ class FlightLog:
 # ----------------------------------------------------------------------------- the engine
 
 
-class LockstepLink:
-    """In-memory link between a `VehicleLink` and a `sitl_mock` autopilot, with a tlog tap."""
+#: Messages the companion acts on during a replay; others (ATTITUDE at 100 Hz, ODOMETRY,
+#: GLOBAL_POSITION_INT, targets, battery...) go to the tlog undecoded to save CPU.
+COMPANION_MSG_IDS = frozenset(
+    {
+        0,  # HEARTBEAT
+        1,  # SYS_STATUS
+        31,  # ATTITUDE_QUATERNION
+        32,  # LOCAL_POSITION_NED
+        39, 40, 42, 44, 45, 46, 47, 51, 73, 77,  # MISSION_* and COMMAND_ACK
+        111,  # TIMESYNC
+        242,  # HOME_POSITION
+        245,  # EXTENDED_SYS_STATE
+        253,  # STATUSTEXT
+    }
+)
 
-    def __init__(self, autopilot: Any, link: VehicleLink, tlog: TlogWriter | None) -> None:
+
+def _msgid(frame: bytes) -> int | None:
+    """Message id of a single MAVLink 2 frame, or None if it is not one."""
+    if len(frame) < 12 or frame[0] != 0xFD:
+        return None
+    return frame[7] | (frame[8] << 8) | (frame[9] << 16)
+
+
+class LockstepLink:
+    """In-memory link between a `VehicleLink` and a `sitl_mock` autopilot, with a tlog tap.
+
+    Each datagram of the mock is one frame; frames whose id is not in `wanted` are logged but
+    not decoded (None decodes everything).
+    """
+
+    def __init__(
+        self,
+        autopilot: Any,
+        link: VehicleLink,
+        tlog: TlogWriter | None,
+        wanted: frozenset[int] | None = COMPANION_MSG_IDS,
+    ) -> None:
+        self.wanted = wanted
         self.ap = autopilot
         self.link = link
         self.tlog = tlog
@@ -170,6 +205,8 @@ class LockstepLink:
         for data, _addr in self.ap.datagrams_to_send(t):
             if self.tlog is not None:
                 self.tlog.write(t, data)
+            if self.wanted is not None and _msgid(data) not in self.wanted:
+                continue
             for msg in self.link.codec.decode(data):
                 if self.on_message is not None:
                     self.on_message(msg, t)
@@ -312,10 +349,6 @@ class Flight:
         self.setpoints_sent += 1
         if isinstance(sp, (AttitudeSetpoint, RatesSetpoint)):
             self.log.thrust_norm.append(sp.thrust_norm)
-        if self.phase == Phase.FLY:
-            self.log.ref_t.append(now - self.t_fly0)
-            self.log.ref_pos.append(self._reference(now).pos_ned)
-            self.log.flown_at_ref.append(tuple(float(v) for v in est.pos_ned))  # type: ignore[arg-type]
 
     def on_events(self, events: list[Any], now: float) -> None:
         for ev in events:
@@ -330,6 +363,7 @@ class Flight:
                     if ev.ok:
                         self._go(Phase.FLY, now)
                         self.t_fly0 = now
+                        self.log.fly_t0 = now
                         self.tracker.reset()
                     else:
                         self._go(Phase.ABORTED, now, f"arming refused: {ev.reason}")
@@ -359,6 +393,7 @@ class Flight:
                 return
             if ph == Phase.FLY and self.offboard_seen and mode != FlightMode.OFFBOARD:
                 # pilot takeover or failsafe: stop streaming, never fight back
+                self.log.fly_t1 = now
                 name = mode.name if mode is not None else "unknown"
                 self._go(Phase.ABORTED, now, f"vehicle left OFFBOARD (now {name})")
                 return
@@ -387,6 +422,7 @@ class Flight:
 
     def _handover(self, now: float) -> None:
         self._go(Phase.HANDOVER, now)
+        self.log.fly_t1 = now
         if self.config.vehicle == "quad" and self.schedule.final_action in ("land", "rtl"):
             self.link.land(now)
         else:
@@ -409,7 +445,7 @@ class ReplayResult:
 def _record_message(log: FlightLog, msg: Any, t: float) -> None:
     kind = msg.get_type()
     if kind == "LOCAL_POSITION_NED":
-        log.t.append(t)
+        log.t.append(msg.time_boot_ms * 1e-3)  # sample time (the mock boots at t = 0)
         log.pos.append((msg.x, msg.y, msg.z))
         log.vel.append((msg.vx, msg.vy, msg.vz))
     elif kind == "ATTITUDE_QUATERNION":
@@ -459,19 +495,15 @@ def fly_schedule(
 
 
 def _wire_items(mission: Mission) -> list[WireItem]:
-    items = []
-    for seq, it in enumerate(mission.items):
-        p = [float(v) for v in it.params]
-        lat, lon, alt = (v if math.isfinite(v) else 0.0 for v in p[4:7])
-        items.append(
-            WireItem(
-                seq=seq, frame=it.frame, command=it.command, current=1 if seq == 0 else 0,
-                autocontinue=1 if it.autocontinue else 0,
-                param1=p[0], param2=p[1], param3=p[2], param4=p[3],
-                x=int(round(lat * 1e7)), y=int(round(lon * 1e7)), z=float(alt),
-            )
+    """The mission as MISSION_ITEM_INT fields for the mock's AUTO.MISSION."""
+    return [
+        WireItem(
+            seq=u.seq, frame=u.frame, command=u.command, current=u.current,
+            autocontinue=u.autocontinue, param1=u.param1, param2=u.param2, param3=u.param3,
+            param4=u.param4, x=u.x, y=u.y, z=u.z,
         )
-    return items
+        for u in mission_upload_items(mission)
+    ]
 
 
 def fly_px4_mission(
@@ -532,6 +564,23 @@ def fly_px4_mission(
     return result, log
 
 
+def tracking_error(
+    log: FlightLog, schedule: Schedule, origin: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """(t [s], |flown - planned| [m]) at every position sample taken while flying the plan,
+    the plan evaluated at the sample's own time."""
+    if log.fly_t0 is None:
+        return np.zeros(0), np.zeros(0)
+    t = np.asarray(log.t)
+    t1 = log.fly_t1 if log.fly_t1 is not None else (t[-1] if len(t) else log.fly_t0)
+    sel = (t >= log.fly_t0) & (t <= t1)
+    if not sel.any():
+        return np.zeros(0), np.zeros(0)
+    pos = np.asarray(log.pos, dtype=np.float64)[sel]
+    planned = schedule.sample(t[sel] - log.fly_t0) + origin
+    return t[sel], np.linalg.norm(pos - planned, axis=1)
+
+
 def _closest(points: FloatArray, wps: FloatArray) -> FloatArray:
     if len(points) == 0 or len(wps) == 0:
         return np.full(len(wps), math.inf)
@@ -572,11 +621,7 @@ def summarize(
         }
         for i in range(len(wps))
     ]
-    err = np.zeros(0)
-    if log.ref_pos:
-        err = np.linalg.norm(
-            np.asarray(log.flown_at_ref) - np.asarray(log.ref_pos), axis=1
-        )
+    _, err = tracking_error(log, schedule, origin)
     fence = mission.geofence
     violations = fence.violations(pos_f - origin) if len(pos_f) else []
     failsafes = [
@@ -640,14 +685,14 @@ def plot_flight(
     ax[0].plot(wps[:, 1], wps[:, 0], "x", color="C3", label="waypoints")
     ax[0].set(xlabel="East [m]", ylabel="North [m]", title="Top view", aspect="equal")
     ax[0].legend(fontsize=8)
-    t_fly0 = log.armed_t or 0.0
+    t_fly0 = log.fly_t0 or 0.0
     ax[1].plot(ts + t_fly0, -plan_xyz[:, 2], "--", label="planned")
     ax[1].plot(t, -pos[:, 2], label="flown")
     ax[1].set(xlabel="t [s]", ylabel="altitude above start [m]", title="Altitude")
     ax[1].legend(fontsize=8)
-    if log.ref_pos:
-        err = np.linalg.norm(np.asarray(log.flown_at_ref) - np.asarray(log.ref_pos), axis=1)
-        ax[2].plot(np.asarray(log.ref_t) + t_fly0, err)
+    te, err = tracking_error(log, schedule, origin)
+    if len(te):
+        ax[2].plot(te, err)
     ax[2].set(xlabel="t [s]", ylabel="|flown - planned| [m]", title="Tracking error")
     fig.suptitle(title)
     fig.tight_layout()

@@ -29,7 +29,7 @@ import json
 import re
 import shutil
 import tempfile
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from math import comb
 from pathlib import Path
@@ -62,10 +62,11 @@ class GeneratorError(RuntimeError):
 
 def check_casadi_version() -> None:
     """Refuse to generate with any CasADi other than the pinned one (the C embeds its version)."""
-    if ca.__version__ != CASADI_VERSION:
+    version = getattr(ca, "__version__", "unknown")
+    if version != CASADI_VERSION:
         raise GeneratorError(
             f"gen_c must be generated with CasADi {CASADI_VERSION} (pinned in pyproject.toml); "
-            f"this environment has CasADi {ca.__version__}"
+            f"this environment has CasADi {version}"
         )
 
 

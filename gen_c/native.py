@@ -243,6 +243,12 @@ def _quat_to_dcm(q: FloatArray) -> FloatArray:
     ])
 
 
+def _view(struct: Any, prec: str) -> npt.NDArray[Any]:
+    """The reals of a ctypes struct as a writable numpy view (float64 or float32)."""
+    dt = np.float64 if prec == "double" else np.float32
+    return np.frombuffer(struct, dtype=dt)
+
+
 def _vec(x: npt.ArrayLike, n: int, name: str) -> FloatArray:
     a = np.asarray(x, dtype=np.float64)
     if a.shape != (n,):
@@ -332,7 +338,7 @@ class NativeSetpoint:
                else np.asarray(yaw_ctrl_pts, dtype=np.float64).reshape(-1))
         if ycp.shape != (NUM_CTRL_PTS,):
             raise ValueError(f"yaw_ctrl_pts must have {NUM_CTRL_PTS} values, got {ycp.shape}")
-        x = np.frombuffer(seg, dtype=np.float64 if prec == "double" else np.float32)
+        x = _view(seg, prec)
         x[: 3 * NUM_CTRL_PTS] = cp.ravel()  # layout: ctrl_pts[8][3], yaw_ctrl_pts[8], duration
         x[3 * NUM_CTRL_PTS : 4 * NUM_CTRL_PTS] = ycp
         x[4 * NUM_CTRL_PTS] = duration
@@ -340,16 +346,14 @@ class NativeSetpoint:
 
     @staticmethod
     def _flat(st: Any, prec: str) -> NativeFlatState:
-        dt = np.float64 if prec == "double" else np.float32
-        y = np.frombuffer(st, dtype=dt, count=18).astype(np.float64)
+        y = _view(st, prec)[:18].astype(np.float64)
         return NativeFlatState(pos=y[0:3], vel=y[3:6], acc=y[6:9], jerk=y[9:12], snap=y[12:15],
                                yaw=float(y[15]), yaw_rate=float(y[16]), yaw_acc=float(y[17]))
 
     @staticmethod
     def _attitude(a: Any, prec: str) -> NativeMultirotorSetpoint:
         # The struct starts with 17 reals: thrust x4, q_wxyz[4], omega[3], omega_dot[3], moment[3]
-        dt = np.float64 if prec == "double" else np.float32
-        y = np.frombuffer(a, dtype=dt, count=17).astype(np.float64)
+        y = _view(a, prec)[:17].astype(np.float64)
         return NativeMultirotorSetpoint(
             thrust=float(y[0]), thrust_dot=float(y[1]), thrust_ddot=float(y[2]),
             thrust_norm=float(y[3]), q_wxyz=y[4:8], omega_frd=y[8:11], omega_dot_frd=y[11:14],
@@ -371,7 +375,7 @@ class NativeSetpoint:
                    precision: Precision = "double") -> NativeMultirotorSetpoint:
         """Same arguments as ``companion.flatness.multirotor_setpoint`` (one sample)."""
         st = self._s[precision]["state"]()
-        x = np.frombuffer(st, dtype=np.float64 if precision == "double" else np.float32)
+        x = _view(st, precision)
         x[3:6] = _vec(vel, 3, "vel")  # layout: pos, vel, acc, jerk, snap, yaw, yaw_rate, yaw_acc
         x[6:9] = _vec(acc, 3, "acc")
         x[9:12] = _vec(jerk, 3, "jerk")
@@ -387,7 +391,7 @@ class NativeSetpoint:
               precision: Precision = "double") -> NativeRoverSetpoint:
         """Same arguments as ``companion.flatness.rover_setpoint`` (one sample)."""
         st = self._s[precision]["state"]()
-        x = np.frombuffer(st, dtype=np.float64 if precision == "double" else np.float32)
+        x = _view(st, precision)
         x[3:5] = _vec(vel_xy, 2, "vel_xy")
         x[6:8] = _vec(acc_xy, 2, "acc_xy")
         x[9:11] = 0.0 if jerk_xy is None else _vec(jerk_xy, 2, "jerk_xy")

@@ -47,6 +47,8 @@ COMPID = 1
 FORCE_MAGIC = 21196
 MODE_ACK_DELAY_S = 0.010  # the commander's verdict follows the receiver's ACCEPTED by ~10 ms
 FAILSAFE_ACTION_DELAY_S = 0.5  # loss detected at COM_OF_LOSS_T, mode switch 0.5 s later
+COMMANDER_PERIOD_S = 0.004
+NAVIGATOR_PERIOD_S = 0.01
 DESCEND_SPEED_NO_RC = 0.6  # [m/s] observed sink rate in POSCTL without RC (PX4.md)
 AUTOPILOT_CAPABILITIES = (
     mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
@@ -240,6 +242,11 @@ class Autopilot:
         # battery
         self._bat_warned = 0  # 0 none, 1 low, 2 critical, 3 emergency
         self._slow_next_t = 0.0
+        self._cmd_next_t = 0.0
+        self._nav_target: PositionTarget | None = None
+        self._nav_last_t = 0.0
+        self._nav_next_t = 0.0
+        self._battery_cap = 1.0  # low-battery fault: the level never rises above this again
         # scenario faults bookkeeping
         self._scn_takeover_done = False
         self._scn_pos_state = 0  # 0 before, 1 lost, 2 restored
@@ -365,7 +372,7 @@ class Autopilot:
 
     @property
     def battery_remaining(self) -> float:
-        return max(0.0, min(1.0, float(self._state.battery_remaining)))
+        return max(0.0, min(1.0, self._battery_cap, float(self._state.battery_remaining)))
 
     @property
     def battery_voltage_mv(self) -> int:
@@ -673,6 +680,7 @@ class Autopilot:
         self._broadcast(mavlink.MAVLink_mission_item_reached_message(seq))
 
     def _on_item_current(self, seq: int) -> None:
+        self._nav_target = None  # the executor gave the navigator a new goal
         self._broadcast(self.mission_current_message())
 
     def _on_mission_finished(self, landed: bool) -> None:
@@ -686,6 +694,7 @@ class Autopilot:
         goal = self.mission.last_goal_ned
         if goal is not None:  # hold at the last waypoint, not where it was reported reached
             self.nav.goto(goal, self._state.yaw, float(self.params["NAV_ACC_RAD"]), self._state)
+            self._nav_target = None
 
     # ---------------------------------------------------------------- setpoints
     def _on_set_position_target_local_ned(self, link: Link, msg: Msg) -> None:
@@ -996,6 +1005,7 @@ class Autopilot:
         yaw = math.radians(p[3]) if math.isfinite(p[3]) else math.nan
         self._set_mode(Mode.AUTO_LOITER, user=True)
         self.nav.goto((n, e, d), yaw, float(self.params["NAV_ACC_RAD"]), self._state)
+        self._nav_target = None
         return RESULT_ACCEPTED
 
     def _cmd_set_home(self, link: Link, msg: Msg, p: tuple[float, ...], frame: int) -> int:
@@ -1054,6 +1064,7 @@ class Autopilot:
         s = self._state
         self._descend = False
         self._nav_active = False
+        self._nav_target = None
         self.vehicle.reset_integrators()
         if not self.armed:
             return
@@ -1087,7 +1098,9 @@ class Autopilot:
         target = self._target()
         self.vehicle.step(self.dt, target, self.armed)
         self._state = self.vehicle.state
-        self._commander(t_phys)
+        if t_phys >= self._cmd_next_t - 1e-9:  # commander at <= 250 Hz
+            self._cmd_next_t = t_phys + COMMANDER_PERIOD_S
+            self._commander(t_phys)
         if self._events and self._events[0][0] <= t_phys:
             self._run_events()
         for lk in self.links.values():
@@ -1112,7 +1125,14 @@ class Autopilot:
                 (hold[0], hold[1], math.nan), (math.nan, math.nan, DESCEND_SPEED_NO_RC)
             )
         if self._nav_active:
-            return self.nav.update(self.dt, s)
+            # navigator at <= 100 Hz like PX4's position control loop; target held in between
+            t = self._t
+            if self._nav_target is None or t >= self._nav_next_t - 1e-9:
+                dt_nav = t - self._nav_last_t if self._nav_target is not None else self.dt
+                self._nav_target = self.nav.update(max(dt_nav, self.dt), s)
+                self._nav_last_t = t
+                self._nav_next_t = t + NAVIGATOR_PERIOD_S
+            return self._nav_target
         return _IDLE
 
     def _commander(self, t: float) -> None:
@@ -1248,6 +1268,7 @@ class Autopilot:
         if sc.low_battery_s is not None and not self._scn_battery_done and t >= sc.low_battery_s:
             self._scn_battery_done = True
             self.vehicle.set_battery_remaining(sc.low_battery_remaining)
+            self._battery_cap = sc.low_battery_remaining
             self._state = self.vehicle.state
 
     # ================================================================== convenience

@@ -45,6 +45,7 @@ _TAKEOFF_STATE_NAMES = ("disarmed", "spoolup", "ready_for_takeoff", "rampup", "f
 
 POS_LOOP_PERIOD_S = 0.01
 PARAM_REFRESH_S = 0.1
+MAX_STEP_S = 1.0 / 250.0  # longer steps are split (integration always at >= 250 Hz)
 ATT_LOOP_PERIOD_S = 0.004
 LAND_DETECT_TIME_S = 0.5
 
@@ -294,9 +295,20 @@ class Quadrotor:
         self._bat_min = min(max(p["SIM_BAT_MIN_PCT"] / 100.0, 0.0), 1.0)
 
     def step(self, dt: float, target: Target, armed: bool) -> None:
-        """Run the controller for `target` and integrate the physics by `dt` [s]."""
+        """Run the controller for `target` and integrate the physics by `dt` [s].
+
+        Steps longer than 1/250 s are split into equal sub-steps of at most 1/250 s.
+        """
         if not (dt > 0.0 and dt < 1.0):
             raise ValueError(f"physics step must be in (0, 1) s, got {dt!r}")
+        if dt > MAX_STEP_S + 1e-12:
+            n = math.ceil(dt / MAX_STEP_S - 1e-9)
+            for _ in range(n):
+                self._step(dt / n, target, armed)
+        else:
+            self._step(dt, target, armed)
+
+    def _step(self, dt: float, target: Target, armed: bool) -> None:
         self._t += dt
         self._state_cache = None
         self._param_acc += dt

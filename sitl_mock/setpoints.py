@@ -15,10 +15,6 @@ Quat = tuple[float, float, float, float]
 NAN3: Vec3 = (math.nan, math.nan, math.nan)
 
 
-def _all_finite(v: Vec3) -> bool:
-    return all(math.isfinite(c) for c in v)
-
-
 def _any_finite(v: Vec3) -> bool:
     return any(math.isfinite(c) for c in v)
 

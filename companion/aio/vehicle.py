@@ -90,7 +90,7 @@ class VehicleConfig:
     """Façade behaviour (seconds, metres, Hz)."""
 
     rate_hz: float = 100.0
-    realtime_priority: int | None = None  # SCHED_FIFO priority of the sender thread (Linux)
+    realtime_priority: int | None = 10  # SCHED_FIFO for the sender thread (Linux; None: off)
     prime_s: float = 0.5
     prime_timeout_s: float = 3.0
     stale_telemetry_s: float = 0.5

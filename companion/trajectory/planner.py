@@ -10,11 +10,16 @@ over the free joint derivatives is one symmetric positive definite banded solve 
 exact to round-off. At free joints the optimum is additionally continuous in derivatives
 ``s .. 2s - 2`` (the minimum-snap optimality conditions), exactly as MINCO's.
 
-Time allocation (``durations=None``): trapezoidal speed profile per segment as the initial
-guess; refinement of ``sum h + rho J(h)`` with the analytic gradient
-``dJ/dh_k = x_k^T (dQ_k/dh_k) x_k`` (envelope theorem at the optimum) by L-BFGS-B; then a
-per-segment saturation / feasibility pass that scales each segment's duration to the limit
-it is closest to and finally stretches time wherever a limit is still exceeded.
+Time allocation (``durations=None``). Each waypoint leg is split into ``ALLOCATION_PIECES``
+segments whose extra joints lie on the straight leg. (1) Initial guess: a trapezoidal speed
+profile along the polyline (rest at the ends, a corner speed at each waypoint from its turn
+angle, forward-backward acceleration passes). (2) Refinement: L-BFGS-B over log-durations of
+``sum h + rho J(h) + w P(h)``, P a smooth sampled penalty of the limit violations (speed,
+acceleration, jerk, tilt, thrust), with the analytic gradient: ``dJ/dh_k = x_k^T (dQ_k/dh_k)
+x_k`` (envelope theorem at the optimum) and dP/dh through one adjoint solve of the same banded
+system. (3) Saturation: the smallest uniform time scaling that satisfies every limit
+(bisection; a uniform scaling keeps the path). (4) Feasibility pass: stretch the segments where
+a limit is still exceeded (by re-solved dense sampling), until every limit holds.
 """
 
 from __future__ import annotations
@@ -53,7 +58,7 @@ ALLOCATION_PIECES = 3
 #: Time-allocation objective sum(h) + rho J + w P: rho relative to the initial guess, w.
 REFINE_RHO = 0.01
 REFINE_PENALTY_WEIGHT = 1e4
-REFINE_MAXITER = 35
+REFINE_MAXITER = 60
 #: yaw="velocity": heading rates are matched at joints faster than this fraction of the top speed.
 VELOCITY_YAW_MIN_FRACTION = 0.3
 #: Duration of the hover trajectory returned for a single waypoint (s), unless given.
@@ -248,10 +253,41 @@ def _check_waypoints(waypoints: ArrayLike) -> FloatArray:
 
 
 # =========================================================================== time allocation
-def _trapezoid_durations(lengths: FloatArray, vmax: float, amax: float) -> FloatArray:
-    """Rest-to-rest time (s) of a trapezoidal (or triangular) speed profile per segment."""
-    full = lengths >= vmax * vmax / amax
-    return np.where(full, lengths / vmax + vmax / amax, 2.0 * np.sqrt(lengths / amax))
+def _polyline_profile_durations(
+    joints: FloatArray, is_waypoint: NDArray[np.bool_], vmax: float, amax: float
+) -> FloatArray:
+    """Initial durations (s) from a trapezoidal speed profile along the polyline: rest at both
+    ends, a corner speed ``vmax cos^2(turn / 2)`` at each waypoint, at most ``vmax`` on the legs
+    and acceleration ``amax / 2`` between (forward-backward pass, as in classic velocity
+    planning). A single leg reduces to the rest-to-rest trapezoid."""
+    seg = np.diff(joints, axis=0)
+    lengths = np.linalg.norm(seg, axis=1)
+    n_j = joints.shape[0]
+    cap = np.full(n_j, vmax)
+    cap[0] = cap[-1] = 0.0
+    wp_idx = np.flatnonzero(is_waypoint)
+    legs = np.diff(joints[wp_idx], axis=0)
+    unit = legs / np.maximum(np.linalg.norm(legs, axis=1), 1e-12)[:, None]
+    cos_turn = np.clip(np.sum(unit[1:] * unit[:-1], axis=1), -1.0, 1.0)
+    cap[wp_idx[1:-1]] = vmax * 0.5 * (1.0 + cos_turn)
+    a = 0.5 * amax
+    v = cap.copy()
+    for k in range(1, n_j):
+        v[k] = min(v[k], math.sqrt(v[k - 1] ** 2 + 2.0 * a * lengths[k - 1]))
+    for k in range(n_j - 2, -1, -1):
+        v[k] = min(v[k], math.sqrt(v[k + 1] ** 2 + 2.0 * a * lengths[k]))
+    h = np.empty(n_j - 1)
+    for k in range(n_j - 1):
+        v0, v1, length = v[k], v[k + 1], lengths[k]
+        # accelerate from v0 and decelerate to v1 with a possible cruise at vmax in between
+        peak = math.sqrt(max((2.0 * a * length + v0 * v0 + v1 * v1) / 2.0, 0.0))
+        if peak <= vmax:
+            h[k] = (2.0 * peak - v0 - v1) / a
+        else:
+            d_acc = (vmax * vmax - v0 * v0) / (2.0 * a)
+            d_dec = (vmax * vmax - v1 * v1) / (2.0 * a)
+            h[k] = (vmax - v0) / a + (vmax - v1) / a + (length - d_acc - d_dec) / vmax
+    return np.maximum(h, 1e-3)
 
 
 def _ratios(
@@ -479,15 +515,9 @@ class _Planner:
     def allocate(self, limits: Limits | RoverLimits, params: Any) -> FloatArray:
         """Durations (s) per segment: trapezoid guess, penalised refinement, saturation."""
         joints = self.joints
-        lengths = np.linalg.norm(np.diff(joints, axis=0), axis=1)
         vmax = limits.max_speed_m_s
         amax = limits.max_lat_acc_m_s2 if isinstance(limits, RoverLimits) else limits.max_acc_m_s2
-        # trapezoid per waypoint leg, shared equally among the leg's pieces
-        leg = np.cumsum(self.is_waypoint[:-1]) - 1
-        leg_len = np.asarray(np.bincount(leg, weights=lengths), dtype=np.float64)
-        pieces = np.bincount(leg).astype(np.float64)
-        h0 = (_trapezoid_durations(leg_len, vmax, amax) / pieces)[leg]
-        h0 = np.maximum(h0, 1e-3)
+        h0 = _polyline_profile_durations(joints, self.is_waypoint, vmax, amax)
         h = self._refine(h0, limits, params)
         return self._saturate(h, limits, params)
 

@@ -29,10 +29,12 @@ def cc() -> str:
     return path
 
 
-def run(cmd: list[str], cwd: Path | None = None, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+def run(cmd: list[str], cwd: Path | None = None,
+        timeout: float = 120) -> subprocess.CompletedProcess[str]:
     proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=timeout,
                           check=False)
-    assert proc.returncode == 0, f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}"
+    assert proc.returncode == 0, (
+        f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
     return proc
 
 
@@ -45,4 +47,5 @@ def assert_close(got: npt.ArrayLike, expect: npt.ArrayLike, rtol: float, what: s
     assert np.all(np.isfinite(g)), f"{what}: non-finite {g}"
     scale = max(1.0, float(np.max(np.abs(e))))
     err = float(np.max(np.abs(g - e)))
-    assert err <= rtol * scale, f"{what}: got {g}, expected {e}, error {err:.3g} > {rtol * scale:.3g}"
+    assert err <= rtol * scale, (
+        f"{what}: got {g}, expected {e}, error {err:.3g} > {rtol * scale:.3g}")

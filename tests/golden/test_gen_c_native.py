@@ -39,11 +39,15 @@ def vec3(lo: float, hi: float) -> st.SearchStrategy[list[float]]:
 
 
 @st.composite
-def params(draw: st.DrawFn) -> MultirotorParams:
+def params(draw: st.DrawFn, flight_envelope: bool = False) -> MultirotorParams:
     d = [draw(st.floats(0.005, 0.2)) for _ in range(3)]
     off = draw(st.floats(-0.3, 0.3)) * min(d)
     J = np.diag(d)
     J[0, 1] = J[1, 0] = off
+    if flight_envelope:  # earth gravity, drag force well below the weight
+        return MultirotorParams(mass=draw(st.floats(0.8, 5.0)), inertia=J, g=9.80665,
+                                hover_thrust=draw(st.floats(0.2, 0.9)),
+                                drag=draw(st.sampled_from([0.0, 0.1, 0.5])))
     return MultirotorParams(mass=draw(st.floats(0.3, 5.0)), inertia=J,
                             g=draw(st.sampled_from([9.80665, 9.81, 3.72])),
                             hover_thrust=draw(st.floats(0.2, 0.9)),
@@ -74,7 +78,7 @@ def test_multirotor_double_matches_python(lib: native.NativeSetpoint, vel: list[
 @SETTINGS
 @given(vel=vec3(-3, 3), axy=st.lists(st.floats(-7, 7), min_size=2, max_size=2),
        az=st.floats(-6, 4), jerk=vec3(-20, 20), snap=vec3(-80, 80), yaw=st.floats(-7, 7),
-       yaw_rate=st.floats(-3, 3), yaw_acc=st.floats(-10, 10), p=params())
+       yaw_rate=st.floats(-3, 3), yaw_acc=st.floats(-10, 10), p=params(flight_envelope=True))
 def test_multirotor_float_matches_python(lib: native.NativeSetpoint, vel: list[float],
                                          axy: list[float], az: float, jerk: list[float],
                                          snap: list[float], yaw: float, yaw_rate: float,
@@ -86,7 +90,7 @@ def test_multirotor_float_matches_python(lib: native.NativeSetpoint, vel: list[f
     pf = MultirotorParams(mass=float(f32(p.mass)), inertia=f32(p.inertia), g=float(f32(p.g)),
                           hover_thrust=float(f32(p.hover_thrust)), drag=float(f32(p.drag)))
     exp = multirotor_setpoint(*args, pf)
-    assert exp.flags == 0
+    assert exp.flags == 0 and exp.thrust > 0.3 * pf.mass * pf.g  # inside the envelope
     got = lib.multirotor(*args, pf, precision="float")
     compare_multirotor(got, exp, RTOL_FLOAT)
 

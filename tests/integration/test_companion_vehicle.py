@@ -28,7 +28,13 @@ from companion.aio import (
     VehicleConfig,
     safe_exit,
 )
-from companion.mavlink import FlightMode, MissionItem
+from companion.mavlink import (
+    AttitudeSetpoint,
+    FlightMode,
+    MissionItem,
+    RatesSetpoint,
+    TelemetrySnapshot,
+)
 from companion.trajectory import PiecewiseBezier, hermite
 
 MockFactory = Callable[..., int]
@@ -104,7 +110,19 @@ def line(p0: np.ndarray, delta: tuple[float, float, float], dur: float) -> Piece
     return PiecewiseBezier([hermite(np.array([p0, z, z]), np.array([p1, z, z]), dur)])
 
 
-async def test_takeoff_fly_position_land(mock_px4: MockFactory, tmp_path: Path) -> None:
+def _thrust_pd(z_ref: float) -> Callable[[TelemetrySnapshot], float]:
+    """Test-side PD altitude loop (hover thrust 0.5 as the mock's MPC_THR_HOVER)."""
+    def thrust(tel: TelemetrySnapshot) -> float:
+        assert tel.position is not None
+        z, vz = tel.position.pos_ned[2], tel.position.vel_ned[2]
+        return min(max(0.5 + 0.15 * (z - z_ref) + 0.1 * vz, 0.1), 0.9)
+    return thrust
+
+
+async def test_takeoff_fly_position_attitude_rates_land(mock_px4: MockFactory,
+                                                        tmp_path: Path) -> None:
+    """One flight: position-mode trajectory, then attitude (type_mask 3) and rates (type_mask
+    128) setpoints from a test-side PD altitude loop, then land."""
     port = mock_px4()
     tlog = tmp_path / "flight.tlog"
     async with connected(port, tlog) as v:
@@ -120,12 +138,30 @@ async def test_takeoff_fly_position_land(mock_px4: MockFactory, tmp_path: Path) 
         end = np.array(traj.evaluate(traj.duration, 0))
         assert np.linalg.norm(np.array(v.telemetry.position.pos_ned) - end) < 0.3
         assert report.stream.sent > 350 and report.stream.producer_errors == 0
+        z_ref = v.telemetry.position.pos_ned[2]
+        thrust = _thrust_pd(z_ref)
+
+        def attitude(t: float, tel: TelemetrySnapshot) -> AttitudeSetpoint:
+            return AttitudeSetpoint(q_wxyz=(1.0, 0.0, 0.0, 0.0), thrust_norm=thrust(tel),
+                                    yaw_rate=0.0)
+
+        def rates(t: float, tel: TelemetrySnapshot) -> RatesSetpoint:
+            return RatesSetpoint(omega_frd=(0.0, 0.0, 0.0), thrust_norm=thrust(tel))
+
+        for mode, src in (("attitude", attitude), ("rates", rates)):
+            rep = await v.fly(mode=mode, setpoint_source=src, duration_s=2.0)
+            assert rep.held_at_end and rep.stream.producer_errors == 0
+            assert abs(v.telemetry.position.pos_ned[2] - z_ref) < 0.5
         await v.land()
         assert not v.is_armed
         assert v.telemetry.extended is not None and v.telemetry.extended.landed_state == 1
     msgs = read_tlog(tlog)
+    masks = [s.type_mask for s in ours(msgs, "SET_ATTITUDE_TARGET")]
+    assert set(masks) == {3, 128} and 3 not in masks[masks.index(128):]  # attitude, then rates
     sps = ours(msgs, "SET_POSITION_TARGET_LOCAL_NED")
-    (req,) = [r for r in offboard_requests(msgs) if r.confirmation == 0]
+    reqs = [r for r in offboard_requests(msgs) if r.confirmation == 0]
+    assert len(reqs) == 3  # one per fly(), never repeated
+    req = reqs[0]
     # priming: >= 0.5 s of setpoints at ~100 Hz before the OFFBOARD request
     before = [s._timestamp for s in sps if s._timestamp <= req._timestamp]
     assert before and req._timestamp - before[0] >= 0.5
@@ -134,12 +170,16 @@ async def test_takeoff_fly_position_land(mock_px4: MockFactory, tmp_path: Path) 
     # the vehicle entered OFFBOARD only after the request
     offb = [t for t, main in px4_modes(msgs) if main == 6]
     assert offb and min(offb) >= req._timestamp
-    # every setpoint: pos+vel+acc+yaw (yaw rate ignored without a yaw trajectory), finite
-    assert {s.type_mask for s in sps} == {2048}
+    # every setpoint: pos+vel+acc+yaw (yaw rate ignored without a yaw trajectory), finite;
+    # the hold setpoint (pos+vel+yaw, 2496) only appears once the trajectory is over
+    assert {s.type_mask for s in sps} <= {2048}
     assert all(math.isfinite(f) for s in sps for f in (s.x, s.y, s.z, s.vx, s.afx, s.yaw))
     # the stream stopped once Hold was confirmed: no setpoints after the first HOLD heartbeat
     hold_after = [t for t, main in px4_modes(msgs) if main == 4 and t > req._timestamp]
     assert hold_after and max(s._timestamp for s in sps) <= min(hold_after) + 0.05
+    # attitude setpoints only between the 2nd OFFBOARD request and the end of that flight
+    att_t = [s._timestamp for s in ours(msgs, "SET_ATTITUDE_TARGET")]
+    assert min(att_t) > min(hold_after)
 
 
 async def test_pilot_takeover_stops_stream(mock_px4: MockFactory, tmp_path: Path) -> None:

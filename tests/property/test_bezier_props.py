@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -24,7 +26,7 @@ def beziers(draw: st.DrawFn) -> Bezier:
 def _de_casteljau(points: np.ndarray, u: float) -> np.ndarray:
     work = [p.copy() for p in points]
     while len(work) > 1:
-        work = [(1.0 - u) * a + u * b for a, b in zip(work[:-1], work[1:], strict=True)]
+        work = [(1.0 - u) * a + u * b for a, b in itertools.pairwise(work)]
     return work[0]
 
 

@@ -54,12 +54,16 @@ def _check(tr: PiecewiseBezier, wp: np.ndarray, times: np.ndarray, s: int) -> No
             left = segs[k].evaluate(segs[k].duration, r)
             right = segs[k + 1].evaluate(0.0, r)
             ref = scale / hmin**r
-            np.testing.assert_allclose(left, right, atol=1e-7 * ref, err_msg=f"joint {k}, order {r}")
+            np.testing.assert_allclose(
+                left, right, atol=1e-7 * ref, err_msg=f"joint {k}, order {r}"
+            )
 
 
 @settings(max_examples=40, deadline=None)
 @given(problems(), st.sampled_from(["snap", "jerk"]))
-def test_waypoints_boundaries_and_continuity(problem: tuple[np.ndarray, np.ndarray], order: str) -> None:
+def test_waypoints_boundaries_and_continuity(
+    problem: tuple[np.ndarray, np.ndarray], order: str
+) -> None:
     wp, h = problem
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # collinear steps of 0 are merged duplicates

@@ -6,6 +6,7 @@ power-basis polynomial built here from the Bernstein definition with numpy.polyn
 
 from __future__ import annotations
 
+import itertools
 from math import comb
 
 import numpy as np
@@ -18,7 +19,8 @@ RNG = np.random.default_rng(20261122)
 
 
 def _bernstein_polys(points: np.ndarray, duration: float) -> list[Polynomial]:
-    """Per-dimension power-basis polynomials in t (s), from B(t) = sum P_i C(n,i) s^i (1-s)^(n-i)."""
+    """Power-basis polynomials in t (s) per dimension, from the Bernstein definition
+    B(t) = sum P_i C(n,i) s^i (1-s)^(n-i), s = t/h."""
     n = points.shape[0] - 1
     s = Polynomial([0.0, 1.0 / duration])
     one_minus = Polynomial([1.0, -1.0 / duration])
@@ -35,7 +37,7 @@ def _de_casteljau(points: np.ndarray, u: float) -> np.ndarray:
     """Scalar textbook de Casteljau at parameter u in [0, 1]."""
     work = [p.copy() for p in points]
     while len(work) > 1:
-        work = [(1.0 - u) * a + u * b for a, b in zip(work[:-1], work[1:], strict=True)]
+        work = [(1.0 - u) * a + u * b for a, b in itertools.pairwise(work)]
     return work[0]
 
 
@@ -228,9 +230,7 @@ def test_piecewise_mixed_degrees_are_elevated_without_change() -> None:
 
 def test_piecewise_yaw_channel_validation() -> None:
     pw = _random_piecewise(m=2, dim=3)
-    good = PiecewiseBezier(
-        [Bezier(RNG.normal(size=(8, 1)), float(h)) for h in pw.durations]
-    )
+    good = PiecewiseBezier([Bezier(RNG.normal(size=(8, 1)), float(h)) for h in pw.durations])
     with_yaw = PiecewiseBezier(pw.segments, yaw=good)
     assert with_yaw.yaw is good
     assert pw.with_yaw(good).yaw is good

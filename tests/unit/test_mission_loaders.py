@@ -106,6 +106,8 @@ def test_survey_complex_item_is_expanded() -> None:
     assert len(m.geofence.polygons) == 1 and m.geofence.polygons[0].inclusion
     assert len(m.geofence.circles) == 1 and not m.geofence.circles[0].inclusion
     assert len(m.rally) == 2
+    # the example's rally points are usable: inside the fence
+    assert m.geofence.contains(np.array([r.pos_ned_m for r in m.rally])).all()
     for rp, r in zip(m.rally, raw["rallyPoints"]["points"], strict=True):
         ne = expected_ne(HOME.lat_deg, HOME.lon_deg, r[0], r[1])
         np.testing.assert_allclose(rp.pos_ned_m[:2], ne, atol=1e-6)

@@ -20,7 +20,6 @@ from companion.trajectory import (
 )
 
 
-
 # ----------------------------------------------------------------------------- oracles
 def _falling(p: int, r: int) -> float:
     return factorial(p) / factorial(p - r) if p >= r else 0.0
@@ -28,9 +27,7 @@ def _falling(p: int, r: int) -> float:
 
 def _row(n: int, r: int, u: float, h: float) -> np.ndarray:
     """Row of d^r/dt^r of sum_p c_p (t/h)^p at t = u h (monomials in normalised time)."""
-    return np.array(
-        [_falling(p, r) * u ** (p - r) / h**r if p >= r else 0.0 for p in range(n + 1)]
-    )
+    return np.array([_falling(p, r) * u ** (p - r) / h**r if p >= r else 0.0 for p in range(n + 1)])
 
 
 def dense_reference(
@@ -184,7 +181,11 @@ def test_optimality_conditions_at_free_joints(order: str, s: int) -> None:
             np.testing.assert_allclose(left, right, atol=1e-7 * scale, err_msg=f"order {r}")
         # the (2s-1)-th derivative generally jumps: the optimum is not a single polynomial
     jumps = [
-        np.max(np.abs(segs[k].evaluate(segs[k].duration, 2 * s - 1) - segs[k + 1].evaluate(0.0, 2 * s - 1)))
+        np.max(
+            np.abs(
+                segs[k].evaluate(segs[k].duration, 2 * s - 1) - segs[k + 1].evaluate(0.0, 2 * s - 1)
+            )
+        )
         for k in range(len(segs) - 1)
     ]
     assert max(jumps) > 1e-6
@@ -338,7 +339,13 @@ def test_velocity_yaw_follows_the_heading() -> None:
     # matched exactly at the joints, interpolated (minimum snap) in between
     assert np.max(np.abs(err[brisk])) < 0.15
     at_joints = np.angle(
-        np.exp(1j * (tr.yaw.evaluate(tr.breaks[1:-1])[:, 0] - np.arctan2(*tr.evaluate(tr.breaks[1:-1], 1)[:, 1::-1].T)))
+        np.exp(
+            1j
+            * (
+                tr.yaw.evaluate(tr.breaks[1:-1])[:, 0]
+                - np.arctan2(*tr.evaluate(tr.breaks[1:-1], 1)[:, 1::-1].T)
+            )
+        )
     )
     np.testing.assert_allclose(at_joints, 0.0, atol=1e-9)
     # at the joints the rate matches the heading rate by finite differences
@@ -354,3 +361,44 @@ def test_velocity_yaw_follows_the_heading() -> None:
         plan(wp, durations=np.full(6, 3.0), yaw="north")
     with pytest.raises(ValueError, match="waypoint 1"):
         plan(wp, durations=np.full(6, 3.0), yaw=[0.0, np.nan, 0, 0, 0, 0, 0])
+
+
+# ----------------------------------------------------------------------------- gradients
+def test_analytic_duration_gradients_match_finite_differences() -> None:
+    """dJ*/dh (envelope theorem) and the limit-penalty gradient (adjoint) used by the time
+    allocation, against central differences of re-solved problems."""
+    from companion.flatness import MultirotorParams
+    from companion.trajectory import planner as P
+
+    wp, h = _random_problem(5, seed=3)
+    joints_mask = np.ones(6, dtype=bool)
+    pl = P._Planner(wp, joints_mask, 4, {}, {}, {}, None, None)
+    params = MultirotorParams(mass=1.5, inertia=np.diag([0.02, 0.02, 0.04]), drag=0.3)
+    lim = Limits(
+        max_speed_m_s=2.0,
+        max_acc_m_s2=1.0,
+        max_jerk_m_s3=1.0,
+        max_tilt_rad=0.05,
+        max_thrust_n=15.5,
+        min_thrust_n=14.0,
+    )
+    pen = P._Penalty(pl.system, lim, params)
+
+    def cost(hh: np.ndarray) -> float:
+        return pl.system.solve(hh)[1]
+
+    def penalty(hh: np.ndarray) -> float:
+        x, _ = pl.system.solve(hh)
+        return pen.value_grad(x, hh)[0]
+
+    x, _ = pl.system.solve(h)
+    g_cost = pl.system.cost_grad(x, h)
+    g_pen = pen.value_grad(x, h)[1]
+    eps = 1e-6
+    for k in range(h.shape[0]):
+        e = np.zeros_like(h)
+        e[k] = eps
+        fd_cost = (cost(h + e) - cost(h - e)) / (2 * eps)
+        fd_pen = (penalty(h + e) - penalty(h - e)) / (2 * eps)
+        assert g_cost[k] == pytest.approx(fd_cost, rel=1e-5)
+        assert g_pen[k] == pytest.approx(fd_pen, rel=1e-5)

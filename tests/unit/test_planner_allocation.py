@@ -70,7 +70,9 @@ def test_time_allocation_meets_every_limit_and_the_duration_bound(seed: int) -> 
     assert np.min(thrust) >= 0.6 * MG / tol
     # body rates through the flatness module (yaw channel included)
     assert tr.yaw is not None
-    yaw = np.concatenate([s.evaluate(np.linspace(0, s.duration, 200))[:, 0] for s in tr.yaw.segments])
+    yaw = np.concatenate(
+        [s.evaluate(np.linspace(0, s.duration, 200))[:, 0] for s in tr.yaw.segments]
+    )
     sp = multirotor_setpoint(v, a, j, dense(tr, 4), yaw, 0.0 * yaw, 0.0 * yaw, PARAMS)
     assert np.max(np.linalg.norm(sp.omega_frd, axis=1)) <= 3.0 * tol
     polyline = float(np.sum(np.linalg.norm(np.diff(wp, axis=0), axis=1)))
@@ -151,7 +153,10 @@ def test_check_multirotor_quantities_and_min_thrust() -> None:
     wp = np.array([[0.0, 0.0, 0.0], [8.0, 0.0, 0.0], [8.0, 0.0, 6.0]])  # ends with a descent
     tr = plan(wp, durations=[2.5, 2.0])
     lim = Limits(
-        max_speed_m_s=100.0, max_acc_m_s2=100.0, max_tilt_rad=0.1, min_thrust_n=0.9 * MG,
+        max_speed_m_s=100.0,
+        max_acc_m_s2=100.0,
+        max_tilt_rad=0.1,
+        min_thrust_n=0.9 * MG,
         max_thrust_n=1.1 * MG,
     )
     rep = check(tr, lim, PARAMS)

@@ -88,7 +88,7 @@ def test_blackout_silences_both_directions_then_recovers() -> None:
     h.run(4.0)
     h.arm()  # lost inbound
     h.run(2.0)
-    assert h.timed("HEARTBEAT", 4.01) == [] and not h.ap.armed
+    assert [t for t, _m in h.timed("HEARTBEAT", 4.01) if t < 5.99] == [] and not h.ap.armed
     h.run(1.5)
     assert len(h.timed("HEARTBEAT", 6.0)) >= 1
     h.arm()

@@ -1,0 +1,227 @@
+"""Planner benchmark: fixed-duration solve vs M (and a dense KKT reference in the same run),
+time-allocated plans for 10 and 100 waypoints, and the duration ratio of the time-allocation
+test set.
+
+Usage: ``python bench/bench_planner.py [--write]`` (``--write`` replaces the "## Planner"
+section of BENCHMARKS.md). BLAS is pinned to one thread (set before numpy is imported): on the
+shared 2-core machine a multi-threaded BLAS inside L-BFGS-B costs several times more than it
+saves on these small problems.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import platform  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+from math import factorial  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import scipy  # noqa: E402
+
+from companion.flatness import MultirotorParams  # noqa: E402
+from companion.trajectory import Limits, plan, plan_with_info  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+G = 9.80665
+VMAX, AMAX = 5.0, 4.0
+PARAMS = MultirotorParams(mass=1.5, inertia=np.diag([0.03, 0.03, 0.05]), drag=0.4)
+MG = PARAMS.mass * G
+FULL_LIMITS = Limits(
+    max_speed_m_s=VMAX,
+    max_acc_m_s2=AMAX,
+    max_jerk_m_s3=30.0,
+    max_tilt_rad=0.4,
+    max_thrust_n=1.5 * MG,
+    min_thrust_n=0.6 * MG,
+    max_body_rate_rad_s=3.0,
+)
+KIN_LIMITS = Limits(max_speed_m_s=VMAX, max_acc_m_s2=AMAX)
+
+
+def random_waypoints(rng: np.random.Generator, n: int) -> np.ndarray:
+    """Same generator as tests/unit/test_planner_allocation.py."""
+    pts = [rng.uniform(-5.0, 5.0, 3)]
+    while len(pts) < n:
+        step = rng.normal(size=3)
+        step[2] *= 0.3
+        step *= rng.uniform(1.0, 3.0) * VMAX**2 / AMAX / np.linalg.norm(step)
+        pts.append(pts[-1] + step)
+    return np.array(pts)
+
+
+def best_of(fn: Callable[[], object], reps: int) -> float:
+    best = float("inf")
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def dense_kkt_solve(wp: np.ndarray, h: np.ndarray, s: int = 4) -> float:
+    """Dense KKT reference (monomial basis, normalised time, continuity through order s)."""
+    m, d = h.shape[0], wp.shape[1]
+    nc = 2 * s
+
+    def fall(p: int, r: int) -> float:
+        return factorial(p) / factorial(p - r) if p >= r else 0.0
+
+    def row(r: int, u: float, hk: float) -> np.ndarray:
+        return np.array([fall(p, r) * u ** max(p - r, 0) / hk**r if p >= r else 0.0
+                         for p in range(nc)])
+
+    Q = np.zeros((m * nc, m * nc))
+    for k in range(m):
+        for i in range(s, nc):
+            for j in range(s, nc):
+                e = i + j - 2 * s + 1
+                Q[k * nc + i, k * nc + j] = fall(i, s) * fall(j, s) / e * h[k] ** (1 - 2 * s)
+    rows, rhs = [], []
+
+    def add(parts: dict[int, np.ndarray], value: np.ndarray) -> None:
+        r_ = np.zeros(m * nc)
+        for k, v in parts.items():
+            r_[k * nc : (k + 1) * nc] += v
+        rows.append(r_)
+        rhs.append(value)
+
+    for k in range(m):
+        add({k: row(0, 0.0, h[k])}, wp[k])
+        add({k: row(0, 1.0, h[k])}, wp[k + 1])
+    for r in range(1, s):
+        add({0: row(r, 0.0, h[0])}, np.zeros(d))
+        add({m - 1: row(r, 1.0, h[-1])}, np.zeros(d))
+    for k in range(m - 1):
+        for r in range(1, s + 1):
+            add({k: row(r, 1.0, h[k]), k + 1: -row(r, 0.0, h[k + 1])}, np.zeros(d))
+    A = np.array(rows)
+    kkt = np.block([[2 * Q, A.T], [A, np.zeros((A.shape[0], A.shape[0]))]])
+    sol = np.linalg.solve(kkt, np.vstack([np.zeros((m * nc, d)), np.array(rhs)]))
+    c = sol[: m * nc]
+    return float(np.sum(c * (Q @ c)))
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--write", action="store_true", help="update BENCHMARKS.md")
+    args = ap.parse_args()
+    rng = np.random.default_rng(0)
+    lines: list[str] = []
+
+    # ---------------------------------------------------------------- fixed durations
+    sizes = [10, 100, 1000, 10000]
+    times: list[float] = []
+    dense: dict[int, tuple[float, float]] = {}
+    for m in sizes:
+        wp = random_waypoints(rng, m + 1)
+        h = rng.uniform(1.0, 5.0, size=m)
+        reps = 30 if m <= 100 else 10 if m <= 1000 else 3
+        plan(wp, durations=h)  # warm-up
+        times.append(best_of(lambda wp=wp, h=h: plan(wp, durations=h), reps))
+        if m <= 100:
+            t_dense = best_of(lambda wp=wp, h=h: dense_kkt_solve(wp, h), 3 if m == 10 else 1)
+            rel = abs(plan_with_info(wp, durations=h).cost - dense_kkt_solve(wp, h))
+            rel /= dense_kkt_solve(wp, h)
+            dense[m] = (t_dense, rel)
+    slope_all = float(np.polyfit(np.log(sizes), np.log(times), 1)[0])
+    slope_big = float(np.polyfit(np.log(sizes[1:]), np.log(times[1:]), 1)[0])
+
+    lines.append("Fixed-duration minimum-snap solve (`plan(waypoints, durations=h)`, 3-D, degree 7,")
+    lines.append("best of several runs; includes input checks and building the PiecewiseBezier):")
+    lines.append("")
+    lines.append("| segments M | banded solve [ms] | us per segment | dense KKT [ms] | dense / banded | "
+                 "cost rel. diff |")
+    lines.append("| ---: | ---: | ---: | ---: | ---: | ---: |")
+    for m, t in zip(sizes, times, strict=True):
+        if m in dense:
+            td, rel = dense[m]
+            extra = f"{td * 1e3:.2f} | {td / t:.1f} | {rel:.1e}"
+        else:
+            extra = "- | - | -"
+        lines.append(f"| {m} | {t * 1e3:.3f} | {t / m * 1e6:.2f} | {extra} |")
+    lines.append("")
+    lines.append(f"Fitted exponent of time vs M: {slope_big:.3f} over M = 100..10000 "
+                 f"({slope_all:.3f} over 10..10000; goal <= 1.1). "
+                 f"1000 segments: {times[2] * 1e3:.2f} ms (goal < 20 ms).")
+    lines.append("")
+
+    # ---------------------------------------------------------------- time allocation
+    lines.append("Time-allocated plans (`plan(waypoints, limits=..., params=...)`, 3 segments per "
+                 "leg; median of 5 runs):")
+    lines.append("")
+    lines.append("| waypoints | limits | time [ms] | fixed solves | duration / bound |")
+    lines.append("| ---: | --- | ---: | ---: | ---: |")
+    alloc_times: dict[tuple[int, str], float] = {}
+    for n in (10, 100):
+        wp = random_waypoints(np.random.default_rng(42 + n), n)
+        polyline = float(np.sum(np.linalg.norm(np.diff(wp, axis=0), axis=1)))
+        bound = 1.5 * polyline / VMAX + 2.0 * VMAX / AMAX
+        for name, lim, yaw in (("speed, acc", KIN_LIMITS, None),
+                               ("all multirotor (yaw 0)", FULL_LIMITS, 0.0)):
+            runs = []
+            res = None
+            for _ in range(5):
+                t0 = time.perf_counter()
+                res = plan_with_info(wp, limits=lim, params=PARAMS, yaw=yaw)
+                runs.append(time.perf_counter() - t0)
+            assert res is not None
+            t_med = float(np.median(runs))
+            alloc_times[(n, name)] = t_med
+            lines.append(f"| {n} | {name} | {t_med * 1e3:.1f} | {res.solves} | "
+                         f"{res.trajectory.duration / bound:.3f} |")
+    lines.append("")
+    lines.append(f"Goal 100 waypoints with time allocation < 200 ms: "
+                 f"{alloc_times[(100, 'speed, acc')] * 1e3:.0f} ms (speed, acc), "
+                 f"{alloc_times[(100, 'all multirotor (yaw 0)')] * 1e3:.0f} ms (all limits).")
+    lines.append("")
+
+    # ---------------------------------------------------------------- duration ratio
+    ratios = []
+    for seed in range(30):
+        r = np.random.default_rng(100 + seed)
+        wp = random_waypoints(r, 10)
+        tr = plan(wp, limits=FULL_LIMITS, params=PARAMS, yaw=float(r.uniform(-3, 3)))
+        polyline = float(np.sum(np.linalg.norm(np.diff(wp, axis=0), axis=1)))
+        ratios.append(tr.duration / (1.5 * polyline / VMAX + 2.0 * VMAX / AMAX))
+    lines.append(
+        "Duration ratio T / (1.5 polyline / v_max + 2 v_max / a_max) on the time-allocation test "
+        "set (10 random waypoints, legs 1..3 x v_max^2/a_max, v_max 5 m/s, a_max 4 m/s^2, "
+        "jerk 30 m/s^3, tilt 0.4 rad, thrust 0.6..1.5 m g, body rate 3 rad/s, 1.5 kg, drag "
+        f"0.4 N/(m/s); seeds 100..129, the test uses 100..104): mean {np.mean(ratios):.3f}, "
+        f"max {np.max(ratios):.3f} (acceptance: <= 1)."
+    )
+
+    header = (
+        f"Command: `python bench/bench_planner.py --write` ({platform.machine()}, "
+        f"{os.cpu_count()} cores shared with other jobs, Python {platform.python_version()}, "
+        f"numpy {np.__version__}, scipy {scipy.__version__}, OPENBLAS_NUM_THREADS="
+        f"{os.environ.get('OPENBLAS_NUM_THREADS')}). Load on the machine varies: timings are "
+        "best-of / median."
+    )
+    section = "## Planner\n\n" + header + "\n\n" + "\n".join(lines) + "\n"
+    print(section)
+    if args.write:
+        path = ROOT / "BENCHMARKS.md"
+        text = path.read_text(encoding="utf-8")
+        start = text.find("## Planner\n")
+        if start >= 0:
+            nxt = text.find("\n## ", start + 1)
+            end = len(text) if nxt < 0 else nxt + 1
+            text = text[:start] + section + ("\n" if nxt >= 0 else "") + text[end:]
+        else:
+            text = text.rstrip("\n") + "\n\n" + section
+        path.write_text(text, encoding="utf-8")
+        print(f"updated {path}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,98 @@
+"""Replay speed: simulated seconds per wall second for a ~5-minute mission in attitude mode, and
+throughput of `--jobs 2` against `--jobs 1` on 8 missions, measured in the same run.
+
+Usage: python bench/bench_replay.py [--write]   (--write updates BENCHMARKS.md)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from companion.cli import main as cli_main  # noqa: E402
+from companion.replay import ReplayConfig, replay_file  # noqa: E402
+
+FIVE_MIN = ROOT / "examples" / "missions" / "five_minute.plan"
+EIGHT = [ROOT / "examples" / "missions" / n for n in (
+    "square.plan", "ten_waypoints.plan", "hold_and_jump.plan", "square.waypoints",
+    "square.plan", "ten_waypoints.plan", "hold_and_jump.plan", "square.waypoints",
+)]
+
+
+def run_single(mode: str) -> dict[str, float]:
+    with tempfile.TemporaryDirectory() as out:
+        t0 = time.perf_counter()
+        r = replay_file(FIVE_MIN, out, ReplayConfig(mode=mode))  # type: ignore[arg-type]
+        wall = time.perf_counter() - t0
+    sim = float(r.report["simulated_s"])
+    return {"sim_s": sim, "wall_s": wall, "factor": sim / wall, "ok": float(r.ok)}
+
+
+def run_jobs(jobs: int) -> float:
+    with tempfile.TemporaryDirectory() as out:
+        files = []
+        for i, f in enumerate(EIGHT):  # distinct names so outputs do not collide
+            dst = Path(out) / f"m{i}{f.suffix}"
+            dst.write_bytes(f.read_bytes())
+            files.append(str(dst))
+        t0 = time.perf_counter()
+        code = cli_main(["replay", *files, "--jobs", str(jobs), "--out", str(Path(out) / "o")])
+        wall = time.perf_counter() - t0
+        if code not in (0, 1):
+            raise SystemExit(f"replay failed with exit code {code}")
+    return wall
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--write", action="store_true", help="update BENCHMARKS.md")
+    args = ap.parse_args()
+    single = {m: run_single(m) for m in ("attitude", "position")}
+    w1 = run_jobs(1)
+    w2 = run_jobs(2)
+    lines = [
+        "## Replay",
+        "",
+        "Command: `python bench/bench_replay.py --write` "
+        f"({platform.processor() or platform.machine()}, {os.cpu_count()} cores).",
+        "",
+        "| case | simulated s | wall s | x real time |",
+        "| --- | ---: | ---: | ---: |",
+    ]
+    for m, r in single.items():
+        lines.append(
+            f"| five_minute.plan, {m} mode | {r['sim_s']:.0f} | {r['wall_s']:.1f} | "
+            f"{r['factor']:.1f} |"
+        )
+    lines += [
+        "",
+        f"8 missions: `--jobs 1` {w1:.1f} s, `--jobs 2` {w2:.1f} s wall: "
+        f"throughput ratio {w1 / w2:.2f}x (goal: close to 2 on 2 cores).",
+        "",
+    ]
+    text = "\n".join(lines)
+    print(text)
+    print(json.dumps({"single": single, "jobs1_s": w1, "jobs2_s": w2}, indent=1))
+    if args.write:
+        _write_section(ROOT / "BENCHMARKS.md", "## Replay", text)
+
+
+def _write_section(path: Path, header: str, text: str) -> None:
+    doc = path.read_text(encoding="utf-8") if path.exists() else "# Benchmarks\n"
+    parts = doc.split("\n## ")
+    kept = [p for p in parts if not ("## " + p).startswith(header)]
+    doc = "\n## ".join(kept).rstrip("\n") + "\n\n" + text
+    path.write_text(doc, encoding="utf-8")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,88 @@
+"""Lockstep real-time factor of the sitl_mock quadrotor (simulated seconds per CPU second).
+
+Flies arm -> takeoff -> hold through the full MAVLink path (LockstepSim: the autopilot core
+with every onboard telemetry stream encoded, drained by the caller every 20 ms of simulated
+time) at 250 Hz and 1 kHz physics. Baseline in the same run: the bare vehicle model stepped at
+the same rate with a fixed hover target (no autopilot, no MAVLink), so the ratio shows what the
+autopilot and telemetry cost on top of the physics. Times are process CPU time
+(`time.process_time`), so other jobs on a shared machine do not distort the factor much.
+
+    python bench/bench_sitl.py [--sim-seconds 30] [--repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import platform
+import time
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from sitl_mock.lockstep import LockstepSim
+from sitl_mock.params import ParamStore
+from sitl_mock.setpoints import PositionTarget
+from sitl_mock.vehicle import make_vehicle
+
+
+def run_lockstep(physics_hz: float, sim_s: float) -> tuple[float, int]:
+    """Wall seconds for `sim_s` simulated seconds, and the number of datagrams produced."""
+    sim = LockstepSim("quad", physics_hz=physics_hz, seed=1)
+    mav = mavlink.MAVLink(None, 255, 190)
+    n_out = 0
+    t0 = time.process_time()
+    t = 0.0
+    sent = False
+    while t < sim_s:
+        t += 0.02
+        sim.step_until(t)
+        n_out += len(sim.recv())
+        if not sent and t >= 3.5:
+            sent = True
+            for m in (
+                mavlink.MAVLink_command_long_message(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0),
+                mavlink.MAVLink_command_long_message(
+                    1, 1, 22, 0, math.nan, 0, 0, math.nan, math.nan, math.nan, math.nan
+                ),
+            ):
+                sim.send(m.pack(mav))
+                mav.seq += 1
+    wall = time.process_time() - t0
+    assert sim.autopilot.armed and -sim.autopilot.state.pos_ned[2] > 2.0, "did not fly"
+    return wall, n_out
+
+
+def run_vehicle_only(physics_hz: float, sim_s: float) -> float:
+    v = make_vehicle("quad", ParamStore(), seed=1)
+    dt = 1.0 / physics_hz
+    target = PositionTarget(pos_ned=(0.0, 0.0, -2.5))
+    n = int(round(sim_s * physics_hz))
+    t0 = time.process_time()
+    for _ in range(n):
+        v.step(dt, target, True)
+    return time.process_time() - t0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--sim-seconds", type=float, default=30.0)
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+    print(f"# {platform.python_implementation()} {platform.python_version()}, "
+          f"{platform.machine()}, {args.sim_seconds:.0f} simulated s, best of {args.repeat}")  # fmt: skip
+    print()
+    print("| physics | lockstep RTF (MAVLink + telemetry) | datagrams/sim s "
+          "| vehicle-only RTF (baseline) | lockstep / baseline CPU time |")  # fmt: skip
+    print("| --- | --- | --- | --- | --- |")
+    for hz in (250.0, 1000.0):
+        walls, outs = zip(*(run_lockstep(hz, args.sim_seconds) for _ in range(args.repeat)), strict=True)
+        base = min(run_vehicle_only(hz, args.sim_seconds) for _ in range(args.repeat))
+        wall = min(walls)
+        print(
+            f"| {hz:.0f} Hz | {args.sim_seconds / wall:.1f}x | {outs[0] / args.sim_seconds:.0f} "
+            f"| {args.sim_seconds / base:.1f}x | {wall / base:.2f} |"
+        )
+
+
+if __name__ == "__main__":
+    main()

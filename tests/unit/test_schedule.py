@@ -1,0 +1,94 @@
+"""Mission schedule: pieces join continuously, pass the waypoints, and the fast scalar
+evaluation agrees with PiecewiseBezier.evaluate (an independent code path)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from companion.flatness import MultirotorParams
+from companion.mission import load_mission, mission_to_flight_plan
+from companion.schedule import build_schedule
+
+ROOT = Path(__file__).resolve().parents[2]
+PARAMS = MultirotorParams(mass=1.0, inertia=(0.025, 0.025, 0.03), drag=1.0)
+MISSIONS = ["square.plan", "hold_and_jump.plan", "ten_waypoints.plan"]
+
+
+@pytest.fixture(scope="module", params=MISSIONS)
+def schedule(request: pytest.FixtureRequest):  # type: ignore[no-untyped-def]
+    fp = mission_to_flight_plan(load_mission(ROOT / "examples" / "missions" / request.param))
+    return fp, build_schedule(fp, PARAMS)
+
+
+def _derivs(s, t):  # type: ignore[no-untyped-def]
+    r = s.reference(t)
+    return np.concatenate([r.pos_ned, r.vel_ned, r.acc_ned, [r.yaw, r.yaw_rate, r.yaw_acc]])
+
+
+def test_scalar_evaluation_matches_piecewise_bezier(schedule) -> None:  # type: ignore[no-untyped-def]
+    _, s = schedule
+    for t in np.linspace(0.0, s.duration_s, 97):
+        piece = s._piece_at(t)
+        if piece.kind != "traj":
+            continue
+        r = s.reference(t)
+        tl = t - piece.t0_s
+        got = [r.pos_ned, r.vel_ned, r.acc_ned, r.jerk_ned, r.snap_ned]
+        for k, v in enumerate(got):
+            np.testing.assert_allclose(v, piece.traj.evaluate(tl, k), rtol=1e-8, atol=1e-8)
+        yaw = [piece.traj.yaw.evaluate(tl, k)[0] for k in range(3)]
+        np.testing.assert_allclose([r.yaw, r.yaw_rate, r.yaw_acc], yaw, rtol=1e-8, atol=1e-9)
+
+
+def test_pieces_join_continuously_through_acceleration_and_yaw(schedule) -> None:  # type: ignore[no-untyped-def]
+    _, s = schedule
+    eps = 1e-7
+    for p in s.pieces[1:]:
+        before = _derivs(s, p.t0_s - eps)
+        after = _derivs(s, p.t0_s + eps)
+        np.testing.assert_allclose(after, before, atol=1e-4)
+
+
+def test_velocity_is_the_derivative_of_position(schedule) -> None:  # type: ignore[no-untyped-def]
+    _, s = schedule
+    h = 1e-4
+    for t in np.linspace(0.5, s.duration_s - 0.5, 41):
+        fd = (s.reference(t + h).pos_ned - s.reference(t - h).pos_ned) / (2 * h)
+        np.testing.assert_allclose(s.reference(t).vel_ned, fd, atol=1e-5)
+        fy = (s.reference(t + h).yaw - s.reference(t - h).yaw) / (2 * h)
+        assert s.reference(t).yaw_rate == pytest.approx(fy, abs=1e-5)
+
+
+def test_schedule_passes_every_mission_waypoint(schedule) -> None:  # type: ignore[no-untyped-def]
+    fp, s = schedule
+    t = np.linspace(0.0, s.duration_s, int(s.duration_s * 50))
+    path = s.sample(t)
+    for w in fp.waypoints:
+        if w.item_index is None or w.phase != "mission":
+            continue
+        d = np.min(np.linalg.norm(path - np.asarray(w.pos_ned_m), axis=1))
+        assert d < 0.05, f"item {w.item_index}: planned path misses by {d:.3f} m"
+
+
+def test_starts_and_ends_at_rest_and_lands_above_touchdown(schedule) -> None:  # type: ignore[no-untyped-def]
+    fp, s = schedule
+    start, end = s.reference(0.0), s.reference(s.duration_s)
+    assert np.allclose(start.vel_ned, 0) and np.allclose(end.vel_ned, 0)
+    np.testing.assert_allclose(start.pos_ned, fp.start_ned_m, atol=1e-9)
+    if fp.final_action in ("land", "rtl"):
+        assert end.pos_ned[2] == pytest.approx(fp.start_ned_m[2] - 1.0, abs=1e-6)
+
+
+def test_turns_respect_the_turn_rate() -> None:
+    fp = mission_to_flight_plan(load_mission(ROOT / "examples" / "missions" / "hold_and_jump.plan"))
+    s = build_schedule(fp, PARAMS)
+    turns = [p for p in s.pieces if p.kind == "turn"]
+    assert turns
+    for p in turns:
+        rates = [abs(s.reference(p.t0_s + x).yaw_rate) for x in np.linspace(0, p.duration_s, 50)]
+        assert max(rates) <= math.radians(60.0) + 1e-9
+        assert np.allclose(s.reference(p.t0_s + 0.5 * p.duration_s).vel_ned, 0.0)

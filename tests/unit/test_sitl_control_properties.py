@@ -1,0 +1,95 @@
+"""Property tests of the mock's own attitude math and mixer (hypothesis, scipy as the oracle)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from sitl_mock.flight_control import (
+    dcm_to_quat,
+    mix_quad_x,
+    quat_body_z,
+    quat_from_two_vectors,
+    quat_mul,
+    quat_rotate,
+    quat_yaw,
+)
+
+unit = st.floats(-1.0, 1.0, allow_nan=False)
+vec = st.tuples(
+    st.floats(-10, 10, allow_nan=False),
+    st.floats(-10, 10, allow_nan=False),
+    st.floats(-10, 10, allow_nan=False),
+)
+quat = st.tuples(unit, unit, unit, unit).filter(lambda q: sum(c * c for c in q) > 0.01)
+
+
+def _unit(q: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+    n = math.sqrt(sum(c * c for c in q))
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
+
+
+def _scipy(q: tuple[float, float, float, float]) -> Rotation:
+    return Rotation.from_quat([q[1], q[2], q[3], q[0]])
+
+
+@settings(max_examples=60, deadline=None)
+@given(quat, vec)
+def test_quat_rotate_matches_scipy(
+    q: tuple[float, float, float, float], v: tuple[float, ...]
+) -> None:
+    qu = _unit(q)
+    np.testing.assert_allclose(quat_rotate(qu, (v[0], v[1], v[2])), _scipy(qu).apply(v), atol=1e-9)
+    np.testing.assert_allclose(quat_body_z(qu), _scipy(qu).apply([0, 0, 1]), atol=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(quat, quat)
+def test_quat_mul_composes_like_scipy(a: tuple[float, ...], b: tuple[float, ...]) -> None:
+    qa, qb = _unit((a[0], a[1], a[2], a[3])), _unit((b[0], b[1], b[2], b[3]))
+    prod = quat_mul(qa, qb)
+    ref = (_scipy(qa) * _scipy(qb)).as_quat()
+    assert abs(float(np.dot([prod[1], prod[2], prod[3], prod[0]], ref))) > 1.0 - 1e-12
+
+
+@settings(max_examples=60, deadline=None)
+@given(quat)
+def test_dcm_to_quat_and_yaw(q: tuple[float, ...]) -> None:
+    qu = _unit((q[0], q[1], q[2], q[3]))
+    m = _scipy(qu).as_matrix()
+    rows = tuple(tuple(float(c) for c in r) for r in m)
+    back = dcm_to_quat(rows)  # type: ignore[arg-type]
+    assert abs(float(np.dot(back, qu))) > 1.0 - 1e-9
+    if abs(m[2, 0]) < 0.999:  # yaw is defined away from gimbal lock
+        yaw = _scipy(qu).as_euler("ZYX")[0]
+        assert abs(math.remainder(quat_yaw(qu) - yaw, 2 * math.pi)) < 1e-9
+
+
+@settings(max_examples=60, deadline=None)
+@given(vec, vec)
+def test_quat_from_two_vectors_rotates_a_onto_b(a: tuple[float, ...], b: tuple[float, ...]) -> None:
+    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    if na < 1e-3 or nb < 1e-3:
+        return
+    q = quat_from_two_vectors((a[0], a[1], a[2]), (b[0], b[1], b[2]))
+    rotated = _scipy(q).apply(np.array(a) / na)
+    np.testing.assert_allclose(rotated, np.array(b) / nb, atol=1e-6)
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    st.tuples(st.floats(-3, 3), st.floats(-3, 3), st.floats(-3, 3)),
+    st.floats(-1.0, 2.0, allow_nan=False),
+)
+def test_mixer_outputs_always_in_range(torque: tuple[float, float, float], thrust: float) -> None:
+    u = mix_quad_x(torque, thrust)
+    assert all(0.0 <= c <= 1.0 for c in u)
+    # the realised roll/pitch torque never has the wrong sign
+    roll = -u[0] + u[1] + u[2] - u[3]
+    pitch = u[0] - u[1] + u[2] - u[3]
+    assert roll * torque[0] >= -1e-12
+    assert pitch * torque[1] >= -1e-12
