@@ -46,11 +46,12 @@ PARAMS = MultirotorParams(mass=1.5, inertia=[[0.03, 0.001, 0], [0.001, 0.03, 0],
 
 
 def _best(fn: Callable[[], object], repeat: int) -> float:
+    """Best CPU time (s) of ``repeat`` runs (process CPU time, like the C side: shared box)."""
     best = float("inf")
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         fn()
-        best = min(best, time.perf_counter() - t0)
+        best = min(best, time.process_time() - t0)
     return best
 
 
@@ -120,7 +121,8 @@ def render(c: dict[str, float], py: dict[str, float], arm: list[crossbuild.ArmRe
         f"Command: `{cmd}` ({env}).",
         "C: `bench/bench_gen_c.c` built with `cc " + " ".join(CFLAGS) + "`, 1e6 calls per loop "
         "on a degree-7 segment swept over [0, h] (drag on), best of 5 repetitions, thread CPU "
-        "time. Python: the companion's numeric path one sample at a time "
+        "time. Python (process CPU time, best of 3): the companion's numeric path, one sample at a "
+        "time "
         "(`PiecewiseBezier.evaluate` orders 0..4 + yaw 0..2, `multirotor_setpoint`), and the "
         "compiled library through `gen_c.native` (ctypes), measured in the same run.",
         "",

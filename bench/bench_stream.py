@@ -54,6 +54,9 @@ def figure8(period_s: float = 12.0, n: int = 16) -> PiecewiseBezier:
     return PiecewiseBezier(segs)
 
 
+GIL = float(__import__("os").environ.get("GIL", "0.0005"))
+
+
 def pct(xs: list[float], q: float) -> float:
     return float(np.percentile(np.asarray(xs), q)) if xs else math.nan
 
@@ -162,7 +165,8 @@ async def run_case(rate: float, duration: float, naive: bool,
             send_times.append(now)
             lateness.append(now - t_next)
     else:
-        st = FixedRateStreamer(rate, tr.send, producer, realtime_priority=rt)
+        st = FixedRateStreamer(rate, tr.send, producer, realtime_priority=rt,
+                               gil_switch_interval_s=GIL)
         st.start()
         await asyncio.sleep(duration)
         st.stop()

@@ -97,7 +97,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         try:
             fp = mission_to_flight_plan(load_mission(f), vehicle=args.vehicle)
             totals[f] = fp.nominal_duration_s() + 30.0
-        except Exception:  # noqa: BLE001 - reported by the worker with the file and item
+        except Exception:
             totals[f] = 1.0
     results: dict[str, tuple[dict[str, object] | None, str | None]] = {}
     with Progress(
@@ -129,7 +129,9 @@ def _cmd_replay(args: argparse.Namespace) -> int:
                 while pending:
                     while not queue.empty():
                         f, t = queue.get()
-                        progress.update(tasks[f], completed=min(t, totals[f]), sim=f"sim {t:6.0f} s")
+                        progress.update(
+                            tasks[f], completed=min(t, totals[f]), sim=f"sim {t:6.0f} s"
+                        )
                     done = {fu for fu in pending if fu.done()}
                     for fu in done:
                         f, rep, err = fu.result()

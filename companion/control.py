@@ -633,7 +633,7 @@ class TrackingController:
     def _core(
         self, now: float, est: StateEstimate, ref: Reference, lead_s: float
     ) -> tuple[FloatArray, float, FloatArray, bool] | None:
-        """q_des, thrust_norm, omega_ff_frd, saturated; None -> fallback (reason in self.last)."""
+        """q_des, thrust_norm, omega_ff_frd, saturated; None -> fallback (see _fallback_reason)."""
         c = self.config
         p = c.params
         self._fallback_reason = ""

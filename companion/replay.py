@@ -13,6 +13,7 @@ schedule, then hand over to PX4's NAV_LAND (or Hold for a loiter ending) and wai
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import json
 import math
@@ -29,14 +30,7 @@ from typing import Any, BinaryIO, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.control import (
-    Reference,
-    RoverController,
-    StateEstimate,
-    TrackingConfig,
-    TrackingController,
-    position_command,
-)
+from companion.control import Reference
 from companion.flatness import MultirotorParams
 from companion.mavlink.commands import CommandFinished
 from companion.mavlink.link import LinkConfig, VehicleLink
@@ -52,6 +46,7 @@ from companion.mavlink.setpoints import (
 from companion.mission import Mission, MissionError, load_mission, mission_to_flight_plan
 from companion.mission.upload import mission_upload_items
 from companion.schedule import Schedule, VehicleLimits, build_schedule
+from companion.tracking import SetpointMode, TrackingSource, estimate_from_telemetry
 
 FloatArray = NDArray[np.float64]
 Mode = Literal["position", "attitude", "rates"]
@@ -81,7 +76,7 @@ class ReplayConfig:
     seed: int = 0
     compare_px4_mission: bool = False
     params: MultirotorParams = DEFAULT_QUAD
-    limits: VehicleLimits = VehicleLimits()
+    limits: VehicleLimits = field(default_factory=VehicleLimits)
     mock_params: tuple[tuple[str, float], ...] = ()
     timeout_margin_s: float = 120.0
 
@@ -120,7 +115,7 @@ class TlogWriter:
 
     def write(self, t_s: float, frame: bytes) -> None:
         """Record `frame` at simulated time `t_s` [s]."""
-        self._f.write(struct.pack(">Q", self._epoch_us + int(round(t_s * 1e6))) + frame)
+        self._f.write(struct.pack(">Q", self._epoch_us + round(t_s * 1e6)) + frame)
         self.frames += 1
 
 
@@ -235,31 +230,6 @@ def _make_autopilot(config: ReplayConfig, home: tuple[float, float, float]) -> A
     return ap
 
 
-def _estimate(link: VehicleLink) -> StateEstimate | None:
-    tel = link.telemetry
-    if tel.position is None or tel.attitude is None:
-        return None
-    in_air = tel.extended.in_air if tel.extended is not None else True
-    return StateEstimate(
-        t_s=max(tel.position.t_s, tel.attitude.t_s),
-        pos_ned=np.array(tel.position.pos_ned),
-        vel_ned=np.array(tel.position.vel_ned),
-        q_wxyz=np.array(tel.attitude.q_wxyz),
-        omega_frd=np.array(tel.attitude.omega_frd),
-        airborne=in_air,
-    )
-
-
-def _nan_to_none3(v: FloatArray) -> tuple[float, float, float] | None:
-    if not np.all(np.isfinite(v)):
-        return None
-    return (float(v[0]), float(v[1]), float(v[2]))
-
-
-def _opt(v: float) -> float | None:
-    return float(v) if math.isfinite(v) else None
-
-
 class Flight:
     """The companion's flight sequence over a `LockstepLink` (see the module docstring)."""
 
@@ -280,13 +250,10 @@ class Flight:
         self.t_phase = 0.0
         self.t_fly0 = math.nan
         self.origin = np.zeros(3)
-        self.tracker = TrackingController(
-            TrackingConfig(params=config.params, max_tilt_rad=math.radians(50.0))
-        )
-        self.rover = RoverController()
+        mode: SetpointMode = "rover" if config.vehicle == "rover" else config.mode
+        self.source = TrackingSource(self._reference, mode, config.params)
         self.setpoints_sent = 0
         self.offboard_seen = False
-        self._ref_cache: tuple[tuple[float, Phase], Reference] | None = None
 
     # -- per-tick -----------------------------------------------------------------------------
     def _go(self, phase: Phase, now: float, reason: str = "") -> None:
@@ -295,56 +262,23 @@ class Flight:
         if reason:
             self.reason = reason
 
-    def _reference(self, now: float) -> Reference:
-        key = (now, self.phase)
-        if self._ref_cache is not None and self._ref_cache[0] == key:
-            return self._ref_cache[1]
-        ref = self._reference_uncached(now)
-        self._ref_cache = (key, ref)
-        return ref
+    def _reference(self, t_s: float) -> Reference:
+        ref = self.schedule.reference(t_s)
+        return Reference(
+            ref.pos_ned + self.origin, ref.vel_ned, ref.acc_ned, ref.jerk_ned, ref.snap_ned,
+            ref.yaw, ref.yaw_rate, ref.yaw_acc,
+        )
 
-    def _reference_uncached(self, now: float) -> Reference:
-        if self.phase in (Phase.FLY, Phase.HANDOVER):
-            ref = self.schedule.reference(now - self.t_fly0)
-            return Reference(
-                ref.pos_ned + self.origin, ref.vel_ned, ref.acc_ned, ref.jerk_ned, ref.snap_ned,
-                ref.yaw, ref.yaw_rate, ref.yaw_acc,
-            )
-        first = self.schedule.reference(0.0)
-        return Reference(self.origin + first.pos_ned, yaw=first.yaw)
-
-    def _setpoint(self, now: float, est: StateEstimate) -> SetpointCommand:
-        ref = self._reference(now)
-        if self.config.vehicle == "rover":
-            cmd = self.rover.update(now, est, ref)
-            if self.phase not in (Phase.FLY,):
+    def _setpoint(self, now: float) -> SetpointCommand:
+        if self.phase != Phase.FLY:  # priming, mode request, arming: hold the start point
+            if self.config.vehicle == "rover":
                 return PositionSetpoint(vel_ned=(0.0, 0.0, 0.0), yaw_rate=0.0)
-            return PositionSetpoint(
-                vel_ned=(float(cmd.vel_ned[0]), float(cmd.vel_ned[1]), 0.0),
-                yaw_rate=_opt(cmd.yaw_rate),
-            )
-        mode = self.config.mode
-        if mode == "position" or self.phase in (Phase.PRIME, Phase.REQUEST_OFFBOARD, Phase.ARM):
-            pc = position_command(ref, feedforward=True)
-            return PositionSetpoint(
-                pos_ned=_nan_to_none3(pc.pos_ned),
-                vel_ned=_nan_to_none3(pc.vel_ned),
-                acc_ned=_nan_to_none3(pc.acc_ned),
-                yaw=_opt(pc.yaw),
-                yaw_rate=_opt(pc.yaw_rate),
-            )
-        if mode == "attitude":
-            a = self.tracker.attitude(now, est, ref)
-            q = tuple(float(v) for v in a.q_wxyz)
-            return AttitudeSetpoint(
-                (q[0], q[1], q[2], q[3]), float(a.thrust_norm), _opt(a.yaw_rate_ff)
-            )
-        r = self.tracker.rates(now, est, ref)
-        w = r.omega_frd
-        return RatesSetpoint((float(w[0]), float(w[1]), float(w[2])), float(r.thrust_norm))
+            return self.source.position_setpoint(0.0)
+        snap = dataclasses.replace(self.link.telemetry.snapshot(), now_s=now)
+        return self.source(now - self.t_fly0, snap)
 
-    def _stream(self, now: float, est: StateEstimate) -> None:
-        sp = self._setpoint(now, est)
+    def _stream(self, now: float) -> None:
+        sp = self._setpoint(now)
         self.lk.to_vehicle([self.link.encode_setpoint(sp, now)])
         self.setpoints_sent += 1
         if isinstance(sp, (AttitudeSetpoint, RatesSetpoint)):
@@ -364,13 +298,13 @@ class Flight:
                         self._go(Phase.FLY, now)
                         self.t_fly0 = now
                         self.log.fly_t0 = now
-                        self.tracker.reset()
+                        self.source.reset()
                     else:
                         self._go(Phase.ABORTED, now, f"arming refused: {ev.reason}")
 
     def tick(self, now: float) -> None:
         """One setpoint period."""
-        est = _estimate(self.link)
+        est = estimate_from_telemetry(self.link.telemetry.snapshot())
         mode = self.link.mode
         armed = self.link.armed
         if self.log.armed_t is None and armed:
@@ -397,7 +331,7 @@ class Flight:
                 name = mode.name if mode is not None else "unknown"
                 self._go(Phase.ABORTED, now, f"vehicle left OFFBOARD (now {name})")
                 return
-            self._stream(now, est)
+            self._stream(now)
             if ph == Phase.PRIME and now - self.t_phase >= PRIME_S:
                 self._go(Phase.REQUEST_OFFBOARD, now)
                 self.link.set_mode(FlightMode.OFFBOARD, now)
@@ -449,15 +383,13 @@ def _record_message(log: FlightLog, msg: Any, t: float) -> None:
         log.pos.append((msg.x, msg.y, msg.z))
         log.vel.append((msg.vx, msg.vy, msg.vz))
     elif kind == "ATTITUDE_QUATERNION":
-        w, x, y, z = msg.q1, msg.q2, msg.q3, msg.q4
+        x, y = msg.q2, msg.q3
         c33 = 1.0 - 2.0 * (x * x + y * y)  # z_b . e3 (C_eb[2, 2])
         log.att_t.append(t)
         log.tilt.append(math.acos(max(-1.0, min(1.0, c33))))
         log.rate_norm.append(math.sqrt(msg.rollspeed**2 + msg.pitchspeed**2 + msg.yawspeed**2))
     elif kind == "STATUSTEXT":
         log.statustext.append((t, int(msg.severity), str(msg.text)))
-    elif kind == "ATTITUDE_TARGET" and not log.thrust_norm:
-        pass
 
 
 def fly_schedule(

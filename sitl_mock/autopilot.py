@@ -243,6 +243,7 @@ class Autopilot:
         self._bat_warned = 0  # 0 none, 1 low, 2 critical, 3 emergency
         self._slow_next_t = 0.0
         self._cmd_next_t = 0.0
+        self._tele_next_t = 0.0
         self._nav_target: PositionTarget | None = None
         self._nav_last_t = 0.0
         self._nav_next_t = 0.0
@@ -270,7 +271,8 @@ class Autopilot:
         self._mission_started = False
         self._reached_seq: int | None = None
         self._reached_next_t = math.inf
-        self._state: VehicleState = self.vehicle.state
+        self._state_cache: VehicleState = self.vehicle.state
+        self._state_stale = False
 
     # ================================================================== public sans-IO API
     @property
@@ -327,9 +329,10 @@ class Autopilot:
         dt = self.dt
         while True:
             t_phys = (self._n_steps + 1) * dt
-            t_ev = self._events[0][0] if self._events else math.inf
-            t_rx = min((lk.rx.next_due() for lk in self.links.values()), default=math.inf)
-            t_next_ev = min(t_ev, t_rx)
+            t_next_ev = self._events[0][0] if self._events else math.inf
+            for lk in self.links.values():
+                if len(lk.rx):
+                    t_next_ev = min(t_next_ev, lk.rx.next_due())
             if t_next_ev <= t_end and t_next_ev <= t_phys:
                 self._t = max(self._t, t_next_ev)
                 self._run_events()
@@ -341,6 +344,14 @@ class Autopilot:
         self._t = max(self._t, t_end)
 
     # ================================================================== derived state
+    @property
+    def _state(self) -> VehicleState:
+        """Vehicle state snapshot, fetched lazily once per physics step."""
+        if self._state_stale:
+            self._state_cache = self.vehicle.state
+            self._state_stale = False
+        return self._state_cache
+
     @property
     def state(self) -> VehicleState:
         return self._state
@@ -921,6 +932,7 @@ class Autopilot:
         if msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT or msg_id not in telemetry.BUILDERS:
             return RESULT_FAILED
         link.streams.set_interval(msg_id, interval_us, self._t)
+        self._tele_next_t = min(self._tele_next_t, link.streams.earliest)
         return RESULT_ACCEPTED
 
     def _cmd_get_message_interval(
@@ -1097,29 +1109,32 @@ class Autopilot:
         self._t = t_phys
         target = self._target()
         self.vehicle.step(self.dt, target, self.armed)
-        self._state = self.vehicle.state
+        self._state_stale = True
         if t_phys >= self._cmd_next_t - 1e-9:  # commander at <= 250 Hz
             self._cmd_next_t = t_phys + COMMANDER_PERIOD_S
             self._commander(t_phys)
         if self._events and self._events[0][0] <= t_phys:
             self._run_events()
-        for lk in self.links.values():
-            if t_phys >= lk.streams.earliest:
-                for msg_id in lk.streams.due(t_phys):
-                    m = telemetry.BUILDERS[msg_id](self)
-                    if m is not None:
-                        self._send(lk, m)
+        if t_phys >= self._tele_next_t:
+            nxt = math.inf
+            for lk in self.links.values():
+                if t_phys >= lk.streams.earliest:
+                    for msg_id in lk.streams.due(t_phys):
+                        m = telemetry.BUILDERS[msg_id](self)
+                        if m is not None:
+                            self._send(lk, m)
+                nxt = min(nxt, lk.streams.earliest)
+            self._tele_next_t = nxt
 
     def _target(self) -> Target:
         if not self.armed:
             return _IDLE
-        s = self._state
-        mode = self.mode
-        if mode == Mode.OFFBOARD:
+        if self.mode == Mode.OFFBOARD:
             return self._ob_target if self._ob_target is not None else _IDLE
-        if self.kind == "quad" and s.landed and not self._nav_active:
-            return _IDLE
         if self._descend:
+            s = self._state
+            if self.kind == "quad" and s.landed and not self._nav_active:
+                return _IDLE
             hold = self._hold_ned or s.pos_ned
             return PositionTarget(
                 (hold[0], hold[1], math.nan), (math.nan, math.nan, DESCEND_SPEED_NO_RC)
@@ -1129,7 +1144,7 @@ class Autopilot:
             t = self._t
             if self._nav_target is None or t >= self._nav_next_t - 1e-9:
                 dt_nav = t - self._nav_last_t if self._nav_target is not None else self.dt
-                self._nav_target = self.nav.update(max(dt_nav, self.dt), s)
+                self._nav_target = self.nav.update(max(dt_nav, self.dt), self._state)
                 self._nav_last_t = t
                 self._nav_next_t = t + NAVIGATOR_PERIOD_S
             return self._nav_target
@@ -1260,16 +1275,16 @@ class Autopilot:
             if self._scn_pos_state == 0 and t >= start:
                 self._scn_pos_state = 1
                 self.vehicle.set_local_position_valid(False)
-                self._state = self.vehicle.state
+                self._state_stale = True
             elif self._scn_pos_state == 1 and t >= end:
                 self._scn_pos_state = 2
                 self.vehicle.set_local_position_valid(True)
-                self._state = self.vehicle.state
+                self._state_stale = True
         if sc.low_battery_s is not None and not self._scn_battery_done and t >= sc.low_battery_s:
             self._scn_battery_done = True
             self.vehicle.set_battery_remaining(sc.low_battery_remaining)
             self._battery_cap = sc.low_battery_remaining
-            self._state = self.vehicle.state
+            self._state_stale = True
 
     # ================================================================== convenience
     def set_rc_present(self, present: bool) -> None:

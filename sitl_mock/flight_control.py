@@ -359,12 +359,86 @@ class PositionVelocityController:
 
 
 def attitude_control(g: McGains, q: Quat, q_sp: Quat, yaw_rate_ff: float) -> Vec3:
-    """Quaternion attitude P with reduced yaw weight; returns body rate setpoint [rad/s FRD]."""
+    """Quaternion attitude P with reduced yaw weight; returns body rate setpoint [rad/s FRD].
+
+    Like PX4's AttitudeControl: the thrust-axis (roll/pitch) correction is the shortest rotation
+    of the body z axis onto the desired one; the remaining yaw rotation is scaled by MC_YAW_WEIGHT
+    before the P gains act on 2 * vector part of q^-1 q_desired. Written out with floats for speed
+    (same result as the quat_* helpers; see tests).
+    """
+    qw, qx, qy, qz = q
+    sw, sx, sy, sz = q_sp
+    # body z axes in the world (third column of R)
+    ax = 2.0 * (qx * qz + qw * qy)
+    ay = 2.0 * (qy * qz - qw * qx)
+    az = 1.0 - 2.0 * (qx * qx + qy * qy)
+    bx = 2.0 * (sx * sz + sw * sy)
+    by = 2.0 * (sy * sz - sw * sx)
+    bz = 1.0 - 2.0 * (sx * sx + sy * sy)
+    # shortest rotation a -> b (unit vectors): (1 + a.b, a x b), normalised
+    rw = 1.0 + ax * bx + ay * by + az * bz
+    rx = ay * bz - az * by
+    ry = az * bx - ax * bz
+    rz = ax * by - ay * bx
+    n = math.sqrt(rw * rw + rx * rx + ry * ry + rz * rz)
+    use_full = rw < 1e-9
+    if not use_full:
+        rw, rx, ry, rz = rw / n, rx / n, ry / n, rz / n
+        use_full = abs(rx) > 1.0 - 1e-5 or abs(ry) > 1.0 - 1e-5
+    if use_full:
+        dw, dx, dy, dz = sw, sx, sy, sz  # body z flipped: use the full attitude
+    else:
+        # reduced attitude qr = r * q
+        pw = rw * qw - rx * qx - ry * qy - rz * qz
+        px = rw * qx + rx * qw + ry * qz - rz * qy
+        py = rw * qy - rx * qz + ry * qw + rz * qx
+        pz = rw * qz + rx * qy - ry * qx + rz * qw
+        # q_mix = qr^-1 * q_sp (a pure yaw rotation up to rounding), canonical (w >= 0)
+        mw = pw * sw + px * sx + py * sy + pz * sz
+        mz = pw * sz - px * sy + py * sx - pz * sw
+        if mw < 0.0:
+            mw, mz = -mw, -mz
+        mw = 1.0 if mw > 1.0 else mw
+        mz = 1.0 if mz > 1.0 else -1.0 if mz < -1.0 else mz
+        yw = g.yaw_w
+        cw, cz = math.cos(yw * math.acos(mw)), math.sin(yw * math.asin(mz))
+        # qd = qr * (cw, 0, 0, cz)
+        dw = pw * cw - pz * cz
+        dx = px * cw + py * cz
+        dy = py * cw - px * cz
+        dz = pz * cw + pw * cz
+    # qe = q^-1 * qd, canonical
+    ew = qw * dw + qx * dx + qy * dy + qz * dz
+    ex = qw * dx - qx * dw - qy * dz + qz * dy
+    ey = qw * dy + qx * dz - qy * dw - qz * dx
+    ez = qw * dz - qx * dy + qy * dx - qz * dw
+    k = 2.0 / math.sqrt(ew * ew + ex * ex + ey * ey + ez * ez)
+    if ew < 0.0:
+        k = -k
+    ap = g.att_p
+    r0 = ex * k * ap[0]
+    r1 = ey * k * ap[1]
+    r2 = ez * k * ap[2]
+    if _isfinite(yaw_rate_ff):
+        # world z axis in body coordinates = third row of R
+        r0 += 2.0 * (qx * qz - qw * qy) * yaw_rate_ff
+        r1 += 2.0 * (qy * qz + qw * qx) * yaw_rate_ff
+        r2 += az * yaw_rate_ff
+    rm = g.rate_max
+    return (
+        rm[0] if r0 > rm[0] else -rm[0] if r0 < -rm[0] else r0,
+        rm[1] if r1 > rm[1] else -rm[1] if r1 < -rm[1] else r1,
+        rm[2] if r2 > rm[2] else -rm[2] if r2 < -rm[2] else r2,
+    )
+
+
+def attitude_control_reference(g: McGains, q: Quat, q_sp: Quat, yaw_rate_ff: float) -> Vec3:
+    """Readable version of `attitude_control` built from the quaternion helpers (for tests)."""
     ez = quat_body_z(q)
     ezd = quat_body_z(q_sp)
     qd_red = quat_from_two_vectors(ez, ezd)
     if abs(qd_red[1]) > 1.0 - 1e-5 or abs(qd_red[2]) > 1.0 - 1e-5:
-        qd = q_sp  # body z flipped: use the full attitude
+        qd = q_sp
     else:
         qd_red = quat_mul(qd_red, q)
         q_mix = quat_normalize(quat_mul(quat_conj(qd_red), q_sp))
@@ -378,7 +452,6 @@ def attitude_control(g: McGains, q: Quat, q_sp: Quat, yaw_rate_ff: float) -> Vec
     ry = 2.0 * qe[2] * g.att_p[1]
     rz = 2.0 * qe[3] * g.att_p[2]
     if _isfinite(yaw_rate_ff):
-        # world z axis in body coordinates = third row of R
         w, x, y, z = q
         rx += 2.0 * (x * z - w * y) * yaw_rate_ff
         ry += 2.0 * (y * z + w * x) * yaw_rate_ff

@@ -10,8 +10,8 @@ Physics (world NED, body FRD, SI units), defaults from PX4 SIH (SIH_* parameters
 - flat ground at z = 0 (home altitude): no sinking; on contact the vehicle stops (friction) and
   sits level, like SIH; it lifts off as soon as the thrust exceeds the weight.
 
-Control: flight_control.py (position loop <= 100 Hz, attitude loop <= 250 Hz, rate loop every
-physics step), PX4's takeoff handling (spool-up, ready, thrust ramp, flight) and a PX4-like land
+Control: flight_control.py (position loop <= 100 Hz, attitude loop <= 250 Hz, rate loop
+<= 500 Hz; motor commands are held between rate-loop ticks), PX4's takeoff handling (spool-up, ready, thrust ramp, flight) and a PX4-like land
 detector. Sensor noise (SIM_*_NOISE) is added to what the controller and `state` see.
 """
 
@@ -47,6 +47,7 @@ POS_LOOP_PERIOD_S = 0.01
 PARAM_REFRESH_S = 0.1
 MAX_STEP_S = 1.0 / 250.0  # longer steps are split (integration always at >= 250 Hz)
 ATT_LOOP_PERIOD_S = 0.004
+RATE_LOOP_PERIOD_S = 0.002  # rate loop at <= 500 Hz (every physics step below 500 Hz)
 LAND_DETECT_TIME_S = 0.5
 
 
@@ -60,6 +61,10 @@ class Quadrotor:
         "_arm_t",
         "_armed_prev",
         "_att_acc",
+        "_att_q",
+        "_att_rates",
+        "_att_tgt",
+        "_att_thrust",
         "_ax",
         "_ay",
         "_az",
@@ -101,6 +106,7 @@ class Quadrotor:
         "_qy",
         "_qz",
         "_ramp_up_limit",
+        "_rate_acc",
         "_rate_sp",
         "_rc",
         "_rng",
@@ -132,6 +138,10 @@ class Quadrotor:
         self._home = home_lat_lon_alt
         self._rng = random.Random(seed)
         self._state_cache: VehicleState | None = None
+        self._att_tgt: AttitudeTarget | None = None
+        self._att_thrust = 0.0
+        self._att_q: Quat | None = None
+        self._att_rates: Vec3 | None = None
         # rigid-body state
         self._t = 0.0
         self._px = self._py = self._pz = 0.0
@@ -154,6 +164,7 @@ class Quadrotor:
         self._rc = RateController()
         self._pos_acc = math.inf
         self._att_acc = math.inf
+        self._rate_acc = math.inf
         self._param_acc = 0.0
         self._alpha_dt = -1.0
         self._alpha = 0.0
@@ -344,6 +355,7 @@ class Quadrotor:
             self.reset_integrators()
         self._pos_acc = math.inf
         self._att_acc = math.inf
+        self._rate_acc = math.inf
         self._last_pos_target = None
         self._q_sp = quat_from_yaw(quat_yaw((self._qw, self._qx, self._qy, self._qz)))
         self._rate_sp = (0.0, 0.0, 0.0)
@@ -374,6 +386,7 @@ class Quadrotor:
         if self._last_mode != "pos":
             self._last_mode = "pos"
             self._pos_acc = math.inf
+            self._rate_acc = math.inf
             self._yaw_hold = None
         self._last_pos_target = tgt
         self._pos_acc += dt
@@ -460,24 +473,42 @@ class Quadrotor:
         if self._last_mode != "att":
             self._last_mode = "att"
             self._att_acc = math.inf
+            self._rate_acc = math.inf
         self._last_pos_target = None
         self._idle = False
         self._pos_acc += dt
         if self._pos_acc >= POS_LOOP_PERIOD_S - 1e-9:
             self._pos_acc = 0.0
             self._refresh()
-        thrust = tgt.thrust_norm
-        self._thrust_sp = min(max(thrust, 0.0), 1.0) if _isfinite(thrust) else 0.0
+        if tgt is not self._att_tgt:
+            # validate once per target object (the autopilot passes the same one every step)
+            self._att_tgt = tgt
+            thrust = tgt.thrust_norm
+            self._att_thrust = min(max(thrust, 0.0), 1.0) if _isfinite(thrust) else 0.0
+            q_in = tgt.q_wxyz
+            q_ok: Quat | None = None
+            if q_in is not None:
+                n2 = q_in[0] ** 2 + q_in[1] ** 2 + q_in[2] ** 2 + q_in[3] ** 2
+                # an invalid quaternion is treated as "attitude not given"
+                q_ok = quat_normalize(q_in) if _isfinite(n2) and n2 > 1e-6 else None
+            self._att_q = q_ok
+            r_in = tgt.body_rates_frd
+            self._att_rates = (
+                None
+                if r_in is None
+                else (
+                    r_in[0] if _isfinite(r_in[0]) else 0.0,
+                    r_in[1] if _isfinite(r_in[1]) else 0.0,
+                    r_in[2] if _isfinite(r_in[2]) else 0.0,
+                )
+            )
+        self._thrust_sp = self._att_thrust
         q = (self._qw, self._qx, self._qy, self._qz)
-        q_tgt = tgt.q_wxyz
-        if q_tgt is not None:
-            n2 = sum(c * c for c in q_tgt)
-            # an invalid quaternion is treated as "attitude not given"
-            q_tgt = quat_normalize(q_tgt) if _isfinite(n2) and n2 > 1e-6 else None
-        if tgt.body_rates_frd is not None:
-            rates = tuple(r if _isfinite(r) else 0.0 for r in tgt.body_rates_frd)
+        q_tgt = self._att_q
+        rates = self._att_rates
+        if rates is not None:
             self._q_sp = q if q_tgt is None else q_tgt
-            self._run_attitude_and_rate(dt, self._q_sp, math.nan, (rates[0], rates[1], rates[2]))
+            self._run_attitude_and_rate(dt, self._q_sp, math.nan, rates)
         elif q_tgt is not None:
             self._q_sp = q_tgt
             self._run_attitude_and_rate(dt, q_tgt, tgt.yaw_rate_ff, None)
@@ -488,9 +519,14 @@ class Quadrotor:
     def _run_attitude_and_rate(
         self, dt: float, q_sp: Quat, yaw_ff: float, rates: Vec3 | None
     ) -> None:
+        self._att_acc += dt
+        self._rate_acc += dt
+        if self._rate_acc < RATE_LOOP_PERIOD_S - 1e-9:
+            return  # motor commands held until the next rate-loop tick
+        dtr = self._rate_acc if self._rate_acc < 0.05 else dt
+        self._rate_acc = 0.0
         g = self._gains
         if rates is None:
-            self._att_acc += dt
             if self._att_acc >= ATT_LOOP_PERIOD_S - 1e-9:
                 self._att_acc = 0.0
                 self._rate_sp = attitude_control(
@@ -509,7 +545,7 @@ class Quadrotor:
             )
         else:
             omega = (self._wx, self._wy, self._wz)
-        torque = self._rc.update(g, omega, self._rate_sp, dt, self._landed)
+        torque = self._rc.update(g, omega, self._rate_sp, dtr, self._landed)
         self._motor_cmd = mix_quad_x(torque, self._thrust_sp)
 
     def _land_detector(self, dt: float, armed: bool) -> None:

@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 import scipy.linalg
+import scipy.linalg.lapack
 import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
 
@@ -65,6 +66,9 @@ VELOCITY_YAW_MIN_FRACTION = 0.3
 HOVER_DURATION_S = 1.0
 _MERGE_TOL_M = 1e-9
 
+
+_PBTRF = scipy.linalg.lapack.dpbtrf  # banded Cholesky factorisation (LAPACK)
+_PBTRS = scipy.linalg.lapack.dpbtrs  # banded Cholesky solve
 
 # =========================================================================== basis matrices
 @lru_cache(maxsize=8)
@@ -118,39 +122,47 @@ class _System:
         self.band_flat = ((self.u + ai - bj) * self.nf + bj)[mask]
         self.fa = fa
         self.free_rows = fa >= 0  # (M, 2s)
+        rows = fa[self.free_rows]
+        self.rhs_index = (rows[:, None] * self.d + np.arange(self.d)[None, :]).reshape(-1)
+        # band storage entry (r, j) holds A[j - (u - r), j]: row index per entry for scaling
+        band_i = np.arange(self.nf)[None, :] - (self.u - np.arange(self.u + 1))[:, None]
+        self.band_i = np.clip(band_i, 0, max(self.nf - 1, 0))
         self._factor: tuple[FloatArray, FloatArray] | None = None
-        self._q_cache: tuple[FloatArray, FloatArray] | None = None
+        self._last: tuple[FloatArray, FloatArray, FloatArray] | None = None  # h, hp, Q
 
-    def _q(self, h: FloatArray) -> FloatArray:
-        """Per-segment cost matrices Q_k = h^(1-2s) S Qt S, S = diag(h^o) (M, 2s, 2s)."""
-        cache = self._q_cache
-        if cache is not None and cache[0].shape == h.shape and np.array_equal(cache[0], h):
-            return cache[1]
-        hp = self.powers(h, 0)
-        Q = self.Qt[None, :, :] * (h ** (1.0 - 2.0 * self.s))[:, None, None]
-        Q = Q * hp[:, :, None] * hp[:, None, :]
-        self._q_cache = (h.copy(), Q)
-        return Q
+    def _prepare(self, h: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """(hp, Q) for durations h: hp = h^o (M, 2s), Q_k = h^(1-2s) S Qt S, S = diag(hp)."""
+        last = self._last
+        if last is not None and last[0] is h:
+            return last[1], last[2]
+        s = self.s
+        half = np.empty((h.shape[0], s))
+        half[:, 0] = 1.0
+        for i in range(1, s):
+            half[:, i] = half[:, i - 1] * h
+        hp = np.concatenate([half, half], axis=1)
+        Q = self.Qt[None, :, :] * (h ** (1.0 - 2.0 * s) * 1.0)[:, None, None]
+        Q *= hp[:, :, None]
+        Q *= hp[:, None, :]
+        self._last = (h, hp, Q)
+        return hp, Q
 
     def powers(self, h: FloatArray, r: int) -> FloatArray:
         """h^(o_a - r) for the 2s Hermite inputs, shape (M, 2s)."""
-        half = np.cumprod(np.column_stack([np.ones_like(h)] + [h] * (self.s - 1)), axis=1)
-        hp = np.concatenate([half, half], axis=1)
+        hp, _ = self._prepare(h)
         return hp if r == 0 else hp / h[:, None] ** r
 
     def solve(self, h: FloatArray) -> tuple[FloatArray, float]:
         """Joint derivatives x (n_joints * s, d) and cost J for durations h (M,)."""
         d = self.d
-        Q = self._q(h)
+        _, Q = self._prepare(h)
         x = self.x0.copy()
         if self.nf:
             xk = x[self.gidx]
-            y = Q @ xk
-            rows = self.fa[self.free_rows]
-            rhs = np.empty((self.nf, d))
-            yf = y[self.free_rows]
-            for c in range(d):
-                rhs[:, c] = -np.bincount(rows, weights=yf[:, c], minlength=self.nf)
+            yf = (Q @ xk)[self.free_rows]
+            rhs = -np.bincount(
+                self.rhs_index, weights=yf.reshape(-1), minlength=self.nf * d
+            ).reshape(self.nf, d)
             ab = np.bincount(
                 self.band_flat, weights=Q[self.band_mask], minlength=(self.u + 1) * self.nf
             ).reshape(self.u + 1, self.nf)
@@ -162,19 +174,15 @@ class _System:
                     "the cost (fix more boundary derivatives)"
                 )
             sc = 1.0 / np.sqrt(diag)
-            for r in range(self.u + 1):
-                off = self.u - r  # ab[r, j] = A[j - off, j]
-                if off >= self.nf:
-                    continue
-                ab[r, off:] *= sc[: self.nf - off] * sc[off:]
-            try:
-                cb = scipy.linalg.cholesky_banded(ab, lower=False, check_finite=False)
-            except np.linalg.LinAlgError as exc:
+            ab *= sc[self.band_i]
+            ab *= sc[None, :]
+            cb, info = _PBTRF(ab, lower=0)
+            if info != 0:
                 raise ValueError(
                     "the trajectory problem is singular (under-determined free derivatives)"
-                ) from exc
+                )
             self._factor = (cb, sc)
-            z = scipy.linalg.cho_solve_banded((cb, False), rhs * sc[:, None], check_finite=False)
+            z, info = _PBTRS(cb, rhs * sc[:, None], lower=0)
             x[self.free] = z * sc[:, None]
         xk = x[self.gidx]
         cost = float(np.sum(xk * (Q @ xk)))
@@ -186,17 +194,19 @@ class _System:
         lam = np.zeros_like(g_full)
         if self.nf and self._factor is not None:
             cb, sc = self._factor
-            z = scipy.linalg.cho_solve_banded(
-                (cb, False), g_full[self.free] * sc[:, None], check_finite=False
-            )
+            z, _ = _PBTRS(cb, g_full[self.free] * sc[:, None], lower=0)
             lam[self.free] = z * sc[:, None]
         return lam
 
+    def dq(self, h: FloatArray) -> FloatArray:
+        """dQ_k / dh_k (M, 2s, 2s)."""
+        _, Q = self._prepare(h)
+        return np.asarray(Q * self.expo[None] / h[:, None, None], dtype=np.float64)
+
     def cost_grad(self, x: FloatArray, h: FloatArray) -> FloatArray:
         """dJ*/dh (M,) at the optimum x (envelope theorem: fixed joint derivatives)."""
-        dQ = self._q(h) * self.expo[None] / h[:, None, None]
         xk = x[self.gidx]
-        return np.asarray(np.sum(xk * (dQ @ xk), axis=(1, 2)), dtype=np.float64)
+        return np.asarray(np.sum(xk * (self.dq(h) @ xk), axis=(1, 2)), dtype=np.float64)
 
     def control_points(self, x: FloatArray, h: FloatArray) -> FloatArray:
         """Bezier control points (M, 2s, d) of the segments."""
@@ -427,8 +437,7 @@ class _Penalty:
         g_full[: m * s] += dxk[:, :s, :].reshape(-1, x.shape[1])
         g_full[s:] += dxk[:, s:, :].reshape(-1, x.shape[1])
         lam = sysm.adjoint(g_full)
-        dQ = sysm._q(h) * sysm.expo[None] / h[:, None, None]
-        dh -= np.sum(lam[sysm.gidx] * (dQ @ xk), axis=(1, 2))
+        dh -= np.sum(lam[sysm.gidx] * (sysm.dq(h) @ xk), axis=(1, 2))
         return value, dh
 
 
@@ -547,7 +556,7 @@ class _Planner:
             jac=True,
             method="L-BFGS-B",
             bounds=[(z - 3.0, z + 3.0) for z in lz],
-            options={"maxiter": REFINE_MAXITER, "gtol": 1e-6},
+            options={"maxiter": REFINE_MAXITER, "gtol": 1e-6, "ftol": 1e-5},
         )
         return np.exp(np.asarray(res.x, dtype=np.float64))
 

@@ -170,9 +170,8 @@ async def test_takeoff_fly_position_attitude_rates_land(mock_px4: MockFactory,
     # the vehicle entered OFFBOARD only after the request
     offb = [t for t, main in px4_modes(msgs) if main == 6]
     assert offb and min(offb) >= req._timestamp
-    # every setpoint: pos+vel+acc+yaw (yaw rate ignored without a yaw trajectory), finite;
-    # the hold setpoint (pos+vel+yaw, 2496) only appears once the trajectory is over
-    assert {s.type_mask for s in sps} <= {2048}
+    # every setpoint: pos+vel+acc+yaw (yaw rate ignored without a yaw trajectory), finite
+    assert {s.type_mask for s in sps} == {2048}
     assert all(math.isfinite(f) for s in sps for f in (s.x, s.y, s.z, s.vx, s.afx, s.yaw))
     # the stream stopped once Hold was confirmed: no setpoints after the first HOLD heartbeat
     hold_after = [t for t, main in px4_modes(msgs) if main == 4 and t > req._timestamp]

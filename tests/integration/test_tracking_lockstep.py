@@ -81,6 +81,19 @@ def test_hover_thrust_estimate_and_altitude_hold() -> None:
     assert off.hover_thrust[-1] == 0.5  # type: ignore[attr-defined]
 
 
+def test_hover_thrust_estimate_during_fast_figure8() -> None:
+    """Heavier mock (true hover 0.6, companion told 0.5) flying the 6 m/s figure-8."""
+    mass = 0.6 * 4.0 * 5.0 / 9.80665
+    ctl = TrackingController(bt.default_controller_config())
+    res = bt.run_lockstep("rates", lambda t: bt.figure8_reference(t, 6.0),
+                          bt.figure8_seconds(6.0), params=bt.mock_params({"SIH_MASS": mass}),
+                          controller=ctl)
+    late = res.t >= 5.0
+    assert np.all(np.abs(res.hover_thrust[late] - 0.6) < 0.05 * 0.6)
+    assert np.abs(res.pos[late, 2] + 5.0).max() < 0.3
+    assert res.fallbacks == 0
+
+
 # ----------------------------------------------------------------------------- SO(3) on the mock
 
 

@@ -10,6 +10,9 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from sitl_mock.flight_control import (
+    McGains,
+    attitude_control,
+    attitude_control_reference,
     dcm_to_quat,
     mix_quad_x,
     quat_body_z,
@@ -18,6 +21,7 @@ from sitl_mock.flight_control import (
     quat_rotate,
     quat_yaw,
 )
+from sitl_mock.params import ParamStore
 
 unit = st.floats(-1.0, 1.0, allow_nan=False)
 vec = st.tuples(
@@ -93,3 +97,15 @@ def test_mixer_outputs_always_in_range(torque: tuple[float, float, float], thrus
     pitch = u[0] - u[1] + u[2] - u[3]
     assert roll * torque[0] >= -1e-12
     assert pitch * torque[1] >= -1e-12
+
+
+@settings(max_examples=150, deadline=None)
+@given(quat, quat, st.one_of(st.just(math.nan), st.floats(-3.0, 3.0)))
+def test_fast_attitude_control_equals_readable_version(
+    a: tuple[float, ...], b: tuple[float, ...], ff: float
+) -> None:
+    g = McGains.from_params(ParamStore())
+    qa, qb = _unit((a[0], a[1], a[2], a[3])), _unit((b[0], b[1], b[2], b[3]))
+    fast = attitude_control(g, qa, qb, ff)
+    slow = attitude_control_reference(g, qa, qb, ff)
+    np.testing.assert_allclose(fast, slow, atol=1e-9)

@@ -1,0 +1,152 @@
+"""Setpoint sources for every mode: a reference (planned flat outputs over time) plus telemetry
+in, one MAVLink setpoint out. Pure: used by `Vehicle.fly` (real time) and by the replay
+(simulated time) alike, so both fly exactly the same code.
+
+A source follows the `companion.aio` contract: `source(t_s, telemetry) -> SetpointCommand`,
+with `t_s` the reference time [s] and `telemetry.now_s` the local clock of the cycle.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Literal
+
+import numpy as np
+
+from companion.control import (
+    Reference,
+    RoverController,
+    StateEstimate,
+    TrackingConfig,
+    TrackingController,
+    position_command,
+)
+from companion.flatness import MultirotorParams
+from companion.mavlink.setpoints import (
+    AttitudeSetpoint,
+    PositionSetpoint,
+    RatesSetpoint,
+    SetpointCommand,
+)
+from companion.mavlink.telemetry import TelemetrySnapshot
+
+SetpointMode = Literal["position", "attitude", "rates", "rover"]
+ReferenceFn = Callable[[float], Reference]
+
+
+def estimate_from_telemetry(snap: TelemetrySnapshot) -> StateEstimate | None:
+    """Controller input from the latest LOCAL_POSITION_NED/ODOMETRY and ATTITUDE_QUATERNION
+    (None until both have arrived). `t_s` is the older receive time of the two."""
+    pos, att = snap.position, snap.attitude
+    if pos is None or att is None:
+        return None
+    airborne = snap.extended.in_air if snap.extended is not None else True
+    return StateEstimate(
+        t_s=min(pos.t_s, att.t_s),
+        pos_ned=np.array(pos.pos_ned),
+        vel_ned=np.array(pos.vel_ned),
+        q_wxyz=np.array(att.q_wxyz),
+        omega_frd=np.array(att.omega_frd),
+        airborne=airborne,
+    )
+
+
+def _tuple3(v: np.ndarray) -> tuple[float, float, float] | None:
+    if not np.all(np.isfinite(v)):
+        return None
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _opt(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
+
+
+class TrackingSource:
+    """Setpoints that follow `reference(t_s)` in one of the modes:
+
+    - "position": SET_POSITION_TARGET_LOCAL_NED with position, velocity, acceleration, yaw and
+      yaw-rate feed-forward (PX4 closes the loop);
+    - "attitude": quaternion + normalised thrust + yaw-rate feed-forward (type_mask 3) from the
+      companion's tracking controller and the drag-aware flatness map;
+    - "rates": body rates + thrust (type_mask 128) from the geometric attitude loop with the
+      flatness rates as feed-forward;
+    - "rover": horizontal velocity + yaw rate from rover flatness with track correction.
+
+    Until telemetry has both position and attitude, and in position mode, it sends the
+    reference as a position setpoint (a rover: zero velocity).
+    """
+
+    def __init__(
+        self,
+        reference: ReferenceFn,
+        mode: SetpointMode,
+        params: MultirotorParams | None = None,
+        *,
+        tracking: TrackingConfig | None = None,
+        max_tilt_rad: float = math.radians(50.0),
+    ) -> None:
+        if mode not in ("position", "attitude", "rates", "rover"):
+            raise ValueError(f"unknown setpoint mode {mode!r}")
+        if mode in ("attitude", "rates") and params is None and tracking is None:
+            raise ValueError(f"{mode} mode needs the vehicle parameters (mass, inertia, drag)")
+        self.reference = reference
+        self.mode = mode
+        self.controller: TrackingController | None = None
+        if mode in ("attitude", "rates"):
+            cfg = tracking or TrackingConfig(params=params, max_tilt_rad=max_tilt_rad)  # type: ignore[arg-type]
+            self.controller = TrackingController(cfg)
+        self.rover = RoverController() if mode == "rover" else None
+        self._ref_key: float | None = None
+        self._ref: Reference | None = None
+
+    def reset(self) -> None:
+        """Forget controller state (call when OFFBOARD is (re-)entered)."""
+        if self.controller is not None:
+            self.controller.reset()
+
+    def ref(self, t_s: float) -> Reference:
+        """The reference at `t_s` (cached for repeated calls at the same time)."""
+        if self._ref is None or self._ref_key != t_s:
+            self._ref = self.reference(max(t_s, 0.0))
+            self._ref_key = t_s
+        return self._ref
+
+    def position_setpoint(self, t_s: float) -> PositionSetpoint:
+        """The reference as a PX4 position setpoint (also used for priming)."""
+        pc = position_command(self.ref(t_s), feedforward=t_s > 0.0)
+        return PositionSetpoint(
+            pos_ned=_tuple3(pc.pos_ned),
+            vel_ned=_tuple3(pc.vel_ned),
+            acc_ned=_tuple3(pc.acc_ned),
+            yaw=_opt(pc.yaw),
+            yaw_rate=_opt(pc.yaw_rate),
+        )
+
+    def __call__(self, t_s: float, telemetry: TelemetrySnapshot) -> SetpointCommand:
+        now = telemetry.now_s
+        ref = self.ref(t_s)
+        est = estimate_from_telemetry(telemetry)
+        if self.mode == "position" or est is None or not math.isfinite(now):
+            if self.mode == "rover":
+                return PositionSetpoint(vel_ned=(0.0, 0.0, 0.0), yaw_rate=0.0)
+            return self.position_setpoint(t_s)
+        if self.mode == "rover":
+            assert self.rover is not None
+            cmd = self.rover.update(now, est, ref)
+            return PositionSetpoint(
+                vel_ned=(float(cmd.vel_ned[0]), float(cmd.vel_ned[1]), 0.0),
+                yaw_rate=_opt(float(cmd.yaw_rate)),
+            )
+        assert self.controller is not None
+        if self.mode == "attitude":
+            a = self.controller.attitude(now, est, ref)
+            q = a.q_wxyz
+            return AttitudeSetpoint(
+                (float(q[0]), float(q[1]), float(q[2]), float(q[3])),
+                float(a.thrust_norm),
+                _opt(float(a.yaw_rate_ff)),
+            )
+        r = self.controller.rates(now, est, ref)
+        w = r.omega_frd
+        return RatesSetpoint((float(w[0]), float(w[1]), float(w[2])), float(r.thrust_norm))
