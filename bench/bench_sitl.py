@@ -56,7 +56,7 @@ def run_vehicle_only(physics_hz: float, sim_s: float) -> float:
     v = make_vehicle("quad", ParamStore(), seed=1)
     dt = 1.0 / physics_hz
     target = PositionTarget(pos_ned=(0.0, 0.0, -2.5))
-    n = int(round(sim_s * physics_hz))
+    n = round(sim_s * physics_hz)
     t0 = time.process_time()
     for _ in range(n):
         v.step(dt, target, True)
@@ -68,14 +68,17 @@ def main() -> None:
     ap.add_argument("--sim-seconds", type=float, default=30.0)
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
-    print(f"# {platform.python_implementation()} {platform.python_version()}, "
-          f"{platform.machine()}, {args.sim_seconds:.0f} simulated s, best of {args.repeat}")  # fmt: skip
+    impl = f"{platform.python_implementation()} {platform.python_version()}"
+    sim_s = args.sim_seconds
+    print(f"# {impl}, {platform.machine()}, {sim_s:.0f} simulated s, best of {args.repeat}")
     print()
     print("| physics | lockstep RTF (MAVLink + telemetry) | datagrams/sim s "
           "| vehicle-only RTF (baseline) | lockstep / baseline CPU time |")  # fmt: skip
     print("| --- | --- | --- | --- | --- |")
     for hz in (250.0, 1000.0):
-        walls, outs = zip(*(run_lockstep(hz, args.sim_seconds) for _ in range(args.repeat)), strict=True)
+        walls, outs = zip(
+            *(run_lockstep(hz, args.sim_seconds) for _ in range(args.repeat)), strict=True
+        )
         base = min(run_vehicle_only(hz, args.sim_seconds) for _ in range(args.repeat))
         wall = min(walls)
         print(

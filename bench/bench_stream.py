@@ -8,7 +8,7 @@ from a figure-8 PiecewiseBezier. Reports achieved rate, period error |dt - T| p5
 core (the fake PX4 runs in a child process), and the per-cycle compute time (telemetry in ->
 setpoint out).
 
-    python bench/bench_stream.py [--duration 5] [--rates 100 250]
+    python bench/bench_stream.py [--duration 8] [--rates 100 250]
 """
 
 from __future__ import annotations
@@ -52,9 +52,6 @@ def figure8(period_s: float = 12.0, n: int = 16) -> PiecewiseBezier:
 
         segs.append(hermite(derivs(t0), derivs(t1), t1 - t0))
     return PiecewiseBezier(segs)
-
-
-GIL = float(__import__("os").environ.get("GIL", "0.0005"))
 
 
 def pct(xs: list[float], q: float) -> float:
@@ -165,8 +162,7 @@ async def run_case(rate: float, duration: float, naive: bool,
             send_times.append(now)
             lateness.append(now - t_next)
     else:
-        st = FixedRateStreamer(rate, tr.send, producer, realtime_priority=rt,
-                               gil_switch_interval_s=GIL)
+        st = FixedRateStreamer(rate, tr.send, producer, realtime_priority=rt)
         st.start()
         await asyncio.sleep(duration)
         st.stop()
@@ -247,7 +243,7 @@ async def main_async(args: argparse.Namespace) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--duration", type=float, default=5.0)
+    ap.add_argument("--duration", type=float, default=8.0)
     ap.add_argument("--rates", type=float, nargs="+", default=[100.0, 250.0])
     ap.add_argument("--fake-px4", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()

@@ -443,7 +443,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="mock sensor noise on: SIM_POS_NOISE 0.02 m, SIM_VEL_NOISE 0.05 m/s, "
                          "SIM_GYRO_NOISE 0.01 rad/s")
     ap.add_argument("--write", action="store_true", help="print the BENCHMARKS.md table")
+    ap.add_argument("--ablation", action="store_true",
+                    help="instead: companion modes at 6 m/s without drag feed-forward and/or "
+                         "without the attitude lead (comparable to PX4 SITL's PD + flatness)")
     args = ap.parse_args(argv)
+    if args.ablation:
+        return _ablation(args)
     rows: list[tuple[float, str, float, float, float]] = []
     store_overrides = NOISE_PARAMS if args.noise else {}
     t0 = time.perf_counter()
@@ -479,6 +484,32 @@ def main(argv: list[str] | None = None) -> int:
         for v, mode, rms, mx, tilt in rows:
             print(f"| {v:.0f} m/s | {mode} | {rms:.3f} | {mx:.3f} | {rms / base[v]:.3f} | "
                   f"{tilt:.1f} |")
+    return 0
+
+
+def _ablation(args: argparse.Namespace) -> int:
+    variants: list[tuple[str, dict[str, object]]] = [
+        ("full (drag ff, lead 0.15 s)", {}),
+        ("drag ff, no lead", {"attitude_lead_s": 0.0}),
+        ("no drag ff, lead 0.15 s", {"drag_feedforward": False}),
+        ("no drag ff, no lead", {"drag_feedforward": False, "attitude_lead_s": 0.0}),
+    ]
+    print("| mode | variant | RMS [m] | max [m] |")
+    print("|---|---|---|---|")
+    for mode in ("attitude", "rates"):
+        for label, kw in variants:
+            if mode == "rates" and "attitude_lead_s" in kw:
+                continue  # rates mode uses no lead
+            ctl = TrackingController(default_controller_config(**kw))
+            ref = lambda t: figure8_reference(t, 6.0)  # noqa: E731
+            if args.harness == "mavlink":
+                res = run_mavlink_lockstep(mode, ref, figure8_seconds(6.0), controller=ctl)
+            else:
+                res = run_lockstep(mode, ref, figure8_seconds(6.0), controller=ctl)
+            rms, mx = res.lap_errors(2)
+            if mode == "rates":  # no lead in rates mode
+                label = label.replace(", lead 0.15 s", "").replace("full (drag ff)", "full")
+            print(f"| {mode} | {label} | {rms:.3f} | {mx:.3f} |", flush=True)
     return 0
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from rich.console import Console
@@ -182,6 +182,49 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     return exit_code
 
 
+def _cmd_fly(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from companion.flycmd import FlyOptions, fly
+
+    opts = FlyOptions(
+        target=args.target, connect=args.connect, mode=args.mode, rate_hz=args.rate,
+        vehicle_file=args.vehicle, log=args.log, size_m=args.size, speed_m_s=args.speed,
+        alt_m=args.alt, laps=args.laps, mock_params=tuple(args.mock_param),
+    )
+    return _run_vehicle_command(lambda: asyncio.run(fly(opts, console)))
+
+
+def _cmd_status(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from companion.flycmd import status
+
+    return _run_vehicle_command(lambda: asyncio.run(status(args.connect, console)))
+
+
+def _run_vehicle_command(run: Callable[[], int]) -> int:
+    """Map vehicle-side failures to exit code 1 with a pilot-readable message."""
+    from companion.aio import VehicleError
+    from companion.aio.transports import TransportError
+
+    try:
+        return run()
+    except (VehicleError, TransportError, TimeoutError) as exc:
+        result = getattr(exc, "result", None)
+        extra = f" (MAVLink result {result})" if result is not None else ""
+        err_console.print(f"[red]flight failed:[/red] {exc}{extra}")
+        return EXIT_FAILURE
+
+
+def _mock_param(text: str) -> tuple[str, float]:
+    name, _, value = text.partition("=")
+    try:
+        return name.strip(), float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}") from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `python -m companion`."""
     parser = argparse.ArgumentParser(
@@ -214,6 +257,29 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--jobs", type=int, default=1, help="files replayed in parallel (default 1)")
     rp.add_argument("--out", default="replay_out", help="output folder (default ./replay_out)")
     rp.set_defaults(func=_cmd_replay)
+
+    fl = sub.add_parser("fly", help="take off, fly a mission file or pattern in offboard, land")
+    fl.add_argument("target", metavar="TARGET",
+                    help="a .plan / QGC WPL file, or a pattern: figure8, circle, square")
+    fl.add_argument("--connect", metavar="URL", default=None,
+                    help="vehicle link, e.g. udpin://0.0.0.0:14540 (default: an embedded mock)")
+    fl.add_argument("--mode", choices=("position", "attitude", "rates"), default="attitude")
+    fl.add_argument("--rate", type=float, default=100.0, help="setpoint rate [Hz] (default 100)")
+    fl.add_argument("--vehicle", metavar="FILE.toml", default=None,
+                    help="vehicle parameters and limits (see companion/config.py)")
+    fl.add_argument("--log", metavar="FILE.tlog", default=None,
+                    help="flight log (default flight-<UTC time>.tlog here)")
+    fl.add_argument("--size", type=float, default=10.0, help="pattern size [m] (default 10)")
+    fl.add_argument("--speed", type=float, default=3.0, help="pattern speed [m/s] (default 3)")
+    fl.add_argument("--alt", type=float, default=5.0, help="pattern altitude [m] (default 5)")
+    fl.add_argument("--laps", type=int, default=1, help="pattern laps (default 1)")
+    fl.add_argument("--mock-param", type=_mock_param, action="append", default=[],
+                    metavar="NAME=VALUE", help="parameter of the embedded mock (repeatable)")
+    fl.set_defaults(func=_cmd_fly)
+
+    stp = sub.add_parser("status", help="connect and print the vehicle state")
+    stp.add_argument("--connect", metavar="URL", required=True, help="e.g. udpin://0.0.0.0:14540")
+    stp.set_defaults(func=_cmd_status)
     return parser
 
 

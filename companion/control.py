@@ -62,7 +62,8 @@ def _vec3(x: object, name: str) -> FloatArray:
 
 
 def _finite(*arrays: FloatArray) -> bool:
-    return all(bool(np.isfinite(a).all()) for a in arrays)
+    isfinite = math.isfinite
+    return all(all(map(isfinite, a.tolist())) for a in arrays)
 
 
 # ----------------------------------------------------------------------------- small SO(3) kit
@@ -88,18 +89,19 @@ def quat_to_dcm(q_wxyz: FloatArray) -> FloatArray:
 
 def quat_normalize(q_wxyz: FloatArray) -> FloatArray:
     """Unit quaternion with w >= 0; non-finite or zero input gives the identity."""
-    q = np.asarray(q_wxyz, dtype=np.float64)
-    n = math.sqrt(float(q @ q)) if bool(np.isfinite(q).all()) else math.nan
+    w, x, y, z = (float(c) for c in q_wxyz)
+    n = math.hypot(w, x, y, z)
     if not (math.isfinite(n) and n > 1e-12):
         return np.array([1.0, 0.0, 0.0, 0.0])
-    q = q / n
-    return -q if q[0] < 0.0 else q
+    if w < 0.0:
+        n = -n
+    return np.array([w / n, x / n, y / n, z / n])
 
 
 def quat_mul(a: FloatArray, b: FloatArray) -> FloatArray:
     """Hamilton product a * b (apply b first, then a)."""
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
+    w1, x1, y1, z1 = (float(c) for c in a)
+    w2, x2, y2, z2 = (float(c) for c in b)
     return np.array(
         [
             w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
@@ -112,12 +114,13 @@ def quat_mul(a: FloatArray, b: FloatArray) -> FloatArray:
 
 def quat_integrate(q_wxyz: FloatArray, omega_frd: FloatArray, dt: float) -> FloatArray:
     """Attitude after rotating for `dt` [s] at constant body rate `omega_frd` [rad/s]."""
-    rv = np.asarray(omega_frd, dtype=np.float64) * dt
-    ang = math.sqrt(float(rv @ rv))
+    rx, ry, rz = (float(c) * dt for c in omega_frd)
+    ang = math.sqrt(rx * rx + ry * ry + rz * rz)
     if ang < 1e-12:
         return quat_normalize(q_wxyz)
-    dq = np.concatenate(([math.cos(0.5 * ang)], math.sin(0.5 * ang) / ang * rv))
-    return quat_normalize(quat_mul(np.asarray(q_wxyz, dtype=np.float64), dq))
+    k = math.sin(0.5 * ang) / ang
+    dq = np.array([math.cos(0.5 * ang), k * rx, k * ry, k * rz])
+    return quat_normalize(quat_mul(q_wxyz, dq))
 
 
 def yaw_quat(yaw: float) -> FloatArray:
@@ -155,8 +158,11 @@ class StateEstimate:
 
     t_s: time the estimate is valid at, in the companion clock [s].
     pos_ned [m], vel_ned [m/s], acc_ned [m/s^2, kinematic, optional]: world NED (3,).
-    q_wxyz: attitude body FRD -> NED. omega_frd: body rates [rad/s].
-    airborne: False on the ground (holds the hover-thrust estimator).
+    q_wxyz: attitude body FRD -> NED (normalised by the controller; a norm outside (0.5, 2) is
+    treated as corrupt). omega_frd: body rates [rad/s].
+    airborne: False on the ground (holds the hover-thrust estimator and the integrator).
+    Build it from ODOMETRY (one time stamp for everything) or align the attitude to the
+    position's time stamp: the controller extrapolates all of it from `t_s` to `now`.
     """
 
     t_s: float
@@ -680,8 +686,8 @@ class TrackingController:
         t_sat, sat = self._saturate(t_vec, h)
         a_sat = p.g * _E3 - (t_sat + D * v_drag) / m
 
-        # anti-windup: integrate only when not saturated (or when it unwinds)
-        if dt_ctrl > 0.0:
+        # anti-windup: integrate only in the air and when not saturated (or when it unwinds)
+        if dt_ctrl > 0.0 and est.airborne:
             di = self._ki * e_p * dt_ctrl
             if sat:
                 # allow only the components that reduce the integrator magnitude

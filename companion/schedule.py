@@ -13,7 +13,7 @@ from __future__ import annotations
 import bisect
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -325,3 +325,27 @@ def _plan_chunk(
     if isinstance(yaw_spec, Sequence) and not isinstance(yaw_spec, str):
         yaw = [float(v) for v in yaw_spec]
     return plan(pts, limits=lim, params=params, yaw=yaw)  # type: ignore[arg-type]
+
+
+def trajectory_reference(traj: PiecewiseBezier, yaw: float = 0.0) -> Callable[[float], Reference]:
+    """Fast reference function t [s] -> Reference for one trajectory (clamped to its ends;
+    without a yaw channel the yaw is held at `yaw` [rad])."""
+    pos = _ScalarEval(traj, 4)
+    yaw_ev = None if traj.yaw is None else _ScalarEval(traj.yaw, 2)
+    duration = traj.duration
+
+    def ref(t: float) -> Reference:
+        inside = 0.0 <= t <= duration
+        d = pos(t)
+        if d.shape[1] == 2:
+            d = np.column_stack([d, np.zeros(5)])
+        if not inside:
+            d[1:] = 0.0
+        if yaw_ev is None:
+            y = (yaw, 0.0, 0.0)
+        else:
+            yv = yaw_ev(t)[:, 0]
+            y = (float(yv[0]), float(yv[1]) if inside else 0.0, float(yv[2]) if inside else 0.0)
+        return Reference(d[0], d[1], d[2], d[3], d[4], y[0], y[1], y[2])
+
+    return ref

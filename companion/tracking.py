@@ -99,6 +99,12 @@ class TrackingSource:
         self.rover = RoverController() if mode == "rover" else None
         self._ref_key: float | None = None
         self._ref: Reference | None = None
+        self.calls = 0
+
+    @property
+    def last_reference(self) -> Reference | None:
+        """The reference of the most recent call (for status displays)."""
+        return self._ref
 
     def reset(self) -> None:
         """Forget controller state (call when OFFBOARD is (re-)entered)."""
@@ -124,6 +130,7 @@ class TrackingSource:
         )
 
     def __call__(self, t_s: float, telemetry: TelemetrySnapshot) -> SetpointCommand:
+        self.calls += 1
         now = telemetry.now_s
         ref = self.ref(t_s)
         est = estimate_from_telemetry(telemetry)

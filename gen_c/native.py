@@ -181,7 +181,8 @@ def _structs(real: type[Any]) -> dict[str, type[ctypes.Structure]]:
 _ERRORS = {
     -1: "internal error: NULL pointer passed to the C setpoint library",
     -2: "refusing to compute a setpoint from a non-finite or out-of-range input "
-        "(NaN/inf, duration <= 0, mass <= 0, g <= 0, hover_thrust outside (0, 1], drag < 0)",
+        "(NaN/inf, |value| > 1e12, duration <= 0, mass <= 0, g <= 0, hover_thrust outside "
+        "(0, 1], drag < 0)",
     -3: "the setpoint would be non-finite: inputs are far outside any flyable range",
 }
 

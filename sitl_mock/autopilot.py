@@ -27,6 +27,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sitl_mock import telemetry
 from sitl_mock.faults import FaultyChannel, LinkFaults, ScenarioFaults
+from sitl_mock.mavwire import pack_v2
 from sitl_mock.mission_server import MISSION, MissionExecutor, MissionServer, project_to_ned
 from sitl_mock.params import PARAMS, ParamStore
 from sitl_mock.setpoints import AttitudeTarget, IdleTarget, PositionTarget, Target
@@ -508,7 +509,7 @@ class Autopilot:
         )
 
     def _send(self, link: Link, msg: Msg) -> None:
-        data = msg.pack(link.mav)
+        data = pack_v2(msg, link.mav.seq, SYSID, COMPID)
         link.mav.seq = (link.mav.seq + 1) & 0xFF
         link.tx.push(data, self._t, self._t)
         self.stats["tx_messages"] += 1

@@ -236,6 +236,23 @@ class McGains:
         )
 
 
+def constrain_xy(
+    v0x: float, v0y: float, v1x: float, v1y: float, vmax: float
+) -> tuple[float, float]:
+    """Limit v0 + v1 to norm vmax, keeping v0 (position part) first, then as much of v1 as fits."""
+    sx, sy = v0x + v1x, v0y + v1y
+    if sx * sx + sy * sy <= vmax * vmax:
+        return sx, sy
+    n0 = math.hypot(v0x, v0y)
+    if n0 >= vmax:
+        return v0x * vmax / n0, v0y * vmax / n0
+    n1 = math.hypot(v1x, v1y)  # > 0 here since |v0| < vmax < |v0 + v1|
+    ux, uy = v1x / n1, v1y / n1
+    m = ux * v0x + uy * v0y
+    s = -m + math.sqrt(max(m * m - (n0 * n0 - vmax * vmax), 0.0))
+    return v0x + ux * s, v0y + uy * s
+
+
 # ---------------------------------------------------------------------------------------------
 # Position / velocity controller
 # ---------------------------------------------------------------------------------------------
@@ -256,25 +273,32 @@ class PositionVelocityController:
     def velocity_setpoint(
         self, g: McGains, pos: Vec3, tgt: PositionTarget, up_limit: float
     ) -> tuple[float, float, float]:
-        """Velocity setpoint [m/s NED] from position error + feed-forward (NaN = acc only)."""
+        """Velocity setpoint [m/s NED] from position error + feed-forward (NaN = acc only).
+
+        The horizontal limit MPC_XY_VEL_MAX keeps the position-error part first and fills the
+        rest with the feed-forward (PX4's ControlMath::constrainXY).
+        """
         out = [0.0, 0.0, 0.0]
+        p_part = [0.0, 0.0, 0.0]
         tp, tv, ta = tgt.pos_ned, tgt.vel_ned, tgt.acc_ned
         for i in range(3):
             ps, vs = tp[i], tv[i]
             if _isfinite(ps):
-                out[i] = g.pos_p[i] * (ps - pos[i]) + (vs if _isfinite(vs) else 0.0)
+                p_part[i] = _clamp(g.pos_p[i] * (ps - pos[i]), -VEL_SP_ABS_MAX, VEL_SP_ABS_MAX)
+                out[i] = p_part[i] + (
+                    _clamp(vs, -VEL_SP_ABS_MAX, VEL_SP_ABS_MAX) if _isfinite(vs) else 0.0
+                )
             elif _isfinite(vs):
-                out[i] = vs
+                out[i] = _clamp(vs, -VEL_SP_ABS_MAX, VEL_SP_ABS_MAX)
             elif _isfinite(ta[i]):
                 out[i] = math.nan  # acceleration only on this axis
             else:
                 out[i] = 0.0  # nothing given on this axis: hold (zero velocity)
-        vx, vy, vz = (_clamp(c, -VEL_SP_ABS_MAX, VEL_SP_ABS_MAX) for c in out)  # NaN passes
+        vx, vy, vz = out
         if _isfinite(vx) and _isfinite(vy):
-            n = math.hypot(vx, vy)
-            if n > g.vel_xy_max:
-                s = g.vel_xy_max / n
-                vx, vy = vx * s, vy * s
+            vx, vy = constrain_xy(
+                p_part[0], p_part[1], vx - p_part[0], vy - p_part[1], g.vel_xy_max
+            )
         if _isfinite(vz):
             vz = _clamp(vz, -up_limit, g.vel_dn_max)
         return (vx, vy, vz)

@@ -11,8 +11,9 @@ Physics (world NED, body FRD, SI units), defaults from PX4 SIH (SIH_* parameters
   sits level, like SIH; it lifts off as soon as the thrust exceeds the weight.
 
 Control: flight_control.py (position loop <= 100 Hz, attitude loop <= 250 Hz, rate loop
-<= 500 Hz; motor commands are held between rate-loop ticks), PX4's takeoff handling (spool-up, ready, thrust ramp, flight) and a PX4-like land
-detector. Sensor noise (SIM_*_NOISE) is added to what the controller and `state` see.
+<= 500 Hz; motor commands are held between rate-loop ticks), PX4's takeoff handling (spool-up,
+ready, thrust ramp, flight) and a PX4-like land detector. Sensor noise (SIM_*_NOISE) is added to
+what the controller and `state` see.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from sitl_mock.flight_control import (
 )
 from sitl_mock.params import ParamStore
 from sitl_mock.setpoints import AttitudeTarget, PositionTarget, Quat, Target, Vec3
-from sitl_mock.vehicle import AttitudeTargetReport, VehicleState
+from sitl_mock.vehicle import AttitudeTargetReport, VehicleState, make_state
 
 _isfinite = math.isfinite
 
@@ -237,7 +238,7 @@ class Quadrotor:
             return self._state_cache
         pos = (self._px + self._npos[0], self._py + self._npos[1], self._pz + self._npos[2])
         u = self._u
-        self._state_cache = st = VehicleState(
+        self._state_cache = st = make_state(
             t_s=self._t,
             pos_ned=pos,
             vel_ned=(self._vx + self._nvel[0], self._vy + self._nvel[1], self._vz + self._nvel[2]),

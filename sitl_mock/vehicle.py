@@ -18,7 +18,7 @@ EARTH_RADIUS_M = 6371000.0  # PX4 CONSTANTS_RADIUS_OF_EARTH
 DEFAULT_HOME: tuple[float, float, float] = (47.397742, 8.545594, 488.0)  # PX4 SITL home
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True)
 class VehicleState:
     """Snapshot of the simulated vehicle.
 
@@ -69,6 +69,39 @@ class VehicleState:
         """Heading [rad] (0 = north, positive clockwise seen from above)."""
         w, x, y, z = self.q_wxyz
         return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def make_state(
+    t_s: float,
+    pos_ned: Vec3,
+    vel_ned: Vec3,
+    acc_ned: Vec3,
+    q_wxyz: Quat,
+    omega_frd: Vec3,
+    on_ground: bool,
+    landed: bool,
+    thrust_norm: float,
+    battery_remaining: float,
+    local_position_valid: bool,
+    home_lat_lon_alt: tuple[float, float, float],
+) -> VehicleState:
+    """Build a VehicleState ~2x faster than its frozen-dataclass __init__ (used every step)."""
+    st = object.__new__(VehicleState)
+    st.__dict__.update(
+        t_s=t_s,
+        pos_ned=pos_ned,
+        vel_ned=vel_ned,
+        acc_ned=acc_ned,
+        q_wxyz=q_wxyz,
+        omega_frd=omega_frd,
+        on_ground=on_ground,
+        landed=landed,
+        thrust_norm=thrust_norm,
+        battery_remaining=battery_remaining,
+        local_position_valid=local_position_valid,
+        home_lat_lon_alt=home_lat_lon_alt,
+    )
+    return st
 
 
 AttitudeTargetReport = tuple[Quat, Vec3, float]

@@ -9,7 +9,7 @@ producer (``set_producer``) or the latest frame (``feed``) and drains ``sent_tim
 thread-safe deque) to follow the stream.
 
 While running, the interpreter's GIL switch interval is lowered (``gil_switch_interval_s``,
-default 0.5 ms; restored on stop) so that the waking sender thread waits at most that long for
+default 0.1 ms; restored on stop) so that the waking sender thread waits at most that long for
 the GIL when the asyncio thread is busy. This is a process-wide setting. ``realtime_priority``
 (Linux, needs CAP_SYS_NICE) puts the sender thread in SCHED_FIFO at that priority; if refused it
 runs at normal priority and says so in ``last_error``.
@@ -58,7 +58,7 @@ class FixedRateStreamer:
         sleep: Callable[[float], None] = time.sleep,
         history: int = 4096,
         on_sent: Callable[[bytes, float], None] | None = None,
-        gil_switch_interval_s: float | None = 0.0005,
+        gil_switch_interval_s: float | None = 0.0001,
         realtime_priority: int | None = None,
         name: str = "setpoint-streamer",
     ) -> None:

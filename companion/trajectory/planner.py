@@ -337,7 +337,7 @@ class _Penalty:
     the banded system). Used only to steer the time allocation; limits are enforced after."""
 
     def __init__(
-        self, system: _System, limits: Limits | RoverLimits, params: Any, n_samples: int = 12
+        self, system: _System, limits: Limits | RoverLimits, params: Any, n_samples: int = 8
     ) -> None:
         self.system = system
         self.n = n_samples
@@ -387,10 +387,16 @@ class _Penalty:
         phi = np.zeros(D[1].shape[:2])
         G: dict[int, FloatArray] = {r: np.zeros_like(D[r]) for r in self.orders}
 
+        active = [False]
+
         def add(g: FloatArray, dg: dict[int, FloatArray]) -> None:
+            if not np.any(g > 0.0):
+                return
+            active[0] = True
             pos = np.maximum(g, 0.0)
-            phi[...] += pos**3
-            w = 3.0 * pos**2
+            w = pos * pos
+            phi[...] += w * pos
+            w *= 3.0
             for r, v in dg.items():
                 G[r] += w[:, :, None] * v
 
@@ -399,7 +405,9 @@ class _Penalty:
             if name in ("speed", "acc", "jerk"):
                 r = {"speed": 1, "acc": 2, "jerk": 3}[name]
                 q = D[r]
-                add(np.sum(q * q, axis=2) / lim2 - 1.0, {r: 2.0 * q / lim2})
+                g = np.sum(q * q, axis=2) / lim2 - 1.0
+                if np.any(g > 0.0):
+                    add(g, {r: 2.0 * q / lim2})
                 continue
             if tv is None:
                 mass = float(self.params.mass)
@@ -423,16 +431,24 @@ class _Penalty:
                 g = 1.0 - np.sum(tv * tv, axis=2) / lim2
                 dt = -2.0 * tv / lim2
             add(g, {2: -mass * dt, 1: -drag * dt})
+        if not active[0]:
+            return 0.0, np.zeros(m)
         value = float(np.sum(h[:, None] * phi) / self.n)
-        scale = h[:, None, None] / self.n
-        dxk = np.zeros_like(xk)
         dh = np.sum(phi, axis=1) / self.n
+        dxk = np.zeros_like(xk)
+        act = np.flatnonzero(dh > 0.0)  # only segments with a violation carry gradient
+        ha = h[act]
+        hpa = hp[act]
+        scale = ha[:, None, None] / self.n
+        ma = act.shape[0]
         for r in self.orders:
-            Gr = (G[r] * scale).transpose(1, 0, 2).reshape(self.n, m * d)
-            dY = (self.W[r].T @ Gr).reshape(2 * s, m, d).transpose(1, 0, 2)  # (M, 2s, d)
-            fac = (hp / h[:, None] ** r)[:, :, None]
-            dxk += dY * fac
-            dh += np.sum(dY * Y[r] * ((sysm.o[None, :] - r) / h[:, None])[:, :, None], axis=(1, 2))
+            Gr = (G[r][act] * scale).transpose(1, 0, 2).reshape(self.n, ma * d)
+            dY = (self.W[r].T @ Gr).reshape(2 * s, ma, d).transpose(1, 0, 2)  # (Ma, 2s, d)
+            fac = hpa / ha[:, None] ** r
+            dxk[act] += dY * fac[:, :, None]
+            dh[act] += np.sum(
+                dY * Y[r][act] * ((sysm.o[None, :] - r) / ha[:, None])[:, :, None], axis=(1, 2)
+            )
         g_full = np.zeros_like(x)
         g_full[: m * s] += dxk[:, :s, :].reshape(-1, x.shape[1])
         g_full[s:] += dxk[:, s:, :].reshape(-1, x.shape[1])

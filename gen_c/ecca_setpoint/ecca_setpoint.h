@@ -31,10 +31,15 @@ extern "C" {
 #define ECCA_BEZIER_DEGREE 7
 #define ECCA_BEZIER_NUM_CTRL_PTS 8
 
+/** Flatness inputs (vel..snap, yaw..yaw_acc) beyond this magnitude are rejected, as in the
+ *  Python path (companion.flatness.numeric.INPUT_LIMIT). */
+#define ECCA_INPUT_LIMIT 1e12
+
 /* Return codes. */
 #define ECCA_OK 0
 #define ECCA_ERR_NULL (-1)   /**< a required pointer is NULL */
-#define ECCA_ERR_INPUT (-2)  /**< non-finite input, duration <= 0, mass/gravity <= 0, ... */
+#define ECCA_ERR_INPUT (-2)  /**< NaN/inf input, |flatness input| > ECCA_INPUT_LIMIT,
+                                  duration <= 0, mass/gravity <= 0, ... */
 #define ECCA_ERR_OUTPUT (-3) /**< a result would be non-finite (inputs far out of range) */
 
 /* Bits of ecca_attitude_setpoint.flags (multirotor). */

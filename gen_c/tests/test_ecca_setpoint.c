@@ -514,6 +514,15 @@ static void run_error_paths(const char *vectors) {
               (st.vel_ned_m_s[0] = nan(""), ecca_rover_setpoint(&st, &hs) == ECCA_ERR_INPUT));
   st.vel_ned_m_s[0] = 0.0;
   st.acc_ned_m_s2[2] = 0.0;
+  st.snap_ned_m_s4[1] = 2e12; /* finite but beyond ECCA_INPUT_LIMIT, like the Python path */
+  out = sentinel;
+  expect_true("error: input beyond limit", ecca_multirotor_setpoint(&st, &pr, &out) ==
+                                               ECCA_ERR_INPUT);
+  expect_true("error: input beyond limit leaves outputs",
+              memcmp(&out, &sentinel, sizeof out) == 0);
+  st.snap_ned_m_s4[1] = 0.9e12;
+  expect_true("ok just inside the limit", ecca_multirotor_setpoint(&st, &pr, &out) == ECCA_OK);
+  st.snap_ned_m_s4[1] = 0.0;
   pr.mass_kg = -1.0;
   expect_true("error: negative mass", ecca_multirotor_setpoint(&st, &pr, &out) ==
                                           ECCA_ERR_INPUT);

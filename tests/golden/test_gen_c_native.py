@@ -162,6 +162,10 @@ def test_errors_become_value_errors(lib: native.NativeSetpoint) -> None:
     z = [0.0, 0.0, 0.0]
     with pytest.raises(ValueError, match="non-finite"):
         lib.multirotor([np.nan, 0, 0], z, z, z, 0.0, 0.0, 0.0, p)
+    with pytest.raises(ValueError, match="non-finite or out-of-range"):
+        lib.multirotor(z, z, z, [0.0, 2e12, 0.0], 0.0, 0.0, 0.0, p)  # Python path rejects too
+    with pytest.raises(ValueError):
+        multirotor_setpoint(z, z, z, [0.0, 2e12, 0.0], 0.0, 0.0, 0.0, p)
     with pytest.raises(ValueError, match="duration"):
         lib.bezier(np.zeros((8, 3)), None, 0.0, 0.0)
     with pytest.raises(ValueError, match="elevate"):

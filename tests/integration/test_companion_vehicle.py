@@ -47,9 +47,24 @@ def mock_px4() -> Iterator[MockFactory]:
 
     def start(*extra: str) -> int:
         p = subprocess.Popen(
-            [sys.executable, "-m", "sitl_mock", "serve", "--bind", "127.0.0.1:0", "--remote",
-             "none", "--no-gcs", "--estimator-ready", "0.5", *extra],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            [
+                sys.executable,
+                "-m",
+                "sitl_mock",
+                "serve",
+                "--bind",
+                "127.0.0.1:0",
+                "--remote",
+                "none",
+                "--no-gcs",
+                "--estimator-ready",
+                "0.5",
+                *extra,
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         procs.append(p)
         assert p.stdout is not None
         line = p.stdout.readline()  # "sitl_mock ready quad offboard=127.0.0.1:PORT->none"
@@ -100,8 +115,11 @@ def offboard_requests(msgs: list[Any]) -> list[Any]:
 
 
 def px4_modes(msgs: list[Any]) -> list[tuple[float, int]]:
-    return [(m._timestamp, (m.custom_mode >> 16) & 0xFF) for m in msgs
-            if m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1]
+    return [
+        (m._timestamp, (m.custom_mode >> 16) & 0xFF)
+        for m in msgs
+        if m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1
+    ]
 
 
 def line(p0: np.ndarray, delta: tuple[float, float, float], dur: float) -> PiecewiseBezier:
@@ -112,15 +130,18 @@ def line(p0: np.ndarray, delta: tuple[float, float, float], dur: float) -> Piece
 
 def _thrust_pd(z_ref: float) -> Callable[[TelemetrySnapshot], float]:
     """Test-side PD altitude loop (hover thrust 0.5 as the mock's MPC_THR_HOVER)."""
+
     def thrust(tel: TelemetrySnapshot) -> float:
         assert tel.position is not None
         z, vz = tel.position.pos_ned[2], tel.position.vel_ned[2]
         return min(max(0.5 + 0.15 * (z - z_ref) + 0.1 * vz, 0.1), 0.9)
+
     return thrust
 
 
-async def test_takeoff_fly_position_attitude_rates_land(mock_px4: MockFactory,
-                                                        tmp_path: Path) -> None:
+async def test_takeoff_fly_position_attitude_rates_land(
+    mock_px4: MockFactory, tmp_path: Path
+) -> None:
     """One flight: position-mode trajectory, then attitude (type_mask 3) and rates (type_mask
     128) setpoints from a test-side PD altitude loop, then land."""
     port = mock_px4()
@@ -142,8 +163,9 @@ async def test_takeoff_fly_position_attitude_rates_land(mock_px4: MockFactory,
         thrust = _thrust_pd(z_ref)
 
         def attitude(t: float, tel: TelemetrySnapshot) -> AttitudeSetpoint:
-            return AttitudeSetpoint(q_wxyz=(1.0, 0.0, 0.0, 0.0), thrust_norm=thrust(tel),
-                                    yaw_rate=0.0)
+            return AttitudeSetpoint(
+                q_wxyz=(1.0, 0.0, 0.0, 0.0), thrust_norm=thrust(tel), yaw_rate=0.0
+            )
 
         def rates(t: float, tel: TelemetrySnapshot) -> RatesSetpoint:
             return RatesSetpoint(omega_frd=(0.0, 0.0, 0.0), thrust_norm=thrust(tel))
@@ -157,7 +179,7 @@ async def test_takeoff_fly_position_attitude_rates_land(mock_px4: MockFactory,
         assert v.telemetry.extended is not None and v.telemetry.extended.landed_state == 1
     msgs = read_tlog(tlog)
     masks = [s.type_mask for s in ours(msgs, "SET_ATTITUDE_TARGET")]
-    assert set(masks) == {3, 128} and 3 not in masks[masks.index(128):]  # attitude, then rates
+    assert set(masks) == {3, 128} and 3 not in masks[masks.index(128) :]  # attitude, then rates
     sps = ours(msgs, "SET_POSITION_TARGET_LOCAL_NED")
     reqs = [r for r in offboard_requests(msgs) if r.confirmation == 0]
     assert len(reqs) == 3  # one per fly(), never repeated
@@ -251,29 +273,50 @@ async def test_sigint_switches_to_hold(mock_px4: MockFactory, tmp_path: Path) ->
 
 async def test_mission_upload_download_clear(mock_px4: MockFactory, tmp_path: Path) -> None:
     port = mock_px4()
-    items = [MissionItem(seq=i, frame=6, command=16, current=int(i == 0), autocontinue=1,
-                         param1=0.0, param2=2.0, param3=0.0, param4=math.nan,
-                         x=473977420 + 100 * i, y=85455940 + 50 * i, z=10.0 + i)
-             for i in range(4)]
+    items = [
+        MissionItem(
+            seq=i,
+            frame=6,
+            command=16,
+            current=int(i == 0),
+            autocontinue=1,
+            param1=0.0,
+            param2=2.0,
+            param3=0.0,
+            param4=math.nan,
+            x=473977420 + 100 * i,
+            y=85455940 + 50 * i,
+            z=10.0 + i,
+        )
+        for i in range(4)
+    ]
     async with connected(port, tmp_path / "mission.tlog") as v:
         await v.mission.upload(items)
         got = await v.mission.download()
         assert len(got) == 4
         for a, b in zip(got, items, strict=True):
-            assert (a.seq, a.frame, a.command, a.x, a.y, a.z) == (b.seq, b.frame, b.command, b.x,
-                                                                   b.y, b.z)
+            assert (a.seq, a.frame, a.command, a.x, a.y, a.z) == (
+                b.seq,
+                b.frame,
+                b.command,
+                b.x,
+                b.y,
+                b.z,
+            )
         await v.mission.clear()
         assert await v.mission.download() == []
 
 
 async def test_connect_timeout_names_the_url() -> None:
     import socket
+
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     s.bind(("127.0.0.1", 0))
     port = s.getsockname()[1]
     try:  # a silent peer: bound but never answers
         with pytest.raises(ConnectTimeoutError, match=str(port)):
-            await Vehicle.connect(f"udpout://127.0.0.1:{port}",
-                                  config=VehicleConfig(connect_timeout_s=0.5))
+            await Vehicle.connect(
+                f"udpout://127.0.0.1:{port}", config=VehicleConfig(connect_timeout_s=0.5)
+            )
     finally:
         s.close()

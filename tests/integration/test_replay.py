@@ -87,9 +87,19 @@ def test_report_and_plot(replayed: Path) -> None:
     import matplotlib.image as mpimg
 
     report = json.loads((replayed / "report.json").read_text())
-    for key in ("duration_s", "path_length_m", "rms_error_m", "max_error_m", "max_speed_m_s",
-                "max_tilt_deg", "max_thrust_norm", "max_body_rate_rad_s", "geofence_violations",
-                "failsafes", "waypoints"):
+    for key in (
+        "duration_s",
+        "path_length_m",
+        "rms_error_m",
+        "max_error_m",
+        "max_speed_m_s",
+        "max_tilt_deg",
+        "max_thrust_norm",
+        "max_body_rate_rad_s",
+        "geofence_violations",
+        "failsafes",
+        "waypoints",
+    ):
         assert key in report
     assert report["result"] == "ok"
     assert report["failsafes"] == []

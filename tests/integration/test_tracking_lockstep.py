@@ -63,8 +63,11 @@ def _hover_run(estimate: bool) -> object:
     ctl = TrackingController(bt.default_controller_config(estimate_hover_thrust=estimate))
     assert ctl.config.params.hover_thrust == 0.5  # the companion believes MPC_THR_HOVER = 0.5
     return bt.run_lockstep(
-        "attitude", lambda t: (ref, 0.0), 10.0,
-        params=bt.mock_params({"SIH_MASS": mass}), controller=ctl,
+        "attitude",
+        lambda t: (ref, 0.0),
+        10.0,
+        params=bt.mock_params({"SIH_MASS": mass}),
+        controller=ctl,
     )
 
 
@@ -85,9 +88,13 @@ def test_hover_thrust_estimate_during_fast_figure8() -> None:
     """Heavier mock (true hover 0.6, companion told 0.5) flying the 6 m/s figure-8."""
     mass = 0.6 * 4.0 * 5.0 / 9.80665
     ctl = TrackingController(bt.default_controller_config())
-    res = bt.run_lockstep("rates", lambda t: bt.figure8_reference(t, 6.0),
-                          bt.figure8_seconds(6.0), params=bt.mock_params({"SIH_MASS": mass}),
-                          controller=ctl)
+    res = bt.run_lockstep(
+        "rates",
+        lambda t: bt.figure8_reference(t, 6.0),
+        bt.figure8_seconds(6.0),
+        params=bt.mock_params({"SIH_MASS": mass}),
+        controller=ctl,
+    )
     late = res.t >= 5.0
     assert np.all(np.abs(res.hover_thrust[late] - 0.6) < 0.05 * 0.6)
     assert np.abs(res.pos[late, 2] + 5.0).max() < 0.3
@@ -97,8 +104,9 @@ def test_hover_thrust_estimate_during_fast_figure8() -> None:
 # ----------------------------------------------------------------------------- SO(3) on the mock
 
 
-@pytest.mark.parametrize(("angle_deg", "axis"), [(120.0, (1.0, 0.3, 0.0)),
-                                                 (170.0, (0.2, -1.0, 0.4))])
+@pytest.mark.parametrize(
+    ("angle_deg", "axis"), [(120.0, (1.0, 0.3, 0.0)), (170.0, (0.2, -1.0, 0.4))]
+)
 def test_so3_rates_converge_on_mock_rigid_body(angle_deg: float, axis: tuple[float, ...]) -> None:
     store = ParamStore({"MPC_TILTMAX_AIR": 60.0})
     veh = make_vehicle("quad", store, seed=1)
@@ -136,7 +144,7 @@ def test_so3_rates_converge_on_mock_rigid_body(angle_deg: float, axis: tuple[flo
     first_small = int(np.argmax(chk < 10.0))
     assert first_small > 0 and first_small <= 10  # under 10 deg within 1 s
     assert np.all(np.diff(chk[: first_small + 1]) < 0.0)
-    assert np.all(errs_deg[first_small * 10:] < 10.0)
+    assert np.all(errs_deg[first_small * 10 :] < 10.0)
     assert np.all(errs_deg[200:] < 3.0)
 
 
@@ -186,8 +194,10 @@ def test_figure8_reference_derivatives_match_finite_differences() -> None:
         np.testing.assert_allclose((rp.acc_ned - rm.acc_ned) / (2 * h), r.jerk_ned, atol=1e-4)
         np.testing.assert_allclose((rp.jerk_ned - rm.jerk_ned) / (2 * h), r.snap_ned, atol=1e-3)
     # peak speed after the ramp
-    speeds = [np.linalg.norm(bt.figure8_reference(t, 6.0)[0].vel_ned) for t in
-              np.linspace(4.0, 12.0, 2000)]
+    speeds = [
+        np.linalg.norm(bt.figure8_reference(t, 6.0)[0].vel_ned)
+        for t in np.linspace(4.0, 12.0, 2000)
+    ]
     assert max(speeds) == pytest.approx(6.0, rel=1e-3)
 
 
@@ -213,14 +223,24 @@ def test_rover_tracks_circle_on_mock() -> None:
         ref = Reference(
             np.array([radius * math.sin(phase), radius * (1 - math.cos(phase)), 0.0]),
             np.array([speed * ramp * math.cos(phase), speed * ramp * math.sin(phase), 0.0]),
-            np.array([-speed * ramp * wt * math.sin(phase), speed * ramp * wt * math.cos(phase),
-                      0.0]),
+            np.array(
+                [-speed * ramp * wt * math.sin(phase), speed * ramp * wt * math.cos(phase), 0.0]
+            ),
         )
         s = veh.state
         if k % tel_every == 0:
-            pending.append((t + tel_every * dt, StateEstimate(
-                t, np.array(s.pos_ned), np.array(s.vel_ned), np.array(s.q_wxyz),
-                np.array(s.omega_frd))))
+            pending.append(
+                (
+                    t + tel_every * dt,
+                    StateEstimate(
+                        t,
+                        np.array(s.pos_ned),
+                        np.array(s.vel_ned),
+                        np.array(s.q_wxyz),
+                        np.array(s.omega_frd),
+                    ),
+                )
+            )
         while pending and pending[0][0] <= t + 1e-9:
             latest = pending.pop(0)[1]
         if k % sp_every == 0 and latest is not None:
@@ -246,8 +266,13 @@ def test_drag_estimate_converges_in_flight_with_sensor_noise() -> None:
     ctl = TrackingController(cfg)
     assert ctl.drag == 0.0
     noise = {"SIM_POS_NOISE": 0.02, "SIM_VEL_NOISE": 0.05, "SIM_GYRO_NOISE": 0.01}
-    res = bt.run_lockstep("rates", lambda t: bt.figure8_reference(t, 6.0),
-                          bt.figure8_seconds(6.0), params=bt.mock_params(noise), controller=ctl)
+    res = bt.run_lockstep(
+        "rates",
+        lambda t: bt.figure8_reference(t, 6.0),
+        bt.figure8_seconds(6.0),
+        params=bt.mock_params(noise),
+        controller=ctl,
+    )
     assert ctl.drag == pytest.approx(1.0, rel=0.05)
     assert abs(ctl.hover_thrust - 0.4903) < 0.02  # 1 kg * g / (4 * 5 N)
     rms, _ = res.lap_errors(2)
@@ -259,8 +284,9 @@ def test_drag_estimate_converges_in_flight_with_sensor_noise() -> None:
 
 def test_attitude_mode_over_mavlink_lockstep() -> None:
     """Same figure-8 through SET_ATTITUDE_TARGET / ODOMETRY with sitl_mock.lockstep."""
-    res = bt.run_mavlink_lockstep("attitude", lambda t: bt.figure8_reference(t, 6.0),
-                                  bt.figure8_seconds(6.0))
+    res = bt.run_mavlink_lockstep(
+        "attitude", lambda t: bt.figure8_reference(t, 6.0), bt.figure8_seconds(6.0)
+    )
     rms, mx = res.lap_errors(2)
     assert res.fallbacks == 0
     assert rms <= 0.25 and mx < 0.5

@@ -350,3 +350,14 @@ def test_absurd_magnitudes_fall_back_instead_of_raising() -> None:
     rov = RoverController().update(0.0, _est(0.0, [0, 0, 0]),
                                    Reference(np.zeros(3), np.array([1e13, 0.0, 0.0])))
     assert rov.fallback and rov.vel_ned[0] == 0.0 and rov.yaw_rate == 0.0
+
+
+def test_integrator_frozen_on_ground() -> None:
+    ctl = TrackingController(TrackingConfig(params=_params(), estimate_hover_thrust=False))
+    ref = Reference(np.array([0.0, 0.0, -2.0]))
+    for k in range(200):
+        e = StateEstimate(0.01 * k, np.zeros(3), np.zeros(3), np.array([1.0, 0, 0, 0]),
+                          np.zeros(3), airborne=False)
+        ctl.attitude(0.01 * k, e, ref)
+    assert ctl.last is not None
+    np.testing.assert_array_equal(ctl.last.integrator_ned, 0.0)

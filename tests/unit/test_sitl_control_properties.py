@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
@@ -13,6 +14,7 @@ from sitl_mock.flight_control import (
     McGains,
     attitude_control,
     attitude_control_reference,
+    constrain_xy,
     dcm_to_quat,
     mix_quad_x,
     quat_body_z,
@@ -109,3 +111,25 @@ def test_fast_attitude_control_equals_readable_version(
     fast = attitude_control(g, qa, qb, ff)
     slow = attitude_control_reference(g, qa, qb, ff)
     np.testing.assert_allclose(fast, slow, atol=1e-9)
+
+
+@settings(max_examples=100, deadline=None)
+@given(vec, vec, st.floats(0.5, 12.0))
+def test_constrain_xy_keeps_position_part_first(
+    v0: tuple[float, ...], v1: tuple[float, ...], vmax: float
+) -> None:
+    x, y = constrain_xy(v0[0], v0[1], v1[0], v1[1], vmax)
+    n = math.hypot(x, y)
+    assert n <= vmax + 1e-9
+    total = (v0[0] + v1[0], v0[1] + v1[1])
+    if math.hypot(*total) <= vmax:
+        assert (x, y) == total
+    elif math.hypot(v0[0], v0[1]) >= vmax:
+        # the position part alone, scaled: same direction as v0
+        assert x * v0[1] - y * v0[0] == pytest.approx(0.0, abs=1e-6 * vmax * math.hypot(*v0[:2]))
+    else:
+        # full v0 plus a non-negative multiple of v1, exactly at the limit
+        assert n == pytest.approx(vmax, rel=1e-9)
+        rx, ry = x - v0[0], y - v0[1]
+        assert rx * v1[0] + ry * v1[1] >= -1e-9
+        assert rx * v1[1] - ry * v1[0] == pytest.approx(0.0, abs=1e-6 * (1 + math.hypot(rx, ry)))

@@ -82,9 +82,7 @@ def test_outbound_latency_delays_the_ack() -> None:
 
 
 def test_blackout_silences_both_directions_then_recovers() -> None:
-    h = _faulty(
-        out=LinkFaults(blackouts=((4.0, 6.0),)), inp=LinkFaults(blackouts=((4.0, 6.0),))
-    )
+    h = _faulty(out=LinkFaults(blackouts=((4.0, 6.0),)), inp=LinkFaults(blackouts=((4.0, 6.0),)))
     h.run(4.0)
     h.arm()  # lost inbound
     h.run(2.0)
@@ -209,7 +207,9 @@ def _script(seed: int) -> list[bytes]:
     for _ in range(3):
         send(mavlink.MAVLink_command_long_message(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0))
         sim.step(0.5)
-    send(mavlink.MAVLink_command_long_message(1, 1, 22, 0, math.nan, 0, 0, math.nan, 0, 0, math.nan))
+    send(
+        mavlink.MAVLink_command_long_message(1, 1, 22, 0, math.nan, 0, 0, math.nan, 0, 0, math.nan)
+    )
     sim.step_until(8.0)
     out.extend(sim.recv())
     return out

@@ -16,11 +16,20 @@ HOME = (47.397742, 8.545594, 488.0)
 M_PER_DEG_LAT = 6371000.0 * math.pi / 180.0
 
 
-def item(seq: int, cmd: int, lat: float = 0.0, lon: float = 0.0, alt: float = 0.0,
-         frame: int = 6, p1: float = 0.0, p2: float = 0.0, p4: float = math.nan) -> object:  # fmt: skip
+def item(
+    seq: int,
+    cmd: int,
+    lat: float = 0.0,
+    lon: float = 0.0,
+    alt: float = 0.0,
+    frame: int = 6,
+    p1: float = 0.0,
+    p2: float = 0.0,
+    p4: float = math.nan,
+) -> object:
     return mavlink.MAVLink_mission_item_int_message(
         1, 1, seq, frame, cmd, 1 if seq == 0 else 0, 1, p1, p2, 0.0, p4,
-        int(round(lat * 1e7)), int(round(lon * 1e7)), alt, 0,
+        round(lat * 1e7), round(lon * 1e7), alt, 0,
     )  # fmt: skip
 
 

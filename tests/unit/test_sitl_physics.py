@@ -426,3 +426,17 @@ def test_long_steps_are_substepped_and_match_fine_steps() -> None:
     coarse, fine = fly(0.02), fly(0.004)
     np.testing.assert_allclose(coarse, fine, atol=1e-9)
     assert math.dist(coarse[:3], (3.0, -2.0, -12.0)) < 0.3
+
+
+def test_fast_state_constructor_equals_dataclass_init() -> None:
+    from sitl_mock.vehicle import VehicleState, make_state
+
+    args = (
+        1.5, (1.0, 2.0, -3.0), (0.1, 0.2, 0.3), (0.0, 0.0, 9.8), (1.0, 0.0, 0.0, 0.0),
+        (0.01, 0.02, 0.03), False, False, 0.49, 0.9, True, (47.0, 8.0, 400.0),
+    )  # fmt: skip
+    fast, ref = make_state(*args), VehicleState(*args)
+    assert fast == ref and repr(fast) == repr(ref) and hash(fast) == hash(ref)
+    with pytest.raises(AttributeError):
+        fast.t_s = 2.0  # type: ignore[misc]
+    assert fast.alt_amsl_m == pytest.approx(403.0)

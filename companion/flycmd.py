@@ -1,0 +1,251 @@
+"""`python -m companion fly` and `status`: connect to PX4 (or an embedded mock), take off, fly a
+mission file or a built-in pattern with flatness setpoints, land; rich live status."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import datetime as dt
+import math
+import socket
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+from rich.live import Live
+from rich.table import Table
+
+from companion.config import VehicleFile, load_vehicle_file
+from companion.control import Reference
+from companion.mission import geodetic_to_ned, load_mission, mission_to_flight_plan
+from companion.patterns import PATTERNS, pattern_trajectory
+from companion.schedule import Schedule, build_schedule, trajectory_reference
+from companion.tracking import TrackingSource
+
+DEFAULT_HOME = (47.397742, 8.545594, 488.0)
+#: A mission's planned home must be this close to the vehicle to be flown [m].
+MAX_HOME_OFFSET_M = 5.0
+MAV_TYPE_GROUND_ROVER = 10
+
+
+@dataclass
+class FlyOptions:
+    """Options of `fly` (see `build_fly_parser` in companion.cli)."""
+
+    target: str
+    connect: str | None
+    mode: str
+    rate_hz: float
+    vehicle_file: str | None
+    log: str | None
+    size_m: float
+    speed_m_s: float
+    alt_m: float
+    laps: int
+    mock_params: tuple[tuple[str, float], ...] = ()
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@contextlib.asynccontextmanager
+async def embedded_mock(
+    home: tuple[float, float, float], mock_params: tuple[tuple[str, float], ...] = ()
+) -> AsyncIterator[str]:
+    """Run `sitl_mock` in this process on loopback; yields the URL the companion connects to."""
+    from sitl_mock.autopilot import Autopilot
+    from sitl_mock.params import ParamStore
+    from sitl_mock.server import LinkConfig, MockServer, ServerConfig
+
+    port = _free_udp_port()
+    config = ServerConfig(links=[LinkConfig("offboard", ("127.0.0.1", 0), ("127.0.0.1", port))])
+    server = MockServer(
+        lambda remotes, now: Autopilot(
+            "quad", ParamStore(dict(mock_params)), home, 0, remotes=remotes, now=now
+        ),
+        config,
+    )
+    await server.start()
+    task = asyncio.get_running_loop().create_task(server.run())
+    try:
+        yield f"udpin://127.0.0.1:{port}"
+    finally:
+        server.stop()
+        with contextlib.suppress(asyncio.CancelledError, TimeoutError):
+            await asyncio.wait_for(task, 5.0)
+
+
+def _status_table(
+    v: Any, source: TrackingSource | None, started: float | None, ended: float | None = None
+) -> Table:
+    t = Table(title="ecca-offboard", show_header=False, min_width=60)
+    snap = v.telemetry
+    mode = v.mode.name if v.mode is not None else "-"
+    t.add_row("link", "[green]ok[/green]" if v.link_ok else "[red]lost[/red]")
+    t.add_row("mode / armed", f"{mode} / {'ARMED' if v.is_armed else 'disarmed'}")
+    if snap.position is not None:
+        p = snap.position.pos_ned
+        t.add_row("position NED [m]", f"{p[0]:8.2f} {p[1]:8.2f} {p[2]:8.2f}")
+        if source is not None and source.last_reference is not None and ended is None:
+            err = np.linalg.norm(np.asarray(p) - source.last_reference.pos_ned)
+            t.add_row("position error [m]", f"{err:.2f}")
+    if source is not None and started is not None:
+        elapsed = (ended or asyncio.get_running_loop().time()) - started
+        if elapsed > 0:
+            t.add_row("mean setpoint rate [Hz]", f"{source.calls / elapsed:.0f}")
+    if v.last_status_text is not None:
+        t.add_row("vehicle says", v.last_status_text.text)
+    return t
+
+
+def _mission_reference(
+    schedule: Schedule, origin: np.ndarray
+) -> tuple[float, float, Any]:
+    """(t_offset, duration, reference fn) flying the schedule after its takeoff climb."""
+    t_off = 0.0
+    for p in schedule.pieces:
+        if p.phase != "takeoff":
+            break
+        t_off = p.t0_s + p.duration_s
+    duration = schedule.duration_s - t_off
+
+    def ref(t: float) -> Reference:
+        r = schedule.reference(t + t_off)
+        return Reference(
+            r.pos_ned + origin, r.vel_ned, r.acc_ned, r.jerk_ned, r.snap_ned,
+            r.yaw, r.yaw_rate, r.yaw_acc,
+        )
+
+    return t_off, duration, ref
+
+
+async def fly(opts: FlyOptions, console: Console) -> int:
+    """Run `fly`; returns the exit code (0 ok, 1 flight failure, 2 bad input)."""
+    from companion.aio import Vehicle, VehicleConfig, VehicleError, safe_exit
+
+    vf = load_vehicle_file(opts.vehicle_file) if opts.vehicle_file else VehicleFile()
+    mission = None
+    home = DEFAULT_HOME
+    if opts.target not in PATTERNS:
+        mission = load_mission(opts.target)
+        home = (mission.home.lat_deg, mission.home.lon_deg, mission.home.alt_amsl_m)
+    elif not (opts.alt_m > 0.5):
+        raise ValueError(f"--alt must be above 0.5 m, got {opts.alt_m}")
+    log_path = opts.log or f"flight-{dt.datetime.now(dt.UTC):%Y%m%dT%H%M%SZ}.tlog"
+    vconfig = VehicleConfig(rate_hz=opts.rate_hz, tlog_path=log_path)
+    async with contextlib.AsyncExitStack() as stack:
+        url = opts.connect
+        if url is None:
+            url = await stack.enter_async_context(embedded_mock(home, opts.mock_params))
+            console.print(f"No --connect: flying the embedded mock PX4 ({url})")
+        v = await stack.enter_async_context(Vehicle.connect(url, config=vconfig))
+        await stack.enter_async_context(safe_exit(v))
+        hb = v.link.heartbeat.last
+        rover = hb is not None and hb.vehicle_type == MAV_TYPE_GROUND_ROVER
+        mode = "rover" if rover else opts.mode
+        console.print(f"Connected: {'rover' if rover else 'multicopter'}, logging to {log_path}")
+        source: TrackingSource | None = None
+        started: float | None = None
+        ended: float | None = None
+
+        async def show(live: Live) -> None:
+            while True:
+                live.update(_status_table(v, source, started, ended))
+                await asyncio.sleep(0.2)  # display refresh period
+
+        with Live(_status_table(v, None, None), console=console, refresh_per_second=5) as live:
+            ui = asyncio.get_running_loop().create_task(show(live))
+            try:
+                # plan before arming (off the event loop: planning takes up to a second)
+                if mission is not None:
+                    fp = mission_to_flight_plan(mission, vehicle="rover" if rover else "quad")
+                    schedule = await asyncio.to_thread(
+                        build_schedule, fp, None if rover else vf.params, vf.limits
+                    )
+                    alt = fp.takeoff_alt_m
+                    t_off, duration, rel_ref = _mission_reference(schedule, np.zeros(3))
+                    start_rel = schedule.reference(t_off).pos_ned
+                else:
+                    alt = opts.alt_m
+                    traj = await asyncio.to_thread(
+                        lambda: pattern_trajectory(
+                            opts.target, np.zeros(3), size_m=opts.size_m,
+                            speed_m_s=opts.speed_m_s, laps=opts.laps, yaw=0.0,
+                            params=vf.params, max_acc_m_s2=vf.limits.max_acc_m_s2,
+                            max_tilt_rad=vf.limits.max_tilt_rad,
+                        )
+                    )
+                    rel_ref = trajectory_reference(traj, 0.0)
+                    duration = traj.duration
+                    start_rel = np.zeros(3)
+                await v.arm()
+                if not rover:
+                    await v.takeoff(alt)
+                snap = v.telemetry
+                if snap.position is None:
+                    raise VehicleError("no position telemetry after takeoff")
+                here = np.asarray(snap.position.pos_ned, dtype=float)
+                if mission is not None and snap.global_position is not None:
+                    g = snap.global_position
+                    off = geodetic_to_ned(g.lat_deg, g.lon_deg, g.alt_amsl_m, mission.home)
+                    horiz = math.hypot(off[0], off[1])
+                    if horiz > MAX_HOME_OFFSET_M:
+                        raise ValueError(
+                            f"{opts.target}: planned home is {horiz:.0f} m from the vehicle "
+                            f"(limit {MAX_HOME_OFFSET_M:g} m); move the vehicle there or "
+                            "edit plannedHomePosition"
+                        )
+                origin = here - start_rel
+
+                def ref(t: float) -> Reference:
+                    r = rel_ref(t)
+                    return Reference(
+                        r.pos_ned + origin, r.vel_ned, r.acc_ned, r.jerk_ned, r.snap_ned,
+                        r.yaw, r.yaw_rate, r.yaw_acc,
+                    )
+
+                source = TrackingSource(ref, mode, vf.params)  # type: ignore[arg-type]
+                started = asyncio.get_running_loop().time()
+                report = await v.fly(mode=mode, setpoint_source=source, duration_s=duration)
+                ended = asyncio.get_running_loop().time()
+                console.print(
+                    f"Trajectory flown in {mode} mode: {report.duration_s:.1f} s"
+                )
+                final = schedule.final_action if mission is not None else "land"
+                if rover:
+                    await v.disarm()
+                elif final in ("land", "rtl"):
+                    await v.land()
+                else:
+                    await v.hold()
+            finally:
+                ui.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await ui
+                live.update(_status_table(v, source, started, ended or 0.0))
+    console.print(f"Done. Log: {Path(log_path).resolve()}")
+    return 0
+
+
+async def status(url: str, console: Console, timeout_s: float = 10.0) -> int:
+    """Connect, wait for telemetry, print the vehicle state once."""
+    from companion.aio import Vehicle, VehicleConfig
+
+    async with Vehicle.connect(url, config=VehicleConfig(connect_timeout_s=timeout_s)) as v:
+        deadline = asyncio.get_running_loop().time() + 3.0
+        while v.telemetry.position is None and asyncio.get_running_loop().time() < deadline:
+            await asyncio.sleep(0.05)  # poll until the first position arrives (bounded)
+        console.print(_status_table(v, None, None))
+        st = v.link.telemetry.sys_status
+        if st is not None:
+            console.print(
+                f"ready to arm: {'yes' if st.armable else 'no'}, "
+                f"battery {st.battery_remaining_pct} %"
+            )
+    return 0
