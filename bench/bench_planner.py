@@ -3,19 +3,15 @@ time-allocated plans for 10 and 100 waypoints, and the duration ratio of the tim
 test set.
 
 Usage: ``python bench/bench_planner.py [--write]`` (``--write`` replaces the "## Planner"
-section of BENCHMARKS.md). BLAS is pinned to one thread (set before numpy is imported): on the
-shared 2-core machine a multi-threaded BLAS inside L-BFGS-B costs several times more than it
-saves on these small problems.
+section of BENCHMARKS.md). The planner makes no multi-threaded BLAS calls in its hot loops
+(its L-BFGS is numpy on 1-D vectors, the banded Cholesky is LAPACK dpbtrf/dpbtrs), so the
+BLAS thread setting is left as the environment has it.
 """
 
 from __future__ import annotations
 
-import os
-
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-os.environ.setdefault("OMP_NUM_THREADS", "1")
-
 import argparse
+import os
 import platform
 import sys
 import time
@@ -238,8 +234,8 @@ def main() -> int:
         f"Command: `python bench/bench_planner.py --write` ({platform.machine()}, "
         f"{os.cpu_count()} cores shared with other jobs, Python {platform.python_version()}, "
         f"numpy {np.__version__}, scipy {scipy.__version__}, OPENBLAS_NUM_THREADS="
-        f"{os.environ.get('OPENBLAS_NUM_THREADS')}). Load on the machine varies: timings are "
-        "best-of / median."
+        f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}). Other jobs load the machine: "
+        "timings are best-of / median, CPU = process time."
     )
     section = "## Planner\n\n" + header + "\n\n" + "\n".join(lines) + "\n"
     print(section)

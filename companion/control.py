@@ -50,7 +50,6 @@ from companion.flatness import MultirotorParams, multirotor_setpoint, rover_setp
 
 FloatArray = npt.NDArray[np.float64]
 
-_E3 = np.array([0.0, 0.0, 1.0])
 _NAN3 = np.full(3, math.nan)
 
 
@@ -195,10 +194,7 @@ class StateEstimate:
 
     def quat_ok(self) -> bool:
         """Quaternion finite with norm in (0.5, 2) (telemetry sends unit quaternions)."""
-        q = self.q_wxyz
-        if not bool(np.isfinite(q).all()):
-            return False
-        n = math.hypot(float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+        n = math.hypot(*self.q_wxyz.tolist())  # NaN/inf propagate; no overflow
         return 0.5 < n < 2.0
 
 
@@ -435,7 +431,12 @@ class TrackingConfig:
 
 @dataclass(frozen=True)
 class TrackingDiagnostics:
-    """What the last `TrackingController` update computed (for logs and tests)."""
+    """What the last `TrackingController` update computed (for logs and tests).
+
+    Errors are reference minus estimate (NED). attitude_err_frd: Lee's e_R (rates mode; zero in
+    attitude mode, where PX4 closes the attitude loop); rate_err_frd: Lee's e_Omega =
+    omega - R^T R_d omega_d with the measured rates (rates mode), body FRD [rad/s].
+    """
 
     t_s: float
     pos_err_ned: FloatArray
@@ -449,6 +450,7 @@ class TrackingDiagnostics:
     attitude_err_frd: FloatArray
     fallback: bool
     reason: str
+    rate_err_frd: FloatArray = field(default_factory=lambda: np.zeros(3))
 
 
 # ----------------------------------------------------------------------------- SO(3) loop
@@ -514,9 +516,13 @@ class TrackingController:
         dc = config.drag_config or DragConfig(initial_drag_over_mass=p.drag / p.mass, g=p.g)
         self.drag_estimator = DragEstimator(dc)
         gains = config.gains
-        self._kp, self._kd = gains.kp(), gains.kd()
-        self._ki, self._imax = gains.ki(), gains.i_max()
-        self._integ = np.zeros(3)
+        self._kp_l = gains.kp().tolist()
+        self._kd_l = gains.kd().tolist()
+        self._ki_l = gains.ki().tolist()
+        self._imax_l = gains.i_max().tolist()
+        self._integ_l = [0.0, 0.0, 0.0]
+        self._cos_tilt = math.cos(config.max_tilt_rad)
+        self._tan_tilt = math.tan(config.max_tilt_rad)
         self._t_last_update: float | None = None
         self._last_est: StateEstimate | None = None
         self._prev_est: StateEstimate | None = None
@@ -544,7 +550,7 @@ class TrackingController:
 
     def reset(self) -> None:
         """Clear the integrator and the telemetry history (e.g. on entering offboard)."""
-        self._integ = np.zeros(3)
+        self._integ_l = [0.0, 0.0, 0.0]
         self._t_last_update = None
         self._last_est = None
         self._prev_est = None
@@ -572,10 +578,11 @@ class TrackingController:
         R = quat_to_dcm(self._q_now)
         Rd = quat_to_dcm(q_des)
         omega, e_R = so3_rate_command_dcm(R, Rd, omega_ff, self.config.attitude_gains)
+        e_omega = est.omega_frd - (R.T @ Rd) @ omega_ff
         # Thrust along the actual body z (Lee): project the desired thrust direction.
         proj = float(Rd[:, 2] @ R[:, 2])
         thrust = min(max(thrust * max(proj, 0.5), self.config.thrust_min), self.config.thrust_max)
-        self._publish_diag(e_R)
+        self._publish_diag(e_R, e_omega)
         if not (_finite(omega) and math.isfinite(thrust)):
             return self._fallback_rates(now, est, "non-finite rate command")
         self._record_thrust(now, thrust)
@@ -654,51 +661,77 @@ class TrackingController:
             self._fallback_reason = f"telemetry stale ({age:.2f} s old)"
             return None
         self._ingest(est)
-        self._last_yaw = yaw_of_dcm(quat_to_dcm(est.q_wxyz))
+        qw, qx, qy, qz = est.q_wxyz.tolist()
+        self._last_yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
 
         dt_ctrl = 0.0 if self._t_last_update is None else now - self._t_last_update
         dt_ctrl = min(max(dt_ctrl, 0.0), 0.1)
         self._t_last_update = now
 
+        # Plain floats from here to the flatness call: this runs at the setpoint rate on
+        # single samples, where numpy's per-operation overhead dominates.
         # 1. latency compensation
         tau = min(max(age, 0.0), c.max_extrapolation_s) if c.latency_compensation else 0.0
-        acc_x = est.acc_ned if est.acc_ned is not None else self._last_acc_cmd
-        pos = est.pos_ned + est.vel_ned * tau + 0.5 * acc_x * tau * tau
-        vel = est.vel_ned + acc_x * tau
+        acc_src = est.acc_ned if est.acc_ned is not None else self._last_acc_cmd
+        ax0, ay0, az0 = acc_src.tolist()
+        px0, py0, pz0 = est.pos_ned.tolist()
+        vx0, vy0, vz0 = est.vel_ned.tolist()
+        h2 = 0.5 * tau * tau
+        pos = (px0 + vx0 * tau + ax0 * h2, py0 + vy0 * tau + ay0 * h2, pz0 + vz0 * tau + az0 * h2)
+        vel = (vx0 + ax0 * tau, vy0 + ay0 * tau, vz0 + az0 * tau)
         self._q_now = quat_integrate(est.q_wxyz, est.omega_frd, tau) if tau > 0 else quat_normalize(
             est.q_wxyz
         )
 
         # 2. acceleration command
-        e_p = ref.pos_ned - pos
-        e_v = ref.vel_ned - vel
+        rp = ref.pos_ned.tolist()
+        rv = ref.vel_ned.tolist()
+        ra = ref.acc_ned.tolist()
+        rj = ref.jerk_ned.tolist()
+        rs = ref.snap_ned.tolist()
         L = lead_s
-        a_ff = ref.acc_ned + ref.jerk_ned * L + 0.5 * ref.snap_ned * L * L
-        j_ff = ref.jerk_ned + ref.snap_ned * L
-        a_cmd = a_ff + self._kp * e_p + self._kd * e_v + self._integ
+        hL2 = 0.5 * L * L
+        kp, kd, integ = self._kp_l, self._kd_l, self._integ_l
+        e_p = [rp[i] - pos[i] for i in range(3)]
+        e_v = [rv[i] - vel[i] for i in range(3)]
+        a_cmd = [
+            ra[i] + rj[i] * L + rs[i] * hL2 + kp[i] * e_p[i] + kd[i] * e_v[i] + integ[i]
+            for i in range(3)
+        ]
+        j_ff = [rj[i] + rs[i] * L for i in range(3)]
 
-        # 3. thrust vector with drag, saturation
+        # 3. thrust vector t = m (g e3 - a) - D v with drag, saturation
         h = self.hover_thrust
         D = self.drag
-        v_drag = vel if c.drag_velocity == "estimate" else ref.vel_ned
+        v_drag = vel if c.drag_velocity == "estimate" else rv
         m = p.mass
-        t_vec = m * (p.g * _E3 - a_cmd) - D * v_drag
+        g0 = p.g
+        t_vec = (
+            -m * a_cmd[0] - D * v_drag[0],
+            -m * a_cmd[1] - D * v_drag[1],
+            m * (g0 - a_cmd[2]) - D * v_drag[2],
+        )
         t_sat, sat = self._saturate(t_vec, h)
-        a_sat = p.g * _E3 - (t_sat + D * v_drag) / m
+        a_sat = (
+            -(t_sat[0] + D * v_drag[0]) / m,
+            -(t_sat[1] + D * v_drag[1]) / m,
+            g0 - (t_sat[2] + D * v_drag[2]) / m,
+        )
 
         # anti-windup: integrate only in the air and when not saturated (or when it unwinds)
         if dt_ctrl > 0.0 and est.airborne:
-            di = self._ki * e_p * dt_ctrl
-            if sat:
-                # allow only the components that reduce the integrator magnitude
-                di = np.where(di * self._integ < 0.0, di, 0.0)
-            self._integ = np.minimum(np.maximum(self._integ + di, -self._imax), self._imax)
-        self._last_acc_cmd = a_sat
+            ki, imax = self._ki_l, self._imax_l
+            for i in range(3):
+                di = ki[i] * e_p[i] * dt_ctrl
+                if sat and di * integ[i] >= 0.0:
+                    continue  # saturated: only let the integrator unwind
+                integ[i] = min(max(integ[i] + di, -imax[i]), imax[i])
+        self._last_acc_cmd = np.array(a_sat)
 
         # 4. flatness map
         params = self._params_for_drag(D)
-        jerk = np.zeros(3) if sat else j_ff
-        snap = np.zeros(3) if sat else ref.snap_ned
+        jerk = (0.0, 0.0, 0.0) if sat else j_ff
+        snap = (0.0, 0.0, 0.0) if sat else rs
         yaw_rate = ref.yaw_rate
         yaw_acc = 0.0 if sat else ref.yaw_acc
         try:
@@ -718,11 +751,12 @@ class TrackingController:
             omega_ff = np.zeros(3)
         q_des = quat_normalize(q_des)
         thrust = min(max(thrust, c.thrust_min), c.thrust_max)
-        self._diag = (now, e_p, e_v, a_sat, self._integ.copy(), h, D, tau, sat,
+        self._diag = (now, np.array(e_p), np.array(e_v), np.array(a_sat), np.array(integ), h, D,
+                      tau, sat,
                       "singular flatness point" if singular else "")
         return q_des, thrust, omega_ff, sat
 
-    def _publish_diag(self, e_R: FloatArray) -> None:
+    def _publish_diag(self, e_R: FloatArray, e_omega: FloatArray | None = None) -> None:
         now, e_p, e_v, a_sat, integ, h, D, tau, sat, reason = self._diag
         self.last = TrackingDiagnostics(
             t_s=now,
@@ -737,6 +771,7 @@ class TrackingController:
             attitude_err_frd=e_R,
             fallback=False,
             reason=reason,
+            rate_err_frd=np.zeros(3) if e_omega is None else e_omega,
         )
 
     def _params_for_drag(self, drag: float) -> MultirotorParams:
@@ -748,33 +783,34 @@ class TrackingController:
             self._params_cache = cached
         return cached[1]
 
-    def _saturate(self, t_vec: FloatArray, hover_thrust: float) -> tuple[FloatArray, bool]:
+    def _saturate(
+        self, t_vec: tuple[float, float, float], hover_thrust: float
+    ) -> tuple[tuple[float, float, float], bool]:
         """Limit the thrust vector [N]: min upward, tilt, max magnitude (vertical first)."""
         c = self.config
         p = c.params
         n_per_norm = p.mass * p.g / hover_thrust  # N per unit normalised thrust
         T_min = c.thrust_min * n_per_norm
         T_max = c.thrust_max * n_per_norm
-        th = np.array([t_vec[0], t_vec[1]])
+        tx, ty, tz = t_vec
         # t = T z_b points along body z (down when level); the lift is -t. Vertical part: t_z.
-        tz = float(t_vec[2])
         sat = False
-        if tz < T_min * math.cos(c.max_tilt_rad):
-            tz = T_min * math.cos(c.max_tilt_rad)
+        if tz < T_min * self._cos_tilt:
+            tz = T_min * self._cos_tilt
             sat = True
         if tz > T_max:
             tz = T_max
             sat = True
-        h_lim = min(tz * math.tan(c.max_tilt_rad), math.sqrt(max(T_max * T_max - tz * tz, 0.0)))
-        hn = math.hypot(float(th[0]), float(th[1]))
+        h_lim = min(tz * self._tan_tilt, math.sqrt(max(T_max * T_max - tz * tz, 0.0)))
+        hn = math.hypot(tx, ty)
         if hn > h_lim:
-            th = th * (h_lim / hn)
+            k = h_lim / hn
+            tx, ty = tx * k, ty * k
             sat = True
-        T = math.hypot(float(th[0]), float(th[1]), tz)
-        if T_min > T:
-            tz = math.sqrt(max(T_min * T_min - float(th @ th), 0.0))
+        if T_min > math.hypot(tx, ty, tz):
+            tz = math.sqrt(max(T_min * T_min - tx * tx - ty * ty, 0.0))
             sat = True
-        return np.array([th[0], th[1], tz]), sat
+        return (tx, ty, tz), sat
 
     def _fallback_q(self, est: StateEstimate) -> FloatArray:
         yaw = self._last_yaw
@@ -813,7 +849,7 @@ class TrackingController:
             pos_err_ned=z,
             vel_err_ned=z,
             acc_cmd_ned=z,
-            integrator_ned=self._integ.copy(),
+            integrator_ned=np.array(self._integ_l),
             hover_thrust=self.hover_thrust,
             drag=self.drag,
             extrapolation_s=0.0,

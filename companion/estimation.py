@@ -50,8 +50,8 @@ class HoverThrustConfig:
     hover_thrust_min / hover_thrust_max: bounds of the estimate.
     min_thrust_norm: no update below this commanded thrust (ground, idle, free fall).
     max_tilt_rad: no update above this tilt (thrust model and drag least certain).
-    max_vertical_acc: no update when |a_z - g ... | i.e. the measured vertical acceleration
-        exceeds this magnitude [m/s^2].
+    max_vertical_acc: no update when the measured (kinematic) vertical acceleration exceeds
+        this magnitude [m/s^2].
     drag_over_mass: known linear drag D/m [1/s] used in the measurement model.
     g: gravity [m/s^2].
     """

@@ -9,6 +9,7 @@ with `t_s` the reference time [s] and `telemetry.now_s` the local clock of the c
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable
 from typing import Literal
 
@@ -35,15 +36,41 @@ SetpointMode = Literal["position", "attitude", "rates", "rover"]
 ReferenceFn = Callable[[float], Reference]
 
 
-def estimate_from_telemetry(snap: TelemetrySnapshot) -> StateEstimate | None:
+class SampleClock:
+    """Maps the vehicle's sample times (time_boot) to the local clock.
+
+    Every sample gives `t_receive - t_boot = offset + latency`; the smallest value over a sliding
+    window is the offset plus the minimum latency, so `t_boot + offset` is the local time the
+    sample was taken (up to the link's minimum latency). That exposes the link latency to the
+    controller's extrapolation, which receive times would hide.
+    """
+
+    def __init__(self, window: int = 200) -> None:
+        self._window: deque[float] = deque(maxlen=window)
+        self._last_key: tuple[float, float] | None = None
+
+    def local_time(self, t_boot_s: float, t_receive_s: float) -> float:
+        """Local time [s] at which the sample stamped `t_boot_s` [s] was taken."""
+        key = (t_boot_s, t_receive_s)
+        if key != self._last_key:
+            self._window.append(t_receive_s - t_boot_s)
+            self._last_key = key
+        return t_boot_s + min(self._window)
+
+
+def estimate_from_telemetry(
+    snap: TelemetrySnapshot, clock: SampleClock | None = None
+) -> StateEstimate | None:
     """Controller input from the latest LOCAL_POSITION_NED/ODOMETRY and ATTITUDE_QUATERNION
-    (None until both have arrived). `t_s` is the older receive time of the two."""
+    (None until both have arrived). `t_s` is the position's sample time on the local clock when
+    a `SampleClock` is given, else its receive time."""
     pos, att = snap.position, snap.attitude
     if pos is None or att is None:
         return None
     airborne = snap.extended.in_air if snap.extended is not None else True
+    t_s = pos.t_s if clock is None else clock.local_time(pos.time_boot_s, pos.t_s)
     return StateEstimate(
-        t_s=min(pos.t_s, att.t_s),
+        t_s=t_s,
         pos_ned=np.array(pos.pos_ned),
         vel_ned=np.array(pos.vel_ned),
         q_wxyz=np.array(att.q_wxyz),
@@ -100,6 +127,7 @@ class TrackingSource:
         self._ref_key: float | None = None
         self._ref: Reference | None = None
         self.calls = 0
+        self.clock = SampleClock()
 
     @property
     def last_reference(self) -> Reference | None:
@@ -133,7 +161,7 @@ class TrackingSource:
         self.calls += 1
         now = telemetry.now_s
         ref = self.ref(t_s)
-        est = estimate_from_telemetry(telemetry)
+        est = estimate_from_telemetry(telemetry, self.clock)
         if self.mode == "position" or est is None or not math.isfinite(now):
             if self.mode == "rover":
                 return PositionSetpoint(vel_ned=(0.0, 0.0, 0.0), yaw_rate=0.0)

@@ -48,7 +48,7 @@ COMPID = 1
 FORCE_MAGIC = 21196
 MODE_ACK_DELAY_S = 0.010  # the commander's verdict follows the receiver's ACCEPTED by ~10 ms
 FAILSAFE_ACTION_DELAY_S = 0.5  # loss detected at COM_OF_LOSS_T, mode switch 0.5 s later
-COMMANDER_PERIOD_S = 0.004
+COMMANDER_PERIOD_S = 0.005
 NAVIGATOR_PERIOD_S = 0.01
 DESCEND_SPEED_NO_RC = 0.6  # [m/s] observed sink rate in POSCTL without RC (PX4.md)
 AUTOPILOT_CAPABILITIES = (
@@ -227,7 +227,7 @@ class Autopilot:
         self.armed = False
         self.failsafe = False
         self.rc_present = False
-        self.home_set = False
+        self._home_announced = False
         self._armed_t = 0.0
         self._taken_off = False
         self._landed_since: float | None = None
@@ -244,6 +244,7 @@ class Autopilot:
         self._bat_warned = 0  # 0 none, 1 low, 2 critical, 3 emergency
         self._slow_next_t = 0.0
         self._cmd_next_t = 0.0
+        self._last_target: Target = _IDLE
         self._tele_next_t = 0.0
         self._nav_target: PositionTarget | None = None
         self._nav_last_t = 0.0
@@ -340,9 +341,46 @@ class Autopilot:
                 continue
             if t_phys <= t_end + 1e-12:
                 self._physics_step(t_phys)
+                self._quiet_steps(t_end)
                 continue
             break
         self._t = max(self._t, t_end)
+
+    def _next_input_time(self) -> float:
+        t = self._events[0][0] if self._events else math.inf
+        for lk in self.links.values():
+            if len(lk.rx):
+                t = min(t, lk.rx.next_due())
+        return t
+
+    def _quiet_steps(self, t_end: float) -> None:
+        """Physics-only steps up to the next step where anything else is due.
+
+        Exactly what `_physics_step` would do on those steps (same target, no commander,
+        telemetry, navigator or event work), without its per-step bookkeeping.
+        """
+        if self._descend or (self._nav_active and self._nav_target is None):
+            return
+        horizon = min(
+            t_end + 1e-12,
+            self._next_input_time(),
+            self._cmd_next_t - 1e-9,
+            self._tele_next_t,
+        )
+        if self._nav_active and self.armed and self.mode != Mode.OFFBOARD:
+            horizon = min(horizon, self._nav_next_t - 1e-9)
+        dt = self.dt
+        n = self._n_steps
+        if (n + 1) * dt >= horizon:
+            return
+        step = self.vehicle.step
+        target, armed = self._last_target, self.armed
+        while (n + 1) * dt < horizon:
+            step(dt, target, armed)
+            n += 1
+        self._n_steps = n
+        self._t = n * dt
+        self._state_stale = True
 
     # ================================================================== derived state
     @property
@@ -372,6 +410,11 @@ class Autopilot:
     @property
     def estimator_ready(self) -> bool:
         return self._t >= self.estimator_ready_s
+
+    @property
+    def home_set(self) -> bool:
+        """Home is set once the estimator is ready (PX4 SITL: at boot, before arming)."""
+        return self.estimator_ready
 
     @property
     def local_position_valid(self) -> bool:
@@ -1109,9 +1152,10 @@ class Autopilot:
         self._n_steps += 1
         self._t = t_phys
         target = self._target()
+        self._last_target = target
         self.vehicle.step(self.dt, target, self.armed)
         self._state_stale = True
-        if t_phys >= self._cmd_next_t - 1e-9:  # commander at <= 250 Hz
+        if t_phys >= self._cmd_next_t - 1e-9:  # commander at <= 200 Hz
             self._cmd_next_t = t_phys + COMMANDER_PERIOD_S
             self._commander(t_phys)
         if self._events and self._events[0][0] <= t_phys:
@@ -1154,8 +1198,8 @@ class Autopilot:
     def _commander(self, t: float) -> None:
         s = self._state
         p = self.params
-        if not self.home_set and self.estimator_ready:
-            self.home_set = True
+        if not self._home_announced and self.estimator_ready:
+            self._home_announced = True
             self._broadcast(self.home_position_message())
         if t >= self._slow_next_t:  # 50 Hz housekeeping
             self._slow_next_t = t + 0.02

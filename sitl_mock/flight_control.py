@@ -188,6 +188,7 @@ class McGains:
     vel_up_max: float
     vel_dn_max: float
     tilt_max: float
+    tilt_max_land: float
     att_p: Vec3
     yaw_w: float
     rate_max: Vec3
@@ -219,6 +220,7 @@ class McGains:
             vel_up_max=p["MPC_Z_VEL_MAX_UP"],
             vel_dn_max=p["MPC_Z_VEL_MAX_DN"],
             tilt_max=_clamp(p["MPC_TILTMAX_AIR"], 1.0, 89.0) * d2r,
+            tilt_max_land=_clamp(min(p["MPC_TILTMAX_LND"], p["MPC_TILTMAX_AIR"]), 1.0, 89.0) * d2r,
             att_p=(p["MC_ROLL_P"], p["MC_PITCH_P"], yaw_p),
             yaw_w=yaw_w,
             rate_max=(
@@ -312,8 +314,15 @@ class PositionVelocityController:
         vel_dot: Vec3,
         tgt: PositionTarget,
         up_limit: float,
+        flying: bool = True,
     ) -> tuple[Vec3, float]:
-        """One position-loop update. Returns (body_z unit vector in NED, collective thrust 0..1)."""
+        """One position-loop update. Returns (body_z unit vector in NED, collective thrust 0..1).
+
+        While not `flying` (takeoff ramp) the thrust may go down to zero and the tilt is limited to
+        MPC_TILTMAX_LND, as in PX4.
+        """
+        tilt_max = g.tilt_max if flying else g.tilt_max_land
+        thr_min = g.thr_min if flying else 0.0
         vsp = self.velocity_setpoint(g, pos, tgt, up_limit)
         self.vel_sp = vsp
         ta = tgt.acc_ned
@@ -337,20 +346,20 @@ class PositionVelocityController:
         else:
             bzx, bzy, bzz = bzx / n, bzy / n, bzz / n
         ang = math.acos(_clamp(bzz, -1.0, 1.0))
-        if ang > g.tilt_max:
+        if ang > tilt_max:
             rej = math.hypot(bzx, bzy)
             if rej < 1e-9:
                 rx, ry = 1.0, 0.0
             else:
                 rx, ry = bzx / rej, bzy / rej
-            s = math.sin(g.tilt_max)
-            bzx, bzy, bzz = s * rx, s * ry, math.cos(g.tilt_max)
+            s = math.sin(tilt_max)
+            bzx, bzy, bzz = s * rx, s * ry, math.cos(tilt_max)
         # linear hover-thrust mapping of the vertical acceleration (NED: negative = up)
         thr_z = az * (g.hover / G) - g.hover
-        coll = min(thr_z / bzz, -g.thr_min)
+        coll = min(thr_z / bzz, -thr_min)
         tx, ty, tz = bzx * coll, bzy * coll, bzz * coll
         # vertical anti-windup
-        if (tz >= -g.thr_min and err[2] >= 0.0) or (tz <= -g.thr_max and err[2] <= 0.0):
+        if (tz >= -thr_min and err[2] >= 0.0) or (tz <= -g.thr_max and err[2] <= 0.0):
             err[2] = 0.0
         # keep a horizontal margin, then saturate the horizontal thrust
         txy = math.hypot(tx, ty)

@@ -106,6 +106,7 @@ PARAMS: dict[str, ParamSpec] = {
     "SIM_POS_NOISE": ParamSpec(0.0, False, "std of simulated position noise [m] (0 = off)"),
     "SIM_VEL_NOISE": ParamSpec(0.0, False, "std of simulated velocity noise [m/s] (0 = off)"),
     "SIM_GYRO_NOISE": ParamSpec(0.0, False, "std of simulated gyro noise [rad/s] (0 = off)"),
+    "MPC_TILTMAX_LND": ParamSpec(12.0, False, "maximum tilt during the takeoff ramp [deg]"),
 }
 
 

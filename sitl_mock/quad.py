@@ -457,7 +457,7 @@ class Quadrotor:
                 pos = (self._px + self._npos[0], self._py + self._npos[1], self._pz + self._npos[2])
                 vel = (self._vx + self._nvel[0], self._vy + self._nvel[1], self._vz + self._nvel[2])
                 body_z, thrust = self._pvc.update(
-                    g, dtc, pos, vel, (self._ax, self._ay, self._az), tgt, up_limit
+                    g, dtc, pos, vel, (self._ax, self._ay, self._az), tgt, up_limit, st == FLIGHT
                 )
                 if self._landed:
                     self._pvc.vel_int[0] = self._pvc.vel_int[1] = 0.0

@@ -343,10 +343,8 @@ class StreamScheduler:
     def __init__(self, rates_hz: dict[int, float], now: float) -> None:
         self.defaults = dict(rates_hz)
         self.interval_s: dict[int, float] = {k: 1.0 / v for k, v in rates_hz.items() if v > 0}
-        # stagger the first emission a little so that not every stream fires on the same tick
-        self.next_due: dict[int, float] = {
-            k: now + (i % 7) * 1e-3 for i, k in enumerate(self.interval_s)
-        }
+        # all streams start together: they then fire on common ticks (fewer wake-ups)
+        self.next_due: dict[int, float] = dict.fromkeys(self.interval_s, now)
         self.earliest = min(self.next_due.values(), default=math.inf)
 
     def set_interval(self, msg_id: int, interval_us: float, now: float) -> None:

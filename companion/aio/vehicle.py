@@ -339,6 +339,7 @@ class Vehicle:
                 data = await self.transport.recv()
             except TransportError as exc:
                 log.warning("transport failed: %s; reconnecting", exc)
+                self._dispatch(self.link.transport_lost(time.monotonic()))
                 await self._reopen()
                 continue
             now = time.monotonic()
@@ -518,6 +519,8 @@ class Vehicle:
         """The configured safe action (Hold or Land), best effort, bounded in time."""
         act = action or self.config.exit_action
         mode = FlightMode.LAND if act == "land" else FlightMode.HOLD
+        if self.mode is mode:
+            return
         try:
             await asyncio.wait_for(self.set_mode(mode), 5.0)
         except (VehicleError, TimeoutError) as exc:
@@ -600,8 +603,12 @@ class Vehicle:
                 self.tlog.write(frame)
 
         assert self.transport is not None
-        tr = self.transport
-        streamer = FixedRateStreamer(rate, lambda b: tr.send(b), producer, on_sent=on_sent,
+
+        def send(frame: bytes) -> bool:
+            tr = self.transport
+            return tr is not None and tr.send(frame)
+
+        streamer = FixedRateStreamer(rate, send, producer, on_sent=on_sent,
                                      realtime_priority=cfg.realtime_priority)
         sm.start(time.monotonic())
         streamer.start()

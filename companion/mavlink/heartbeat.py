@@ -108,6 +108,14 @@ class HeartbeatTracker:
             return [LinkLost(now, now - self.last.t_s)]
         return []
 
+    def mark_lost(self, now: float) -> list[HeartbeatEvent]:
+        """The transport itself failed (e.g. TCP closed): declare the link lost now."""
+        if not self.link_up:
+            return []
+        self.link_up = False
+        silent = now - self.last.t_s if self.last is not None else 0.0
+        return [LinkLost(now, silent)]
+
     def next_deadline(self) -> float | None:
         """Local time at which ``check`` may declare the link lost."""
         if self.link_up and self.last is not None:

@@ -132,6 +132,10 @@ class VehicleLink:
             events += self.telemetry.update(msg, now)
         return events
 
+    def transport_lost(self, now: float) -> list[LinkEvent]:
+        """Tell the core the byte transport failed; returns LinkLost if the link was up."""
+        return list(self.heartbeat.mark_lost(now))
+
     # -- timers -----------------------------------------------------------------------------
     def get_timer(self) -> float | None:
         """Earliest local time at which ``handle_timer`` has work."""

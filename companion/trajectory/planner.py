@@ -13,7 +13,7 @@ exact to round-off. At free joints the optimum is additionally continuous in der
 Time allocation (``durations=None``). Each waypoint leg is split into ``ALLOCATION_PIECES``
 segments whose extra joints lie on the straight leg. (1) Initial guess: a trapezoidal speed
 profile along the polyline (rest at the ends, a corner speed at each waypoint from its turn
-angle, forward-backward acceleration passes). (2) Refinement: L-BFGS-B over log-durations of
+angle, forward-backward acceleration passes). (2) Refinement: projected L-BFGS over log-durations of
 ``sum h + rho J(h) + w P(h)``, P a smooth sampled penalty of the limit violations (speed,
 acceleration, jerk, tilt, thrust), with the analytic gradient: ``dJ/dh_k = x_k^T (dQ_k/dh_k)
 x_k`` (envelope theorem at the optimum) and dP/dh through one adjoint solve of the same banded
@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
@@ -34,7 +34,6 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 import scipy.linalg.lapack
-import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
 
 from companion.trajectory.bezier import FloatArray, PiecewiseBezier, _monomial_matrix, hermite
@@ -60,8 +59,11 @@ ALLOCATION_PIECES = 3
 REFINE_RHO = 0.01
 REFINE_PENALTY_WEIGHT = 1e4
 REFINE_MAXITER = 60
+REFINE_FTOL = 1e-5
 #: yaw="velocity": heading rates are matched at joints faster than this fraction of the top speed.
 VELOCITY_YAW_MIN_FRACTION = 0.3
+#: Samples per segment while bisecting the common time scale (final checks use more).
+BISECTION_SAMPLES_PER_SEGMENT = 16
 #: Duration of the hover trajectory returned for a single waypoint (s), unless given.
 HOVER_DURATION_S = 1.0
 _MERGE_TOL_M = 1e-9
@@ -69,6 +71,7 @@ _MERGE_TOL_M = 1e-9
 
 _PBTRF = scipy.linalg.lapack.dpbtrf  # banded Cholesky factorisation (LAPACK)
 _PBTRS = scipy.linalg.lapack.dpbtrs  # banded Cholesky solve
+
 
 # =========================================================================== basis matrices
 @lru_cache(maxsize=8)
@@ -330,6 +333,77 @@ def _ratios(
     return out
 
 
+def _projected_lbfgs(
+    fun: Callable[[FloatArray], tuple[float, FloatArray]],
+    x0: FloatArray,
+    lo: FloatArray,
+    hi: FloatArray,
+    maxiter: int,
+    ftol: float = 1e-5,
+    gtol: float = 1e-6,
+    memory: int = 8,
+) -> FloatArray:
+    """Minimise a smooth ``fun`` (value, gradient) over the box [lo, hi]: L-BFGS directions
+    (two-loop recursion), components pushing into an active bound dropped, projected
+    backtracking (Armijo) line search. Pure numpy on 1-D vectors: unlike scipy's L-BFGS-B it
+    makes no BLAS calls, which a multi-threaded BLAS slows down by an order of magnitude on
+    these small problems."""
+    x = np.clip(x0, lo, hi)
+    f, g = fun(x)
+    hist: list[tuple[FloatArray, FloatArray, float]] = []
+    for _ in range(maxiter):
+        q = g.copy()
+        alphas = []
+        for s_, y_, r_ in reversed(hist):
+            a = r_ * float(np.sum(s_ * q))
+            q -= a * y_
+            alphas.append(a)
+        if hist:
+            s_, y_, _ = hist[-1]
+            q *= float(np.sum(s_ * y_)) / float(np.sum(y_ * y_))
+        else:
+            q *= 1.0 / max(float(np.max(np.abs(g))), 1e-12)
+        for (s_, y_, r_), a in zip(hist, reversed(alphas), strict=True):
+            b = r_ * float(np.sum(y_ * q))
+            q += (a - b) * s_
+        d = -q
+        d[(x <= lo) & (d < 0.0)] = 0.0
+        d[(x >= hi) & (d > 0.0)] = 0.0
+        slope = float(np.sum(g * d))
+        if slope >= 0.0:  # not a descent direction: restart from the projected gradient
+            hist.clear()
+            d = -g / max(float(np.max(np.abs(g))), 1e-12)
+            d[(x <= lo) & (d < 0.0)] = 0.0
+            d[(x >= hi) & (d > 0.0)] = 0.0
+            slope = float(np.sum(g * d))
+            if slope >= 0.0:
+                break
+        step = 1.0
+        for _ in range(30):
+            xn = np.clip(x + step * d, lo, hi)
+            fn, gn = fun(xn)
+            if fn <= f + 1e-4 * float(np.sum(g * (xn - x))):
+                break
+            step *= 0.5
+        else:
+            break
+        s_ = xn - x
+        y_ = gn - g
+        sy = float(np.sum(s_ * y_))
+        if sy > 1e-12 * float(np.sum(y_ * y_)):
+            hist.append((s_, y_, 1.0 / sy))
+            if len(hist) > memory:
+                hist.pop(0)
+        converged = f - fn <= ftol * max(abs(f), abs(fn), 1.0)
+        x, f, g = xn, fn, gn
+        if converged:
+            break
+        free = ~(((x <= lo) & (g > 0.0)) | ((x >= hi) & (g < 0.0)))
+        if not np.any(free) or float(np.max(np.abs(g[free]))) <= gtol:
+            break
+    return np.asarray(x, dtype=np.float64)
+
+
 class _Penalty:
     """Sampled smooth penalty ``P = sum_k h_k / n sum_j max(0, g)^3`` of the limit violations
     ``g`` (dimensionless, > 0 when violated) of speed, acceleration, jerk, tilt and thrust, with
@@ -547,7 +621,7 @@ class _Planner:
         return self._saturate(h, limits, params)
 
     def _refine(self, h0: FloatArray, limits: Limits | RoverLimits, params: Any) -> FloatArray:
-        """Minimise ``sum(h) + rho J(h) + w P(h)`` over log-durations with L-BFGS-B and the
+        """Minimise ``sum(h) + rho J(h) + w P(h)`` over log-durations (projected L-BFGS) and the
         analytic gradient (envelope theorem for J, adjoint of the banded system for the
         sampled limit penalty P). rho is set relative to the initial guess (small: time
         dominates, the penalty keeps the limits)."""
@@ -566,15 +640,8 @@ class _Planner:
             g = 1.0 + rho * self.system.cost_grad(x, h) + REFINE_PENALTY_WEIGHT * dp
             return float(h.sum() + rho * j + REFINE_PENALTY_WEIGHT * p) / t0, g * h / t0
 
-        res = scipy.optimize.minimize(
-            fun,
-            lz,
-            jac=True,
-            method="L-BFGS-B",
-            bounds=[(z - 3.0, z + 3.0) for z in lz],
-            options={"maxiter": REFINE_MAXITER, "gtol": 1e-6, "ftol": 1e-5},
-        )
-        return np.exp(np.asarray(res.x, dtype=np.float64))
+        z = _projected_lbfgs(fun, lz, lz - 3.0, lz + 3.0, REFINE_MAXITER, ftol=REFINE_FTOL)
+        return np.exp(z)
 
     def _max_ratio(
         self, h: FloatArray, limits: Limits | RoverLimits, params: Any
@@ -598,8 +665,9 @@ class _Planner:
         limit is still exceeded (feasibility pass)."""
         m = h.shape[0]
         if self.homogeneous:
+            # coarse samples for the bisection; the feasibility pass below re-checks densely
             traj, _ = self.build(h)
-            base = segment_samples(traj, limits)
+            base = segment_samples(traj, limits, BISECTION_SAMPLES_PER_SEGMENT)
 
             def ratio(alpha: float) -> float:
                 return self._ratio_of(base.time_scaled(alpha), m, limits, params)[0]

@@ -143,3 +143,18 @@ def test_cmake_add_subdirectory_builds_and_links(tmp_path: Path) -> None:
     assert list(build.rglob("libecca_setpoint.a"))
     out = run([str(build / "t"), str(TESTS / "vectors.json")]).stdout
     assert "PASS:" in out
+
+
+def test_cmake_single_variant_option(tmp_path: Path) -> None:
+    """-DECCA_SETPOINT_DOUBLE=OFF builds a float-only library (no double code at all)."""
+    cmake = shutil.which("cmake")
+    assert cmake is not None
+    build = tmp_path / "build"
+    run([cmake, "-S", str(LIB), "-B", str(build), "-DECCA_SETPOINT_DOUBLE=OFF"])
+    run([cmake, "--build", str(build)])
+    archives = list(build.rglob("libecca_setpoint.a"))
+    assert len(archives) == 1
+    names = {n for k, n in _nm(archives[0]) if k == "T"}
+    assert "ecca_full_setpoint_f" in names and "ecca_f_multirotor" in names
+    assert not any(n.startswith("ecca_d_") for n in names)
+    assert "ecca_full_setpoint" not in names

@@ -374,3 +374,28 @@ async def test_qgc_plan_upload_download_and_mission_flight(tmp_path: Path) -> No
             assert progress.total == 5
 
     await asyncio.wait_for(body(), 120.0)
+
+
+async def test_mission_transfer_and_arming_over_a_faulty_link(tmp_path: Path) -> None:
+    """5 % loss, duplicates, reordering and latency both ways: retries on both sides cope."""
+    plan_path = tmp_path / "lossy.plan"
+    plan_path.write_text(json.dumps(PLAN))
+    faults = ("--loss", "5", "--duplicate", "10", "--reorder", "10", "--latency", "0.02")
+
+    async def body() -> None:
+        async with connect_drone(*faults, "--seed", "7", speed=SPEED) as d:
+            items = (
+                await d.mission_raw.import_qgroundcontrol_mission(str(plan_path))
+            ).mission_items
+            await d.mission_raw.upload_mission(items)
+            back = await d.mission_raw.download_mission()
+            assert [(it.seq, it.command, it.x, it.y) for it in back] == [
+                (it.seq, it.command, it.x, it.y) for it in items
+            ]
+            await until(d.telemetry.health, lambda h: h.is_armable, 15.0, "armable")
+            await d.action.arm()
+            await until(d.telemetry.armed, bool, 5.0, "armed")
+            await d.action.disarm()
+            await until(d.telemetry.armed, lambda a: not a, 5.0, "disarmed")
+
+    await asyncio.wait_for(body(), 60.0)

@@ -290,3 +290,15 @@ def test_attitude_mode_over_mavlink_lockstep() -> None:
     rms, mx = res.lap_errors(2)
     assert res.fallbacks == 0
     assert rms <= 0.25 and mx < 0.5
+
+
+def test_latency_compensation_pays_off_in_closed_loop() -> None:
+    """100 ms telemetry latency: extrapolating the estimate keeps rates mode accurate."""
+    out = {}
+    for comp in (True, False):
+        ctl = TrackingController(bt.default_controller_config(latency_compensation=comp))
+        res = bt.run_lockstep("rates", lambda t: bt.figure8_reference(t, 6.0),
+                              bt.figure8_seconds(6.0), controller=ctl, latency_s=0.1)
+        out[comp] = res.lap_errors(2)[0]
+    assert out[True] < 0.1
+    assert out[False] > 5.0 * out[True]

@@ -76,3 +76,37 @@ def test_waypoints_boundaries_and_continuity(
     assert tr.degree == 2 * s - 1
     assert tr.dim == wp.shape[1]
     _check(tr, wp, tr.breaks, s)
+
+
+@st.composite
+def allocation_problems(draw: st.DrawFn) -> np.ndarray:
+    kind = draw(st.sampled_from(["random", "collinear", "uturn"]))
+    n = draw(st.integers(min_value=2, max_value=5))
+    unit = np.array([draw(st.floats(-1.0, 1.0)) for _ in range(3)])
+    if np.linalg.norm(unit) < 0.1:
+        unit = np.array([1.0, 0.0, 0.0])
+    unit /= np.linalg.norm(unit)
+    if kind == "random":
+        steps = [np.array([draw(st.floats(-1.0, 1.0)) for _ in range(3)]) for _ in range(n - 1)]
+        steps = [st_ / max(np.linalg.norm(st_), 1e-3) * draw(st.floats(2.0, 20.0)) for st_ in steps]
+    elif kind == "collinear":
+        steps = [unit * draw(st.floats(2.0, 20.0)) for _ in range(n - 1)]
+    else:
+        length = draw(st.floats(2.0, 20.0))
+        steps = [unit * length * (1 if i % 2 == 0 else -1) for i in range(n - 1)]
+    return np.cumsum(np.vstack([np.zeros((1, 3)), *steps]), axis=0)
+
+
+@settings(max_examples=8, deadline=None)
+@given(allocation_problems())
+def test_time_allocated_plans_hit_waypoints_within_limits(wp: np.ndarray) -> None:
+    from companion.trajectory import Limits, check, plan_with_info
+
+    lim = Limits(max_speed_m_s=4.0, max_acc_m_s2=3.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a zero random step is a merged duplicate
+        res = plan_with_info(wp, limits=lim)
+    tr = res.trajectory
+    np.testing.assert_allclose(tr.evaluate(res.waypoint_times), wp, atol=1e-8)
+    assert not any(r.exceeded for r in check(tr, lim).values())
+    _check(tr, tr.evaluate(tr.breaks), tr.breaks, 4)

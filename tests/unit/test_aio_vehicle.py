@@ -189,3 +189,67 @@ async def test_stale_position_holds_then_reports(px4: tuple[Script, int, FakePx4
     sps = setpoints(script)
     # the last setpoints are the hold setpoint: last known position, zero velocity
     assert sps[-1].x == 1.0 and sps[-1].vx == 0.0
+
+
+async def test_telemetry_streams(px4: tuple[Script, int, FakePx4]) -> None:
+    _, port, fake = px4
+    async with Vehicle.connect(f"udpout://127.0.0.1:{port}", config=CFG) as v:
+        positions = []
+        async for p in v.position():
+            positions.append(p)
+            if len(positions) == 3:
+                break
+        assert [p.pos_ned for p in positions] == [(1.0, 2.0, -3.0)] * 3
+        assert positions[0].t_s < positions[2].t_s
+        modes = v.flight_mode()
+        assert await anext(modes) is FlightMode.HOLD  # current mode first
+        fake.custom_mode = custom_mode_of(FlightMode.MISSION)
+        assert await asyncio.wait_for(anext(modes), 2.0) is FlightMode.MISSION
+        await modes.aclose()  # type: ignore[attr-defined]
+        armed = v.armed()
+        assert await anext(armed) is False
+        await v.arm()
+        assert await asyncio.wait_for(anext(armed), 2.0) is True
+        await armed.aclose()  # type: ignore[attr-defined]
+
+
+async def test_tcp_link_is_reopened_after_the_peer_closes() -> None:
+    mav = m.MAVLink(None, srcSystem=1, srcComponent=1)
+    conns: list[asyncio.StreamWriter] = []
+
+    async def handle(r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
+        conns.append(w)
+        try:
+            for _ in range(400):
+                w.write(bytes(m.MAVLink_heartbeat_message(2, 12, 29, 50593792, 3, 3).pack(mav)))
+                await w.drain()
+                await asyncio.sleep(0.05)
+        except (ConnectionError, OSError):
+            pass
+
+    srv = await asyncio.start_server(handle, "127.0.0.1", 0)
+    port = srv.sockets[0].getsockname()[1]
+    try:
+        async with Vehicle.connect(f"tcp://127.0.0.1:{port}", config=CFG) as v:
+            assert v.mode is FlightMode.HOLD
+            conns[0].close()  # the autopilot side drops the TCP connection
+            for _ in range(100):
+                if not v.link_ok:
+                    break
+                await asyncio.sleep(0.01)
+            assert not v.link_ok  # the dropped transport counts as a lost link at once
+            for _ in range(100):
+                if len(conns) >= 2 and v.link_ok:
+                    break
+                await asyncio.sleep(0.05)
+            assert len(conns) == 2  # the companion reconnected
+            assert v.link_ok  # ... and saw the autopilot again (LinkLost then LinkUp)
+            assert v.link.heartbeat.last is not None
+            t_before = v.link.heartbeat.last.t_s
+            await asyncio.sleep(0.3)
+            assert v.link.heartbeat.last.t_s > t_before  # heartbeats flow on the new socket
+    finally:
+        for w in conns:
+            w.close()
+        srv.close()
+        await srv.wait_closed()

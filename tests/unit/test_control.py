@@ -361,3 +361,14 @@ def test_integrator_frozen_on_ground() -> None:
         ctl.attitude(0.01 * k, e, ref)
     assert ctl.last is not None
     np.testing.assert_array_equal(ctl.last.integrator_ned, 0.0)
+
+
+def test_rates_diagnostics_report_lee_errors() -> None:
+    """At hover on the reference, e_R = 0 and e_Omega equals the measured body rate."""
+    ctl = TrackingController(TrackingConfig(params=_params(), estimate_hover_thrust=False,
+                                            latency_compensation=False))
+    w = np.array([0.1, -0.2, 0.05])
+    out = ctl.rates(0.0, _est(0.0, [0, 0, -5], omega=w), Reference(np.array([0.0, 0.0, -5.0])))
+    assert not out.fallback and ctl.last is not None
+    np.testing.assert_allclose(ctl.last.attitude_err_frd, 0.0, atol=1e-12)
+    np.testing.assert_allclose(ctl.last.rate_err_frd, w, atol=1e-12)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import pytest
 
 from companion.mavlink import CommandBusyError, CommandClient, CommandFinished, CommandProgress
@@ -25,7 +27,7 @@ def make() -> tuple[CommandClient, Outbox]:
     return CommandClient(out, own_sysid=1, own_compid=191), out
 
 
-def finished(events: list[object]) -> list[CommandFinished]:
+def finished(events: Sequence[object]) -> list[CommandFinished]:
     return [e for e in events if isinstance(e, CommandFinished)]
 
 

@@ -56,6 +56,18 @@ def test_heartbeat_link_up_mode_armed_and_loss() -> None:
     assert any(isinstance(e, LinkUp) and e.regained for e in ev)
 
 
+def test_transport_loss_declares_link_lost_once() -> None:
+    link, px4 = VehicleLink(), Px4Side()
+    assert link.transport_lost(0.0) == []  # never up: nothing to lose
+    feed(link, px4, heartbeat(*HOLD_ARMED), 1.0)
+    (lost,) = link.transport_lost(1.5)
+    assert isinstance(lost, LinkLost) and lost.silent_for_s == pytest.approx(0.5)
+    assert link.transport_lost(1.6) == []
+    assert not any(isinstance(e, LinkLost) for e in link.handle_timer(1.7))  # no second loss
+    ev = feed(link, px4, heartbeat(*HOLD_ARMED), 2.0)
+    assert any(isinstance(e, LinkUp) and e.regained for e in ev)
+
+
 def test_gcs_and_other_vehicle_heartbeats_ignored() -> None:
     link = VehicleLink()
     assert feed(link, Px4Side(1, 190), heartbeat(0, 0, autopilot=8), 0.0) == []
@@ -188,3 +200,29 @@ def test_timesync_min_rtt_sample_wins() -> None:
                                   t + d1 + d2)
     assert results[-1].rtt_s == pytest.approx(0.004, abs=1e-6)
     assert results[-1].offset_s == pytest.approx(true_offset, abs=1e-6)
+
+
+def test_status_streams_decoded_with_px4_values() -> None:
+    """SYS_STATUS/EXTENDED_SYS_STATE/GLOBAL_POSITION_INT/HOME_POSITION with values from PX4.md."""
+    tel, px4 = TelemetryState(), Px4Side()
+    ready = m.MAVLink_sys_status_message(50348079, 50413615, 320915519, 250, 16200, -1, 87,
+                                         0, 0, 0, 0, 0, 0)
+    (st,) = tel.update(px4.msg(ready), 1.0)
+    assert st.armable and st.voltage_v == pytest.approx(16.2) and st.battery_remaining_pct == 87
+    not_ready = m.MAVLink_sys_status_message(50348079, 50413615, 320915519 & ~268435456, 250,
+                                             16200, -1, 87, 0, 0, 0, 0, 0, 0)
+    (st,) = tel.update(px4.msg(not_ready), 1.1)
+    assert not st.armable
+    for landed, in_air in ((1, False), (3, True), (2, True), (4, True), (0, False)):
+        (ext,) = tel.update(px4.msg(m.MAVLink_extended_sys_state_message(0, landed)), 1.2)
+        assert ext.landed_state == landed and ext.in_air is in_air
+    g = m.MAVLink_global_position_int_message(1000, 473977420, 85455940, 490500, 2500,
+                                              150, -20, 35, 9000)
+    (gp,) = tel.update(px4.msg(g), 1.3)
+    assert gp.lat_deg == pytest.approx(47.397742) and gp.lon_deg == pytest.approx(8.545594)
+    assert gp.alt_amsl_m == pytest.approx(490.5) and gp.relative_alt_m == pytest.approx(2.5)
+    assert gp.vel_ned == pytest.approx((1.5, -0.2, 0.35))
+    h = m.MAVLink_home_position_message(473977420, 85455940, 488000, 0, 0, 0,
+                                        [1, 0, 0, 0], 0, 0, 0)
+    (home,) = tel.update(px4.msg(h), 1.4)
+    assert home.alt_amsl_m == pytest.approx(488.0) and tel.snapshot().home == home

@@ -343,3 +343,24 @@ def test_reset_integrators_keeps_flying() -> None:
     v.reset_integrators()
     _run(v, PositionTarget(pos_ned=(0.0, 0.0, -10.0), yaw=0.0), 5.0)
     assert abs(v.state.pos_ned[2] + 10.0) < 0.05
+
+
+def test_takeoff_ramp_limits_tilt_and_allows_zero_thrust() -> None:
+    """PX4: MPC_TILTMAX_LND (12 deg) and no MPC_THR_MIN floor until the takeoff ramp is done."""
+    p = ParamStore()
+    v = make_vehicle("quad", p, seed=0)
+    assert isinstance(v, Quadrotor)
+    tgt = PositionTarget(pos_ned=(20.0, 0.0, -3.0))
+    ramp_tilts, ramp_thrusts, flight_tilts = [], [], []
+    for _ in range(round(8.0 / DT)):
+        v.step(DT, tgt, True)
+        q, _, thrust = v.last_attitude_target
+        if v.takeoff_state == "rampup":
+            ramp_tilts.append(_tilt_deg(q))
+            ramp_thrusts.append(thrust)
+        elif v.takeoff_state == "flight":
+            flight_tilts.append(_tilt_deg(q))
+    assert ramp_tilts and flight_tilts
+    assert max(ramp_tilts) <= p["MPC_TILTMAX_LND"] + 1e-6
+    assert min(ramp_thrusts) < p["MPC_THR_MIN"]
+    assert max(flight_tilts) > p["MPC_TILTMAX_LND"] + 5.0
