@@ -18,7 +18,10 @@ from gen_c import generate
 
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point; returns the exit code."""
-    parser = argparse.ArgumentParser(prog="python -m gen_c", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m gen_c",
+        description="(Re)generate the freestanding C setpoint library gen_c/ecca_setpoint "
+        "from companion.flatness (CasADi " + generate.CASADI_VERSION + ").")
     parser.add_argument("--check", action="store_true",
                         help="fail with a diff if the checked-in library is not up to date")
     parser.add_argument("--out", type=Path, default=None,

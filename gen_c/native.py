@@ -10,6 +10,7 @@ build fails, so callers can fall back to the pure-Python path::
     native = load_setpoint_library()
     if native is not None:
         sp = native.multirotor(vel, acc, jerk, snap, yaw, yaw_rate, yaw_acc, params)
+        # from a PiecewiseBezier: state, sp = native.trajectory_setpoint(traj, t, params)
     else:
         sp = multirotor_setpoint(vel, acc, jerk, snap, yaw, yaw_rate, yaw_acc, params)
 
@@ -43,6 +44,7 @@ __all__ = [
     "NativeMultirotorSetpoint",
     "NativeRoverSetpoint",
     "NativeSetpoint",
+    "PiecewiseLike",
     "build_library",
     "cache_dir",
     "find_compiler",
@@ -254,6 +256,8 @@ def _view(struct: Any, prec: str) -> npt.NDArray[Any]:
 
 
 def _vec(x: npt.ArrayLike, n: int, name: str) -> FloatArray:
+    if type(x) is np.ndarray and x.shape == (n,) and x.dtype == np.float64:
+        return x  # fast path of the per-cycle call
     a = np.asarray(x, dtype=np.float64)
     if a.shape != (n,):
         raise ValueError(f"{name} must have shape ({n},) (one sample), got {a.shape}")
@@ -274,6 +278,7 @@ class NativeSetpoint:
         self._s = {"double": _structs(ctypes.c_double), "float": _structs(ctypes.c_float)}
         self._fn: dict[tuple[str, str], Any] = {}
         self._param_cache: dict[tuple[Any, ...], Any] = {}
+        self._tls = threading.local()
         for prec, sfx, real in (("double", "", ctypes.c_double), ("float", "_f", ctypes.c_float)):
             s = self._s[prec]
             P = ctypes.POINTER
@@ -378,17 +383,26 @@ class NativeSetpoint:
                    params: MultirotorParamsLike, *,
                    precision: Precision = "double") -> NativeMultirotorSetpoint:
         """Same arguments as ``companion.flatness.multirotor_setpoint`` (one sample)."""
-        st = self._s[precision]["state"]()
-        x = _view(st, precision)
+        _st, x, att, att_ref, st_ref = self._scratch(precision)
         x[3:6] = _vec(vel, 3, "vel")  # layout: pos, vel, acc, jerk, snap, yaw, yaw_rate, yaw_acc
         x[6:9] = _vec(acc, 3, "acc")
         x[9:12] = _vec(jerk, 3, "jerk")
         x[12:15] = _vec(snap, 3, "snap")
         x[15], x[16], x[17] = yaw, yaw_rate, yaw_acc
-        att = self._s[precision]["attitude"]()
-        self._call(precision, "multirotor", ctypes.byref(st),
-                   ctypes.byref(self._params(precision, params)), ctypes.byref(att))
+        self._call(precision, "multirotor", st_ref,
+                   ctypes.byref(self._params(precision, params)), att_ref)
         return self._attitude(att, precision)
+
+    def _scratch(self, prec: str) -> tuple[Any, npt.NDArray[Any], Any, Any, Any]:
+        """Per-thread reusable input state / output attitude structs (with a numpy view and
+        byref handles): the hot path allocates no ctypes objects."""
+        cache = getattr(self._tls, prec, None)
+        if cache is None:
+            st = self._s[prec]["state"]()
+            att = self._s[prec]["attitude"]()
+            cache = (st, _view(st, prec), att, ctypes.byref(att), ctypes.byref(st))
+            setattr(self._tls, prec, cache)
+        return cache
 
     def rover(self, vel_xy: npt.ArrayLike, acc_xy: npt.ArrayLike,
               jerk_xy: npt.ArrayLike | None = None, *,
@@ -418,6 +432,52 @@ class NativeSetpoint:
                    ctypes.byref(self._params(precision, params)), ctypes.byref(st),
                    ctypes.byref(att))
         return self._flat(st, precision), self._attitude(att, precision)
+
+    def trajectory_setpoint(self, traj: PiecewiseLike, t: float, params: MultirotorParamsLike,
+                            *, precision: Precision = "double",
+                            ) -> tuple[NativeFlatState, NativeMultirotorSetpoint]:
+        """Full setpoint of a piecewise trajectory (e.g. ``companion.trajectory.PiecewiseBezier``
+        with a 3-D position and an optional yaw channel) at global time ``t`` (s).
+
+        Like ``PiecewiseBezier.evaluate``: t is clamped to [0, duration] and at a joint the later
+        segment is used. Segments of degree < 7 are degree-elevated (exact) before the C call.
+        """
+        breaks = np.asarray(traj.breaks, dtype=np.float64)
+        m = len(breaks) - 1
+        tc = min(max(float(t), float(breaks[0])), float(breaks[-1]))
+        i = int(np.clip(np.searchsorted(breaks, tc, side="right") - 1, 0, m - 1))
+        cp = _elevate_to(np.asarray(traj.control_points[i], dtype=np.float64), NUM_CTRL_PTS)
+        yaw = traj.yaw
+        ycp = (None if yaw is None else
+               _elevate_to(np.asarray(yaw.control_points[i], dtype=np.float64), NUM_CTRL_PTS))
+        return self.full(cp, ycp, float(breaks[i + 1] - breaks[i]), tc - float(breaks[i]),
+                         params, precision=precision)
+
+
+class PiecewiseLike(Protocol):
+    """What :meth:`NativeSetpoint.trajectory_setpoint` needs of a piecewise Bezier trajectory."""
+
+    @property
+    def breaks(self) -> Any: ...
+    @property
+    def control_points(self) -> Any: ...
+    @property
+    def yaw(self) -> Any: ...
+
+
+def _elevate_to(points: FloatArray, count: int) -> FloatArray:
+    """Degree-elevate Bezier control points (n+1, d) to ``count`` points (same curve)."""
+    pts = points.reshape(points.shape[0], -1)
+    if pts.shape[0] > count:
+        raise ValueError(f"segment degree {pts.shape[0] - 1} exceeds the C library's degree "
+                         f"{count - 1}")
+    while pts.shape[0] < count:
+        n = pts.shape[0] - 1  # degree n -> n+1: Q_i = i/(n+1) P_{i-1} + (1 - i/(n+1)) P_i
+        a = (np.arange(n + 2) / (n + 1))[:, None]
+        padded = np.vstack([pts, pts[-1:]])
+        shifted = np.vstack([pts[:1], pts])
+        pts = a * shifted + (1 - a) * padded
+    return pts if points.ndim > 1 and points.shape[1] > 1 else pts[:, 0]
 
 
 _lock = threading.Lock()

@@ -30,7 +30,7 @@ from sitl_mock.faults import FaultyChannel, LinkFaults, ScenarioFaults
 from sitl_mock.mavwire import pack_v2
 from sitl_mock.mission_server import MISSION, MissionExecutor, MissionServer, project_to_ned
 from sitl_mock.params import PARAMS, ParamStore
-from sitl_mock.setpoints import AttitudeTarget, IdleTarget, PositionTarget, Target
+from sitl_mock.setpoints import NAN3, AttitudeTarget, IdleTarget, PositionTarget, Target, Vec3
 from sitl_mock.vehicle import DEFAULT_HOME, Vehicle, VehicleState, make_vehicle
 
 log = logging.getLogger(__name__)
@@ -552,7 +552,12 @@ class Autopilot:
         )
 
     def _send(self, link: Link, msg: Msg) -> None:
-        data = pack_v2(msg, link.mav.seq, SYSID, COMPID)
+        try:
+            data = pack_v2(msg, link.mav.seq, SYSID, COMPID)
+        except (OverflowError, struct.error):
+            # a value outside float32 range (e.g. echoing an absurd setpoint): drop, count
+            self.stats["tx_encode_errors"] += 1
+            return
         link.mav.seq = (link.mav.seq + 1) & 0xFF
         link.tx.push(data, self._t, self._t)
         self.stats["tx_messages"] += 1
@@ -753,45 +758,55 @@ class Autopilot:
 
     # ---------------------------------------------------------------- setpoints
     def _on_set_position_target_local_ned(self, link: Link, msg: Msg) -> None:
+        """PX4 v1.16 mavlink_receiver semantics (frames LOCAL_NED 1 and BODY_NED 8 only)."""
         if not self._targets_us(msg):
             return
         frame = msg.coordinate_frame
         if frame not in (mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_BODY_NED):
             self.stats["rx_invalid_setpoint"] += 1
-            self.statustext(mavlink.MAV_SEVERITY_ERROR, f"coordinate frame {frame} unsupported")
+            self.statustext(
+                mavlink.MAV_SEVERITY_CRITICAL,
+                f"SET_POSITION_TARGET_LOCAL_NED coordinate frame {frame} unsupported",
+            )
             return
         mask = int(msg.type_mask)
-        if mask & 512:  # FORCE setpoints are not supported by PX4
-            self.stats["rx_invalid_setpoint"] += 1
-            return
 
-        def pick(bits: tuple[int, int, int], vals: tuple[float, float, float]) -> tuple[float, ...]:
-            return tuple(
-                math.nan if (mask & b) or not math.isfinite(v) else float(v)
-                for b, v in zip(bits, vals, strict=True)
+        def pick(bits: tuple[int, int, int], vals: tuple[float, float, float]) -> Vec3:
+            a, b, c = (
+                math.nan if (mask & bit) or not math.isfinite(v) else float(v)
+                for bit, v in zip(bits, vals, strict=True)
             )
+            return (a, b, c)
 
-        pos = pick((1, 2, 4), (msg.x, msg.y, msg.z))
-        vel = pick((8, 16, 32), (msg.vx, msg.vy, msg.vz))
-        acc = pick((64, 128, 256), (msg.afx, msg.afy, msg.afz))
+        if frame == mavlink.MAV_FRAME_LOCAL_NED:
+            pos = pick((1, 2, 4), (msg.x, msg.y, msg.z))
+            vel = pick((8, 16, 32), (msg.vx, msg.vy, msg.vz))
+            acc = pick((64, 128, 256), (msg.afx, msg.afy, msg.afz))
+        else:
+            # BODY_NED: positions ignored; velocity (all three or none) rotated by the heading,
+            # acceleration (all three or none) rotated by the full attitude
+            pos = NAN3
+            vel = acc = NAN3
+            if not mask & (8 | 16 | 32) and _finite(msg.vx, msg.vy, msg.vz):
+                c, s = math.cos(self._state.yaw), math.sin(self._state.yaw)
+                vel = (c * msg.vx - s * msg.vy, s * msg.vx + c * msg.vy, float(msg.vz))
+            if not mask & (64 | 128 | 256) and _finite(msg.afx, msg.afy, msg.afz):
+                w, x, y, z = self._state.q_wxyz
+                acc = telemetry.rotate_ned_to_body((w, -x, -y, -z), (msg.afx, msg.afy, msg.afz))
         yaw = math.nan if mask & 1024 or not math.isfinite(msg.yaw) else float(msg.yaw)
         yaw_rate = (
             math.nan if mask & 2048 or not math.isfinite(msg.yaw_rate) else float(msg.yaw_rate)
         )
-        if frame == mavlink.MAV_FRAME_BODY_NED:
-            psi = self._state.yaw
-            c, s = math.cos(psi), math.sin(psi)
-
-            def rot(v: tuple[float, ...]) -> tuple[float, ...]:
-                return (c * v[0] - s * v[1], s * v[0] + c * v[1], v[2])
-
-            cur = self._state.pos_ned
-            p = rot(pos)
-            pos = (cur[0] + p[0], cur[1] + p[1], cur[2] + p[2])
-            vel, acc = rot(vel), rot(acc)
-        target = PositionTarget(pos, vel, acc, yaw, yaw_rate)  # type: ignore[arg-type]
+        target = PositionTarget(pos, vel, acc, yaw, yaw_rate)
+        if any(math.isfinite(a) for a in acc) and mask & 512:
+            self.stats["rx_invalid_setpoint"] += 1
+            self.statustext(
+                mavlink.MAV_SEVERITY_CRITICAL, "SET_POSITION_TARGET_LOCAL_NED force not supported"
+            )
+            return
         if not target.has_motion():
             self.stats["rx_invalid_setpoint"] += 1
+            self.statustext(mavlink.MAV_SEVERITY_CRITICAL, "SET_POSITION_TARGET_LOCAL_NED invalid")
             return
         self._offboard_setpoint(target)
 
@@ -1085,7 +1100,6 @@ class Autopilot:
         self.statustext(mavlink.MAV_SEVERITY_INFO, "Armed by external command")
         self.vehicle.reset_integrators()
         self._enter_mode(self.mode)
-        self._broadcast(self.heartbeat_message())
 
     def _disarm(self, why: str) -> None:
         self.armed = False
@@ -1095,7 +1109,6 @@ class Autopilot:
             # PX4 returns to the last user-selected mode once the failsafe clears on disarm
             self.failsafe = False
             self.mode = self.user_mode
-        self._broadcast(self.heartbeat_message())
 
     def _set_mode(self, mode: Mode, user: bool, failsafe: bool = False) -> None:
         prev = self.mode
@@ -1112,8 +1125,6 @@ class Autopilot:
         if mode == Mode.AUTO_TAKEOFF:
             self._takeoff_done = False
         self._enter_mode(mode)
-        if prev != mode:
-            self._broadcast(self.heartbeat_message())
 
     def _enter_mode(self, mode: Mode) -> None:
         """Mode entry actions (also run on arming in the current mode)."""
@@ -1165,7 +1176,11 @@ class Autopilot:
             for lk in self.links.values():
                 if t_phys >= lk.streams.earliest:
                     for msg_id in lk.streams.due(t_phys):
-                        m = telemetry.BUILDERS[msg_id](self)
+                        try:
+                            m = telemetry.BUILDERS[msg_id](self)
+                        except (ValueError, OverflowError):  # non-finite state: skip, count
+                            self.stats["tx_encode_errors"] += 1
+                            continue
                         if m is not None:
                             self._send(lk, m)
                 nxt = min(nxt, lk.streams.earliest)
@@ -1272,6 +1287,17 @@ class Autopilot:
             self._disarm("failsafe")
             return
         self._set_mode(action, user=False, failsafe=True)
+        # PX4.md: the HEARTBEAT leaves OFFBOARD 1.3-1.7 s after the last setpoint. With a plain
+        # 1 Hz heartbeat that would be 1.5-2.5 s here, so the heartbeat phase is reset to now.
+        self._heartbeat_now()
+
+    def _heartbeat_now(self) -> None:
+        hb = mavlink.MAVLINK_MSG_ID_HEARTBEAT
+        for lk in self.links.values():
+            if hb in lk.streams.next_due:
+                lk.streams.next_due[hb] = self._t
+                lk.streams.earliest = self._t
+        self._tele_next_t = self._t
 
     def _battery_check(self) -> None:
         rem = self.battery_remaining

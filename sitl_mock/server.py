@@ -20,6 +20,7 @@ from sitl_mock.autopilot import Autopilot
 log = logging.getLogger(__name__)
 
 Addr = tuple[str, int]
+MAX_BACKLOG_S = 0.25  # simulated seconds the pump may have to catch up in one go
 
 
 @dataclass
@@ -78,6 +79,8 @@ class MockServer:
         self._protocols: dict[str, _LinkProtocol] = {}
         self.bound: dict[str, Addr] = {}
         self.stats_errors = 0
+        self.stats_internal_errors = 0
+        self.stats_dropped_sim_s = 0.0
         self._stop = asyncio.Event()
 
     def sim_now(self) -> float:
@@ -96,8 +99,16 @@ class MockServer:
         self._t0 = self._clock()
 
     def on_datagram(self, link: str, data: bytes, addr: Addr) -> None:
-        self.autopilot.receive_datagram(data, addr, self.sim_now(), link)
+        try:
+            self.autopilot.receive_datagram(data, addr, self.sim_now(), link)
+        except Exception:  # a bug must not take the vehicle down: log (rate-limited), go on
+            self._internal_error()
         self._flush()
+
+    def _internal_error(self) -> None:
+        self.stats_internal_errors += 1
+        if self.stats_internal_errors <= 10:
+            log.exception("sitl_mock internal error (%d)", self.stats_internal_errors)
 
     def _flush(self) -> None:
         now = self.sim_now()
@@ -118,7 +129,16 @@ class MockServer:
         tick = self.config.tick_s
         try:
             while not self._stop.is_set():
-                self.autopilot.advance(self.sim_now())
+                behind = self.sim_now() - self.autopilot.now
+                if behind > MAX_BACKLOG_S:
+                    # the CPU cannot keep up with --speed: let simulated time fall behind wall
+                    # time instead of blocking the event loop with an ever-growing backlog
+                    self._t0 += (behind - MAX_BACKLOG_S) / self.config.speed
+                    self.stats_dropped_sim_s += behind - MAX_BACKLOG_S
+                try:
+                    self.autopilot.advance(self.sim_now())
+                except Exception:
+                    self._internal_error()
                 self._flush()
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(self._stop.wait(), timeout=tick)

@@ -50,6 +50,8 @@ GCS_RATES_HZ: dict[int, float] = {
     mavlink.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
     mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 0.5,
     mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
+    mavlink.MAVLINK_MSG_ID_VFR_HUD: 4.0,
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
 }
 
 # SYS_STATUS sensor bits as seen on PX4 v1.16 SITL when ready to arm (PX4.md).
@@ -315,6 +317,40 @@ def build_ping(ap: Autopilot) -> Msg:
     return mavlink.MAVLink_ping_message(ap.time_usec, ap.ping_seq, 0, 0)
 
 
+def build_vfr_hud(ap: Autopilot) -> Msg:
+    s = ap.state
+    vn, ve, vd = s.vel_ned
+    _, _, yaw = euler_321(s.q_wxyz)
+    speed = math.hypot(vn, ve)
+    return mavlink.MAVLink_vfr_hud_message(
+        speed,
+        speed,
+        round(math.degrees(yaw)) % 360,
+        round(100.0 * max(0.0, min(1.0, s.thrust_norm))),
+        s.alt_amsl_m,
+        -vd,
+    )
+
+
+def build_gps_raw_int(ap: Autopilot) -> Msg:
+    s = ap.state
+    vn, ve, _ = s.vel_ned
+    fix = 3 if ap.local_position_valid else 0
+    cog = round(math.degrees(math.atan2(ve, vn)) % 360.0 * 100.0) % 36000
+    return mavlink.MAVLink_gps_raw_int_message(
+        ap.time_usec,
+        fix,
+        round(s.lat_deg * 1e7),
+        round(s.lon_deg * 1e7),
+        round(s.alt_amsl_m * 1000.0),
+        100,
+        150,
+        min(round(math.hypot(vn, ve) * 100.0), UINT16_MAX - 1),
+        cog,
+        10,
+    )
+
+
 BUILDERS: dict[int, Callable[[Autopilot], Msg | None]] = {
     mavlink.MAVLINK_MSG_ID_HEARTBEAT: build_heartbeat,
     mavlink.MAVLINK_MSG_ID_ATTITUDE: build_attitude,
@@ -331,6 +367,8 @@ BUILDERS: dict[int, Callable[[Autopilot], Msg | None]] = {
     mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: build_battery_status,
     mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: build_mission_current,
     mavlink.MAVLINK_MSG_ID_PING: build_ping,
+    mavlink.MAVLINK_MSG_ID_VFR_HUD: build_vfr_hud,
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: build_gps_raw_int,
 }
 
 # Messages that REQUEST_MESSAGE (512) can produce once, beyond the periodic builders.

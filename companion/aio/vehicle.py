@@ -24,7 +24,7 @@ import logging
 import math
 import signal
 import time
-from collections.abc import AsyncIterator, Callable, Generator, Sequence
+from collections.abc import AsyncIterator, Awaitable, Callable, Generator, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
@@ -144,6 +144,21 @@ class _Broadcast(Generic[T]):
             self._subs.discard(q)
 
 
+async def _bounded(aw: Awaitable[T], timeout_s: float) -> T:
+    """``await aw`` with a timeout (TimeoutError). Unlike ``asyncio.wait_for`` on Python 3.11,
+    ``asyncio.timeout`` never swallows an outside cancellation that races with completion (a
+    lost cancellation would make SIGINT handling miss)."""
+    async with asyncio.timeout(timeout_s):
+        return await aw
+
+
+async def _wait_event(ev: asyncio.Event, timeout_s: float) -> None:
+    """Wait for ``ev`` at most ``timeout_s`` (no error on timeout)."""
+    with contextlib.suppress(TimeoutError):
+        async with asyncio.timeout(timeout_s):
+            await ev.wait()
+
+
 def _as_item(obj: Any) -> MissionItem:
     if isinstance(obj, MissionItem):
         return obj
@@ -168,7 +183,7 @@ class MissionAPI:
             immediate = start(time.monotonic())
             v._flush()
             v._wake.set()
-            done = immediate[0] if immediate else await asyncio.wait_for(fut, timeout_s)
+            done = immediate[0] if immediate else await _bounded(fut, timeout_s)
         except (asyncio.CancelledError, TimeoutError):
             v._dispatch(v.link.mission.cancel(time.monotonic()))
             v._flush()
@@ -262,7 +277,7 @@ class Vehicle:
         self._tasks = [loop.create_task(self._rx_loop(), name="mavlink-rx"),
                        loop.create_task(self._timer_loop(), name="mavlink-timer")]
         try:
-            await asyncio.wait_for(self._link_up.wait(), self.config.connect_timeout_s)
+            await _bounded(self._link_up.wait(), self.config.connect_timeout_s)
         except TimeoutError:
             await self.close()
             raise ConnectTimeoutError(
@@ -373,8 +388,7 @@ class Vehicle:
             deadline = self.link.get_timer()
             delay = 0.05 if deadline is None else min(max(deadline - time.monotonic(), 0.001), 0.05)
             self._wake.clear()
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._wake.wait(), delay)
+            await _wait_event(self._wake, delay)
 
     async def _wait_for(self, cond: Callable[[], bool], timeout_s: float, what: str) -> None:
         """Wait until ``cond()`` holds (re-checked on every telemetry batch and every 50 ms)."""
@@ -384,8 +398,7 @@ class Vehicle:
             if left <= 0:
                 raise VehicleError(f"timed out after {timeout_s:g} s waiting for {what}")
             self._changed.clear()
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._changed.wait(), min(left, 0.05))
+            await _wait_event(self._changed, min(left, 0.05))
 
     async def _command(self, start: Callable[[float], None], command: int, what: str,
                        *, check: bool = True, error: type[CommandError] = CommandError
@@ -398,7 +411,7 @@ class Vehicle:
             start(time.monotonic())
             self._flush()
             self._wake.set()
-            fin = await asyncio.wait_for(fut, self.config.command_timeout_s)
+            fin = await _bounded(fut, self.config.command_timeout_s)
         except (asyncio.CancelledError, TimeoutError):
             self.link.commands.cancel(command)
             raise
@@ -522,7 +535,7 @@ class Vehicle:
         if self.mode is mode:
             return
         try:
-            await asyncio.wait_for(self.set_mode(mode), 5.0)
+            await _bounded(self.set_mode(mode), 5.0)
         except (VehicleError, TimeoutError) as exc:
             log.error("could not switch to %s on exit: %s", mode.name, exc)
 
@@ -619,8 +632,7 @@ class Vehicle:
 
         async def tick() -> None:
             self._changed.clear()
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._changed.wait(), 0.02)
+            await _wait_event(self._changed, 0.02)
             pump()
 
         held_at_end = False
@@ -680,7 +692,10 @@ class Vehicle:
                         stale_since = now
                         state["hold"] = hold_setpoint(self._snapshot)
                         log.warning("position telemetry stale (%.2f s): holding", age)
-                    if now - stale_since > cfg.stale_abort_s:
+                    rx = link.heartbeat.last_rx_s
+                    link_talking = rx is not None and now - rx <= cfg.stale_telemetry_s
+                    # a silent link is left to the link-loss path (declared after 3 s)
+                    if now - stale_since > cfg.stale_abort_s and link_talking:
                         await self._hold_and_stop(streamer, sm, "stale telemetry")
                         raise TelemetryStaleError(
                             f"no position telemetry for {age:.1f} s; vehicle told to hold")
@@ -727,10 +742,15 @@ class Vehicle:
         """Streaming is stopped; wait for the link (bounded), then report."""
         log.error("link lost during OFFBOARD: stream stopped, waiting for the link")
         try:
-            await asyncio.wait_for(self._link_up.wait(), self.config.reconnect_timeout_s)
+            await _bounded(self._link_up.wait(), self.config.reconnect_timeout_s)
         except TimeoutError:
             raise LinkLostError(f"link lost and not regained within "
                                 f"{self.config.reconnect_timeout_s:g} s", regained=False) from None
+        t_back = time.monotonic()
+        with contextlib.suppress(VehicleError):  # report the mode from a fresh HEARTBEAT
+            await self._wait_for(lambda: (self.link.heartbeat.last is not None
+                                          and self.link.heartbeat.last.t_s >= t_back), 2.5,
+                                 "a HEARTBEAT after the link came back")
         mode = self.mode.name if self.mode else "unknown"
         raise LinkLostError(f"link lost during OFFBOARD and regained (vehicle now in {mode}); "
                             "OFFBOARD not re-requested", regained=True)
@@ -765,6 +785,15 @@ async def safe_exit(vehicle: Vehicle, action: str | None = None,
         log.warning("signal %s: %s before exit", hit[0], (action or vehicle.config.exit_action))
         await vehicle.exit_action(action)
         raise KeyboardInterrupt from None
+    else:
+        if hit:  # the block ended on its own while the signal was being delivered
+            with contextlib.suppress(asyncio.CancelledError):
+                await asyncio.sleep(0)  # absorb the cancellation if it is still pending
+            if task is not None and task.cancelling():
+                task.uncancel()
+            log.warning("signal %s: %s before exit", hit[0], (action or vehicle.config.exit_action))
+            await vehicle.exit_action(action)
+            raise KeyboardInterrupt
     finally:
         for s in installed:
             loop.remove_signal_handler(s)

@@ -63,8 +63,11 @@ HeartbeatEvent = LinkUp | LinkLost | ModeChanged | ArmedChanged
 class HeartbeatTracker:
     """Follows the target autopilot's HEARTBEAT; link lost after ``timeout_s`` of silence.
 
-    Heartbeats from other systems/components, or with autopilot MAV_AUTOPILOT_INVALID (a GCS or
-    companion), are ignored.
+    The link comes up with the first autopilot HEARTBEAT. Any message from the autopilot
+    (``on_activity``) keeps it alive: a 1 Hz HEARTBEAT alone would declare a lossy but working
+    link dead (3 lost heartbeats in a row happen every few minutes at 10 % loss) while PX4's
+    30-100 Hz telemetry still flows. Heartbeats from other systems/components, or with autopilot
+    MAV_AUTOPILOT_INVALID (a GCS or companion), are ignored.
     """
 
     def __init__(self, target_sysid: int = 1, target_compid: int = 1, timeout_s: float = 3.0):
@@ -72,6 +75,7 @@ class HeartbeatTracker:
         self.target_compid = target_compid
         self.timeout_s = timeout_s
         self.last: VehicleHeartbeat | None = None
+        self.last_rx_s: float | None = None
         self.link_up = False
         self._ever_up = False
 
@@ -88,7 +92,7 @@ class HeartbeatTracker:
             base_mode=base, armed=is_armed(base), system_status=int(msg.system_status),
             vehicle_type=int(msg.type), autopilot=int(msg.autopilot),
         )
-        events: list[HeartbeatEvent] = []
+        events: list[HeartbeatEvent] = self._alive(now)
         if not self.link_up:
             self.link_up = True
             events.append(LinkUp(now, regained=self._ever_up))
@@ -101,11 +105,25 @@ class HeartbeatTracker:
         self.last = hb
         return events
 
+    def _alive(self, now: float) -> list[HeartbeatEvent]:
+        self.last_rx_s = now if self.last_rx_s is None else max(self.last_rx_s, now)
+        return []
+
+    def on_activity(self, src_sysid: int, src_compid: int, now: float) -> list[HeartbeatEvent]:
+        """Any message from the autopilot keeps the link alive (and regains a lost link)."""
+        if src_sysid != self.target_sysid or src_compid != self.target_compid:
+            return []
+        self._alive(now)
+        if not self.link_up and self._ever_up:
+            self.link_up = True
+            return [LinkUp(now, regained=True)]
+        return []
+
     def check(self, now: float) -> list[HeartbeatEvent]:
-        """Declare the link lost if the last heartbeat is older than the timeout."""
-        if self.link_up and self.last is not None and now - self.last.t_s >= self.timeout_s:
+        """Declare the link lost if nothing came from the autopilot for the timeout."""
+        if self.link_up and self.last_rx_s is not None and now - self.last_rx_s >= self.timeout_s:
             self.link_up = False
-            return [LinkLost(now, now - self.last.t_s)]
+            return [LinkLost(now, now - self.last_rx_s)]
         return []
 
     def mark_lost(self, now: float) -> list[HeartbeatEvent]:
@@ -113,11 +131,11 @@ class HeartbeatTracker:
         if not self.link_up:
             return []
         self.link_up = False
-        silent = now - self.last.t_s if self.last is not None else 0.0
+        silent = now - self.last_rx_s if self.last_rx_s is not None else 0.0
         return [LinkLost(now, silent)]
 
     def next_deadline(self) -> float | None:
         """Local time at which ``check`` may declare the link lost."""
-        if self.link_up and self.last is not None:
-            return self.last.t_s + self.timeout_s
+        if self.link_up and self.last_rx_s is not None:
+            return self.last_rx_s + self.timeout_s
         return None

@@ -116,6 +116,8 @@ class VehicleLink:
         """Dispatch one decoded message."""
         kind = msg.get_type()
         events: list[LinkEvent] = []
+        if kind != "HEARTBEAT":
+            events += self.heartbeat.on_activity(msg.get_srcSystem(), msg.get_srcComponent(), now)
         if kind == "HEARTBEAT":
             hb_events = self.heartbeat.on_heartbeat(msg, now)
             events += hb_events

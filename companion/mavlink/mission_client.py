@@ -1,8 +1,10 @@
 """Mission upload / download / clear client (MAVLink mission protocol, INT items only).
 
 Modelled on MAVSDK's MavlinkMissionTransferClient. Every step has a ``timeout_s`` (default
-0.25 s); a step that times out is re-sent (COUNT, REQUEST_LIST, REQUEST_INT, CLEAR_ALL) and the
-transfer gives up after ``retries`` consecutive timeouts (default 20, i.e. ~5 s without progress).
+0.25 s); a step that times out is re-sent (COUNT, REQUEST_LIST, REQUEST_INT, CLEAR_ALL, or the
+last requested item during an upload: PX4 answers a duplicate last item with another ACK, which
+recovers a lost final MISSION_ACK) and the transfer gives up after ``retries`` consecutive
+timeouts (default 20, i.e. ~5 s without progress).
 During upload the vehicle drives: both MISSION_REQUEST (PX4 asks seq 0 that way) and
 MISSION_REQUEST_INT are answered with MISSION_ITEM_INT; a repeated request re-sends the item
 and counts as a retry.
@@ -326,6 +328,11 @@ class MissionClient:
             self._send_request_list()
         elif self._step == "items" and self._op == "download":
             self._send_request_int(self._next)
+        elif self._step == "items" and self._op == "upload" and self._last_req is not None:
+            # The item or the final MISSION_ACK may have been lost: re-send the last requested
+            # item (PX4 answers a duplicate last item with another MISSION_ACK).
+            self._send(_item_msg(self._items[self._last_req], self.target_sysid,
+                                 self.target_compid))
         elif self._step == "clear":
             self._send(mavlink2.MAVLink_mission_clear_all_message(
                 self.target_sysid, self.target_compid, self._type))

@@ -157,7 +157,7 @@ class TelemetryState:
 
     def update(self, msg: MavMessage, now: float) -> list[TelemetryEvent]:
         """Feed any message from the vehicle; returns the telemetry values it produced."""
-        if msg.get_srcSystem() != self.target_sysid:
+        if msg.get_srcSystem() != self.target_sysid or msg.get_srcComponent() != self.target_compid:
             return []
         kind = msg.get_type()
         handler = getattr(self, "_on_" + kind.lower(), None)

@@ -302,7 +302,9 @@ def check(
     (``SAMPLES_PER_SEGMENT`` per segment) refined around the worst sample. ``params`` is a
     ``MultirotorParams`` (needed for tilt, thrust and body-rate limits). Returns
     ``{name: LimitReport}`` with names among speed, acc, jerk, tilt, max_thrust, min_thrust,
-    body_rate (multirotor) or speed, yaw_rate, lat_acc (rover).
+    body_rate (multirotor) or speed, yaw_rate, lat_acc (rover). Body rates use the trajectory's
+    yaw channel (yaw 0 when it has none). Rover yaw rate and lateral acceleration are not
+    evaluated below ``ROVER_MIN_SPEED_M_S`` (singular at rest).
     """
     _validate(traj, limits, params)
     table = _limit_table(limits)

@@ -60,8 +60,10 @@ REFINE_RHO = 0.01
 REFINE_PENALTY_WEIGHT = 1e4
 REFINE_MAXITER = 60
 REFINE_FTOL = 1e-5
-#: yaw="velocity": heading rates are matched at joints faster than this fraction of the top speed.
-VELOCITY_YAW_MIN_FRACTION = 0.3
+#: yaw="velocity": heading samples per segment and smoothing time as a fraction of the median
+#: segment duration (see ``_heading_fit``).
+HEADING_SAMPLES_PER_SEGMENT = 16
+VELOCITY_YAW_SMOOTHING = 0.1
 #: Samples per segment while bisecting the common time scale (final checks use more).
 BISECTION_SAMPLES_PER_SEGMENT = 16
 #: Duration of the hover trajectory returned for a single waypoint (s), unless given.
@@ -127,6 +129,11 @@ class _System:
         self.free_rows = fa >= 0  # (M, 2s)
         rows = fa[self.free_rows]
         self.rhs_index = (rows[:, None] * self.d + np.arange(self.d)[None, :]).reshape(-1)
+        self.free_idx = np.flatnonzero(free)
+        self.free_rows_idx = np.flatnonzero(self.free_rows.reshape(-1))
+        self.band_take = np.flatnonzero(mask.reshape(-1))
+        # exponent index of each Q entry: h^(1-2s+o_a+o_b), exponents 1-2s .. -1
+        self.expo_idx = (self.expo - (1.0 - 2.0 * s)).astype(np.intp)
         # band storage entry (r, j) holds A[j - (u - r), j]: row index per entry for scaling
         band_i = np.arange(self.nf)[None, :] - (self.u - np.arange(self.u + 1))[:, None]
         self.band_i = np.clip(band_i, 0, max(self.nf - 1, 0))
@@ -139,35 +146,58 @@ class _System:
         if last is not None and last[0] is h:
             return last[1], last[2]
         s = self.s
-        half = np.empty((h.shape[0], s))
-        half[:, 0] = 1.0
+        m = h.shape[0]
+        hp = np.empty((m, 2 * s))
+        hp[:, 0] = 1.0
         for i in range(1, s):
-            half[:, i] = half[:, i - 1] * h
-        hp = np.concatenate([half, half], axis=1)
-        Q = self.Qt[None, :, :] * (h ** (1.0 - 2.0 * s) * 1.0)[:, None, None]
-        Q *= hp[:, :, None]
-        Q *= hp[:, None, :]
+            hp[:, i] = hp[:, i - 1] * h
+        hp[:, s:] = hp[:, :s]
+        # h^e for e = 1-2s .. -1, then gather per Q entry
+        pw = np.empty((m, 2 * s - 1))
+        pw[:, -1] = 1.0 / h
+        for i in range(2 * s - 3, -1, -1):
+            pw[:, i] = pw[:, i + 1] * pw[:, -1]
+        Q = pw[:, self.expo_idx]
+        Q *= self.Qt
         self._last = (h, hp, Q)
         return hp, Q
+
+    def windows(self, x: FloatArray) -> FloatArray:
+        """Per-segment joint derivatives (M, 2s, d) of x (n_joints * s, d)."""
+        s, m = self.s, self.m
+        d = x.shape[1]
+        return np.concatenate([x[:-s].reshape(m, s, d), x[s:].reshape(m, s, d)], axis=1)
 
     def powers(self, h: FloatArray, r: int) -> FloatArray:
         """h^(o_a - r) for the 2s Hermite inputs, shape (M, 2s)."""
         hp, _ = self._prepare(h)
         return hp if r == 0 else hp / h[:, None] ** r
 
-    def solve(self, h: FloatArray) -> tuple[FloatArray, float]:
-        """Joint derivatives x (n_joints * s, d) and cost J for durations h (M,)."""
+    def solve(
+        self,
+        h: FloatArray,
+        fit: tuple[FloatArray, FloatArray] | None = None,
+    ) -> tuple[FloatArray, float]:
+        """Joint derivatives x (n_joints * s, d) and cost J for durations h (M,).
+
+        ``fit = (R, g)`` adds a per-segment quadratic data term ``x_k^T R_k x_k - 2 g_k . x_k``
+        (R (M, 2s, 2s), g (M, 2s, d)) to the objective (same band structure); the returned
+        cost is the derivative cost J alone."""
         d = self.d
         _, Q = self._prepare(h)
+        A = Q if fit is None else Q + fit[0]
         x = self.x0.copy()
         if self.nf:
-            xk = x[self.gidx]
-            yf = (Q @ xk)[self.free_rows]
+            xk = self.windows(x)
+            yk = A @ xk if fit is None else A @ xk - fit[1]
+            yf = yk.reshape(-1, d)[self.free_rows_idx]
             rhs = -np.bincount(
                 self.rhs_index, weights=yf.reshape(-1), minlength=self.nf * d
             ).reshape(self.nf, d)
             ab = np.bincount(
-                self.band_flat, weights=Q[self.band_mask], minlength=(self.u + 1) * self.nf
+                self.band_flat,
+                weights=A.reshape(-1)[self.band_take],
+                minlength=(self.u + 1) * self.nf,
             ).reshape(self.u + 1, self.nf)
             # Jacobi scaling for conditioning across very different durations
             diag = ab[self.u]
@@ -186,8 +216,8 @@ class _System:
                 )
             self._factor = (cb, sc)
             z, info = _PBTRS(cb, rhs * sc[:, None], lower=0)
-            x[self.free] = z * sc[:, None]
-        xk = x[self.gidx]
+            x[self.free_idx] = z * sc[:, None]
+        xk = self.windows(x)
         cost = float(np.sum(xk * (Q @ xk)))
         return x, cost
 
@@ -197,8 +227,8 @@ class _System:
         lam = np.zeros_like(g_full)
         if self.nf and self._factor is not None:
             cb, sc = self._factor
-            z, _ = _PBTRS(cb, g_full[self.free] * sc[:, None], lower=0)
-            lam[self.free] = z * sc[:, None]
+            z, _ = _PBTRS(cb, g_full[self.free_idx] * sc[:, None], lower=0)
+            lam[self.free_idx] = z * sc[:, None]
         return lam
 
     def dq(self, h: FloatArray) -> FloatArray:
@@ -208,12 +238,12 @@ class _System:
 
     def cost_grad(self, x: FloatArray, h: FloatArray) -> FloatArray:
         """dJ*/dh (M,) at the optimum x (envelope theorem: fixed joint derivatives)."""
-        xk = x[self.gidx]
+        xk = self.windows(x)
         return np.asarray(np.sum(xk * (self.dq(h) @ xk), axis=(1, 2)), dtype=np.float64)
 
     def control_points(self, x: FloatArray, h: FloatArray) -> FloatArray:
         """Bezier control points (M, 2s, d) of the segments."""
-        xk = x[self.gidx] * self.powers(h, 0)[:, :, None]
+        xk = self.windows(x) * self.powers(h, 0)[:, :, None]
         return np.asarray(self.H @ xk, dtype=np.float64)
 
 
@@ -284,23 +314,21 @@ def _polyline_profile_durations(
     cos_turn = np.clip(np.sum(unit[1:] * unit[:-1], axis=1), -1.0, 1.0)
     cap[wp_idx[1:-1]] = vmax * 0.5 * (1.0 + cos_turn)
     a = 0.5 * amax
-    v = cap.copy()
+    v = cap.tolist()
+    ls = lengths.tolist()
     for k in range(1, n_j):
-        v[k] = min(v[k], math.sqrt(v[k - 1] ** 2 + 2.0 * a * lengths[k - 1]))
+        v[k] = min(v[k], math.sqrt(v[k - 1] ** 2 + 2.0 * a * ls[k - 1]))
     for k in range(n_j - 2, -1, -1):
-        v[k] = min(v[k], math.sqrt(v[k + 1] ** 2 + 2.0 * a * lengths[k]))
-    h = np.empty(n_j - 1)
-    for k in range(n_j - 1):
-        v0, v1, length = v[k], v[k + 1], lengths[k]
-        # accelerate from v0 and decelerate to v1 with a possible cruise at vmax in between
-        peak = math.sqrt(max((2.0 * a * length + v0 * v0 + v1 * v1) / 2.0, 0.0))
-        if peak <= vmax:
-            h[k] = (2.0 * peak - v0 - v1) / a
-        else:
-            d_acc = (vmax * vmax - v0 * v0) / (2.0 * a)
-            d_dec = (vmax * vmax - v1 * v1) / (2.0 * a)
-            h[k] = (vmax - v0) / a + (vmax - v1) / a + (length - d_acc - d_dec) / vmax
-    return np.maximum(h, 1e-3)
+        v[k] = min(v[k], math.sqrt(v[k + 1] ** 2 + 2.0 * a * ls[k]))
+    v0 = np.array(v[:-1])
+    v1 = np.array(v[1:])
+    # accelerate from v0 and decelerate to v1, with a cruise at vmax in between if needed
+    peak = np.sqrt(np.maximum((2.0 * a * lengths + v0 * v0 + v1 * v1) / 2.0, 0.0))
+    d_acc = (vmax * vmax - v0 * v0) / (2.0 * a)
+    d_dec = (vmax * vmax - v1 * v1) / (2.0 * a)
+    cruise = (vmax - v0) / a + (vmax - v1) / a + (lengths - d_acc - d_dec) / vmax
+    h = np.where(peak <= vmax, (2.0 * peak - v0 - v1) / a, cruise)
+    return np.asarray(np.maximum(h, 1e-3), dtype=np.float64)
 
 
 def _ratios(
@@ -444,20 +472,23 @@ class _Penalty:
         )
         if any(n in ("tilt", "max_thrust", "min_thrust") for n, _ in self.terms):
             self.orders = sorted(set(self.orders) | {1, 2})
+        self.W_all = np.vstack([self.W[r] for r in self.orders])
+        self.W_all_r = np.vstack([r * self.W[r] for r in self.orders])
 
     def value_grad(self, x: FloatArray, h: FloatArray) -> tuple[float, FloatArray]:
         """Penalty P and its total derivative dP/dh (M,) at the optimum x(h)."""
         sysm = self.system
         s = sysm.s
-        xk = x[sysm.gidx]  # (M, 2s, d)
-        Y: dict[int, FloatArray] = {}
-        D: dict[int, FloatArray] = {}
+        xk = sysm.windows(x)  # (M, 2s, d)
         m, d = xk.shape[0], xk.shape[2]
         hp = sysm.powers(h, 0)
-        for r in self.orders:
-            Y[r] = xk * (hp / h[:, None] ** r)[:, :, None]
-            yt = Y[r].transpose(1, 0, 2).reshape(2 * s, m * d)
-            D[r] = (self.W[r] @ yt).reshape(self.n, m, d).transpose(1, 0, 2)  # (M, n, d)
+        z = xk * hp[:, :, None]  # normalised-time Hermite inputs
+        zt = z.transpose(1, 0, 2).reshape(2 * s, m * d)
+        d_all = (self.W_all @ zt).reshape(len(self.orders), self.n, m, d)
+        inv_h = 1.0 / h
+        D: dict[int, FloatArray] = {}
+        for i, r in enumerate(self.orders):
+            D[r] = d_all[i].transpose(1, 0, 2) * (inv_h**r)[:, None, None]  # (M, n, d)
         phi = np.zeros(D[1].shape[:2])
         G: dict[int, FloatArray] = {r: np.zeros_like(D[r]) for r in self.orders}
 
@@ -511,23 +542,24 @@ class _Penalty:
         dh = np.sum(phi, axis=1) / self.n
         dxk = np.zeros_like(xk)
         act = np.flatnonzero(dh > 0.0)  # only segments with a violation carry gradient
-        ha = h[act]
-        hpa = hp[act]
-        scale = ha[:, None, None] / self.n
         ma = act.shape[0]
-        for r in self.orders:
-            Gr = (G[r][act] * scale).transpose(1, 0, 2).reshape(self.n, ma * d)
-            dY = (self.W[r].T @ Gr).reshape(2 * s, ma, d).transpose(1, 0, 2)  # (Ma, 2s, d)
-            fac = hpa / ha[:, None] ** r
-            dxk[act] += dY * fac[:, :, None]
-            dh[act] += np.sum(
-                dY * Y[r][act] * ((sysm.o[None, :] - r) / ha[:, None])[:, :, None], axis=(1, 2)
-            )
+        inv_ha = inv_h[act]
+        scale = h[act] / self.n
+        # stacked back-projection: U = sum_r W_r^T G_r h^-r, V = sum_r r W_r^T G_r h^-r
+        gst = np.stack(
+            [G[r][act] * (scale * inv_ha**r)[:, None, None] for r in self.orders]
+        )  # (R, Ma, n, d)
+        gt = gst.transpose(0, 2, 1, 3).reshape(len(self.orders) * self.n, ma * d)
+        U = (self.W_all.T @ gt).reshape(2 * s, ma, d).transpose(1, 0, 2)
+        V = (self.W_all_r.T @ gt).reshape(2 * s, ma, d).transpose(1, 0, 2)
+        za = z[act]
+        dxk[act] = U * hp[act][:, :, None]
+        dh[act] += np.sum(za * (sysm.o[None, :, None] * U - V), axis=(1, 2)) * inv_ha
         g_full = np.zeros_like(x)
         g_full[: m * s] += dxk[:, :s, :].reshape(-1, x.shape[1])
         g_full[s:] += dxk[:, s:, :].reshape(-1, x.shape[1])
         lam = sysm.adjoint(g_full)
-        dh -= np.sum(lam[sysm.gidx] * (sysm.dq(h) @ xk), axis=(1, 2))
+        dh -= np.sum(sysm.windows(lam) * (sysm.dq(h) @ xk), axis=(1, 2))
         return value, dh
 
 
@@ -596,16 +628,7 @@ class _Planner:
         x, cost = self.solve(h)
         cp = self.system.control_points(x, h)
         traj = PiecewiseBezier.from_control_points(cp, h)
-        yaw_traj = _yaw_channel(
-            traj,
-            self.joints,
-            self.is_waypoint,
-            x.reshape(-1, self.s, traj.dim),
-            h,
-            self.s,
-            self.yaw,
-            self.yaw_wp,
-        )
+        yaw_traj = _yaw_channel(traj, self.is_waypoint, h, self.s, self.yaw, self.yaw_wp)
         if yaw_traj is not None:
             traj = traj.with_yaw(yaw_traj)
         return traj, cost
@@ -757,56 +780,43 @@ def _solve_1d(
     return PiecewiseBezier.from_control_points(sys_.control_points(x, h), h)
 
 
-def _heading_at_joints(
-    derivs: FloatArray, wp: FloatArray, traj: PiecewiseBezier | None = None
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Heading psi = atan2(v_y, v_x), its rate and acceleration at the joints (rad, rad/s,
-    rad/s^2). Where the horizontal speed vanishes the direction of the
-    motion just inside the neighbouring segment (or of the neighbouring waypoint) is used and
-    the rates are zero."""
-    n_j = derivs.shape[0]
-    s = derivs.shape[1]
-    psi = np.zeros(n_j)
-    rate = np.zeros(n_j)
-    acc = np.zeros(n_j)
-    scale = max(float(np.max(np.abs(derivs[:, 1, :2]))), 1e-9)
-    for k in range(n_j):
-        v = derivs[k, 1, :2]
-        a = derivs[k, 2, :2] if s > 2 else np.zeros(2)
-        j = derivs[k, 3, :2] if s > 3 else np.zeros(2)
-        V2 = float(v @ v)
-        if (1e-6 * scale) ** 2 < V2:
-            psi[k] = math.atan2(v[1], v[0])
-            cross = v[0] * a[1] - v[1] * a[0]
-            dot = v[0] * a[0] + v[1] * a[1]
-            rate[k] = cross / V2
-            acc[k] = ((v[0] * j[1] - v[1] * j[0]) * V2 - 2.0 * cross * dot) / (V2 * V2)
-            continue
-        # at rest: the direction the vehicle starts / ends moving in, just inside the segment
-        direction = None
-        if traj is not None:
-            if k + 1 < n_j:
-                t_in = traj.breaks[k] + 1e-3 * traj.durations[k]
-            else:
-                t_in = traj.breaks[k] - 1e-3 * traj.durations[k - 1]
-            w = traj.evaluate(float(t_in), 1)[:2]
-            if float(w @ w) > 0.0:
-                direction = w
-        if direction is None:
-            other = wp[k + 1] if k + 1 < n_j else wp[k - 1] if k > 0 else wp[k]
-            diff = (other - wp[k])[:2]
-            if k + 1 >= n_j:
-                diff = -diff
-            direction = diff if float(diff @ diff) > 0.0 else np.array([1.0, 0.0])
-        psi[k] = math.atan2(direction[1], direction[0])
-    return psi, rate, acc
+def _heading_fit(traj: PiecewiseBezier, s: int) -> PiecewiseBezier:
+    """Yaw channel following the horizontal velocity heading: the same-durations piecewise
+    polynomial minimising ``int w (yaw - atan2(v_y, v_x))^2 dt + lambda int (yaw^(s))^2 dt``,
+    at rest at both ends. The weight ``w = (V / V_max)^2`` (plus a tiny floor) discounts the
+    heading where the vehicle is slow (undefined at rest); ``lambda = (c * median h)^(2s)``
+    smooths heading changes faster than about ``c`` times a segment
+    (``VELOCITY_YAW_SMOOTHING``); scaling all durations scales the result exactly in time.
+    One banded solve, like the position."""
+    m = traj.num_segments
+    h = np.asarray(traj.durations, dtype=np.float64)
+    n = HEADING_SAMPLES_PER_SEGMENT
+    tau = (np.arange(n) + 0.5) / n
+    t = (traj.breaks[:-1, None] + h[:, None] * tau[None, :]).reshape(-1)
+    vel = traj.evaluate(t, 1)[:, :2]
+    speed2 = np.sum(vel * vel, axis=1)
+    psi = np.unwrap(np.arctan2(vel[:, 1], vel[:, 0]))
+    w = speed2 / max(float(np.max(speed2)), 1e-300) + 1e-6
+    n_j = m + 1
+    mask = np.zeros((n_j, s), dtype=bool)
+    mask[0, 1:] = True
+    mask[-1, 1:] = True
+    sysm = _System(mask, np.zeros((n_j, s, 1)), s)
+    hp = sysm.powers(h, 0)
+    basis = _monomial_matrix(2 * s - 1) @ sysm.H  # (2s, 2s): coefficient of tau^p per input
+    B = (tau[:, None] ** np.arange(2 * s)[None, :]) @ basis  # (n, 2s) values at the samples
+    rows = B[None, :, :] * hp[:, None, :]  # (M, n, 2s): yaw sample = rows @ x_k
+    wk = w.reshape(m, n) * (h[:, None] / n)  # time-integral weights
+    R = np.einsum("mj,mja,mjb->mab", wk, rows, rows)
+    g = np.einsum("mj,mja,mj->ma", wk, rows, psi.reshape(m, n))[:, :, None]
+    lam = (VELOCITY_YAW_SMOOTHING * float(np.median(h))) ** (2 * s)
+    x, _ = sysm.solve(h, (R / lam, g / lam))
+    return PiecewiseBezier.from_control_points(sysm.control_points(x, h), h)
 
 
 def _yaw_channel(
     traj: PiecewiseBezier,
-    wp: FloatArray,
     is_waypoint: NDArray[np.bool_],
-    derivs: FloatArray,
     h: FloatArray,
     s: int,
     yaw: YawSpec,
@@ -816,21 +826,7 @@ def _yaw_channel(
         return None
     m = h.shape[0]
     if isinstance(yaw, str):
-        psi, rate, acc = _heading_at_joints(derivs, wp, traj)
-        psi_u = _unwrap_sequence(psi)
-        n_j = m + 1
-        # heading rates are matched only where the vehicle moves briskly; near stops (a sharp
-        # turn) the yaw rate is left free so the heading swings smoothly instead of spinning
-        speed = np.linalg.norm(derivs[:, 1, :2], axis=1)
-        brisk = speed >= VELOCITY_YAW_MIN_FRACTION * max(float(np.max(speed)), 1e-9)
-        mask = np.zeros((n_j, s), dtype=bool)
-        vals = np.zeros((n_j, s, 1))
-        mask[:, 1] = brisk
-        vals[:, 1, 0] = rate
-        if s > 3:  # the heading acceleration needs the jerk, known only for snap plans
-            mask[:, 2] = brisk
-            vals[:, 2, 0] = acc
-        return _solve_1d(psi_u, h, s, None, mask, vals)
+        return _heading_fit(traj, s)
     if yaw_wp is None:
         raise AssertionError("per-waypoint yaw missing")  # pragma: no cover
     if yaw_wp.shape[0] == 1:
@@ -865,10 +861,11 @@ def plan(
     - ``constraints``: ``{waypoint index: {order: vector}}`` fixed derivatives at interior
       waypoints (fixing jerk of a snap plan there lets the snap jump at that waypoint).
     - ``limits``: :class:`Limits` (multirotor) or :class:`RoverLimits` (d = 2); ``params`` a
-      ``MultirotorParams`` for tilt, thrust and body-rate limits.
+      ``MultirotorParams`` for tilt, thrust and body-rate limits. They drive the time
+      allocation; with explicit ``durations`` they are not enforced (use :func:`check`).
     - ``yaw``: None (no yaw channel), a float (fixed yaw, rad), M per-waypoint yaws (rad,
       unwrapped the short way round), or ``"velocity"`` (follow the horizontal velocity
-      heading: matched in value, rate and acceleration at every waypoint).
+      heading: speed-weighted least-squares fit with snap smoothing, see ``_heading_fit``).
 
     - ``pieces``: segments per waypoint leg. Default 1 with ``durations``; with time
       allocation ``ALLOCATION_PIECES`` (3): the extra joints lie on the straight leg between
@@ -952,6 +949,25 @@ def plan_with_info(
                 raise ValueError(
                     f"min_thrust_n = {limits.min_thrust_n} N is above the hover thrust m g"
                 )
+    if limits is not None:
+        # fixed boundary / interior derivatives must themselves respect the limits
+        caps = {1: ("velocity", "max_speed_m_s", limits.max_speed_m_s)}
+        if isinstance(limits, Limits):
+            caps[2] = ("acceleration", "max_acc_m_s2", limits.max_acc_m_s2)
+            if limits.max_jerk_m_s3 is not None:
+                caps[3] = ("jerk", "max_jerk_m_s3", limits.max_jerk_m_s3)
+        where = [("start", start_spec), ("end", end_spec)]
+        where += [(f"waypoint {i}", sp) for i, sp in interior_in.items()]
+        for label, spec_d in where:
+            for order_j, vec in spec_d.items():
+                if vec is None or order_j not in caps:
+                    continue
+                what, field, cap = caps[order_j]
+                if float(np.linalg.norm(vec)) > cap:
+                    raise ValueError(
+                        f"{label}: {what} {float(np.linalg.norm(vec)):.3g} exceeds "
+                        f"{field} = {cap:g}"
+                    )
     # yaw spec
     yaw_wp: FloatArray | None = None
     if isinstance(yaw, str):

@@ -497,6 +497,13 @@ static void run_error_paths(const char *vectors) {
   expect_true("error: zero duration leaves outputs",
               memcmp(&out, &sentinel, sizeof out) == 0 &&
                   memcmp(&st, &sentinel_st, sizeof st) == 0);
+  seg.duration_s = 1e-5; /* snap ~ 1e21: finite (evaluation ok) but no flyable setpoint */
+  expect_true("tiny duration: evaluation ok", ecca_bezier_eval(&seg, 0.0, &st) == ECCA_OK);
+  st = sentinel_st;
+  expect_true("tiny duration: full setpoint refused",
+              ecca_full_setpoint(&seg, 0.0, &pr, &st, &out) == ECCA_ERR_INPUT &&
+                  memcmp(&out, &sentinel, sizeof out) == 0 &&
+                  memcmp(&st, &sentinel_st, sizeof st) == 0);
   seg.duration_s = 1.0;
   expect_true("error: NaN time", ecca_bezier_eval(&seg, nan(""), &st) == ECCA_ERR_INPUT);
   expect_true("error: NaN time leaves outputs", memcmp(&st, &sentinel_st, sizeof st) == 0);

@@ -217,6 +217,8 @@ def test_piecewise_evaluate_scalar_vector_and_clamping() -> None:
     np.testing.assert_allclose(pw.evaluate(-1.0), pw.segments[0].evaluate(0.0))
     with pytest.raises(ValueError, match="NaN"):
         pw.evaluate(np.nan)
+    idx = pw.segment_index(np.array([-1.0, 0.0, pw.breaks[1], pw.breaks[2] - 1e-9, 1e9]))
+    assert idx.tolist() == [0, 0, 1, 1, pw.num_segments - 1]
 
 
 def test_piecewise_mixed_degrees_are_elevated_without_change() -> None:

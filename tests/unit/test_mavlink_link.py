@@ -68,6 +68,26 @@ def test_transport_loss_declares_link_lost_once() -> None:
     assert any(isinstance(e, LinkUp) and e.regained for e in ev)
 
 
+def test_telemetry_keeps_a_lossy_link_alive_and_regains_it() -> None:
+    link, px4 = VehicleLink(), Px4Side()
+    lpos = m.MAVLink_local_position_ned_message(0, 0, 0, 0, 0, 0, 0)
+    feed(link, px4, lpos, 0.0)
+    assert not link.heartbeat.link_up  # telemetry alone does not bring a link up
+    feed(link, px4, heartbeat(*HOLD_ARMED), 0.5)
+    for k in range(1, 60):  # heartbeats all lost for 6 s, telemetry flows at 10 Hz
+        feed(link, px4, lpos, 0.5 + 0.1 * k)
+        assert not any(isinstance(e, LinkLost) for e in link.handle_timer(0.5 + 0.1 * k))
+    # nothing at all for 3 s: lost
+    assert any(isinstance(e, LinkLost) for e in link.handle_timer(6.4 + 3.0))
+    ev = feed(link, px4, lpos, 10.0)  # any message from the autopilot regains it
+    assert any(isinstance(e, LinkUp) and e.regained for e in ev)
+    # messages from another component do not count
+    link.handle_timer(13.0)
+    assert not link.heartbeat.link_up
+    assert feed(link, Px4Side(1, 100), lpos, 13.5) == []
+    assert not link.heartbeat.link_up
+
+
 def test_gcs_and_other_vehicle_heartbeats_ignored() -> None:
     link = VehicleLink()
     assert feed(link, Px4Side(1, 190), heartbeat(0, 0, autopilot=8), 0.0) == []

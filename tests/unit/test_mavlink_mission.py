@@ -153,6 +153,20 @@ def test_upload_gives_up_after_repeated_requests_of_same_item() -> None:
     assert out.sent[-1].get_type() == "MISSION_ACK" and out.sent[-1].type == 15
 
 
+def test_upload_lost_final_ack_recovered_by_resending_last_item() -> None:
+    """PX4 re-acks a duplicate last item (mavlink_mission.cpp, state IDLE)."""
+    mc, out, px4 = make()
+    items = [item(0), item(1)]
+    mc.upload(items, 0.0)
+    mc.on_message(req_int(px4, 0), 0.1)
+    mc.on_message(req_int(px4, 1), 0.2)
+    out.take()  # the final MISSION_ACK is lost
+    assert mc.handle_timer(0.2 + TIMEOUT) == []
+    (again,) = out.take()
+    assert item_matches(again, items[1])
+    assert only(mc.on_message(ack(px4, 0), 0.5)).result is MissionResult.SUCCESS
+
+
 def test_upload_timeout_after_item_when_vehicle_goes_silent() -> None:
     mc, _, px4 = make()
     mc.upload([item(0), item(1)], 0.0)

@@ -40,8 +40,12 @@ def in_offboard(h: Harness, n: float = 0.0, e: float = 0.0, d: float = -2.5) -> 
     flying(h)
     h.run(0.3, lambda: h.pos_setpoint(n, e, d))
     h.set_mode(6)
-    h.run(0.3, lambda: h.pos_setpoint(n, e, d))
-    assert h.heartbeat().custom_mode == OFFBOARD_CUSTOM
+    h.run(0.05, lambda: h.pos_setpoint(n, e, d))
+    assert h.ap.mode.name == "OFFBOARD"
+    # the 1 Hz HEARTBEAT shows it within a second
+    h.run_until(
+        lambda: h.heartbeat().custom_mode == OFFBOARD_CUSTOM, 1.1, lambda: h.pos_setpoint(n, e, d)
+    )
 
 
 # ------------------------------------------------------------------------- identity
@@ -139,7 +143,7 @@ def test_arming_in_posctl_without_rc_denied_until_pilot_present() -> None:
     h = Harness()
     h.wait_ready()
     h.set_mode(3)
-    h.run(0.1)
+    h.run(1.05)
     assert h.acks(176) == [0, 0]  # disarmed: any mode is accepted
     assert hb_triplet(h)[2] == 0  # cannot arm in this mode: UNINIT
     h.arm()
@@ -220,7 +224,7 @@ def test_land_reports_landing_and_disarms_two_seconds_after_touchdown() -> None:
     h = Harness()
     flying(h)
     h.command_long(21)
-    h.run(0.5)
+    h.run(1.05)
     assert hb_triplet(h) == (157, LAND_CUSTOM, 4)
     assert h.last("EXTENDED_SYS_STATE").landed_state == 4
     h.run_until(lambda: h.ap.state.landed, 20.0)
@@ -362,3 +366,13 @@ def test_long_statustext_is_chunked_and_reassembles() -> None:
     texts = ["".join(t for _s, t in sorted(v)) for v in by_id.values()]
     assert texts == ["x" * 30 + "y" * 50 + "z" * 20, "a" * 100]
     assert [len(v) for v in by_id.values()] == [3, 3]  # the 100-char text ends with an empty chunk
+
+
+def test_command_retries_with_confirmation_are_each_acknowledged() -> None:
+    h = Harness()
+    h.wait_ready()
+    for confirmation in range(3):  # a client that did not see the ACK retries (MAVSDK: 3 times)
+        h.command_long(400, 1.0, confirmation=confirmation)
+    assert h.acks(400) == [0, 0, 0] and h.ap.armed
+    h.command_long(400, 0.0)
+    assert h.acks(400)[-1] == 0 and not h.ap.armed

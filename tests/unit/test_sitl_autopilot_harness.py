@@ -103,7 +103,18 @@ class Harness:
         return [m.result for m in self.msgs("COMMAND_ACK", since) if m.command == command]
 
     def texts(self, since: float = -math.inf) -> list[str]:
-        return [m.text for m in self.msgs("STATUSTEXT", since)]
+        """STATUSTEXTs since `since`, chunked ones (MAVLink 2 id/chunk_seq) reassembled."""
+        out: list[str] = []
+        pending: dict[int, list[str]] = {}
+        for m in self.msgs("STATUSTEXT", since):
+            if m.id == 0:
+                out.append(m.text)
+                continue
+            parts = pending.setdefault(m.id, [])
+            parts.append(m.text)
+            if len(m.text.encode()) < 50:  # the NUL-terminated last chunk
+                out.append("".join(pending.pop(m.id)))
+        return out
 
     # ------------------------------------------------------------------ commands
     def command_long(

@@ -71,7 +71,8 @@ def test_armed_switch_to_offboard_needs_proof_of_life() -> None:
         (2552, 1, True),  # MAVSDK position-only
         (3576, 1, True),  # position, yaw and yaw rate ignored
         (2048, 1, True),  # everything but yaw rate
-        (2552, 8, True),  # BODY_NED
+        (3527, 8, True),  # BODY_NED velocity
+        (2552, 8, False),  # BODY_NED ignores positions: nothing left
         (2559, 1, False),  # yaw only
         (1535, 1, False),  # yaw rate only
         (2560, 1, False),  # FORCE with acceleration
@@ -84,7 +85,9 @@ def test_which_setpoints_are_proof_of_life(mask: int, frame: int, counts: bool) 
     h.pos_setpoint(1.0, 2.0, -3.0, mask=mask, frame=frame)
     assert h.ap.offboard_fresh is counts
     if frame == 7:
-        assert "coordinate frame 7 unsupported" in h.texts()
+        assert "SET_POSITION_TARGET_LOCAL_NED coordinate frame 7 unsupported" in h.texts()
+    elif not counts:
+        assert any(t.startswith("SET_POSITION_TARGET_LOCAL_NED") for t in h.texts())
 
 
 def test_attitude_setpoints_and_invalid_ones() -> None:
