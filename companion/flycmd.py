@@ -104,25 +104,14 @@ def _status_table(
     return t
 
 
-def _mission_reference(
-    schedule: Schedule, origin: np.ndarray
-) -> tuple[float, float, Any]:
-    """(t_offset, duration, reference fn) flying the schedule after its takeoff climb."""
+def _takeoff_end(schedule: Schedule) -> float:
+    """Schedule time [s] at which its leading takeoff climb ends (PX4's takeoff replaces it)."""
     t_off = 0.0
     for p in schedule.pieces:
         if p.phase != "takeoff":
             break
         t_off = p.t0_s + p.duration_s
-    duration = schedule.duration_s - t_off
-
-    def ref(t: float) -> Reference:
-        r = schedule.reference(t + t_off)
-        return Reference(
-            r.pos_ned + origin, r.vel_ned, r.acc_ned, r.jerk_ned, r.snap_ned,
-            r.yaw, r.yaw_rate, r.yaw_acc,
-        )
-
-    return t_off, duration, ref
+    return t_off
 
 
 async def fly(opts: FlyOptions, console: Console) -> int:
@@ -169,8 +158,12 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                         build_schedule, fp, None if rover else vf.params, vf.limits
                     )
                     alt = fp.takeoff_alt_m
-                    t_off, duration, rel_ref = _mission_reference(schedule, np.zeros(3))
+                    t_off = _takeoff_end(schedule)
+                    duration = schedule.duration_s - t_off
                     start_rel = schedule.reference(t_off).pos_ned
+
+                    def rel_ref(t: float, origin: np.ndarray | None = None) -> Reference:
+                        return schedule.reference(t + t_off, origin)
                 else:
                     alt = opts.alt_m
                     traj = await asyncio.to_thread(
@@ -181,8 +174,17 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                             max_tilt_rad=vf.limits.max_tilt_rad,
                         )
                     )
-                    rel_ref = trajectory_reference(traj, 0.0)
+                    pattern_ref = trajectory_reference(traj, 0.0)
                     duration = traj.duration
+
+                    def rel_ref(t: float, origin: np.ndarray | None = None) -> Reference:
+                        r = pattern_ref(t)
+                        if origin is None:
+                            return r
+                        return Reference(
+                            r.pos_ned + origin, r.vel_ned, r.acc_ned, r.jerk_ned, r.snap_ned,
+                            r.yaw, r.yaw_rate, r.yaw_acc,
+                        )
                     start_rel = np.zeros(3)
                 await v.arm()
                 if not rover:
@@ -204,11 +206,7 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                 origin = here - start_rel
 
                 def ref(t: float) -> Reference:
-                    r = rel_ref(t)
-                    return Reference(
-                        r.pos_ned + origin, r.vel_ned, r.acc_ned, r.jerk_ned, r.snap_ned,
-                        r.yaw, r.yaw_rate, r.yaw_acc,
-                    )
+                    return rel_ref(t, origin)
 
                 source = TrackingSource(ref, mode, vf.params)  # type: ignore[arg-type]
                 started = asyncio.get_running_loop().time()

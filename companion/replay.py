@@ -46,7 +46,7 @@ from companion.mavlink.setpoints import (
 from companion.mission import Mission, MissionError, load_mission, mission_to_flight_plan
 from companion.mission.upload import mission_upload_items
 from companion.schedule import Schedule, VehicleLimits, build_schedule
-from companion.tracking import SetpointMode, TrackingSource, estimate_from_telemetry
+from companion.tracking import SetpointMode, TrackingSource
 
 FloatArray = NDArray[np.float64]
 Mode = Literal["position", "attitude", "rates"]
@@ -263,11 +263,7 @@ class Flight:
             self.reason = reason
 
     def _reference(self, t_s: float) -> Reference:
-        ref = self.schedule.reference(t_s)
-        return Reference(
-            ref.pos_ned + self.origin, ref.vel_ned, ref.acc_ned, ref.jerk_ned, ref.snap_ned,
-            ref.yaw, ref.yaw_rate, ref.yaw_acc,
-        )
+        return self.schedule.reference(t_s, origin=self.origin)
 
     def _setpoint(self, now: float) -> SetpointCommand:
         if self.phase != Phase.FLY:  # priming, mode request, arming: hold the start point
@@ -304,7 +300,8 @@ class Flight:
 
     def tick(self, now: float) -> None:
         """One setpoint period."""
-        est = estimate_from_telemetry(self.link.telemetry.snapshot())
+        tel = self.link.telemetry
+        have_state = tel.position is not None and tel.attitude is not None
         mode = self.link.mode
         armed = self.link.armed
         if self.log.armed_t is None and armed:
@@ -316,14 +313,15 @@ class Flight:
         ph = self.phase
         if ph == Phase.WAIT_READY:
             st = self.link.telemetry.sys_status
-            if est is not None and st is not None and st.armable and mode is not None:
-                self.origin = np.array(est.pos_ned)
+            if have_state and st is not None and st.armable and mode is not None:
+                assert tel.position is not None
+                self.origin = np.array(tel.position.pos_ned)
                 self._go(Phase.PRIME, now)
             return
         if ph in (Phase.DONE, Phase.ABORTED):
             return
         if ph in (Phase.PRIME, Phase.REQUEST_OFFBOARD, Phase.ARM, Phase.FLY):
-            if est is None:
+            if not have_state:
                 return
             if ph == Phase.FLY and self.offboard_seen and mode != FlightMode.OFFBOARD:
                 # pilot takeover or failsafe: stop streaming, never fight back
@@ -576,7 +574,7 @@ def summarize(
         "rms_error_m": float(np.sqrt(np.mean(err**2))) if len(err) else None,
         "max_error_m": float(np.max(err)) if len(err) else None,
         "waypoints": waypoints,
-        "waypoints_reached": int(sum(w["reached"] for w in waypoints)),
+        "waypoints_reached": int(np.count_nonzero(closest <= np.asarray(schedule.acceptance_m))),
         "max_speed_m_s": float(np.max(np.linalg.norm(vel_f, axis=1))) if len(vel_f) else 0.0,
         "max_tilt_deg": float(np.degrees(np.max(log.tilt))) if log.tilt else 0.0,
         "max_thrust_norm": float(np.max(log.thrust_norm)) if log.thrust_norm else None,
@@ -600,6 +598,7 @@ def plot_flight(
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.patches import Circle
 
     pos = np.asarray(log.pos).reshape(-1, 3)
     t = np.asarray(log.t)
@@ -613,7 +612,7 @@ def plot_flight(
         ax[0].plot(p4[:, 1], p4[:, 0], color="C2", alpha=0.7, label="flown (PX4 mission)")
     wps = schedule.waypoints_ned + origin
     for w, r in zip(wps, schedule.acceptance_m, strict=True):
-        ax[0].add_patch(plt.Circle((w[1], w[0]), r, fill=False, color="C3", lw=0.8))
+        ax[0].add_patch(Circle((w[1], w[0]), r, fill=False, color="C3", lw=0.8))
     ax[0].plot(wps[:, 1], wps[:, 0], "x", color="C3", label="waypoints")
     ax[0].set(xlabel="East [m]", ylabel="North [m]", title="Top view", aspect="equal")
     ax[0].legend(fontsize=8)

@@ -76,7 +76,8 @@ class _ScalarEval:
         i = min(max(bisect.bisect_right(b, t) - 1, 0), len(self.mats) - 1)
         tl = t - b[i]
         powers = tl ** np.arange(self.n1)
-        return np.einsum("j,kjd->kd", powers, self.mats[i])
+        out: FloatArray = np.einsum("j,kjd->kd", powers, self.mats[i])
+        return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,8 +124,9 @@ class Schedule:
     final_action: str
     vehicle: str
 
-    def reference(self, t: float) -> Reference:
-        """Flat-output reference at schedule time `t` [s] (clamped to the schedule)."""
+    def reference(self, t: float, origin: FloatArray | None = None) -> Reference:
+        """Flat-output reference at schedule time `t` [s] (clamped to the schedule), with the
+        positions shifted by `origin` (NED, m) if given."""
         piece = self._piece_at(t)
         tl = min(max(t - piece.t0_s, 0.0), piece.duration_s)
         if piece.kind == "traj":
@@ -135,15 +137,16 @@ class Schedule:
                 d = np.column_stack([d, np.zeros(5)])
             ey = piece._eval_yaw
             y = ey(tl)[:, 0] if ey is not None else (piece.yaw0, 0.0, 0.0)
-            return Reference(d[0], d[1], d[2], d[3], d[4], float(y[0]), float(y[1]), float(y[2]))
+            p = d[0] if origin is None else d[0] + origin
+            return Reference(p, d[1], d[2], d[3], d[4], float(y[0]), float(y[1]), float(y[2]))
         if piece.kind == "turn":
             ey = piece._eval_yaw
             assert ey is not None
             y = ey(tl)[:, 0]
-            return Reference(
-                piece.pos_ned, yaw=float(y[0]), yaw_rate=float(y[1]), yaw_acc=float(y[2])
-            )
-        return Reference(piece.pos_ned, yaw=piece.yaw0)
+            p = piece.pos_ned if origin is None else piece.pos_ned + origin
+            return Reference(p, yaw=float(y[0]), yaw_rate=float(y[1]), yaw_acc=float(y[2]))
+        p = piece.pos_ned if origin is None else piece.pos_ned + origin
+        return Reference(p, yaw=piece.yaw0)
 
     def phase(self, t: float) -> str:
         """Flight-plan phase at schedule time `t`."""
@@ -255,17 +258,17 @@ def build_schedule(
             continue
         yaw_spec, y_start, y_end = _chunk_yaw(chunk, yaw, flight.vehicle)
         traj = _plan_chunk(chunk, pts, params, limits, rover, yaw_spec)
-        if traj.yaw is not None:
+        yaw_ch = traj.yaw
+        if yaw_ch is not None:
             # the planner unwraps on its own: shift its channel to start within pi of `yaw`
-            y0 = float(traj.yaw.evaluate(0.0, 0)[0])
+            y0 = float(yaw_ch.evaluate(0.0, 0)[0])
             y_start = _unwrap_to(y0, yaw)
             if y_start != y0:
-                traj = traj.with_yaw(
-                    PiecewiseBezier.from_control_points(
-                        traj.yaw.control_points + (y_start - y0), traj.yaw.durations
-                    )
+                yaw_ch = PiecewiseBezier.from_control_points(
+                    yaw_ch.control_points + (y_start - y0), yaw_ch.durations
                 )
-            y_end = float(traj.yaw.evaluate(traj.duration, 0)[0])
+                traj = traj.with_yaw(yaw_ch)
+            y_end = float(yaw_ch.evaluate(traj.duration, 0)[0])
         if abs(y_start - yaw) > math.radians(1.0):
             turn, dur = _turn(yaw, y_start)
             pieces.append(Piece("turn", t, dur, chunk.phase, pts[0], yaw, y_start, turn=turn))

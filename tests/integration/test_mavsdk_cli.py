@@ -33,6 +33,15 @@ async def _recv_heartbeat(sock: socket.socket, timeout_s: float) -> tuple[object
     return await bounded(go(), timeout_s, "a HEARTBEAT")
 
 
+async def _recv_param(sock: socket.socket) -> float:
+    loop = asyncio.get_running_loop()
+    while True:
+        data, _addr = await loop.sock_recvfrom(sock, 4096)
+        for m in mavlink.MAVLink(None).parse_buffer(data) or []:
+            if m.get_type() == "PARAM_VALUE":
+                return float(m.param_value)
+
+
 def _drain(sock: socket.socket) -> int:
     n = 0
     while True:
@@ -51,6 +60,7 @@ async def test_sends_first_to_remotes_then_locks_onto_first_peer_and_stops_on_si
             sys.executable, "-m", "sitl_mock", "serve",
             "--bind", "127.0.0.1:0", "--remote", f"127.0.0.1:{first.getsockname()[1]}",
             "--gcs-bind", "127.0.0.1:0", "--gcs-remote", f"127.0.0.1:{gcs_port}",
+            "--param", "MIS_TAKEOFF_ALT=4.5",
             stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
         )  # fmt: skip
         try:
@@ -73,6 +83,15 @@ async def test_sends_first_to_remotes_then_locks_onto_first_peer_and_stops_on_si
             _drain(first)
             await _recv_heartbeat(peer, 5.0)
             assert _drain(first) == 0
+            # --param reached the parameter store
+            peer.sendto(
+                mavlink.MAVLink_param_request_read_message(1, 1, b"MIS_TAKEOFF_ALT", -1).pack(
+                    client
+                ),
+                ("127.0.0.1", mock_port),
+            )
+            value = await bounded(_recv_param(peer), 5.0, "PARAM_VALUE")
+            assert value == 4.5
             proc.send_signal(signal.SIGTERM)
             rc = await bounded(proc.wait(), 10.0, "clean stop")
             assert rc == 0
