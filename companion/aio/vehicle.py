@@ -500,7 +500,8 @@ class Vehicle:
                             MAV_CMD_COMPONENT_ARM_DISARM, "disarming")
 
     async def takeoff(self, alt_m: float = 2.5, wait: bool = True) -> None:
-        """NAV_TAKEOFF to ``alt_m`` above the current position; waits until reached."""
+        """NAV_TAKEOFF to ``alt_m`` above the current position; waits until the vehicle is within
+        max(0.3 m, 10 %) of it and the climb has ended (AUTO.TAKEOFF left, or |vz| < 0.2 m/s)."""
         tel = self.link.telemetry
         pos0 = tel.position
         alt_amsl = math.nan
@@ -511,10 +512,14 @@ class Vehicle:
         if not wait or pos0 is None:
             return
         z_goal = pos0.pos_ned[2] - alt_m + max(0.3, 0.1 * alt_m)
-        await self._wait_for(
-            lambda: (self.link.telemetry.position is not None
-                     and self.link.telemetry.position.pos_ned[2] <= z_goal),
-            self.config.takeoff_timeout_s, f"the takeoff to {alt_m:g} m")
+
+        def done() -> bool:
+            # near the altitude, and the climb finished (PX4 leaves AUTO.TAKEOFF for Hold)
+            p = self.link.telemetry.position
+            return (p is not None and p.pos_ned[2] <= z_goal
+                    and (self.mode is not FlightMode.TAKEOFF or abs(p.vel_ned[2]) < 0.2))
+
+        await self._wait_for(done, self.config.takeoff_timeout_s, f"the takeoff to {alt_m:g} m")
 
     async def land(self, wait: bool = True) -> None:
         """NAV_LAND here; waits until landed and disarmed."""

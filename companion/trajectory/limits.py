@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.trajectory.bezier import PiecewiseBezier
+from companion.trajectory.bezier import PiecewiseBezier, _monomial_matrix
 
 FloatArray = NDArray[np.float64]
 
@@ -216,18 +217,23 @@ def _sample(traj: PiecewiseBezier, t: FloatArray, names: list[str]) -> _Samples:
     return _Samples(vel, acc, jerk, snap, yaw, yaw_rate, yaw_acc)
 
 
+def _norm(v: FloatArray) -> FloatArray:
+    """Row norms of an (N, d) array."""
+    return np.asarray(np.sqrt(np.einsum("ij,ij->i", v, v)), dtype=np.float64)
+
+
 def _metrics(smp: _Samples, names: list[str], params: Any) -> dict[str, FloatArray]:
     """Values of each named quantity at the sampled times."""
     out: dict[str, FloatArray] = {}
     vel, acc = smp.vel, smp.acc
     if "speed" in names:
-        out["speed"] = np.linalg.norm(vel, axis=1)
+        out["speed"] = _norm(vel)
     if "acc" in names:
-        out["acc"] = np.linalg.norm(acc, axis=1)
+        out["acc"] = _norm(acc)
     if "jerk" in names and smp.jerk is not None:
-        out["jerk"] = np.linalg.norm(smp.jerk, axis=1)
+        out["jerk"] = _norm(smp.jerk)
     if "yaw_rate" in names or "lat_acc" in names:
-        speed = np.linalg.norm(vel, axis=1)
+        speed = _norm(vel)
         cross = vel[:, 0] * acc[:, 1] - vel[:, 1] * acc[:, 0]
         ok = speed > ROVER_MIN_SPEED_M_S
         safe_v = np.where(ok, speed, 1.0)
@@ -235,7 +241,7 @@ def _metrics(smp: _Samples, names: list[str], params: Any) -> dict[str, FloatArr
         out["lat_acc"] = np.where(ok, np.abs(cross) / safe_v, 0.0)
     if any(n in names for n in ("tilt", "max_thrust", "min_thrust")):
         tv = _thrust_vectors(vel, acc, params)
-        thrust = np.linalg.norm(tv, axis=1)
+        thrust = _norm(tv)
         cos_tilt = np.where(thrust > 0.0, tv[:, 2] / np.where(thrust > 0.0, thrust, 1.0), -1.0)
         out["tilt"] = np.arccos(np.clip(cos_tilt, -1.0, 1.0))
         out["max_thrust"] = thrust
@@ -266,13 +272,118 @@ def _sample_times(traj: PiecewiseBezier, per_segment: int) -> tuple[FloatArray, 
     return t.reshape(-1), seg
 
 
+@lru_cache(maxsize=64)
+def _grid_matrix(degree: int, per_segment: int, order: int) -> FloatArray:
+    """(per_segment, degree + 1) matrix mapping a segment's control points to its ``order``-th
+    derivative with respect to normalised time at ``linspace(0, 1, per_segment)``."""
+    tau = np.linspace(0.0, 1.0, per_segment)
+    if order > degree:
+        out = np.zeros((per_segment, degree + 1))
+    else:
+        k = np.arange(order, degree + 1)
+        fall = np.array([math.factorial(int(i)) / math.factorial(int(i) - order) for i in k])
+        V = tau[:, None] ** (k - order)[None, :].astype(np.float64) * fall[None, :]
+        out = V @ _monomial_matrix(degree)[order:, :]
+    out.setflags(write=False)
+    return out
+
+
+def _grid_derivatives(
+    traj: PiecewiseBezier, per_segment: int, orders: tuple[int, ...]
+) -> list[FloatArray]:
+    """Derivatives of the given orders at ``per_segment`` evenly spaced times of every segment
+    (both ends included, each end from its own segment), shape (M * per_segment, d) each, in
+    the order of :func:`_sample_times`. One matrix product for all orders and segments."""
+    cp = traj.control_points
+    m, n1, d = cp.shape
+    W = np.vstack([_grid_matrix(n1 - 1, per_segment, r) for r in orders])
+    vals = (W @ cp.transpose(1, 0, 2).reshape(n1, m * d)).reshape(len(orders), per_segment, m, d)
+    inv_h = 1.0 / traj.durations
+    out = []
+    for i, r in enumerate(orders):
+        v = vals[i].transpose(1, 0, 2)
+        if r:
+            v = v * (inv_h**r)[:, None, None]
+        out.append(np.ascontiguousarray(v).reshape(m * per_segment, d))
+    return out
+
+
 def segment_samples(
     traj: PiecewiseBezier, limits: Limits | RoverLimits, per_segment: int = SAMPLES_PER_SEGMENT
 ) -> _Samples:
-    """Samples (``per_segment`` per segment, ends included) for :func:`segment_worst`."""
+    """Samples (``per_segment`` per segment, ends included) for :func:`segment_worst`.
+
+    Evaluated segment by segment on a fixed normalised-time grid (one matrix product), so a
+    segment's end sample comes from that segment itself."""
     names = [n for n, _, _ in _limit_table(limits)]
-    t, _ = _sample_times(traj, per_segment)
-    return _sample(traj, t, names)
+    need_jerk = "jerk" in names or "body_rate" in names
+    need_snap = "body_rate" in names
+    orders = (1, 2, 3, 4) if need_snap else (1, 2, 3) if need_jerk else (1, 2)
+    ders = _grid_derivatives(traj, per_segment, orders)
+    n = traj.num_segments * per_segment
+    if traj.yaw is None:
+        z = np.zeros(n)
+        yaw, yaw_rate, yaw_acc = z, z, z
+    else:
+        yaw, yaw_rate, yaw_acc = (
+            y[:, 0] for y in _grid_derivatives(traj.yaw, per_segment, (0, 1, 2))
+        )
+    return _Samples(
+        ders[0],
+        ders[1],
+        ders[2] if need_jerk else None,
+        ders[3] if need_snap else None,
+        yaw,
+        yaw_rate,
+        yaw_acc,
+    )
+
+
+def _body_rate_bound(smp: _Samples, params: Any) -> FloatArray:
+    """Cheap upper bound of ``|omega_frd|`` (rad/s) per sample, without the attitude.
+
+    With the thrust vector t (norm T, axis z_b = t / T) and its derivative t', the flatness
+    map gives ``p^2 + q^2 = |t' - (t' . z_b) z_b|^2 / T^2`` exactly and the yaw rate
+    ``r = (yaw' x_c . x_b + q y_c . z_b) / (y_c . y_b)`` with ``|y_c . y_b| = |y_c x z_b| >=
+    |z_b,3|`` and ``|y_c . z_b| <= |z_b,horizontal|``, hence
+    ``|r| <= (|yaw'| + |(p, q)| |z_b,horizontal|) / |z_b,3|``. Infinite where z_b is (nearly)
+    horizontal or the thrust is (nearly) zero; multiplied by 1 + 1e-9 against round-off."""
+    assert smp.jerk is not None
+    tv = _thrust_vectors(smp.vel, smp.acc, params)
+    td = -float(params.mass) * smp.jerk - float(getattr(params, "drag", 0.0)) * smp.acc
+    t2 = np.einsum("ij,ij->i", tv, tv)
+    ok = t2 > 1e-12 * (float(params.mass) * float(params.g)) ** 2
+    t2s = np.where(ok, t2, 1.0)
+    tdt = np.einsum("ij,ij->i", td, tv)
+    w2 = np.maximum(np.einsum("ij,ij->i", td, td) - tdt * tdt / t2s, 0.0) / t2s
+    hor = np.sqrt((tv[:, 0] ** 2 + tv[:, 1] ** 2) / t2s)
+    vert = np.abs(tv[:, 2]) / np.sqrt(t2s)
+    ok &= vert > 1e-6
+    r = (np.abs(smp.yaw_rate) + np.sqrt(w2) * hor) / np.where(ok, vert, 1.0)
+    bound = np.sqrt(w2 + r * r) * (1.0 + 1e-9)
+    return np.asarray(np.where(ok, bound, np.inf), dtype=np.float64)
+
+
+def _screened_body_rate(smp: _Samples, params: Any, threshold: float) -> FloatArray:
+    """``|omega_frd|`` where its cheap bound exceeds ``threshold``, else the bound (<= the
+    threshold): the flatness map runs only on the samples that could matter."""
+    bound = _body_rate_bound(smp, params)
+    idx = np.flatnonzero(bound > threshold)
+    if idx.shape[0] == 0:
+        return bound
+    assert smp.jerk is not None and smp.snap is not None
+    sub = _Samples(
+        smp.vel[idx],
+        smp.acc[idx],
+        smp.jerk[idx],
+        smp.snap[idx],
+        smp.yaw[idx],
+        smp.yaw_rate[idx],
+        smp.yaw_acc[idx],
+    )
+    out = bound.copy()
+    out[idx] = _body_rate_norm(sub, params)
+    return out
 
 
 def segment_worst(
@@ -280,11 +391,27 @@ def segment_worst(
     num_segments: int,
     limits: Limits | RoverLimits,
     params: Any = None,
+    screen: float | None = None,
 ) -> dict[str, FloatArray]:
-    """Per-segment worst sampled value (M,) of every active limit (used by the planner)."""
+    """Per-segment worst sampled value (M,) of every active limit (used by the planner).
+
+    ``screen`` (e.g. the planner's margin 0.995): the body rate is computed through the
+    flatness map only at samples whose cheap upper bound (:func:`_body_rate_bound`) exceeds
+    ``screen * max_body_rate_rad_s``; elsewhere the bound stands in. A segment's value is then
+    exact whenever it exceeds ``screen * limit`` and otherwise an upper bound that does not."""
     table = _limit_table(limits)
     names = [n for n, _, _ in table]
-    vals = _metrics(smp, names, params)
+    body = (
+        screen is not None
+        and "body_rate" in names
+        and isinstance(limits, Limits)
+        and limits.max_body_rate_rad_s is not None
+    )
+    vals = _metrics(smp, [n for n in names if n != "body_rate"] if body else names, params)
+    if body:
+        assert isinstance(limits, Limits) and limits.max_body_rate_rad_s is not None
+        assert screen is not None
+        vals["body_rate"] = _screened_body_rate(smp, params, screen * limits.max_body_rate_rad_s)
     out: dict[str, FloatArray] = {}
     for name, _, kind in table:
         v = vals[name].reshape(num_segments, -1)

@@ -640,6 +640,9 @@ class _Planner:
         vmax = limits.max_speed_m_s
         amax = limits.max_lat_acc_m_s2 if isinstance(limits, RoverLimits) else limits.max_acc_m_s2
         h0 = _polyline_profile_durations(joints, self.is_waypoint, vmax, amax)
+        import os
+        if os.environ.get("PRESCALE"):
+            h0 = h0 * self._uniform_scale(h0, limits, params)
         h = self._refine(h0, limits, params)
         return self._saturate(h, limits, params)
 
@@ -678,7 +681,9 @@ class _Planner:
     def _ratio_of(
         smp: Any, m: int, limits: Limits | RoverLimits, params: Any
     ) -> tuple[float, FloatArray]:
-        ratios = _ratios(segment_worst(smp, m, limits, params), limits, params)
+        ratios = _ratios(
+            segment_worst(smp, m, limits, params, screen=ALLOCATION_MARGIN), limits, params
+        )
         per_seg = np.max(np.stack(list(ratios.values())), axis=0)
         return float(np.max(per_seg)), per_seg
 
@@ -686,6 +691,27 @@ class _Planner:
         """Scale all durations by the smallest common factor that satisfies every limit
         (bisection; a uniform time scaling keeps the path shape), then stretch locally where a
         limit is still exceeded (feasibility pass)."""
+        h = h * self._uniform_scale(h, limits, params)
+        # feasibility pass on the real trajectory (re-solved, not scaled)
+        for _ in range(30):
+            worst, per_seg = self._max_ratio(h, limits, params)
+            if worst <= 1.0:
+                return h
+            bad = per_seg > 1.0
+            grow = np.where(bad, np.minimum(per_seg, 1.5) * 1.002, 1.0)
+            grow[1:] = np.maximum(grow[1:], np.where(bad[:-1], 1.002, 1.0))
+            grow[:-1] = np.maximum(grow[:-1], np.where(bad[1:], 1.002, 1.0))
+            h = h * grow
+        for _ in range(60):
+            if self._max_ratio(h, limits, params)[0] <= 1.0:
+                return h
+            h = h * 1.02
+        raise ValueError("time allocation could not satisfy the limits (check their values)")
+
+    def _uniform_scale(self, h: FloatArray, limits: Limits | RoverLimits, params: Any) -> float:
+        """Smallest common factor of the durations at which every limit holds on the sampled
+        trajectory (bisection to 0.1 %; exact time scaling of samples when the problem is
+        homogeneous, else re-solved)."""
         m = h.shape[0]
         if self.homogeneous:
             # coarse samples for the bisection; the feasibility pass below re-checks densely
@@ -724,22 +750,7 @@ class _Planner:
                 hi = mid
             else:
                 lo = mid
-        h = h * hi
-        # feasibility pass on the real trajectory (re-solved, not scaled)
-        for _ in range(30):
-            worst, per_seg = self._max_ratio(h, limits, params)
-            if worst <= 1.0:
-                return h
-            bad = per_seg > 1.0
-            grow = np.where(bad, np.minimum(per_seg, 1.5) * 1.002, 1.0)
-            grow[1:] = np.maximum(grow[1:], np.where(bad[:-1], 1.002, 1.0))
-            grow[:-1] = np.maximum(grow[:-1], np.where(bad[1:], 1.002, 1.0))
-            h = h * grow
-        for _ in range(60):
-            if self._max_ratio(h, limits, params)[0] <= 1.0:
-                return h
-            h = h * 1.02
-        raise ValueError("time allocation could not satisfy the limits (check their values)")
+        return hi
 
 
 # =========================================================================== yaw channel

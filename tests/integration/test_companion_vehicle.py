@@ -151,8 +151,10 @@ async def test_takeoff_fly_position_attitude_rates_land(
         assert v.is_armed
         await v.takeoff(2.5)
         assert v.telemetry.position is not None
+        # the climb has finished: AUTO.TAKEOFF left for Hold, or no longer climbing
+        assert v.mode is FlightMode.HOLD or abs(v.telemetry.position.vel_ned[2]) < 0.3
         p0 = np.array(v.telemetry.position.pos_ned)
-        assert p0[2] < -2.0
+        assert -2.5 - 0.3 < p0[2] < -2.5 + 0.3
         traj = line(p0, (3.0, 1.0, 0.0), 4.0)
         report = await v.fly(traj, mode="position")
         assert report.held_at_end and v.mode is FlightMode.HOLD

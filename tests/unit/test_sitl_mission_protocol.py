@@ -262,3 +262,26 @@ def test_mission_mode_refused_when_armed_without_mission() -> None:
     h.set_mode(4, 4)
     h.run(0.05)
     assert h.acks(176, t) == [0, 1]
+
+
+def test_do_change_speed_limits_the_following_leg() -> None:
+    h = Harness(step_s=0.02)
+    h.run(0.1)
+    items = [
+        item(0, 22, HOME[0], HOME[1], 3.0),
+        item(1, 178, frame=2, p1=1.0, p2=2.0),  # ground speed 2 m/s
+        item(2, 16, north_of_home(25.0), HOME[1], 3.0),
+    ]
+    assert upload(h, items) == 0
+    h.wait_ready()
+    h.arm()
+    h.set_mode(4, 4)
+    speeds: list[float] = []
+    h.run_until(
+        lambda: any("Mission finished" in t for t in h.texts()),
+        60.0,
+        lambda: speeds.append(math.hypot(*h.ap.state.vel_ned[:2])),
+    )
+    assert 1.7 <= max(speeds) <= 2.3  # MPC_XY_CRUISE (5 m/s) would be far above
+    h.command_long(178, 1.0, 4.0)
+    assert h.acks(178) == [0]
