@@ -46,7 +46,8 @@ from companion.estimation import (
     HoverThrustConfig,
     HoverThrustEstimator,
 )
-from companion.flatness import MultirotorParams, multirotor_setpoint, rover_setpoint
+from companion.flatness import MultirotorParams, rover_setpoint
+from companion.flatness.numeric import multirotor_setpoint_scalar
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -54,6 +55,8 @@ _NAN3 = np.full(3, math.nan)
 
 
 def _vec3(x: object, name: str) -> FloatArray:
+    if type(x) is np.ndarray and x.dtype == np.float64 and x.shape == (3,):
+        return x  # the common case, already what the reshape below would give (a view)
     a = np.asarray(x, dtype=np.float64).reshape(-1)
     if a.shape != (3,):
         raise ValueError(f"{name} must have 3 components, got shape {a.shape}")
@@ -63,6 +66,45 @@ def _vec3(x: object, name: str) -> FloatArray:
 def _finite(*arrays: FloatArray) -> bool:
     isfinite = math.isfinite
     return all(all(map(isfinite, a.tolist())) for a in arrays)
+
+
+def _quat_normalize_f(w: float, x: float, y: float, z: float) -> tuple[float, float, float, float]:
+    """`quat_normalize` on floats."""
+    n = math.hypot(w, x, y, z)
+    if not (math.isfinite(n) and n > 1e-12):
+        return (1.0, 0.0, 0.0, 0.0)
+    if w < 0.0:
+        n = -n
+    return (w / n, x / n, y / n, z / n)
+
+
+def _quat_integrate_f(
+    q: list[float], omega: list[float], dt: float
+) -> tuple[float, float, float, float]:
+    """`quat_integrate` on floats (same operations, same rounding)."""
+    rx, ry, rz = omega[0] * dt, omega[1] * dt, omega[2] * dt
+    ang = math.sqrt(rx * rx + ry * ry + rz * rz)
+    w1, x1, y1, z1 = q
+    if ang < 1e-12:
+        return _quat_normalize_f(w1, x1, y1, z1)
+    k = math.sin(0.5 * ang) / ang
+    w2, x2, y2, z2 = math.cos(0.5 * ang), k * rx, k * ry, k * rz
+    return _quat_normalize_f(
+        w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+    )
+
+
+def _body_z_down(q: FloatArray) -> float:
+    """C_eb[2, 2] of a quaternion, as `quat_to_dcm` computes it (normalised; bad -> 1)."""
+    w, x, y, z = q.tolist()
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if not (math.isfinite(n) and n > 0.0):
+        return 1.0
+    x, y = x / n, y / n
+    return float(1 - 2 * (x * x + y * y))
 
 
 # ----------------------------------------------------------------------------- small SO(3) kit
@@ -185,12 +227,16 @@ class StateEstimate:
 
     def is_finite(self) -> bool:
         """All fields finite and the quaternion not degenerate."""
-        ok = math.isfinite(self.t_s) and _finite(
-            self.pos_ned, self.vel_ned, self.q_wxyz, self.omega_frd
-        )
+        vals = [
+            self.t_s,
+            *self.pos_ned.tolist(),
+            *self.vel_ned.tolist(),
+            *self.q_wxyz.tolist(),
+            *self.omega_frd.tolist(),
+        ]
         if self.acc_ned is not None:
-            ok = ok and _finite(self.acc_ned)
-        return ok and self.quat_ok()
+            vals += self.acc_ned.tolist()
+        return all(map(math.isfinite, vals)) and self.quat_ok()
 
     def quat_ok(self) -> bool:
         """Quaternion finite with norm in (0.5, 2) (telemetry sends unit quaternions)."""
@@ -225,9 +271,21 @@ class Reference:
 
     def is_finite(self) -> bool:
         """All fields finite."""
-        return _finite(
-            self.pos_ned, self.vel_ned, self.acc_ned, self.jerk_ned, self.snap_ned
-        ) and all(math.isfinite(v) for v in (self.yaw, self.yaw_rate, self.yaw_acc))
+        return all(
+            map(
+                math.isfinite,
+                [
+                    *self.pos_ned.tolist(),
+                    *self.vel_ned.tolist(),
+                    *self.acc_ned.tolist(),
+                    *self.jerk_ned.tolist(),
+                    *self.snap_ned.tolist(),
+                    self.yaw,
+                    self.yaw_rate,
+                    self.yaw_acc,
+                ],
+            )
+        )
 
 
 def reference_from_trajectory(traj: object, t: float, yaw: float = 0.0) -> Reference:
@@ -526,10 +584,11 @@ class TrackingController:
         self._t_last_update: float | None = None
         self._last_est: StateEstimate | None = None
         self._prev_est: StateEstimate | None = None
-        self._last_acc_cmd = np.zeros(3)
+        self._last_acc_cmd: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self._thrust_hist: deque[tuple[float, float]] = deque(maxlen=256)
         self._last_yaw = 0.0
-        self.last: TrackingDiagnostics | None = None
+        self._last_diag: TrackingDiagnostics | None = None
+        self._diag_pending: tuple[FloatArray | None, FloatArray | None] | None = None
 
     # -- state --------------------------------------------------------------------------------
     @property
@@ -554,8 +613,33 @@ class TrackingController:
         self._t_last_update = None
         self._last_est = None
         self._prev_est = None
-        self._last_acc_cmd = np.zeros(3)
+        self._last_acc_cmd = (0.0, 0.0, 0.0)
         self._thrust_hist.clear()
+
+    @property
+    def last(self) -> TrackingDiagnostics | None:
+        """What the last update computed (built on first access after each update)."""
+        pending = self._diag_pending
+        if pending is not None:
+            self._diag_pending = None
+            now, e_p, e_v, a_sat, integ, h, D, tau, sat, reason = self._diag
+            e_R, e_omega = pending
+            self._last_diag = TrackingDiagnostics(
+                t_s=now,
+                pos_err_ned=np.array(e_p),
+                vel_err_ned=np.array(e_v),
+                acc_cmd_ned=np.array(a_sat),
+                integrator_ned=np.array(integ),
+                hover_thrust=h,
+                drag=D,
+                extrapolation_s=tau,
+                saturated=sat,
+                attitude_err_frd=np.zeros(3) if e_R is None else e_R,
+                fallback=False,
+                reason=reason,
+                rate_err_frd=np.zeros(3) if e_omega is None else e_omega,
+            )
+        return self._last_diag
 
     # -- public API ---------------------------------------------------------------------------
     def attitude(self, now: float, est: StateEstimate, ref: Reference) -> AttitudeCommand:
@@ -566,17 +650,18 @@ class TrackingController:
         q_des, thrust, _omega_ff, sat = out
         self._record_thrust(now, thrust)
         rate_ff = ref.yaw_rate if math.isfinite(ref.yaw_rate) else 0.0
-        self._publish_diag(np.zeros(3))
-        return AttitudeCommand(q_des, thrust, rate_ff, saturated=sat)
+        self._publish_diag(None)
+        return AttitudeCommand(np.array(q_des), thrust, rate_ff, saturated=sat)
 
     def rates(self, now: float, est: StateEstimate, ref: Reference) -> RateCommand:
         """`rates` mode setpoint at `now`: body rates from the SO(3) loop + thrust."""
         out = self._core(now, est, ref, 0.0)
         if out is None:
             return self._fallback_rates(now, est)
-        q_des, thrust, omega_ff, sat = out
-        R = quat_to_dcm(self._q_now)
-        Rd = quat_to_dcm(q_des)
+        q_des_t, thrust, omega_ff_t, sat = out
+        omega_ff = np.array(omega_ff_t)
+        R = quat_to_dcm(np.array(self._q_now))
+        Rd = quat_to_dcm(np.array(q_des_t))
         omega, e_R = so3_rate_command_dcm(R, Rd, omega_ff, self.config.attitude_gains)
         e_omega = est.omega_frd - (R.T @ Rd) @ omega_ff
         # Thrust along the actual body z (Lee): project the desired thrust direction.
@@ -623,29 +708,41 @@ class TrackingController:
         dt = est.t_s - last.t_s
         if not (1e-3 < dt < 0.5):
             return
-        acc = est.acc_ned if est.acc_ned is not None else (est.vel_ned - last.vel_ned) / dt
+        hover, drag = self.config.estimate_hover_thrust, self.config.estimate_drag
+        if not (hover or drag):
+            return
         delay = self.config.thrust_delay_s
         if est.acc_ned is not None:
             u = self._mean_thrust(est.t_s - delay - 0.01, est.t_s - delay + 0.01)
         else:
             u = self._mean_thrust(last.t_s - delay, est.t_s - delay)
-        zb = quat_to_dcm(est.q_wxyz)[:, 2]
-        zb_prev = quat_to_dcm(last.q_wxyz)[:, 2]
-        zb_mid = 0.5 * (zb + zb_prev)
-        v_mid = 0.5 * (est.vel_ned + last.vel_ned) if est.acc_ned is None else est.vel_ned
+        if not math.isfinite(u):
+            return
         airborne = est.airborne and last.airborne
-        if self.config.estimate_hover_thrust and math.isfinite(u):
-            self.hover_estimator.update(
-                est.t_s, float(acc[2]), u, float(zb_mid[2]), float(v_mid[2]), airborne
-            )
-        if self.config.estimate_drag and math.isfinite(u):
+        if hover:
+            # plain floats: the z components of what the drag branch computes with arrays
+            vz, vz_last = float(est.vel_ned[2]), float(last.vel_ned[2])
+            if est.acc_ned is None:
+                acc_z = (vz - vz_last) / dt
+                v_mid_z = 0.5 * (vz + vz_last)
+            else:
+                acc_z = float(est.acc_ned[2])
+                v_mid_z = vz
+            zb_mid_z = 0.5 * (_body_z_down(est.q_wxyz) + _body_z_down(last.q_wxyz))
+            self.hover_estimator.update(est.t_s, acc_z, u, zb_mid_z, v_mid_z, airborne)
+        if drag:
+            acc = est.acc_ned if est.acc_ned is not None else (est.vel_ned - last.vel_ned) / dt
+            zb = quat_to_dcm(est.q_wxyz)[:, 2]
+            zb_prev = quat_to_dcm(last.q_wxyz)[:, 2]
+            zb_mid = 0.5 * (zb + zb_prev)
+            v_mid = 0.5 * (est.vel_ned + last.vel_ned) if est.acc_ned is None else est.vel_ned
             self.drag_estimator.update(
                 est.t_s, acc, v_mid, u, zb_mid, self.hover_thrust, airborne
             )
 
     def _core(
         self, now: float, est: StateEstimate, ref: Reference, lead_s: float
-    ) -> tuple[FloatArray, float, FloatArray, bool] | None:
+    ) -> tuple[tuple[float, float, float, float], float, tuple[float, float, float], bool] | None:
         """q_des, thrust_norm, omega_ff_frd, saturated; None -> fallback (see _fallback_reason)."""
         c = self.config
         p = c.params
@@ -672,15 +769,20 @@ class TrackingController:
         # single samples, where numpy's per-operation overhead dominates.
         # 1. latency compensation
         tau = min(max(age, 0.0), c.max_extrapolation_s) if c.latency_compensation else 0.0
-        acc_src = est.acc_ned if est.acc_ned is not None else self._last_acc_cmd
-        ax0, ay0, az0 = acc_src.tolist()
+        if est.acc_ned is not None:
+            ax0, ay0, az0 = est.acc_ned.tolist()
+        else:
+            ax0, ay0, az0 = self._last_acc_cmd
         px0, py0, pz0 = est.pos_ned.tolist()
         vx0, vy0, vz0 = est.vel_ned.tolist()
         h2 = 0.5 * tau * tau
         pos = (px0 + vx0 * tau + ax0 * h2, py0 + vy0 * tau + ay0 * h2, pz0 + vz0 * tau + az0 * h2)
         vel = (vx0 + ax0 * tau, vy0 + ay0 * tau, vz0 + az0 * tau)
-        self._q_now = quat_integrate(est.q_wxyz, est.omega_frd, tau) if tau > 0 else quat_normalize(
-            est.q_wxyz
+        q_est = est.q_wxyz.tolist()
+        self._q_now = (
+            _quat_integrate_f(q_est, est.omega_frd.tolist(), tau)
+            if tau > 0
+            else _quat_normalize_f(*q_est)
         )
 
         # 2. acceleration command
@@ -726,7 +828,7 @@ class TrackingController:
                 if sat and di * integ[i] >= 0.0:
                     continue  # saturated: only let the integrator unwind
                 integ[i] = min(max(integ[i] + di, -imax[i]), imax[i])
-        self._last_acc_cmd = np.array(a_sat)
+        self._last_acc_cmd = a_sat
 
         # 4. flatness map
         params = self._params_for_drag(D)
@@ -735,44 +837,31 @@ class TrackingController:
         yaw_rate = ref.yaw_rate
         yaw_acc = 0.0 if sat else ref.yaw_acc
         try:
-            sp = multirotor_setpoint(v_drag, a_sat, jerk, snap, ref.yaw, yaw_rate, yaw_acc, params)
+            sp = multirotor_setpoint_scalar(
+                v_drag, a_sat, jerk, snap, ref.yaw, yaw_rate, yaw_acc, params
+            )
         except ValueError as exc:  # e.g. absurd magnitudes the flatness map refuses
             self._fallback_reason = f"flatness map refused the input: {exc}"
             return None
-        q_des = np.asarray(sp.q_wxyz, dtype=np.float64).reshape(4)
+        qw, qx, qy, qz = sp["q_wxyz"]
         # normalised thrust with the hover thrust in use (MATH.md "MAVLink thrust")
-        thrust = h * float(np.asarray(sp.thrust).reshape(-1)[0]) / (m * p.g)
-        omega_ff = np.asarray(sp.omega_frd, dtype=np.float64).reshape(3)
-        singular = bool(np.asarray(sp.singular).reshape(-1)[0])
-        if not (_finite(q_des, omega_ff) and math.isfinite(thrust)):
+        thrust = h * float(sp["thrust"]) / (m * p.g)
+        wx, wy, wz = sp["omega_frd"]
+        singular = bool(sp["singular"])
+        isfinite = math.isfinite
+        if not all(map(isfinite, (qw, qx, qy, qz, wx, wy, wz, thrust))):
             self._fallback_reason = "flatness output not finite"
             return None
-        if singular:
-            omega_ff = np.zeros(3)
-        q_des = quat_normalize(q_des)
+        omega_ff = (0.0, 0.0, 0.0) if singular else (float(wx), float(wy), float(wz))
+        q_des = _quat_normalize_f(float(qw), float(qx), float(qy), float(qz))
         thrust = min(max(thrust, c.thrust_min), c.thrust_max)
-        self._diag = (now, np.array(e_p), np.array(e_v), np.array(a_sat), np.array(integ), h, D,
-                      tau, sat,
+        self._diag = (now, tuple(e_p), tuple(e_v), a_sat, tuple(integ), h, D, tau, sat,
                       "singular flatness point" if singular else "")
         return q_des, thrust, omega_ff, sat
 
-    def _publish_diag(self, e_R: FloatArray, e_omega: FloatArray | None = None) -> None:
-        now, e_p, e_v, a_sat, integ, h, D, tau, sat, reason = self._diag
-        self.last = TrackingDiagnostics(
-            t_s=now,
-            pos_err_ned=e_p,
-            vel_err_ned=e_v,
-            acc_cmd_ned=a_sat,
-            integrator_ned=integ,
-            hover_thrust=h,
-            drag=D,
-            extrapolation_s=tau,
-            saturated=sat,
-            attitude_err_frd=e_R,
-            fallback=False,
-            reason=reason,
-            rate_err_frd=np.zeros(3) if e_omega is None else e_omega,
-        )
+    def _publish_diag(self, e_R: FloatArray | None, e_omega: FloatArray | None = None) -> None:
+        """Diagnostics of this update (from `_diag`), built lazily by `last`."""
+        self._diag_pending = (e_R, e_omega)
 
     def _params_for_drag(self, drag: float) -> MultirotorParams:
         """Flatness parameters with drag `drag` (cached: constructing them validates inertia)."""
@@ -844,7 +933,8 @@ class TrackingController:
 
     def _record_fb(self, now: float, reason: str) -> None:
         z = np.zeros(3)
-        self.last = TrackingDiagnostics(
+        self._diag_pending = None
+        self._last_diag = TrackingDiagnostics(
             t_s=now if math.isfinite(now) else math.nan,
             pos_err_ned=z,
             vel_err_ned=z,
@@ -862,9 +952,18 @@ class TrackingController:
     _fallback_reason: str = ""
     _params_cache: tuple[float, MultirotorParams] | None = None
     _diag: tuple[
-        float, FloatArray, FloatArray, FloatArray, FloatArray, float, float, float, bool, str
+        float,
+        tuple[float, ...],
+        tuple[float, ...],
+        tuple[float, ...],
+        tuple[float, ...],
+        float,
+        float,
+        float,
+        bool,
+        str,
     ]
-    _q_now: FloatArray = np.array([1.0, 0.0, 0.0, 0.0])
+    _q_now: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
 
 
 # ----------------------------------------------------------------------------- rover

@@ -13,7 +13,6 @@ schedule, then hand over to PX4's NAV_LAND (or Hold for a loiter ending) and wai
 
 from __future__ import annotations
 
-import dataclasses
 import enum
 import json
 import math
@@ -105,6 +104,9 @@ class Phase(enum.Enum):
     ABORTED = "aborted"
 
 
+_PACK_Q = struct.Struct(">Q").pack
+
+
 class TlogWriter:
     """Append MAVLink frames to a .tlog: 8-byte big-endian microsecond timestamp + frame."""
 
@@ -115,7 +117,7 @@ class TlogWriter:
 
     def write(self, t_s: float, frame: bytes) -> None:
         """Record `frame` at simulated time `t_s` [s]."""
-        self._f.write(struct.pack(">Q", self._epoch_us + round(t_s * 1e6)) + frame)
+        self._f.write(_PACK_Q(self._epoch_us + round(t_s * 1e6)) + frame)
         self.frames += 1
 
 
@@ -270,7 +272,10 @@ class Flight:
             if self.config.vehicle == "rover":
                 return PositionSetpoint(vel_ned=(0.0, 0.0, 0.0), yaw_rate=0.0)
             return self.source.position_setpoint(0.0)
-        snap = dataclasses.replace(self.link.telemetry.snapshot(), now_s=now)
+        snap = self.link.telemetry.snapshot()
+        # a fresh copy made for this call: stamp this cycle's clock in place (what
+        # dataclasses.replace(snap, now_s=now) gives, without re-running the constructor)
+        object.__setattr__(snap, "now_s", now)
         return self.source(now - self.t_fly0, snap)
 
     def _stream(self, now: float) -> None:

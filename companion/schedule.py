@@ -68,15 +68,19 @@ class _ScalarEval:
             mats.append(m)
         self.mats = mats
         self.n1 = mats[0].shape[1]
+        self._shape = (orders + 1, self.dim)
+        # (n1, (orders+1) d) per segment: one vector-matrix product per call
+        self._flat = [np.ascontiguousarray(m.transpose(1, 0, 2).reshape(self.n1, -1)) for m in mats]
+        self._exps = np.arange(self.n1, dtype=np.float64)
+        self._last = len(mats) - 1
 
     def __call__(self, t: float) -> FloatArray:
         """(orders+1, d) array: value and derivatives at global time t (clamped)."""
         b = self.breaks
         t = min(max(t, b[0]), b[-1])
-        i = min(max(bisect.bisect_right(b, t) - 1, 0), len(self.mats) - 1)
-        tl = t - b[i]
-        powers = tl ** np.arange(self.n1)
-        out: FloatArray = np.einsum("j,kjd->kd", powers, self.mats[i])
+        i = min(max(bisect.bisect_right(b, t) - 1, 0), self._last)
+        powers = np.power(t - b[i], self._exps)
+        out: FloatArray = (powers @ self._flat[i]).reshape(self._shape)
         return out
 
 

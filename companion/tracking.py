@@ -46,16 +46,30 @@ class SampleClock:
     """
 
     def __init__(self, window: int = 200) -> None:
-        self._window: deque[float] = deque(maxlen=window)
+        if window < 1:
+            raise ValueError(f"window must be >= 1 sample, got {window}")
+        self._size = window
+        # Sliding-window minimum of the last `window` offsets: (index, offset) pairs with
+        # increasing offsets; the front is the minimum (O(1) amortised per sample).
+        self._mono: deque[tuple[int, float]] = deque()
+        self._count = 0
         self._last_key: tuple[float, float] | None = None
 
     def local_time(self, t_boot_s: float, t_receive_s: float) -> float:
         """Local time [s] at which the sample stamped `t_boot_s` [s] was taken."""
         key = (t_boot_s, t_receive_s)
+        mono = self._mono
         if key != self._last_key:
-            self._window.append(t_receive_s - t_boot_s)
             self._last_key = key
-        return t_boot_s + min(self._window)
+            off = t_receive_s - t_boot_s
+            while mono and mono[-1][1] >= off:
+                mono.pop()
+            mono.append((self._count, off))
+            self._count += 1
+            oldest = self._count - self._size
+            while mono[0][0] < oldest:
+                mono.popleft()
+        return t_boot_s + mono[0][1]
 
 
 def estimate_from_telemetry(

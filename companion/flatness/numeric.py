@@ -7,6 +7,7 @@ vector component, for a batch.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -15,7 +16,7 @@ import numpy.typing as npt
 from companion.flatness import _formulas as fm
 from companion.flatness.types import FloatArray, MultirotorParams, MultirotorSetpoint, RoverSetpoint
 
-__all__ = ["multirotor_setpoint", "rover_setpoint"]
+__all__ = ["multirotor_setpoint", "multirotor_setpoint_scalar", "rover_setpoint"]
 
 
 def _vec_input(x: npt.ArrayLike, d: int, name: str) -> FloatArray:
@@ -39,6 +40,64 @@ def _check_finite(arrays: dict[str, FloatArray]) -> None:
                 f"{name} contains NaN, inf or a value beyond {INPUT_LIMIT:g}: refusing to "
                 "compute a setpoint from it"
             )
+
+
+_NAMES = ("vel", "acc", "jerk", "snap")
+
+
+def multirotor_setpoint_scalar(
+    vel: Sequence[float],
+    acc: Sequence[float],
+    jerk: Sequence[float],
+    snap: Sequence[float],
+    yaw: float,
+    yaw_rate: float,
+    yaw_acc: float,
+    params: MultirotorParams,
+) -> dict[str, Any]:
+    """One-sample multirotor setpoint on plain Python floats (no numpy): the fast path of
+    :func:`multirotor_setpoint` for callers running at the setpoint rate.
+
+    Same inputs and units as :func:`multirotor_setpoint` for one sample, given as 3-sequences
+    of floats and float scalars. Returns the formula dict of :func:`_formulas.multirotor`:
+    ``thrust, thrust_dot, thrust_ddot, thrust_norm`` (float), ``q_wxyz`` (4-tuple), ``C_eb``
+    (3 row tuples), ``omega_frd, omega_dot_frd, moment_frd`` (3-tuples), ``flags`` and
+    ``singular`` (float). Raises ValueError on a wrong length or a NaN, inf or |value| > 1e12
+    input (the same check as the array path); never returns NaN.
+    """
+    lim = INPUT_LIMIT
+    vecs = (vel, acc, jerk, snap)
+    for name, x in zip(_NAMES, vecs, strict=True):
+        if len(x) != 3:
+            raise ValueError(f"{name} must have shape (3,) or (N, 3), got ({len(x)},)")
+        # `not <=` is True for NaN as well
+        if not (abs(x[0]) <= lim and abs(x[1]) <= lim and abs(x[2]) <= lim):
+            _refuse(name)
+    for name, y in (("yaw", yaw), ("yaw_rate", yaw_rate), ("yaw_acc", yaw_acc)):
+        if not abs(y) <= lim:
+            _refuse(name)
+    return fm.multirotor(
+        fm.FLOAT,
+        (float(vel[0]), float(vel[1]), float(vel[2])),
+        (float(acc[0]), float(acc[1]), float(acc[2])),
+        (float(jerk[0]), float(jerk[1]), float(jerk[2])),
+        (float(snap[0]), float(snap[1]), float(snap[2])),
+        float(yaw),
+        float(yaw_rate),
+        float(yaw_acc),
+        params.mass,
+        params.inertia,
+        params.g,
+        params.hover_thrust,
+        params.drag,
+    )
+
+
+def _refuse(name: str) -> None:
+    raise ValueError(
+        f"{name} contains NaN, inf or a value beyond {INPUT_LIMIT:g}: refusing to "
+        "compute a setpoint from it"
+    )
 
 
 def multirotor_setpoint(
@@ -76,33 +135,7 @@ def multirotor_setpoint(
                 raise ValueError(f"{name} must be a scalar for a single sample, got {y.shape}")
         vl, al, jl, sl = v.tolist(), a.tolist(), j.tolist(), s.tolist()
         yl = (float(psi), float(dpsi), float(ddpsi))
-        if not all(abs(x) <= INPUT_LIMIT for x in (*vl, *al, *jl, *sl, *yl)):
-            _check_finite(
-                {
-                    "vel": v,
-                    "acc": a,
-                    "jerk": j,
-                    "snap": s,
-                    "yaw": psi,
-                    "yaw_rate": dpsi,
-                    "yaw_acc": ddpsi,
-                }
-            )
-        r = fm.multirotor(
-            fm.FLOAT,
-            (vl[0], vl[1], vl[2]),
-            (al[0], al[1], al[2]),
-            (jl[0], jl[1], jl[2]),
-            (sl[0], sl[1], sl[2]),
-            yl[0],
-            yl[1],
-            yl[2],
-            params.mass,
-            J,
-            params.g,
-            params.hover_thrust,
-            params.drag,
-        )
+        r = multirotor_setpoint_scalar(vl, al, jl, sl, yl[0], yl[1], yl[2], params)
         flags = int(r["flags"])
         return MultirotorSetpoint(
             thrust=float(r["thrust"]),

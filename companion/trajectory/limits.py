@@ -272,6 +272,26 @@ def _sample_times(traj: PiecewiseBezier, per_segment: int) -> tuple[FloatArray, 
     return t.reshape(-1), seg
 
 
+#: Largest matrix product (multiply-adds) handed to BLAS in one call: OpenBLAS goes
+#: multi-threaded above about 2^18, which on these thin products is slower and burns a second
+#: core (other jobs share the machine).
+_BLAS_CHUNK = 1 << 18
+
+
+def thin_matmul(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``a @ b`` for a short ``a`` (r, k) and a wide ``b`` (k, n), in column chunks small enough
+    to keep BLAS single-threaded."""
+    r, k = a.shape
+    n = b.shape[1]
+    step = max(1, _BLAS_CHUNK // max(r * k, 1))
+    if n <= step:
+        return np.asarray(a @ b, dtype=np.float64)
+    out = np.empty((r, n))
+    for i in range(0, n, step):
+        np.matmul(a, b[:, i : i + step], out=out[:, i : i + step])
+    return out
+
+
 @lru_cache(maxsize=64)
 def _grid_matrix(degree: int, per_segment: int, order: int) -> FloatArray:
     """(per_segment, degree + 1) matrix mapping a segment's control points to its ``order``-th
@@ -297,7 +317,8 @@ def _grid_derivatives(
     cp = traj.control_points
     m, n1, d = cp.shape
     W = np.vstack([_grid_matrix(n1 - 1, per_segment, r) for r in orders])
-    vals = (W @ cp.transpose(1, 0, 2).reshape(n1, m * d)).reshape(len(orders), per_segment, m, d)
+    cpt = cp.transpose(1, 0, 2).reshape(n1, m * d)
+    vals = thin_matmul(W, cpt).reshape(len(orders), per_segment, m, d)
     inv_h = 1.0 / traj.durations
     out = []
     for i, r in enumerate(orders):

@@ -43,6 +43,7 @@ from companion.trajectory.limits import (
     _validate,
     segment_samples,
     segment_worst,
+    thin_matmul,
 )
 
 __all__ = ["PlanResult", "plan", "plan_with_info"]
@@ -236,10 +237,18 @@ class _System:
         _, Q = self._prepare(h)
         return np.asarray(Q * self.expo[None] / h[:, None, None], dtype=np.float64)
 
-    def cost_grad(self, x: FloatArray, h: FloatArray) -> FloatArray:
-        """dJ*/dh (M,) at the optimum x (envelope theorem: fixed joint derivatives)."""
-        xk = self.windows(x)
-        return np.asarray(np.sum(xk * (self.dq(h) @ xk), axis=(1, 2)), dtype=np.float64)
+    def dq_x(self, x: FloatArray, h: FloatArray) -> FloatArray:
+        """(dQ_k / dh_k) x_k per segment, (M, 2s, d)."""
+        return np.asarray(self.dq(h) @ self.windows(x), dtype=np.float64)
+
+    def cost_grad(
+        self, x: FloatArray, h: FloatArray, dqx: FloatArray | None = None
+    ) -> FloatArray:
+        """dJ*/dh (M,) at the optimum x (envelope theorem: fixed joint derivatives);
+        ``dqx``: ``dq_x(x, h)`` if already computed."""
+        if dqx is None:
+            dqx = self.dq_x(x, h)
+        return np.asarray(np.einsum("mad,mad->m", self.windows(x), dqx), dtype=np.float64)
 
     def control_points(self, x: FloatArray, h: FloatArray) -> FloatArray:
         """Bezier control points (M, 2s, d) of the segments."""
@@ -474,92 +483,102 @@ class _Penalty:
             self.orders = sorted(set(self.orders) | {1, 2})
         self.W_all = np.vstack([self.W[r] for r in self.orders])
         self.W_all_r = np.vstack([r * self.W[r] for r in self.orders])
+        self.order_pow = np.array(self.orders, dtype=np.float64)[:, None]
+        self.W_all_T = np.ascontiguousarray(self.W_all.T)
+        self.W_all_rT = np.ascontiguousarray(self.W_all_r.T)
 
-    def value_grad(self, x: FloatArray, h: FloatArray) -> tuple[float, FloatArray]:
-        """Penalty P and its total derivative dP/dh (M,) at the optimum x(h)."""
+    def value_grad(
+        self, x: FloatArray, h: FloatArray, dqx: FloatArray | None = None
+    ) -> tuple[float, FloatArray]:
+        """Penalty P and its total derivative dP/dh (M,) at the optimum x(h).
+
+        ``dqx``: ``system.dq_x(x, h)`` if already computed (shared with ``cost_grad``).
+        Arrays are kept in (order, sample, segment, axis) layout: one matrix product maps the
+        joint derivatives of all segments to the samples and one maps the sensitivities back.
+        """
         sysm = self.system
         s = sysm.s
+        n = self.n
         xk = sysm.windows(x)  # (M, 2s, d)
         m, d = xk.shape[0], xk.shape[2]
         hp = sysm.powers(h, 0)
-        z = xk * hp[:, :, None]  # normalised-time Hermite inputs
-        zt = z.transpose(1, 0, 2).reshape(2 * s, m * d)
-        d_all = (self.W_all @ zt).reshape(len(self.orders), self.n, m, d)
+        zt = (xk * hp[:, :, None]).transpose(1, 0, 2).reshape(2 * s, m * d)
         inv_h = 1.0 / h
-        D: dict[int, FloatArray] = {}
-        for i, r in enumerate(self.orders):
-            D[r] = d_all[i].transpose(1, 0, 2) * (inv_h**r)[:, None, None]  # (M, n, d)
-        phi = np.zeros(D[1].shape[:2])
-        G: dict[int, FloatArray] = {r: np.zeros_like(D[r]) for r in self.orders}
+        ihp = inv_h[None, :] ** self.order_pow  # (R, M)
+        d_all = thin_matmul(self.W_all, zt).reshape(len(self.orders), n, m, d)
+        d_all *= ihp[:, None, :, None]
+        D = {r: d_all[i] for i, r in enumerate(self.orders)}  # (n, M, d) each
+        phi = np.zeros((n, m))
+        g_all = np.zeros_like(d_all)
+        G = {r: g_all[i] for i, r in enumerate(self.orders)}
+        active = False
 
-        active = [False]
-
-        def add(g: FloatArray, dg: dict[int, FloatArray]) -> None:
-            if not np.any(g > 0.0):
-                return
-            active[0] = True
+        def add(g: FloatArray, dg: tuple[tuple[int, FloatArray], ...]) -> None:
             pos = np.maximum(g, 0.0)
             w = pos * pos
             phi[...] += w * pos
             w *= 3.0
-            for r, v in dg.items():
+            for r, v in dg:
                 G[r] += w[:, :, None] * v
 
         tv: FloatArray | None = None
+        mass = float(self.params.mass) if self.params is not None else 0.0
+        drag = float(getattr(self.params, "drag", 0.0)) if self.params is not None else 0.0
         for name, lim2 in self.terms:
             if name in ("speed", "acc", "jerk"):
                 r = {"speed": 1, "acc": 2, "jerk": 3}[name]
                 q = D[r]
-                g = np.sum(q * q, axis=2) / lim2 - 1.0
-                if np.any(g > 0.0):
-                    add(g, {r: 2.0 * q / lim2})
+                g = np.einsum("ijk,ijk->ij", q, q) / lim2 - 1.0
+                if g.max() > 0.0:
+                    active = True
+                    add(g, ((r, (2.0 / lim2) * q),))
                 continue
             if tv is None:
-                mass = float(self.params.mass)
-                drag = float(getattr(self.params, "drag", 0.0))
                 tv = -mass * D[2] - drag * D[1]
                 tv[:, :, 2] += mass * float(self.params.g)
-            mass = float(self.params.mass)
-            drag = float(getattr(self.params, "drag", 0.0))
             if name == "tilt":
                 tz = np.maximum(tv[:, :, 2], 1e-3 * mass * float(self.params.g))
                 hor = tv[:, :, 0] ** 2 + tv[:, :, 1] ** 2
-                g = hor / (lim2 * tz * tz) - 1.0
+                inv = 1.0 / (lim2 * tz * tz)
+                g = hor * inv - 1.0
+                if not g.max() > 0.0:
+                    continue
                 dt = np.empty_like(tv)
-                dt[:, :, 0] = 2.0 * tv[:, :, 0] / (lim2 * tz * tz)
-                dt[:, :, 1] = 2.0 * tv[:, :, 1] / (lim2 * tz * tz)
-                dt[:, :, 2] = -2.0 * hor / (lim2 * tz**3)
+                dt[:, :, 0] = 2.0 * tv[:, :, 0] * inv
+                dt[:, :, 1] = 2.0 * tv[:, :, 1] * inv
+                dt[:, :, 2] = -2.0 * hor * inv / tz
             elif name == "max_thrust":
-                g = np.sum(tv * tv, axis=2) / lim2 - 1.0
-                dt = 2.0 * tv / lim2
+                g = np.einsum("ijk,ijk->ij", tv, tv) / lim2 - 1.0
+                if not g.max() > 0.0:
+                    continue
+                dt = (2.0 / lim2) * tv
             else:
-                g = 1.0 - np.sum(tv * tv, axis=2) / lim2
-                dt = -2.0 * tv / lim2
-            add(g, {2: -mass * dt, 1: -drag * dt})
-        if not active[0]:
+                g = 1.0 - np.einsum("ijk,ijk->ij", tv, tv) / lim2
+                if not g.max() > 0.0:
+                    continue
+                dt = (-2.0 / lim2) * tv
+            active = True
+            add(g, ((2, -mass * dt), (1, -drag * dt)))
+        if not active:
             return 0.0, np.zeros(m)
-        value = float(np.sum(h[:, None] * phi) / self.n)
-        dh = np.sum(phi, axis=1) / self.n
-        dxk = np.zeros_like(xk)
-        act = np.flatnonzero(dh > 0.0)  # only segments with a violation carry gradient
-        ma = act.shape[0]
-        inv_ha = inv_h[act]
-        scale = h[act] / self.n
-        # stacked back-projection: U = sum_r W_r^T G_r h^-r, V = sum_r r W_r^T G_r h^-r
-        gst = np.stack(
-            [G[r][act] * (scale * inv_ha**r)[:, None, None] for r in self.orders]
-        )  # (R, Ma, n, d)
-        gt = gst.transpose(0, 2, 1, 3).reshape(len(self.orders) * self.n, ma * d)
-        U = (self.W_all.T @ gt).reshape(2 * s, ma, d).transpose(1, 0, 2)
-        V = (self.W_all_r.T @ gt).reshape(2 * s, ma, d).transpose(1, 0, 2)
-        za = z[act]
-        dxk[act] = U * hp[act][:, :, None]
-        dh[act] += np.sum(za * (sysm.o[None, :, None] * U - V), axis=(1, 2)) * inv_ha
+        phis = np.sum(phi, axis=0)
+        value = float(phis @ h) / n
+        dh = phis / n
+        # back-projection: U = sum_r W_r^T G_r h^-r, V = sum_r r W_r^T G_r h^-r
+        g_all *= (ihp * (h / n)[None, :])[:, None, :, None]
+        gt = g_all.reshape(len(self.orders) * n, m * d)
+        U = thin_matmul(self.W_all_T, gt).reshape(2 * s, m, d)
+        V = thin_matmul(self.W_all_rT, gt).reshape(2 * s, m, d)
+        zt3 = zt.reshape(2 * s, m, d)
+        dh += np.einsum("amd,amd->m", zt3, sysm.o[:, None, None] * U - V) * inv_h
+        U *= hp.T[:, :, None]  # dP/dx per segment window, (2s, M, d)
         g_full = np.zeros_like(x)
-        g_full[: m * s] += dxk[:, :s, :].reshape(-1, x.shape[1])
-        g_full[s:] += dxk[:, s:, :].reshape(-1, x.shape[1])
+        g_full[: m * s] += U[:s].transpose(1, 0, 2).reshape(-1, d)
+        g_full[s:] += U[s:].transpose(1, 0, 2).reshape(-1, d)
         lam = sysm.adjoint(g_full)
-        dh -= np.sum(sysm.windows(lam) * (sysm.dq(h) @ xk), axis=(1, 2))
+        if dqx is None:
+            dqx = sysm.dq_x(x, h)
+        dh -= np.einsum("mad,mad->m", sysm.windows(lam), dqx)
         return value, dh
 
 
@@ -640,9 +659,6 @@ class _Planner:
         vmax = limits.max_speed_m_s
         amax = limits.max_lat_acc_m_s2 if isinstance(limits, RoverLimits) else limits.max_acc_m_s2
         h0 = _polyline_profile_durations(joints, self.is_waypoint, vmax, amax)
-        import os
-        if os.environ.get("PRESCALE"):
-            h0 = h0 * self._uniform_scale(h0, limits, params)
         h = self._refine(h0, limits, params)
         return self._saturate(h, limits, params)
 
@@ -662,8 +678,9 @@ class _Planner:
         def fun(z: FloatArray) -> tuple[float, FloatArray]:
             h = np.exp(z)
             x, j = self.solve(h)
-            p, dp = penalty.value_grad(x, h)
-            g = 1.0 + rho * self.system.cost_grad(x, h) + REFINE_PENALTY_WEIGHT * dp
+            dqx = self.system.dq_x(x, h)
+            p, dp = penalty.value_grad(x, h, dqx)
+            g = 1.0 + rho * self.system.cost_grad(x, h, dqx) + REFINE_PENALTY_WEIGHT * dp
             return float(h.sum() + rho * j + REFINE_PENALTY_WEIGHT * p) / t0, g * h / t0
 
         z = _projected_lbfgs(fun, lz, lz - 3.0, lz + 3.0, REFINE_MAXITER, ftol=REFINE_FTOL)
@@ -710,7 +727,7 @@ class _Planner:
 
     def _uniform_scale(self, h: FloatArray, limits: Limits | RoverLimits, params: Any) -> float:
         """Smallest common factor of the durations at which every limit holds on the sampled
-        trajectory (bisection to 0.1 %; exact time scaling of samples when the problem is
+        trajectory (bisection to 0.1 %; exact time scaling of the samples when the problem is
         homogeneous, else re-solved)."""
         m = h.shape[0]
         if self.homogeneous:
