@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from companion.mavlink.mission_client import MissionItem
 from companion.mission.loaders import OTHER_COMMANDS, POSITION_COMMANDS
 from companion.mission.model import (
     CMD_DO_JUMP,
@@ -24,26 +25,15 @@ FRAME_GLOBAL_RELATIVE_ALT = 3
 
 
 @dataclass(frozen=True)
-class UploadItem:
-    """The fields of one MISSION_ITEM_INT (mission_type 0 = mission).
+class UploadItem(MissionItem):
+    """One MISSION_ITEM_INT as uploaded (the wire `companion.mavlink.MissionItem`, mission_type 0),
+    plus ``source_index``: the file's :class:`~companion.mission.MissionItem` index it comes from.
 
     ``x``/``y`` are latitude/longitude in degE7 for position items (0 otherwise); ``z`` is the
-    altitude above home [m]; ``source_index`` is the :class:`MissionItem` index it comes from.
+    altitude above home [m].
     """
 
-    seq: int
-    frame: int
-    command: int
-    current: int
-    autocontinue: int
-    param1: float
-    param2: float
-    param3: float
-    param4: float
-    x: int
-    y: int
-    z: float
-    source_index: int
+    source_index: int = -1
 
 
 def _deg_e7(v: float) -> int:
