@@ -142,7 +142,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
                         import time
 
                         time.sleep(0.1)  # UI refresh period, not synchronisation
-    table = Table(title=f"Replay summary ({args.mode} mode, {args.vehicle}); outputs in {args.out}")
+    mode_label = "velocity + yaw-rate" if args.vehicle == "rover" else f"{args.mode} mode"
+    table = Table(title=f"Replay summary ({args.vehicle}, {mode_label}); outputs in {args.out}")
     for col in ("file", "result", "duration s", "RMS err m", "max err m", "waypoints",
                 "max tilt deg", "x real time"):
         table.add_column(col)
