@@ -372,6 +372,12 @@ def _body_rate_bound(smp: _Samples, params: Any) -> FloatArray:
     assert smp.jerk is not None
     tv = _thrust_vectors(smp.vel, smp.acc, params)
     td = -float(params.mass) * smp.jerk - float(getattr(params, "drag", 0.0)) * smp.acc
+    return _rate_bound(tv, td, smp.yaw_rate, params)
+
+
+def _rate_bound(tv: FloatArray, td: FloatArray, yaw_rate: FloatArray, params: Any) -> FloatArray:
+    """:func:`_body_rate_bound` from the thrust vector tv, its derivative td (N, 3) and the
+    yaw rate (N,)."""
     t2 = np.einsum("ij,ij->i", tv, tv)
     ok = t2 > 1e-12 * (float(params.mass) * float(params.g)) ** 2
     t2s = np.where(ok, t2, 1.0)
@@ -380,9 +386,92 @@ def _body_rate_bound(smp: _Samples, params: Any) -> FloatArray:
     hor = np.sqrt((tv[:, 0] ** 2 + tv[:, 1] ** 2) / t2s)
     vert = np.abs(tv[:, 2]) / np.sqrt(t2s)
     ok &= vert > 1e-6
-    r = (np.abs(smp.yaw_rate) + np.sqrt(w2) * hor) / np.where(ok, vert, 1.0)
+    r = (np.abs(yaw_rate) + np.sqrt(w2) * hor) / np.where(ok, vert, 1.0)
     bound = np.sqrt(w2 + r * r) * (1.0 + 1e-9)
     return np.asarray(np.where(ok, bound, np.inf), dtype=np.float64)
+
+
+class TimeScaledRatio:
+    """Largest value / allowed ratio over the samples of a trajectory slowed down uniformly by
+    ``alpha`` (t -> alpha t), for the planner's common time scale search.
+
+    ``ratio(alpha)`` equals ``max`` over samples and active limits of value / (margin * limit)
+    (allowed / value for ``min_thrust``), the same quantity as :func:`segment_worst` on
+    ``smp.time_scaled(alpha)`` with ``screen=margin``. Speed, acceleration and jerk scale
+    exactly (alpha^-1, ^-2, ^-3) and are reduced once; tilt, thrust and the body-rate bound are
+    recomputed from pre-scaled terms; the flatness map runs only where the bound exceeds the
+    body-rate limit. Multirotor :class:`Limits` only.
+    """
+
+    def __init__(self, smp: _Samples, limits: Limits, params: Any, margin: float) -> None:
+        self.smp = smp
+        self.limits = limits
+        self.params = params
+        self.margin = margin
+        self.kin: list[tuple[int, float]] = [
+            (1, float(np.max(_norm(smp.vel))) / (limits.max_speed_m_s * margin)),
+            (2, float(np.max(_norm(smp.acc))) / (limits.max_acc_m_s2 * margin)),
+        ]
+        if limits.max_jerk_m_s3 is not None:
+            assert smp.jerk is not None
+            self.kin.append((3, float(np.max(_norm(smp.jerk))) / (limits.max_jerk_m_s3 * margin)))
+        self.dynamic = limits.needs_params
+        if self.dynamic:
+            m = float(params.mass)
+            drag = float(getattr(params, "drag", 0.0))
+            self.t_acc = -m * smp.acc
+            self.t_vel = -drag * smp.vel
+            self.mg = m * float(params.g)
+            if limits.max_body_rate_rad_s is not None:
+                assert smp.jerk is not None
+                self.td_jerk = -m * smp.jerk
+                self.td_acc = -drag * smp.acc
+
+    def __call__(self, alpha: float) -> float:
+        lim = self.limits
+        margin = self.margin
+        worst = max(k / alpha**r for r, k in self.kin)
+        if not self.dynamic:
+            return worst
+        tv = self.t_acc / alpha**2 + self.t_vel / alpha
+        tv[:, 2] += self.mg
+        t2 = np.einsum("ij,ij->i", tv, tv)
+        if lim.max_thrust_n is not None:
+            worst = max(worst, math.sqrt(float(np.max(t2))) / (lim.max_thrust_n * margin))
+        if lim.min_thrust_n is not None and lim.min_thrust_n > 0.0:
+            t_min = math.sqrt(float(np.min(t2)))
+            worst = max(worst, math.inf if t_min <= 0.0 else lim.min_thrust_n / margin / t_min)
+        if lim.max_tilt_rad is not None:
+            thrust = np.sqrt(t2)
+            cos_t = np.where(thrust > 0.0, tv[:, 2] / np.where(thrust > 0.0, thrust, 1.0), -1.0)
+            tilt = math.acos(min(max(float(np.min(cos_t)), -1.0), 1.0))
+            worst = max(worst, tilt / (lim.max_tilt_rad * margin))
+        if lim.max_body_rate_rad_s is not None:
+            smp = self.smp
+            td = self.td_jerk / alpha**3 + self.td_acc / alpha**2
+            cap = lim.max_body_rate_rad_s * margin
+            bound = _rate_bound(tv, td, smp.yaw_rate / alpha, self.params)
+            idx = np.flatnonzero(bound > cap)
+            rate = float(np.max(bound))
+            if idx.shape[0]:
+                rate = float(np.max(bound[bound <= cap], initial=0.0))
+                sub = smp.time_scaled(alpha)
+                assert sub.jerk is not None and sub.snap is not None
+                exact = _body_rate_norm(
+                    _Samples(
+                        sub.vel[idx],
+                        sub.acc[idx],
+                        sub.jerk[idx],
+                        sub.snap[idx],
+                        sub.yaw[idx],
+                        sub.yaw_rate[idx],
+                        sub.yaw_acc[idx],
+                    ),
+                    self.params,
+                )
+                rate = max(rate, float(np.max(exact)))
+            worst = max(worst, rate / cap)
+        return worst
 
 
 def _screened_body_rate(smp: _Samples, params: Any, threshold: float) -> FloatArray:

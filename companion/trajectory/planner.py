@@ -17,9 +17,18 @@ angle, forward-backward acceleration passes). (2) Refinement: projected L-BFGS o
 ``sum h + rho J(h) + w P(h)``, P a smooth sampled penalty of the limit violations (speed,
 acceleration, jerk, tilt, thrust), with the analytic gradient: ``dJ/dh_k = x_k^T (dQ_k/dh_k)
 x_k`` (envelope theorem at the optimum) and dP/dh through one adjoint solve of the same banded
-system. (3) Saturation: the smallest uniform time scaling that satisfies every limit
-(bisection; a uniform scaling keeps the path). (4) Feasibility pass: stretch the segments where
-a limit is still exceeded (by re-solved dense sampling), until every limit holds.
+system (computed only for the points the line search accepts). (3) Saturation: the smallest
+uniform time scaling that satisfies every limit (bisection; a uniform scaling keeps the path,
+so speed, acceleration and jerk scale in closed form and only tilt, thrust and body rate are
+recomputed). (4) Feasibility pass: stretch the segments where a limit is still exceeded (by
+re-solved dense sampling, ``limits.SAMPLES_PER_SEGMENT`` per segment), until every limit holds.
+
+Cost (100 waypoints, 297 segments, all multirotor limits): about 55 fixed-duration solves, each
+with one penalty evaluation of 8 samples per segment. All samples of all segments are evaluated
+with one matrix product per step (no per-segment Python loops, no multi-threaded BLAS), and the
+body rate goes through the flatness map only at samples where a cheap attitude-free upper bound
+(``limits._body_rate_bound``) comes within the margin of the limit. See BENCHMARKS.md
+("Planner") for timings.
 """
 
 from __future__ import annotations
@@ -40,6 +49,7 @@ from companion.trajectory.bezier import FloatArray, PiecewiseBezier, _monomial_m
 from companion.trajectory.limits import (
     Limits,
     RoverLimits,
+    TimeScaledRatio,
     _validate,
     segment_samples,
     segment_worst,
@@ -56,10 +66,16 @@ ALLOCATION_MARGIN = 0.995
 #: Pieces per waypoint leg used by the time allocation (intermediate joints on the straight leg
 #: give the speed profile room to accelerate, cruise and brake).
 ALLOCATION_PIECES = 3
-#: Time-allocation objective sum(h) + rho J + w P: rho relative to the initial guess, w.
+#: Time-allocation objective sum(h) + rho J + w P: rho relative to the initial guess, w, and
+#: the L-BFGS iteration cap. Multirotor: a moderate w keeps the problem well conditioned, so
+#: L-BFGS gets there in fewer iterations (the saturation and feasibility passes enforce the
+#: limits exactly afterwards). Rover: the penalty covers only the speed (yaw rate and lateral
+#: acceleration are left to the saturation), where a stiffer w and more iterations do better.
 REFINE_RHO = 0.01
-REFINE_PENALTY_WEIGHT = 1e4
-REFINE_MAXITER = 60
+REFINE_PENALTY_WEIGHT = 1e3
+REFINE_MAXITER = 45
+ROVER_REFINE_PENALTY_WEIGHT = 1e4
+ROVER_REFINE_MAXITER = 60
 REFINE_FTOL = 1e-5
 #: yaw="velocity": heading samples per segment and smoothing time as a fraction of the median
 #: segment duration (see ``_heading_fit``).
@@ -122,10 +138,18 @@ class _System:
         fa = fmap[self.gidx]
         ai = fa[:, :, None]
         bj = fa[:, None, :]
-        self.u = 2 * s - 1
+        # bandwidth: the widest index span of the free derivatives one segment couples (2s - 1
+        # at most; 2s - 3 with every waypoint position fixed, which makes the factorisation
+        # about twice as cheap)
+        hi_f = np.max(fa, axis=1)
+        lo_f = np.min(np.where(fa >= 0, fa, np.iinfo(np.int64).max), axis=1)
+        spans = np.where(hi_f >= 0, hi_f - lo_f, 0)
+        self.u = max(int(spans.max()) if spans.shape[0] else 0, 1)
         mask = (ai >= 0) & (bj >= 0) & (ai <= bj)
         self.band_mask = mask
-        self.band_flat = ((self.u + ai - bj) * self.nf + bj)[mask]
+        # band storage (LAPACK upper, u + 1 rows) in Fortran order: entry (u + a - b, b) at
+        # flat index b * (u + 1) + u + a - b, so that dpbtrf factorises it in place
+        self.band_flat = (bj * (self.u + 1) + self.u + ai - bj)[mask]
         self.fa = fa
         self.free_rows = fa >= 0  # (M, 2s)
         rows = fa[self.free_rows]
@@ -140,6 +164,7 @@ class _System:
         self.band_i = np.clip(band_i, 0, max(self.nf - 1, 0))
         self._factor: tuple[FloatArray, FloatArray] | None = None
         self._last: tuple[FloatArray, FloatArray, FloatArray] | None = None  # h, hp, Q
+        self._windows: tuple[FloatArray, FloatArray] | None = None  # x, windows(x)
 
     def _prepare(self, h: FloatArray) -> tuple[FloatArray, FloatArray]:
         """(hp, Q) for durations h: hp = h^o (M, 2s), Q_k = h^(1-2s) S Qt S, S = diag(hp)."""
@@ -164,7 +189,11 @@ class _System:
         return hp, Q
 
     def windows(self, x: FloatArray) -> FloatArray:
-        """Per-segment joint derivatives (M, 2s, d) of x (n_joints * s, d)."""
+        """Per-segment joint derivatives (M, 2s, d) of x (n_joints * s, d) (cached for the
+        last solution returned by :meth:`solve`; treat as read-only)."""
+        cached = self._windows
+        if cached is not None and cached[0] is x:
+            return cached[1]
         s, m = self.s, self.m
         d = x.shape[1]
         return np.concatenate([x[:-s].reshape(m, s, d), x[s:].reshape(m, s, d)], axis=1)
@@ -179,7 +208,7 @@ class _System:
         h: FloatArray,
         fit: tuple[FloatArray, FloatArray] | None = None,
     ) -> tuple[FloatArray, float]:
-        """Joint derivatives x (n_joints * s, d) and cost J for durations h (M,).
+        """Joint derivatives x (n_joints * s, d, read-only) and cost J for durations h (M,).
 
         ``fit = (R, g)`` adds a per-segment quadratic data term ``x_k^T R_k x_k - 2 g_k . x_k``
         (R (M, 2s, 2s), g (M, 2s, d)) to the objective (same band structure); the returned
@@ -195,11 +224,15 @@ class _System:
             rhs = -np.bincount(
                 self.rhs_index, weights=yf.reshape(-1), minlength=self.nf * d
             ).reshape(self.nf, d)
-            ab = np.bincount(
-                self.band_flat,
-                weights=A.reshape(-1)[self.band_take],
-                minlength=(self.u + 1) * self.nf,
-            ).reshape(self.u + 1, self.nf)
+            ab = (
+                np.bincount(
+                    self.band_flat,
+                    weights=A.reshape(-1)[self.band_take],
+                    minlength=(self.u + 1) * self.nf,
+                )
+                .reshape(self.nf, self.u + 1)
+                .T
+            )
             # Jacobi scaling for conditioning across very different durations
             diag = ab[self.u]
             if np.any(diag <= 0.0):
@@ -210,7 +243,7 @@ class _System:
             sc = 1.0 / np.sqrt(diag)
             ab *= sc[self.band_i]
             ab *= sc[None, :]
-            cb, info = _PBTRF(ab, lower=0)
+            cb, info = _PBTRF(ab, lower=0, overwrite_ab=1)
             if info != 0:
                 raise ValueError(
                     "the trajectory problem is singular (under-determined free derivatives)"
@@ -219,7 +252,9 @@ class _System:
             z, info = _PBTRS(cb, rhs * sc[:, None], lower=0)
             x[self.free_idx] = z * sc[:, None]
         xk = self.windows(x)
-        cost = float(np.sum(xk * (Q @ xk)))
+        cost = float(np.einsum("mad,mad->", xk, Q @ xk))
+        x.setflags(write=False)  # its windows are cached
+        self._windows = (x, xk)
         return x, cost
 
     def adjoint(self, g_full: FloatArray) -> FloatArray:
@@ -241,9 +276,7 @@ class _System:
         """(dQ_k / dh_k) x_k per segment, (M, 2s, d)."""
         return np.asarray(self.dq(h) @ self.windows(x), dtype=np.float64)
 
-    def cost_grad(
-        self, x: FloatArray, h: FloatArray, dqx: FloatArray | None = None
-    ) -> FloatArray:
+    def cost_grad(self, x: FloatArray, h: FloatArray, dqx: FloatArray | None = None) -> FloatArray:
         """dJ*/dh (M,) at the optimum x (envelope theorem: fixed joint derivatives);
         ``dqx``: ``dq_x(x, h)`` if already computed."""
         if dqx is None:
@@ -371,7 +404,7 @@ def _ratios(
 
 
 def _projected_lbfgs(
-    fun: Callable[[FloatArray], tuple[float, FloatArray]],
+    fun: Callable[[FloatArray], tuple[float, Callable[[], FloatArray]]],
     x0: FloatArray,
     lo: FloatArray,
     hi: FloatArray,
@@ -380,54 +413,58 @@ def _projected_lbfgs(
     gtol: float = 1e-6,
     memory: int = 8,
 ) -> FloatArray:
-    """Minimise a smooth ``fun`` (value, gradient) over the box [lo, hi]: L-BFGS directions
-    (two-loop recursion), components pushing into an active bound dropped, projected
-    backtracking (Armijo) line search. Pure numpy on 1-D vectors: unlike scipy's L-BFGS-B it
-    makes no BLAS calls, which a multi-threaded BLAS slows down by an order of magnitude on
-    these small problems."""
-    x = np.clip(x0, lo, hi)
-    f, g = fun(x)
+    """Minimise a smooth function over the box [lo, hi]: L-BFGS directions (two-loop
+    recursion), components pushing into an active bound dropped, projected backtracking
+    (Armijo) line search. ``fun(x)`` returns the value and a thunk computing the gradient at
+    x, called only for points the line search accepts (and before ``fun`` is called again).
+    Pure numpy on 1-D vectors (dot products only): unlike scipy's L-BFGS-B it makes no
+    multi-threaded BLAS calls, which slow these small problems down by an order of
+    magnitude."""
+    x = np.minimum(np.maximum(x0, lo), hi)
+    f, grad = fun(x)
+    g = grad()
     hist: list[tuple[FloatArray, FloatArray, float]] = []
     for _ in range(maxiter):
         q = g.copy()
         alphas = []
         for s_, y_, r_ in reversed(hist):
-            a = r_ * float(np.sum(s_ * q))
+            a = r_ * float(s_ @ q)
             q -= a * y_
             alphas.append(a)
         if hist:
             s_, y_, _ = hist[-1]
-            q *= float(np.sum(s_ * y_)) / float(np.sum(y_ * y_))
+            q *= float(s_ @ y_) / float(y_ @ y_)
         else:
-            q *= 1.0 / max(float(np.max(np.abs(g))), 1e-12)
+            q *= 1.0 / max(float(np.abs(g).max()), 1e-12)
         for (s_, y_, r_), a in zip(hist, reversed(alphas), strict=True):
-            b = r_ * float(np.sum(y_ * q))
+            b = r_ * float(y_ @ q)
             q += (a - b) * s_
         d = -q
-        d[(x <= lo) & (d < 0.0)] = 0.0
-        d[(x >= hi) & (d > 0.0)] = 0.0
-        slope = float(np.sum(g * d))
+        at_lo = x <= lo
+        at_hi = x >= hi
+        d[(at_lo & (d < 0.0)) | (at_hi & (d > 0.0))] = 0.0
+        slope = float(g @ d)
         if slope >= 0.0:  # not a descent direction: restart from the projected gradient
             hist.clear()
-            d = -g / max(float(np.max(np.abs(g))), 1e-12)
-            d[(x <= lo) & (d < 0.0)] = 0.0
-            d[(x >= hi) & (d > 0.0)] = 0.0
-            slope = float(np.sum(g * d))
+            d = -g / max(float(np.abs(g).max()), 1e-12)
+            d[(at_lo & (d < 0.0)) | (at_hi & (d > 0.0))] = 0.0
+            slope = float(g @ d)
             if slope >= 0.0:
                 break
         step = 1.0
         for _ in range(30):
-            xn = np.clip(x + step * d, lo, hi)
-            fn, gn = fun(xn)
-            if fn <= f + 1e-4 * float(np.sum(g * (xn - x))):
+            xn = np.minimum(np.maximum(x + step * d, lo), hi)
+            fn, grad = fun(xn)
+            if fn <= f + 1e-4 * float(g @ (xn - x)):
                 break
             step *= 0.5
         else:
             break
+        gn = grad()
         s_ = xn - x
         y_ = gn - g
-        sy = float(np.sum(s_ * y_))
-        if sy > 1e-12 * float(np.sum(y_ * y_)):
+        sy = float(s_ @ y_)
+        if sy > 1e-12 * float(y_ @ y_):
             hist.append((s_, y_, 1.0 / sy))
             if len(hist) > memory:
                 hist.pop(0)
@@ -436,7 +473,7 @@ def _projected_lbfgs(
         if converged:
             break
         free = ~(((x <= lo) & (g > 0.0)) | ((x >= hi) & (g < 0.0)))
-        if not np.any(free) or float(np.max(np.abs(g[free]))) <= gtol:
+        if not free.any() or float(np.abs(g[free]).max()) <= gtol:
             break
     return np.asarray(x, dtype=np.float64)
 
@@ -484,85 +521,128 @@ class _Penalty:
         self.W_all = np.vstack([self.W[r] for r in self.orders])
         self.W_all_r = np.vstack([r * self.W[r] for r in self.orders])
         self.order_pow = np.array(self.orders, dtype=np.float64)[:, None]
+        kin_order = {"speed": 1, "acc": 2, "jerk": 3}
+        self.kin_inv_lim2 = np.zeros(len(self.orders))
+        for name, lim2 in self.terms:
+            if name in kin_order:
+                self.kin_inv_lim2[self.orders.index(kin_order[name])] = 1.0 / lim2
+        self.dyn_terms = [(nm, lim2) for nm, lim2 in self.terms if nm not in kin_order]
         self.W_all_T = np.ascontiguousarray(self.W_all.T)
         self.W_all_rT = np.ascontiguousarray(self.W_all_r.T)
 
-    def value_grad(
-        self, x: FloatArray, h: FloatArray, dqx: FloatArray | None = None
-    ) -> tuple[float, FloatArray]:
-        """Penalty P and its total derivative dP/dh (M,) at the optimum x(h).
-
-        ``dqx``: ``system.dq_x(x, h)`` if already computed (shared with ``cost_grad``).
-        Arrays are kept in (order, sample, segment, axis) layout: one matrix product maps the
-        joint derivatives of all segments to the samples and one maps the sensitivities back.
-        """
-        sysm = self.system
-        s = sysm.s
-        n = self.n
-        xk = sysm.windows(x)  # (M, 2s, d)
-        m, d = xk.shape[0], xk.shape[2]
-        hp = sysm.powers(h, 0)
-        zt = (xk * hp[:, :, None]).transpose(1, 0, 2).reshape(2 * s, m * d)
-        inv_h = 1.0 / h
-        ihp = inv_h[None, :] ** self.order_pow  # (R, M)
-        d_all = thin_matmul(self.W_all, zt).reshape(len(self.orders), n, m, d)
-        d_all *= ihp[:, None, :, None]
-        D = {r: d_all[i] for i, r in enumerate(self.orders)}  # (n, M, d) each
-        phi = np.zeros((n, m))
-        g_all = np.zeros_like(d_all)
-        G = {r: g_all[i] for i, r in enumerate(self.orders)}
-        active = False
-
-        def add(g: FloatArray, dg: tuple[tuple[int, FloatArray], ...]) -> None:
-            pos = np.maximum(g, 0.0)
+    def _violations(
+        self, d_all: FloatArray, grad: bool = True
+    ) -> tuple[FloatArray, FloatArray | None]:
+        """Per-sample penalty phi (n, M) from the sampled derivatives d_all (R, n, M, d) and,
+        if ``grad``, dphi/d(d_all) (shape of d_all; None when nothing is violated)."""
+        n, m = d_all.shape[1], d_all.shape[2]
+        # speed, acceleration, jerk: all orders at once (rows without a limit never active)
+        g_kin = np.einsum("rnmd,rnmd->rnm", d_all, d_all)
+        g_kin *= self.kin_inv_lim2[:, None, None]
+        g_kin -= 1.0
+        active = bool(g_kin.max() > 0.0)
+        g_all: FloatArray | None = None
+        if active:
+            pos = np.maximum(g_kin, 0.0)
             w = pos * pos
-            phi[...] += w * pos
-            w *= 3.0
-            for r, v in dg:
-                G[r] += w[:, :, None] * v
-
-        tv: FloatArray | None = None
-        mass = float(self.params.mass) if self.params is not None else 0.0
-        drag = float(getattr(self.params, "drag", 0.0)) if self.params is not None else 0.0
-        for name, lim2 in self.terms:
-            if name in ("speed", "acc", "jerk"):
-                r = {"speed": 1, "acc": 2, "jerk": 3}[name]
-                q = D[r]
-                g = np.einsum("ijk,ijk->ij", q, q) / lim2 - 1.0
-                if g.max() > 0.0:
-                    active = True
-                    add(g, ((r, (2.0 / lim2) * q),))
-                continue
-            if tv is None:
-                tv = -mass * D[2] - drag * D[1]
-                tv[:, :, 2] += mass * float(self.params.g)
+            phi = np.einsum("rnm,rnm->nm", w, pos)
+            if grad:
+                w *= 6.0 * self.kin_inv_lim2[:, None, None]
+                g_all = d_all * w[:, :, :, None]
+        else:
+            phi = np.zeros((n, m))
+        if not self.dyn_terms:
+            return phi, g_all
+        i1, i2 = self.orders.index(1), self.orders.index(2)
+        mass = float(self.params.mass)
+        drag = float(getattr(self.params, "drag", 0.0))
+        mg = mass * float(self.params.g)
+        tv = -mass * d_all[i2]
+        if drag:
+            tv -= drag * d_all[i1]
+        tv[:, :, 2] += mg
+        dsum: FloatArray | None = None  # sum over the thrust terms of dphi/dt
+        t2: FloatArray | None = None
+        for name, lim2 in self.dyn_terms:
             if name == "tilt":
-                tz = np.maximum(tv[:, :, 2], 1e-3 * mass * float(self.params.g))
+                tz = np.maximum(tv[:, :, 2], 1e-3 * mg)
                 hor = tv[:, :, 0] ** 2 + tv[:, :, 1] ** 2
                 inv = 1.0 / (lim2 * tz * tz)
                 g = hor * inv - 1.0
                 if not g.max() > 0.0:
                     continue
-                dt = np.empty_like(tv)
-                dt[:, :, 0] = 2.0 * tv[:, :, 0] * inv
-                dt[:, :, 1] = 2.0 * tv[:, :, 1] * inv
-                dt[:, :, 2] = -2.0 * hor * inv / tz
-            elif name == "max_thrust":
-                g = np.einsum("ijk,ijk->ij", tv, tv) / lim2 - 1.0
-                if not g.max() > 0.0:
+                pos = np.maximum(g, 0.0)
+                w = pos * pos
+                phi += w * pos
+                if not grad:
                     continue
-                dt = (2.0 / lim2) * tv
+                w *= 6.0 * inv
+                if dsum is None:
+                    dsum = np.zeros_like(tv)
+                dsum[:, :, 0] += w * tv[:, :, 0]
+                dsum[:, :, 1] += w * tv[:, :, 1]
+                dsum[:, :, 2] -= w * hor / tz
             else:
-                g = 1.0 - np.einsum("ijk,ijk->ij", tv, tv) / lim2
+                if t2 is None:
+                    t2 = np.einsum("ijk,ijk->ij", tv, tv)
+                sign = 1.0 if name == "max_thrust" else -1.0
+                g = sign * (t2 / lim2 - 1.0)
                 if not g.max() > 0.0:
                     continue
-                dt = (-2.0 / lim2) * tv
-            active = True
-            add(g, ((2, -mass * dt), (1, -drag * dt)))
-        if not active:
-            return 0.0, np.zeros(m)
+                pos = np.maximum(g, 0.0)
+                w = pos * pos
+                phi += w * pos
+                if not grad:
+                    continue
+                w *= sign * 6.0 / lim2
+                if dsum is None:
+                    dsum = np.zeros_like(tv)
+                dsum += w[:, :, None] * tv
+        if dsum is not None:
+            if g_all is None:
+                g_all = np.zeros_like(d_all)
+            g_all[i2] -= mass * dsum
+            if drag:
+                g_all[i1] -= drag * dsum
+        return phi, g_all
+
+    def sampled(self, x: FloatArray, h: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(d_all (R, n, M, d) sampled derivatives, zt, ihp) at the optimum x(h)."""
+        sysm = self.system
+        s = sysm.s
+        xk = sysm.windows(x)
+        m, d = xk.shape[0], xk.shape[2]
+        hp = sysm.powers(h, 0)
+        zt = (xk * hp[:, :, None]).transpose(1, 0, 2).reshape(2 * s, m * d)
+        ihp = (1.0 / h)[None, :] ** self.order_pow  # (R, M)
+        d_all = thin_matmul(self.W_all, zt).reshape(len(self.orders), self.n, m, d)
+        d_all *= ihp[:, None, :, None]
+        return d_all, zt, ihp
+
+    def value(self, x: FloatArray, h: FloatArray) -> tuple[float, Any]:
+        """Penalty P at the optimum x(h), and the state :meth:`gradient` needs."""
+        d_all, zt, ihp = self.sampled(x, h)
+        phi, g_all = self._violations(d_all)
+        if g_all is None:
+            return 0.0, None
         phis = np.sum(phi, axis=0)
-        value = float(phis @ h) / n
+        return float(phis @ h) / self.n, (phis, g_all, zt, ihp)
+
+    def gradient(
+        self, state: Any, x: FloatArray, h: FloatArray, dqx: FloatArray | None = None
+    ) -> FloatArray:
+        """dP/dh (M,) from :meth:`value`'s state (explicit dependence through the sample
+        times plus the adjoint of the banded system for the dependence through x(h)).
+        ``dqx``: ``system.dq_x(x, h)`` if already computed (shared with ``cost_grad``)."""
+        if state is None:
+            return np.zeros(h.shape[0])
+        phis, g_all, zt, ihp = state
+        sysm = self.system
+        s = sysm.s
+        n = self.n
+        m, d = g_all.shape[2], g_all.shape[3]
+        hp = sysm.powers(h, 0)
+        inv_h = 1.0 / h
         dh = phis / n
         # back-projection: U = sum_r W_r^T G_r h^-r, V = sum_r r W_r^T G_r h^-r
         g_all *= (ihp * (h / n)[None, :])[:, None, :, None]
@@ -579,7 +659,18 @@ class _Penalty:
         if dqx is None:
             dqx = sysm.dq_x(x, h)
         dh -= np.einsum("mad,mad->m", sysm.windows(lam), dqx)
-        return value, dh
+        return np.asarray(dh, dtype=np.float64)
+
+    def value_grad(
+        self, x: FloatArray, h: FloatArray, dqx: FloatArray | None = None
+    ) -> tuple[float, FloatArray]:
+        """Penalty P and its total derivative dP/dh (M,) at the optimum x(h).
+
+        Arrays are kept in (order, sample, segment, axis) layout: one matrix product maps the
+        joint derivatives of all segments to the samples and one maps the sensitivities back.
+        """
+        p, state = self.value(x, h)
+        return p, self.gradient(state, x, h, dqx)
 
 
 @dataclass(frozen=True)
@@ -674,16 +765,26 @@ class _Planner:
         rho = REFINE_RHO * t0 / ((2 * self.s - 1) * j0)
         penalty = _Penalty(self.system, limits, params)
         lz = np.log(h0)
+        rover = isinstance(limits, RoverLimits)
+        weight = ROVER_REFINE_PENALTY_WEIGHT if rover else REFINE_PENALTY_WEIGHT
+        maxiter = ROVER_REFINE_MAXITER if rover else REFINE_MAXITER
 
-        def fun(z: FloatArray) -> tuple[float, FloatArray]:
+        def fun(z: FloatArray) -> tuple[float, Callable[[], FloatArray]]:
             h = np.exp(z)
             x, j = self.solve(h)
-            dqx = self.system.dq_x(x, h)
-            p, dp = penalty.value_grad(x, h, dqx)
-            g = 1.0 + rho * self.system.cost_grad(x, h, dqx) + REFINE_PENALTY_WEIGHT * dp
-            return float(h.sum() + rho * j + REFINE_PENALTY_WEIGHT * p) / t0, g * h / t0
+            p, state = penalty.value(x, h)
 
-        z = _projected_lbfgs(fun, lz, lz - 3.0, lz + 3.0, REFINE_MAXITER, ftol=REFINE_FTOL)
+            def grad() -> FloatArray:
+                # the factorisation of this h is still current: the line search asks for the
+                # gradient of the point it accepts before solving another one
+                dqx = self.system.dq_x(x, h)
+                dp = penalty.gradient(state, x, h, dqx)
+                g = 1.0 + rho * self.system.cost_grad(x, h, dqx) + weight * dp
+                return np.asarray(g * h / t0, dtype=np.float64)
+
+            return float(h.sum() + rho * j + weight * p) / t0, grad
+
+        z = _projected_lbfgs(fun, lz, lz - 3.0, lz + 3.0, maxiter, ftol=REFINE_FTOL)
         return np.exp(z)
 
     def _max_ratio(
@@ -731,12 +832,17 @@ class _Planner:
         homogeneous, else re-solved)."""
         m = h.shape[0]
         if self.homogeneous:
-            # coarse samples for the bisection; the feasibility pass below re-checks densely
+            # coarse samples for the bisection; the feasibility pass re-checks densely
             traj, _ = self.build(h)
             base = segment_samples(traj, limits, BISECTION_SAMPLES_PER_SEGMENT)
+            if isinstance(limits, Limits):
+                ratio: Callable[[float], float] = TimeScaledRatio(
+                    base, limits, params, ALLOCATION_MARGIN
+                )
+            else:
 
-            def ratio(alpha: float) -> float:
-                return self._ratio_of(base.time_scaled(alpha), m, limits, params)[0]
+                def ratio(alpha: float) -> float:
+                    return self._ratio_of(base.time_scaled(alpha), m, limits, params)[0]
         else:
 
             def ratio(alpha: float) -> float:
