@@ -94,9 +94,10 @@ def estimate_from_telemetry(
 
 
 def _tuple3(v: np.ndarray) -> tuple[float, float, float] | None:
-    if not np.all(np.isfinite(v)):
+    x, y, z = (float(c) for c in v.tolist())
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
         return None
-    return (float(v[0]), float(v[1]), float(v[2]))
+    return (x, y, z)
 
 
 def _opt(v: float) -> float | None:
@@ -115,7 +116,12 @@ class TrackingSource:
     - "rover": horizontal velocity + yaw rate from rover flatness with track correction.
 
     Until telemetry has both position and attitude, and in position mode, it sends the
-    reference as a position setpoint (a rover: zero velocity).
+    reference as a position setpoint (a rover: zero velocity). In attitude and rates mode it
+    also does so while priming (`t_s <= 0` before the first call with `t_s > 0`): the vehicle
+    is not flying these setpoints yet (or, right after the OFFBOARD switch, PX4 holds the
+    start point with them), so the controller does not run and its integrator and hover-thrust
+    estimator learn nothing from thrust commands the vehicle never applied. The controller is
+    reset on the first call with `t_s > 0`.
     """
 
     def __init__(
@@ -142,6 +148,10 @@ class TrackingSource:
         self._ref: Reference | None = None
         self.calls = 0
         self.clock = SampleClock()
+        self._engaged = False  # the controller runs (a call with t_s > 0 was seen)
+        # the last estimate and the (immutable) telemetry values it was built from
+        self._est_key: tuple[object, object, bool] | None = None
+        self._est: StateEstimate | None = None
 
     @property
     def last_reference(self) -> Reference | None:
@@ -160,6 +170,25 @@ class TrackingSource:
             self._ref_key = t_s
         return self._ref
 
+    def _estimate(self, telemetry: TelemetrySnapshot) -> StateEstimate | None:
+        """`estimate_from_telemetry` with this source's clock, reused while the position and
+        attitude samples are the same objects (telemetry arrives slower than setpoints go out;
+        a repeated sample adds nothing to the clock's window, so the result is identical)."""
+        ext = telemetry.extended
+        key = (telemetry.position, telemetry.attitude, ext.in_air if ext is not None else True)
+        old = self._est_key
+        if (
+            self._est is not None
+            and old is not None
+            and key[0] is old[0]
+            and key[1] is old[1]
+            and key[2] == old[2]
+        ):
+            return self._est
+        est = estimate_from_telemetry(telemetry, self.clock)
+        self._est_key, self._est = key, est
+        return est
+
     def position_setpoint(self, t_s: float) -> PositionSetpoint:
         """The reference as a PX4 position setpoint (also used for priming)."""
         pc = position_command(self.ref(t_s), feedforward=t_s > 0.0)
@@ -175,7 +204,12 @@ class TrackingSource:
         self.calls += 1
         now = telemetry.now_s
         ref = self.ref(t_s)
-        est = estimate_from_telemetry(telemetry, self.clock)
+        est = self._estimate(telemetry)
+        if self.controller is not None and not self._engaged:
+            if not t_s > 0.0:  # priming: PX4 is not applying our thrust commands yet
+                return self.position_setpoint(t_s)
+            self._engaged = True
+            self.controller.reset()
         if self.mode == "position" or est is None or not math.isfinite(now):
             if self.mode == "rover":
                 return PositionSetpoint(vel_ned=(0.0, 0.0, 0.0), yaw_rate=0.0)
@@ -190,9 +224,9 @@ class TrackingSource:
         assert self.controller is not None
         if self.mode == "attitude":
             a = self.controller.attitude(now, est, ref)
-            q = a.q_wxyz
+            qw, qx, qy, qz = a.q_wxyz.tolist()
             return AttitudeSetpoint(
-                (float(q[0]), float(q[1]), float(q[2]), float(q[3])),
+                (float(qw), float(qx), float(qy), float(qz)),
                 float(a.thrust_norm),
                 _opt(float(a.yaw_rate_ff)),
             )
