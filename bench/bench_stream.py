@@ -6,9 +6,11 @@ companion's asyncio receive loop, while the streamer sends position setpoints co
 from a figure-8 PiecewiseBezier. Reports achieved rate, period error |dt - T| p50/p99/max
 (sender timestamps and receiver arrival timestamps), the companion process's CPU share of one
 core (the fake PX4 runs in a child process), and the per-cycle compute time (telemetry in ->
-setpoint out).
+setpoint out), with the codec's fast decode/encode paths and, as the same-run baseline,
+pymavlink's byte-wise parser and ``msg.pack`` (the codec's previous implementation), calls
+interleaved.
 
-    python bench/bench_stream.py [--duration 8] [--rates 100 250]
+    python bench/bench_stream.py [--duration 8] [--rates 100 250] [--compute-only]
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import contextlib
 import itertools
 import json
 import math
+import os
 import socket
 import statistics
 import subprocess
@@ -26,12 +29,13 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from pymavlink.dialects.v20 import common as m
 
 from companion.aio import FixedRateStreamer, TrajectoryPositionSource, open_transport
-from companion.mavlink import VehicleLink
+from companion.mavlink import Codec, VehicleLink
 from companion.trajectory import PiecewiseBezier, hermite
 
 
@@ -196,35 +200,78 @@ def time_it(fn: Callable[[], object], n: int) -> tuple[float, float]:
     return statistics.median(xs), pct(xs, 99)
 
 
+def time_interleaved(fns: dict[str, Callable[[], object]],
+                     n: int) -> dict[str, tuple[float, float]]:
+    """p50/p99 in us of each function, calls interleaved so that load changes hit all alike."""
+    xs: dict[str, list[float]] = {k: [] for k in fns}
+    for _ in range(n):
+        for k, fn in fns.items():
+            t0 = time.perf_counter_ns()
+            fn()
+            xs[k].append((time.perf_counter_ns() - t0) / 1000)
+    return {k: (statistics.median(v), pct(v, 99)) for k, v in xs.items()}
+
+
+class PymavlinkParserCodec(Codec):
+    """Baseline: the codec's previous implementation, pymavlink's byte-wise parser
+    (``parse_buffer``) and ``msg.pack``."""
+
+    def encode(self, msg: Any) -> bytes:
+        with self._lock:
+            frame = bytes(msg.pack(self.mav))
+            self.mav.seq = (self.mav.seq + 1) & 0xFF
+            return frame
+
+    def decode(self, data: bytes | bytearray) -> list[Any]:
+        out = []
+        for msg in self.mav.parse_buffer(data) or []:
+            if msg.get_type() == "BAD_DATA" or msg.get_msgbuf()[0] != 0xFD:
+                self.dropped_frames += 1
+            else:
+                out.append(msg)
+        return out
+
+
 def compute_bench(n: int = 5000) -> dict[str, tuple[float, float]]:
     link = VehicleLink()
+    base = VehicleLink(codec=PymavlinkParserCodec())
     mav = m.MAVLink(None, srcSystem=1, srcComponent=1)
     lpos = bytes(m.MAVLink_local_position_ned_message(1, 1, 2, -5, 0, 0, 0).pack(mav))
     attq = bytes(m.MAVLink_attitude_quaternion_message(1, 1, 0, 0, 0, 0, 0, 0).pack(mav))
     src = TrajectoryPositionSource(figure8(), yaw=0.0)
     t = [0.0]
 
-    def telemetry_in() -> None:
-        link.receive_bytes(lpos, 1.0)
-        link.receive_bytes(attq, 1.0)
+    def telemetry_in(lk: VehicleLink = link) -> None:
+        lk.receive_bytes(lpos, 1.0)
+        lk.receive_bytes(attq, 1.0)
 
-    def setpoint_out() -> None:
+    def setpoint_out(lk: VehicleLink = link) -> None:
         t[0] = (t[0] + 0.004) % 12.0
-        link.encode_setpoint(src(t[0], link.telemetry.snapshot()), 1.0 + t[0])
+        lk.encode_setpoint(src(t[0], lk.telemetry.snapshot()), 1.0 + t[0])
 
-    def both() -> None:
-        telemetry_in()
-        setpoint_out()
+    def both(lk: VehicleLink = link) -> None:
+        telemetry_in(lk)
+        setpoint_out(lk)
 
-    return {"telemetry_in": time_it(telemetry_in, n), "setpoint_out": time_it(setpoint_out, n),
-            "total": time_it(both, n)}
+    return time_interleaved({
+        "decode LOCAL_POSITION_NED + ATTITUDE_QUATERNION": lambda: (
+            link.codec.decode(lpos), link.codec.decode(attq)),
+        "decode, pymavlink parser (baseline)": lambda: (
+            base.codec.decode(lpos), base.codec.decode(attq)),
+        "telemetry_in": telemetry_in,
+        "telemetry_in, pymavlink parser (baseline)": lambda: telemetry_in(base),
+        "setpoint_out": setpoint_out,
+        "setpoint_out, pymavlink pack (baseline)": lambda: setpoint_out(base),
+        "total": both,
+        "total, pymavlink parser + pack (baseline)": lambda: both(base),
+    }, n)
 
 
 async def main_async(args: argparse.Namespace) -> None:
     print("| rate Hz | sender | achieved Hz | sent | missed | period err p50/p99/max us "
           "(send) | (arrival) | lateness p99 us | CPU % of one core |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
-    for rate in args.rates:
+    for rate in [] if args.compute_only else args.rates:
         for naive, rt in ((True, None), (False, None), (False, 10)):
             r = await run_case(rate, args.duration, naive, rt)
             name = ("asyncio.sleep loop (baseline)" if naive else
@@ -235,7 +282,7 @@ async def main_async(args: argparse.Namespace) -> None:
                   f"{r['late_p99']:.0f} | {r['cpu']:.1f} |")
     c = compute_bench()
     print()
-    print("| per-cycle compute | p50 us | p99 us |")
+    print(f"| per-cycle compute (load average {os.getloadavg()[0]:.1f}) | p50 us | p99 us |")
     print("| --- | --- | --- |")
     for k, (p50, p99) in c.items():
         print(f"| {k} | {p50:.1f} | {p99:.1f} |")
@@ -245,6 +292,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--duration", type=float, default=8.0)
     ap.add_argument("--rates", type=float, nargs="+", default=[100.0, 250.0])
+    ap.add_argument("--compute-only", action="store_true", help="only the per-cycle compute table")
     ap.add_argument("--fake-px4", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.fake_px4 is not None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import bisect
 import functools
+import itertools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -174,10 +175,20 @@ class Schedule:
         return out
 
     def _piece_at(self, t: float) -> Piece:
+        """The first piece ending after `t` (the last piece beyond the end)."""
+        ends = self._ends
+        if ends is not None:  # back to back: ends ascending, so bisect finds the first
+            i = bisect.bisect_right(ends, t)
+            return self.pieces[i] if i < len(ends) else self.pieces[-1]
         for p in self.pieces:
             if t < p.t0_s + p.duration_s:
                 return p
         return self.pieces[-1]
+
+    @functools.cached_property
+    def _ends(self) -> list[float] | None:
+        ends = [p.t0_s + p.duration_s for p in self.pieces]
+        return ends if all(a <= b for a, b in itertools.pairwise(ends)) else None
 
 
 def _pad3(v: FloatArray) -> FloatArray:

@@ -151,23 +151,16 @@ class NumpyBackend(Backend):
 
 
 class FloatBackend(Backend):
+    # The elementary functions are the math builtins themselves (no wrapper frame: this
+    # backend runs once per setpoint).
+    sqrt = staticmethod(math.sqrt)  # type: ignore[assignment]
+    sin = staticmethod(math.sin)  # type: ignore[assignment]
+    cos = staticmethod(math.cos)  # type: ignore[assignment]
+    atan2 = staticmethod(math.atan2)  # type: ignore[assignment]
+    fabs = staticmethod(abs)  # type: ignore[assignment]
+
     def where(self, c: S, a: S, b: S) -> S:
         return a if c else b
-
-    def sqrt(self, x: S) -> S:
-        return math.sqrt(x)
-
-    def sin(self, x: S) -> S:
-        return math.sin(x)
-
-    def cos(self, x: S) -> S:
-        return math.cos(x)
-
-    def atan2(self, y: S, x: S) -> S:
-        return math.atan2(y, x)
-
-    def fabs(self, x: S) -> S:
-        return abs(x)
 
     def fmax(self, a: S, b: S) -> S:
         return a if a >= b else b

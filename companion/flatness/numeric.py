@@ -65,31 +65,24 @@ def multirotor_setpoint_scalar(
     ``singular`` (float). Raises ValueError on a wrong length or a NaN, inf or |value| > 1e12
     input (the same check as the array path); never returns NaN.
     """
-    lim = INPUT_LIMIT
-    vecs = (vel, acc, jerk, snap)
-    for name, x in zip(_NAMES, vecs, strict=True):
-        if len(x) != 3:
-            raise ValueError(f"{name} must have shape (3,) or (N, 3), got ({len(x)},)")
-        # `not <=` is True for NaN as well
-        if not (abs(x[0]) <= lim and abs(x[1]) <= lim and abs(x[2]) <= lim):
-            _refuse(name)
-    for name, y in (("yaw", yaw), ("yaw_rate", yaw_rate), ("yaw_acc", yaw_acc)):
-        if not abs(y) <= lim:
-            _refuse(name)
+    if not len(vel) == len(acc) == len(jerk) == len(snap) == 3:
+        for name, x in zip(_NAMES, (vel, acc, jerk, snap), strict=True):
+            if len(x) != 3:
+                raise ValueError(f"{name} must have shape (3,) or (N, 3), got ({len(x)},)")
+    v = (float(vel[0]), float(vel[1]), float(vel[2]))
+    a = (float(acc[0]), float(acc[1]), float(acc[2]))
+    j = (float(jerk[0]), float(jerk[1]), float(jerk[2]))
+    s = (float(snap[0]), float(snap[1]), float(snap[2]))
+    y = (float(yaw), float(yaw_rate), float(yaw_acc))
+    # float.__ge__ is False for NaN: every |value| must be <= the limit
+    if not all(map(INPUT_LIMIT.__ge__, map(abs, (*v, *a, *j, *s, *y)))):
+        for name, x in (*zip(_NAMES, (v, a, j, s), strict=True), ("yaw", y[:1]),
+                        ("yaw_rate", y[1:2]), ("yaw_acc", y[2:])):
+            if not all(abs(c) <= INPUT_LIMIT for c in x):
+                _refuse(name)
     return fm.multirotor(
-        fm.FLOAT,
-        (float(vel[0]), float(vel[1]), float(vel[2])),
-        (float(acc[0]), float(acc[1]), float(acc[2])),
-        (float(jerk[0]), float(jerk[1]), float(jerk[2])),
-        (float(snap[0]), float(snap[1]), float(snap[2])),
-        float(yaw),
-        float(yaw_rate),
-        float(yaw_acc),
-        params.mass,
-        params.inertia,
-        params.g,
-        params.hover_thrust,
-        params.drag,
+        fm.FLOAT, v, a, j, s, y[0], y[1], y[2],
+        params.mass, params.inertia, params.g, params.hover_thrust, params.drag,
     )
 
 

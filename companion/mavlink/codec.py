@@ -4,16 +4,32 @@ The companion defaults to sysid 1 / compid 191 (MAV_COMP_ID_ONBOARD_COMPUTER): a
 is a component of the vehicle and shares the autopilot's system id (MAVLink convention); PX4 is
 1/1. Only MAVLink 2 frames are emitted and accepted (MAVLink 1 frames and frames with a bad CRC
 are dropped and counted).
+
+Decoding has a fast path that returns the same pymavlink message objects as pymavlink's parser
+(``MAVLink.parse_buffer``) but skips its per-byte state machine: frames are split by length exactly
+as pymavlink does it (a run of bytes that are neither 0xFD nor 0xFE is one bad-data drop; at a magic
+byte the frame length is taken from the header whatever the frame holds), the CRC-16/MCRF4XX with
+CRC_EXTRA is checked in C (``fastcrc``, pymavlink's own dependency; stdlib ``binascii`` otherwise),
+and the payload is zero-extended and unpacked with the message class's ``struct`` in wire order.
+Signed frames, unknown message ids and a configured signing key go through pymavlink's
+``MAVLink.decode`` unchanged. Encoding likewise packs the payload with the class's ``struct`` in
+the generated ``pack``'s order and gives the same bytes as ``msg.pack(mav)``; every frame gets the
+next sequence number. ``tests/unit/test_mavlink_codec_fast.py`` checks both against pymavlink.
 """
 
 from __future__ import annotations
 
+import binascii
+import operator
+import struct
 import threading
+from collections.abc import Callable
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
 
 MAVLINK2_MAGIC = 0xFD
+MAVLINK1_MAGIC = 0xFE
 
 #: Default ids of the companion (MAV_COMP_ID_ONBOARD_COMPUTER) and of PX4.
 DEFAULT_SYSID = 1
@@ -22,6 +38,100 @@ PX4_SYSID = 1
 PX4_COMPID = 1
 
 MavMessage = Any  # pymavlink.dialects.v20.common.MAVLink_message (pymavlink ships no stubs)
+
+_V2_HEADER_LEN = 10
+_V1_HEADER_LEN = 6
+_SIGNATURE_LEN = 13
+_IFLAG_SIGNED = 0x01
+_REV8 = bytes(int(f"{i:08b}"[::-1], 2) for i in range(256))
+
+
+def _crc_mcrf4xx_stdlib(data: bytes | bytearray, crc: int = 0xFFFF) -> int:
+    """CRC-16/MCRF4XX (MAVLink's X.25 checksum) of ``data`` from ``crc``, via ``binascii``.
+
+    ``binascii.crc_hqx`` is the non-reflected CRC-CCITT; MCRF4XX is its reflected form, so the
+    input bytes, the initial value and the result are bit-reversed around it.
+    """
+    rev_init = (_REV8[crc & 0xFF] << 8) | _REV8[crc >> 8]
+    r = binascii.crc_hqx(bytes(data).translate(_REV8), rev_init)
+    return (_REV8[r & 0xFF] << 8) | _REV8[r >> 8]
+
+
+_crc_mcrf4xx: Callable[[bytes | bytearray, int], int] = (
+    mavlink2.mcrf4xx if getattr(mavlink2, "mcrf4xx", None) is not None else _crc_mcrf4xx_stdlib
+)
+
+# Per message id: (class, CRC_EXTRA byte, struct, payload size, argument builder), built lazily.
+_Layout = tuple[type, bytes, struct.Struct, int, Callable[[tuple[Any, ...]], Any]]
+_MISSING: Any = object()
+# Per message class: (message id, CRC_EXTRA byte, msg -> full-length payload bytes).
+_Packer = tuple[int, bytes, Callable[[Any], bytes]]
+_V2_HEADER = struct.Struct("<BBBBBBBHB")  # magic, len, incompat, compat, seq, sys, comp, id lo/hi
+_CRC = struct.Struct("<H")
+
+
+def _arg_builder(cls: Any) -> Callable[[tuple[Any, ...]], Any]:
+    """Map the unpacked wire-order tuple to the constructor's arguments (pymavlink's rules)."""
+    orders: list[int] = list(cls.orders)
+    lengths: list[int] = list(cls.lengths)
+    has_bytes = any(ch in cls.unpacker.format for ch in "sc")
+    if sum(lengths) == len(lengths):  # no numeric arrays: a pure reordering
+        if len(orders) == 1:
+            only = orders[0]
+
+            def reorder(t: tuple[Any, ...]) -> Any:
+                return (t[only],)
+        else:
+            reorder = operator.itemgetter(*orders)  # type: ignore[assignment]
+    else:
+        spec: list[tuple[int, int]] = []
+        for order in orders:
+            n = lengths[order]
+            tip = sum(lengths[:order])
+            spec.append((tip, tip + n if n > 1 else -1))
+
+        def reorder(t: tuple[Any, ...]) -> Any:
+            return [t[a] if b < 0 else list(t[a:b]) for a, b in spec]
+
+    if not has_bytes:
+        return reorder
+
+    def with_strings(t: tuple[Any, ...]) -> Any:  # pymavlink strips trailing NULs of char fields
+        return [v.rstrip(b"\x00") if isinstance(v, bytes) else v for v in reorder(t)]
+
+    return with_strings
+
+
+def _payload_packer(cls: Any) -> _Packer | None:
+    """Payload serialiser mirroring the generated ``cls.pack``: wire order, arrays element by
+    element, char fields from ``_<name>_raw``. None for classes pymavlink does not map."""
+    if mavlink2.mavlink_map.get(getattr(cls, "id", None)) is not cls:
+        return None
+    types = dict(zip(cls.fieldnames, cls.fieldtypes, strict=True))
+    names: list[str] = []
+    for name, n in zip(cls.ordered_fieldnames, cls.array_lengths, strict=True):
+        if types[name] == "char":
+            names.append(f"_{name}_raw")
+        elif n:
+            names += [f"{name}[{k}]" for k in range(n)]
+        else:
+            names.append(name)
+    struct_pack = cls.unpacker.pack
+    if all("[" not in x for x in names):
+        get = operator.attrgetter(*names)
+        if len(names) == 1:
+            def pack(msg: Any) -> bytes:
+                return bytes(struct_pack(get(msg)))
+        else:
+            def pack(msg: Any) -> bytes:
+                return bytes(struct_pack(*get(msg)))
+    else:
+        spec = [(x.split("[")[0], int(x.split("[")[1][:-1]) if "[" in x else -1) for x in names]
+
+        def pack(msg: Any) -> bytes:
+            return bytes(struct_pack(*[getattr(msg, a) if k < 0 else getattr(msg, a)[k]
+                                       for a, k in spec]))
+    return int(cls.id), bytes((int(cls.crc_extra),)), pack
 
 
 class Codec:
@@ -40,22 +150,131 @@ class Codec:
         self.mav.robust_parsing = True
         self._lock = threading.Lock()
         self.dropped_frames = 0
+        self._pending = b""
+        self._layouts: dict[int, _Layout | None] = {}
+        self._packers: dict[type, _Packer | None] = {}
 
     def encode(self, msg: MavMessage) -> bytes:
-        """Serialise ``msg`` as one MAVLink 2 frame (assigns the next sequence number)."""
-        with self._lock:
-            return bytes(msg.pack(self.mav))
+        """Serialise ``msg`` as one MAVLink 2 frame and advance the sequence number (0..255).
 
-    def decode(self, data: bytes) -> list[MavMessage]:
-        """Parse bytes (any fragmentation) into complete, CRC-valid MAVLink 2 messages."""
-        msgs = self.mav.parse_buffer(data) or []
+        Same bytes as pymavlink's ``msg.pack(mav)``, built with the class's ``struct`` and a C CRC
+        (pymavlink's own ``pack`` is used for signed output); unlike ``msg.pack`` it does not store
+        the frame on ``msg``.
+        """
+        cls = type(msg)
+        packer = self._packers.get(cls, _MISSING)
+        if packer is _MISSING:
+            packer = self._packers[cls] = _payload_packer(cls)
+        with self._lock:
+            mav = self.mav
+            seq = mav.seq
+            if packer is None or mav.signing.sign_outgoing:
+                frame = bytes(msg.pack(mav))
+            else:
+                msg_id, extra, pack = packer
+                payload = pack(msg).rstrip(b"\x00") or b"\x00"
+                header = _V2_HEADER.pack(MAVLINK2_MAGIC, len(payload), 0, 0, seq, mav.srcSystem,
+                                         mav.srcComponent, msg_id & 0xFFFF, msg_id >> 16)
+                crc = _crc_mcrf4xx(extra, _crc_mcrf4xx(header[1:] + payload, 0xFFFF))
+                frame = header + payload + _CRC.pack(crc)
+            mav.seq = (seq + 1) & 0xFF
+        return frame
+
+    def decode(self, data: bytes | bytearray) -> list[MavMessage]:
+        """Parse bytes (any fragmentation) into complete, CRC-valid MAVLink 2 messages.
+
+        Same messages, order and drop count as pymavlink's ``parse_buffer`` filtered to valid
+        MAVLink 2 frames; an incomplete trailing frame is kept for the next call.
+        """
+        buf = self._pending + bytes(data) if self._pending else bytes(data)
+        n = len(buf)
         out: list[MavMessage] = []
-        for msg in msgs:
-            if msg.get_type() == "BAD_DATA" or msg.get_msgbuf()[0] != MAVLINK2_MAGIC:
+        layouts = self._layouts
+        crc16 = _crc_mcrf4xx
+        header = mavlink2.MAVLink_header
+        slow = self.mav.signing.secret_key is not None
+        i = 0
+        while i < n:
+            magic = buf[i]
+            if magic != MAVLINK2_MAGIC and magic != MAVLINK1_MAGIC:
+                # pymavlink: one bad-data drop per run of non-magic bytes
+                j2 = buf.find(b"\xfd", i)
+                j1 = buf.find(b"\xfe", i)
+                i = n if j1 < 0 and j2 < 0 else (j1 if j2 < 0 else j2 if j1 < 0 else min(j1, j2))
                 self.dropped_frames += 1
                 continue
+            if n - i < 3:
+                break
+            start = i
+            mlen = buf[i + 1]
+            if magic != MAVLINK2_MAGIC:  # MAVLink 1: pymavlink frames it by length; we drop it
+                i += _V1_HEADER_LEN + 2 + mlen
+                if i > n:
+                    i = start
+                    break
+                self.dropped_frames += 1
+                continue
+            flags = buf[i + 2]
+            pend = i + _V2_HEADER_LEN + mlen
+            i = pend + 2 + (_SIGNATURE_LEN if flags & _IFLAG_SIGNED else 0)
+            if i > n:
+                i = start
+                break
+            if flags & ~_IFLAG_SIGNED:
+                self.dropped_frames += 1  # incompat flags pymavlink rejects
+                continue
+            msg_id = buf[start + 7] | (buf[start + 8] << 8) | (buf[start + 9] << 16)
+            layout = layouts.get(msg_id, _MISSING)
+            if layout is _MISSING:
+                layout = self._layout(msg_id)
+            if layout is None or flags or slow:  # unknown id, signed, or a signing key set
+                msg = self._slow_decode(buf[start:i])
+                if msg is None:
+                    self.dropped_frames += 1
+                else:
+                    out.append(msg)
+                continue
+            cls, extra, unpacker, size, build = layout
+            crc = buf[pend] | (buf[pend + 1] << 8)
+            if crc != crc16(extra, crc16(buf[start + 1:pend], 0xFFFF)) and not (
+                    mavlink2.MAVLINK_IGNORE_CRC):
+                self.dropped_frames += 1
+                continue
+            if mlen >= size:
+                values = unpacker.unpack_from(buf, start + _V2_HEADER_LEN)
+            else:  # MAVLink 2 truncates trailing zero bytes: zero-extend
+                values = unpacker.unpack(buf[start + _V2_HEADER_LEN:pend] + bytes(size - mlen))
+            try:
+                msg = cls(*build(values))
+            except Exception:  # pymavlink turns any constructor error into bad data
+                self.dropped_frames += 1
+                continue
+            msgbuf = bytearray(buf[start:i])
+            msg._msgbuf = msgbuf
+            msg._payload = msgbuf[_V1_HEADER_LEN:-2]  # sic: pymavlink's decode slices from 6
+            msg._crc = crc
+            msg._header = header(msg_id, 0, buf[start + 3], mlen, buf[start + 4], buf[start + 5],
+                                 buf[start + 6])
             out.append(msg)
+        self._pending = buf[i:] if i < n else b""
         return out
+
+    def _layout(self, msg_id: int) -> _Layout | None:
+        cls: Any = mavlink2.mavlink_map.get(msg_id)
+        layout: _Layout | None = None
+        if cls is not None:
+            layout = (cls, bytes((int(cls.crc_extra),)), cls.unpacker, int(cls.unpacker.size),
+                      _arg_builder(cls))
+        self._layouts[msg_id] = layout
+        return layout
+
+    def _slow_decode(self, frame: bytes) -> MavMessage | None:
+        """pymavlink's own decode of one frame (signed, unknown id, signing key configured)."""
+        try:
+            msg = self.mav.decode(bytearray(frame))
+        except mavlink2.MAVError:
+            return None
+        return msg if msg.get_type() != "BAD_DATA" else None
 
 
 def raw_frame(msg: MavMessage) -> bytes:
