@@ -18,17 +18,17 @@ import json
 import math
 import os
 import shutil
-import struct
 import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, BinaryIO, Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
+from companion.aio.tlog import TlogWriter
 from companion.control import Reference
 from companion.flatness import MultirotorParams
 from companion.mavlink.commands import CommandFinished
@@ -58,7 +58,8 @@ SETTLE_S = 1.0
 DEFAULT_QUAD = MultirotorParams(
     mass=1.0, inertia=(0.025, 0.025, 0.030), hover_thrust=0.5, drag=1.0
 )
-_TLOG_EPOCH_US = 1_767_225_600_000_000  # 2026-01-01T00:00:00Z, for deterministic timestamps
+#: Simulated t = 0 on the tlog's UNIX clock: 2026-01-01T00:00:00Z, for deterministic timestamps.
+TLOG_EPOCH_S = 1_767_225_600.0
 
 
 @dataclass(frozen=True)
@@ -102,23 +103,6 @@ class Phase(enum.Enum):
     WAIT_DISARM = "wait_disarm"
     DONE = "done"
     ABORTED = "aborted"
-
-
-_PACK_Q = struct.Struct(">Q").pack
-
-
-class TlogWriter:
-    """Append MAVLink frames to a .tlog: 8-byte big-endian microsecond timestamp + frame."""
-
-    def __init__(self, stream: BinaryIO, epoch_us: int = _TLOG_EPOCH_US) -> None:
-        self._f = stream
-        self._epoch_us = epoch_us
-        self.frames = 0
-
-    def write(self, t_s: float, frame: bytes) -> None:
-        """Record `frame` at simulated time `t_s` [s]."""
-        self._f.write(_PACK_Q(self._epoch_us + round(t_s * 1e6)) + frame)
-        self.frames += 1
 
 
 @dataclass
@@ -191,7 +175,7 @@ class LockstepLink:
     def to_vehicle(self, frames: list[bytes]) -> None:
         for fr in frames:
             if self.tlog is not None:
-                self.tlog.write(self.now, fr)
+                self.tlog.write(fr, TLOG_EPOCH_S + self.now)
             self.ap.receive_datagram(fr, "companion", self.now)
 
     def advance(self, t: float) -> list[Any]:
@@ -201,7 +185,7 @@ class LockstepLink:
         events: list[Any] = []
         for data, _addr in self.ap.datagrams_to_send(t):
             if self.tlog is not None:
-                self.tlog.write(t, data)
+                self.tlog.write(data, TLOG_EPOCH_S + t)
             if self.wanted is not None and _msgid(data) not in self.wanted:
                 continue
             for msg in self.link.codec.decode(data):
@@ -656,8 +640,7 @@ def replay_file(
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=out_root))
     wall0 = time.perf_counter()
     try:
-        with open(tmp / "flight.tlog", "wb") as f:
-            tlog = TlogWriter(f)
+        with TlogWriter(tmp / "flight.tlog") as tlog:
             flight, log = fly_schedule(config, schedule, home, tlog, progress)
         wall = time.perf_counter() - wall0
         report = summarize(log, schedule, mission, flight.origin)
@@ -725,7 +708,6 @@ __all__ = [
     "MissionError",
     "ReplayConfig",
     "ReplayResult",
-    "TlogWriter",
     "fly_px4_mission",
     "fly_schedule",
     "replay_file",
