@@ -258,10 +258,10 @@ def compute_bench(n: int = 5000) -> dict[str, tuple[float, float]]:
             link.codec.decode(lpos), link.codec.decode(attq)),
         "decode, pymavlink parser (baseline)": lambda: (
             base.codec.decode(lpos), base.codec.decode(attq)),
-        "telemetry_in": telemetry_in,
-        "telemetry_in, pymavlink parser (baseline)": lambda: telemetry_in(base),
-        "setpoint_out": setpoint_out,
-        "setpoint_out, pymavlink pack (baseline)": lambda: setpoint_out(base),
+        "telemetry in": telemetry_in,
+        "telemetry in, pymavlink parser (baseline)": lambda: telemetry_in(base),
+        "setpoint out": setpoint_out,
+        "setpoint out, pymavlink pack (baseline)": lambda: setpoint_out(base),
         "total": both,
         "total, pymavlink parser + pack (baseline)": lambda: both(base),
     }, n)

@@ -108,26 +108,24 @@ def _payload_packer(cls: Any) -> _Packer | None:
     if mavlink2.mavlink_map.get(getattr(cls, "id", None)) is not cls:
         return None
     types = dict(zip(cls.fieldnames, cls.fieldtypes, strict=True))
-    names: list[str] = []
+    spec: list[tuple[str, int]] = []  # (attribute, element index or -1 for a scalar)
     for name, n in zip(cls.ordered_fieldnames, cls.array_lengths, strict=True):
         if types[name] == "char":
-            names.append(f"_{name}_raw")
+            spec.append((f"_{name}_raw", -1))
         elif n:
-            names += [f"{name}[{k}]" for k in range(n)]
+            spec += [(name, k) for k in range(n)]
         else:
-            names.append(name)
+            spec.append((name, -1))
     struct_pack = cls.unpacker.pack
-    if all("[" not in x for x in names):
-        get = operator.attrgetter(*names)
-        if len(names) == 1:
+    if all(k < 0 for _, k in spec):
+        get = operator.attrgetter(*(a for a, _ in spec))
+        if len(spec) == 1:
             def pack(msg: Any) -> bytes:
                 return bytes(struct_pack(get(msg)))
         else:
             def pack(msg: Any) -> bytes:
                 return bytes(struct_pack(*get(msg)))
     else:
-        spec = [(x.split("[")[0], int(x.split("[")[1][:-1]) if "[" in x else -1) for x in names]
-
         def pack(msg: Any) -> bytes:
             return bytes(struct_pack(*[getattr(msg, a) if k < 0 else getattr(msg, a)[k]
                                        for a, k in spec]))
