@@ -8,7 +8,7 @@ from a figure-8 PiecewiseBezier. Reports achieved rate, period error |dt - T| p5
 core (the fake PX4 runs in a child process), and the per-cycle compute time (telemetry in ->
 setpoint out), with the codec's fast decode/encode paths and, as the same-run baseline,
 pymavlink's byte-wise parser and ``msg.pack`` (the codec's previous implementation), calls
-interleaved.
+interleaved; plus the trajectory's scalar evaluator against ``PiecewiseBezier.evaluate``.
 
     python bench/bench_stream.py [--duration 8] [--rates 100 250] [--compute-only]
 """
@@ -267,6 +267,28 @@ def compute_bench(n: int = 5000) -> dict[str, tuple[float, float]]:
     }, n)
 
 
+def evaluator_bench(n: int = 3000) -> dict[str, tuple[float, float]]:
+    """The trajectory's scalar evaluator vs ``PiecewiseBezier.evaluate`` (separate run, so that
+    numpy's cost does not disturb the per-cycle table)."""
+    traj = figure8()
+    ev2, ev4 = traj.scalar_evaluator(2), traj.scalar_evaluator(4)
+    ts = itertools.cycle(np.linspace(0.0, 12.0, 997).tolist())
+    t = [0.0]
+
+    def step() -> None:
+        t[0] = next(ts)
+
+    return time_interleaved({
+        "(next time)": step,
+        "orders 0-2 as floats: `ScalarEvaluator.values`": lambda: ev2.values(t[0]),
+        "orders 0-4 as (5, 3) array: `ScalarEvaluator.__call__`": lambda: ev4(t[0]),
+        "orders 0-2: `PiecewiseBezier.evaluate` x3 (baseline)": lambda: [
+            traj.evaluate(t[0], k) for k in range(3)],
+        "orders 0-4: `PiecewiseBezier.evaluate` x5 (baseline)": lambda: [
+            traj.evaluate(t[0], k) for k in range(5)],
+    }, n)
+
+
 async def main_async(args: argparse.Namespace) -> None:
     print("| rate Hz | sender | achieved Hz | sent | missed | period err p50/p99/max us "
           "(send) | (arrival) | lateness p99 us | CPU % of one core |")
@@ -286,6 +308,13 @@ async def main_async(args: argparse.Namespace) -> None:
     print("| --- | --- | --- |")
     for k, (p50, p99) in c.items():
         print(f"| {k} | {p50:.1f} | {p99:.1f} |")
+    e = evaluator_bench()
+    print()
+    print("| figure-8 trajectory at one time | p50 us | p99 us |")
+    print("| --- | --- | --- |")
+    for k, (p50, p99) in e.items():
+        if not k.startswith("("):
+            print(f"| {k} | {p50:.1f} | {p99:.1f} |")
 
 
 def main() -> None:

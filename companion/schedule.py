@@ -24,6 +24,7 @@ from companion.control import Reference
 from companion.flatness import MultirotorParams
 from companion.mission import FlightChunk, FlightPlan, split_flight_plan
 from companion.trajectory import Limits, PiecewiseBezier, RoverLimits, hermite, plan
+from companion.trajectory.bezier import ScalarEvaluator
 
 FloatArray = NDArray[np.float64]
 
@@ -42,47 +43,6 @@ class VehicleLimits:
     """Peak collective thrust allowed in planning, as a multiple of the hover thrust m g."""
     rover_max_yaw_rate_rad_s: float = math.radians(60.0)
     rover_max_lat_acc_m_s2: float = 1.5
-
-
-class _ScalarEval:
-    """Fast single-time evaluation of a PiecewiseBezier and its first `orders` derivatives.
-
-    Precomputes, per segment, the monomial coefficients of every derivative in local time
-    (seconds) so one call is a segment lookup plus one small matrix product.
-    """
-
-    def __init__(self, traj: PiecewiseBezier, orders: int) -> None:
-        self.breaks = [float(b) for b in traj.breaks]
-        self.dim = traj.dim
-        mats = []
-        for seg in traj.segments:
-            c = np.asarray(seg.to_monomial(), dtype=np.float64)  # (n+1, d) ascending powers
-            n1 = c.shape[0]
-            m = np.zeros((orders + 1, n1, c.shape[1]))
-            cur = c
-            for k in range(orders + 1):
-                m[k, : cur.shape[0]] = cur
-                if cur.shape[0] > 1:
-                    cur = cur[1:] * np.arange(1, cur.shape[0])[:, None]
-                else:
-                    cur = np.zeros((1, c.shape[1]))
-            mats.append(m)
-        self.mats = mats
-        self.n1 = mats[0].shape[1]
-        self._shape = (orders + 1, self.dim)
-        # (n1, (orders+1) d) per segment: one vector-matrix product per call
-        self._flat = [np.ascontiguousarray(m.transpose(1, 0, 2).reshape(self.n1, -1)) for m in mats]
-        self._exps = np.arange(self.n1, dtype=np.float64)
-        self._last = len(mats) - 1
-
-    def __call__(self, t: float) -> FloatArray:
-        """(orders+1, d) array: value and derivatives at global time t (clamped)."""
-        b = self.breaks
-        t = min(max(t, b[0]), b[-1])
-        i = min(max(bisect.bisect_right(b, t) - 1, 0), self._last)
-        powers = np.power(t - b[i], self._exps)
-        out: FloatArray = (powers @ self._flat[i]).reshape(self._shape)
-        return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -104,13 +64,13 @@ class Piece:
     turn: PiecewiseBezier | None = None
 
     @functools.cached_property
-    def _eval(self) -> _ScalarEval | None:
-        return None if self.traj is None else _ScalarEval(self.traj, 4)
+    def _eval(self) -> ScalarEvaluator | None:
+        return None if self.traj is None else self.traj.scalar_evaluator(4)
 
     @functools.cached_property
-    def _eval_yaw(self) -> _ScalarEval | None:
+    def _eval_yaw(self) -> ScalarEvaluator | None:
         src = self.turn if self.turn is not None else (self.traj.yaw if self.traj else None)
-        return None if src is None else _ScalarEval(src, 2)
+        return None if src is None else src.scalar_evaluator(2)
 
 
 @dataclass(frozen=True)
@@ -348,8 +308,8 @@ def _plan_chunk(
 def trajectory_reference(traj: PiecewiseBezier, yaw: float = 0.0) -> Callable[[float], Reference]:
     """Fast reference function t [s] -> Reference for one trajectory (clamped to its ends;
     without a yaw channel the yaw is held at `yaw` [rad])."""
-    pos = _ScalarEval(traj, 4)
-    yaw_ev = None if traj.yaw is None else _ScalarEval(traj.yaw, 2)
+    pos = traj.scalar_evaluator(4)
+    yaw_ev = None if traj.yaw is None else traj.yaw.scalar_evaluator(2)
     duration = traj.duration
 
     def ref(t: float) -> Reference:

@@ -9,6 +9,7 @@ come back as events. Never reads a clock, never touches a socket.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink2
@@ -78,6 +79,12 @@ class VehicleLink:
         self.timesync = TimeSync(self._queue, interval_s=cfg.timesync_interval_s)
         self._next_heartbeat: float | None = None
         self._t0: float | None = None
+        # message type -> handler for everything but HEARTBEAT and MISSION_* (telemetry: any type
+        # TelemetryState handles; other types are ignored)
+        self._handlers: dict[str, Callable[[MavMessage, float], Sequence[LinkEvent]]] = {
+            kind: self.telemetry.update for kind in self.telemetry.kinds}
+        self._handlers["COMMAND_ACK"] = self.commands.on_command_ack
+        self._handlers["TIMESYNC"] = self.timesync.on_timesync
 
     # -- output -----------------------------------------------------------------------------
     def _queue(self, msg: MavMessage) -> None:
@@ -116,22 +123,18 @@ class VehicleLink:
         """Dispatch one decoded message."""
         kind = msg.get_type()
         events: list[LinkEvent] = []
-        if kind != "HEARTBEAT":
-            events += self.heartbeat.on_activity(msg.get_srcSystem(), msg.get_srcComponent(), now)
         if kind == "HEARTBEAT":
-            hb_events = self.heartbeat.on_heartbeat(msg, now)
-            events += hb_events
+            events += self.heartbeat.on_heartbeat(msg, now)
             last = self.heartbeat.last
             if last is not None and last.t_s == now:
                 events += self.commands.on_heartbeat_mode(last.custom_mode, now)
-        elif kind == "COMMAND_ACK":
-            events += self.commands.on_command_ack(msg, now)
-        elif kind == "TIMESYNC":
-            events += self.timesync.on_timesync(msg, now)
+            return events
+        events += self.heartbeat.on_activity(msg.get_srcSystem(), msg.get_srcComponent(), now)
+        handler = self._handlers.get(kind)
+        if handler is not None:
+            events += handler(msg, now)
         elif kind.startswith("MISSION_"):
             events += self.mission.on_message(msg, now)
-        else:
-            events += self.telemetry.update(msg, now)
         return events
 
     def transport_lost(self, now: float) -> list[LinkEvent]:

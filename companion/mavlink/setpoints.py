@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from math import isfinite
 
 from pymavlink.dialects.v20 import common as mavlink2
 
@@ -61,6 +62,24 @@ class PositionSetpoint:
     yaw_rate: float | None = None
 
 
+_new = object.__new__
+
+
+def make_position_setpoint(pos_ned: Vec3 | None, vel_ned: Vec3 | None, acc_ned: Vec3 | None,
+                           yaw: float | None, yaw_rate: float | None) -> PositionSetpoint:
+    """``PositionSetpoint(pos_ned, vel_ned, acc_ned, yaw, yaw_rate)`` for per-cycle sources: the
+    same object, built ~3x faster than by the frozen dataclass ``__init__`` (which only assigns
+    the fields). Validation happens when it is built into a message, as for any setpoint."""
+    v: PositionSetpoint = _new(PositionSetpoint)
+    d = v.__dict__
+    d["pos_ned"] = pos_ned
+    d["vel_ned"] = vel_ned
+    d["acc_ned"] = acc_ned
+    d["yaw"] = yaw
+    d["yaw_rate"] = yaw_rate
+    return v
+
+
 @dataclass(frozen=True)
 class AttitudeSetpoint:
     """SET_ATTITUDE_TARGET with attitude q_wxyz (body FRD -> NED), thrust 0..1 and optional yaw
@@ -92,21 +111,32 @@ SetpointCommand = PositionSetpoint | AttitudeSetpoint | RatesSetpoint | RoverVel
 
 def _finite(name: str, values: Sequence[float]) -> list[float]:
     out = [float(v) for v in values]
-    if not all(math.isfinite(v) for v in out):
+    if not all(isfinite(v) for v in out):
         raise SetpointError(f"{name} is not finite: {tuple(out)}")
     return out
 
 
-def _vec3(name: str, v: Sequence[float] | None) -> list[float] | None:
+def _scalar(name: str, value: float) -> float:
+    v = float(value)
+    if not isfinite(v):
+        raise SetpointError(f"{name} is not finite: {v}")
+    return v
+
+
+def _vec3(name: str, v: Sequence[float] | None) -> Vec3 | None:
+    """Three finite floats, None for None (per-cycle hot path: no per-element generators)."""
     if v is None:
         return None
     if len(v) != 3:
         raise SetpointError(f"{name} needs 3 components, got {len(v)}")
-    return _finite(name, v)
+    x, y, z = float(v[0]), float(v[1]), float(v[2])
+    if not (isfinite(x) and isfinite(y) and isfinite(z)):
+        raise SetpointError(f"{name} is not finite: {(x, y, z)}")
+    return x, y, z
 
 
 def _thrust(thrust_norm: float) -> float:
-    (t,) = _finite("thrust", [thrust_norm])
+    t = _scalar("thrust", thrust_norm)
     if not 0.0 <= t <= 1.0:
         raise SetpointError(f"normalised thrust {t:.3f} outside 0..1")
     return t
@@ -140,9 +170,9 @@ def build_position_target(
     acc = _vec3("acceleration", sp.acc_ned)
     if pos is None and vel is None and acc is None:
         raise SetpointError("a position setpoint needs a position, velocity or acceleration")
-    yaw = 0.0 if sp.yaw is None else _finite("yaw", [sp.yaw])[0]
-    yaw_rate = 0.0 if sp.yaw_rate is None else _finite("yaw rate", [sp.yaw_rate])[0]
-    zero = [0.0, 0.0, 0.0]
+    yaw = 0.0 if sp.yaw is None else _scalar("yaw", sp.yaw)
+    yaw_rate = 0.0 if sp.yaw_rate is None else _scalar("yaw rate", sp.yaw_rate)
+    zero = (0.0, 0.0, 0.0)
     p, v, a = pos or zero, vel or zero, acc or zero
     return mavlink2.MAVLink_set_position_target_local_ned_message(
         time_boot_ms & 0xFFFFFFFF, target_system, target_component, MAV_FRAME_LOCAL_NED,
@@ -154,8 +184,11 @@ def build_position_target(
 def _unit_quat(q: Sequence[float]) -> list[float]:
     if len(q) != 4:
         raise SetpointError(f"quaternion needs 4 components (w, x, y, z), got {len(q)}")
-    qq = _finite("quaternion", q)
-    norm = math.sqrt(sum(c * c for c in qq))
+    w, x, y, z = float(q[0]), float(q[1]), float(q[2]), float(q[3])
+    qq = [w, x, y, z]
+    if not (isfinite(w) and isfinite(x) and isfinite(y) and isfinite(z)):
+        raise SetpointError(f"quaternion is not finite: {tuple(qq)}")
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
     if abs(norm - 1.0) > QUAT_NORM_TOL:
         raise SetpointError(f"quaternion is not normalised (|q| = {norm:.6f})")
     return qq
@@ -176,7 +209,7 @@ def build_attitude_target(
     if sp.yaw_rate is None:
         mask |= ATT_IGNORE_YAW_RATE
     else:
-        yaw_rate = _finite("yaw rate", [sp.yaw_rate])[0]
+        yaw_rate = _scalar("yaw rate", sp.yaw_rate)
     return mavlink2.MAVLink_set_attitude_target_message(
         time_boot_ms & 0xFFFFFFFF, target_system, target_component, mask, q,
         0.0, 0.0, yaw_rate, thrust,
@@ -208,7 +241,7 @@ def build_rover_velocity_target(
     if len(sp.vel_ne) != 2:
         raise SetpointError("rover velocity needs (north, east)")
     vn, ve = _finite("rover velocity", sp.vel_ne)
-    (yr,) = _finite("yaw rate", [sp.yaw_rate])
+    yr = _scalar("yaw rate", sp.yaw_rate)
     return mavlink2.MAVLink_set_position_target_local_ned_message(
         time_boot_ms & 0xFFFFFFFF, target_system, target_component, MAV_FRAME_LOCAL_NED,
         rover_type_mask(), 0.0, 0.0, 0.0, vn, ve, 0.0, 0.0, 0.0, 0.0, 0.0, yr,

@@ -7,6 +7,7 @@ NED world, FRD body, SI units; quaternions (w, x, y, z) body FRD -> NED.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from .codec import MavMessage
@@ -118,6 +119,47 @@ class TelemetrySnapshot:
     now_s: float = math.nan  # local time of the consumer's cycle (set by the streamer)
 
 
+# Per-cycle constructors of the hot values: the same objects as the dataclass constructors (whose
+# generated frozen __init__ only assigns the fields, one object.__setattr__ each, ~3x slower),
+# checked field by field against them in tests/unit/test_mavlink_hot_path.py.
+_new = object.__new__
+
+
+def _local_position(t_s: float, time_boot_s: float, pos_ned: Vec3, vel_ned: Vec3,
+                    source: str) -> LocalPosition:
+    v: LocalPosition = _new(LocalPosition)
+    d = v.__dict__
+    d["t_s"] = t_s
+    d["time_boot_s"] = time_boot_s
+    d["pos_ned"] = pos_ned
+    d["vel_ned"] = vel_ned
+    d["source"] = source
+    return v
+
+
+def _attitude(t_s: float, q_wxyz: Quat, omega_frd: Vec3) -> Attitude:
+    v: Attitude = _new(Attitude)
+    d = v.__dict__
+    d["t_s"] = t_s
+    d["q_wxyz"] = q_wxyz
+    d["omega_frd"] = omega_frd
+    return v
+
+
+def _snapshot(position: LocalPosition | None, attitude: Attitude | None,
+              global_position: GlobalPosition | None, home: HomePosition | None,
+              extended: ExtendedState | None) -> TelemetrySnapshot:
+    v: TelemetrySnapshot = _new(TelemetrySnapshot)
+    d = v.__dict__
+    d["position"] = position
+    d["attitude"] = attitude
+    d["global_position"] = global_position
+    d["home"] = home
+    d["extended"] = extended
+    d["now_s"] = math.nan
+    return v
+
+
 def _rotate(q: Quat, v: Vec3) -> Vec3:
     """Rotate v by unit quaternion q (w, x, y, z): R(q) v."""
     w, x, y, z = q
@@ -149,26 +191,40 @@ class TelemetryState:
         self.extended: ExtendedState | None = None
         self.statustext_timeout_s = statustext_timeout_s
         self._chunks: dict[int, _Chunks] = {}
+        # message type -> handler, e.g. "LOCAL_POSITION_NED" -> self._on_local_position_ned
+        self._handlers: dict[str, Callable[[MavMessage, float], list[TelemetryEvent]]] = {
+            name[4:].upper(): getattr(self, name) for name in dir(self) if name.startswith("_on_")
+        }
+        self._snapshot = TelemetrySnapshot()
+
+    @property
+    def kinds(self) -> frozenset[str]:
+        """Message types that ``update`` handles."""
+        return frozenset(self._handlers)
 
     def snapshot(self) -> TelemetrySnapshot:
-        """Immutable copy of the kinematic state (cheap; values are already frozen)."""
-        return TelemetrySnapshot(self.position, self.attitude, self.global_position, self.home,
-                                 self.extended)
+        """Immutable copy of the kinematic state (cheap; values are already frozen). The same
+        object is returned again while none of its values changed."""
+        s = self._snapshot
+        if (s.position is self.position and s.attitude is self.attitude
+                and s.global_position is self.global_position and s.home is self.home
+                and s.extended is self.extended):
+            return s
+        s = self._snapshot = _snapshot(self.position, self.attitude, self.global_position,
+                                       self.home, self.extended)
+        return s
 
     def update(self, msg: MavMessage, now: float) -> list[TelemetryEvent]:
         """Feed any message from the vehicle; returns the telemetry values it produced."""
-        if msg.get_srcSystem() != self.target_sysid or msg.get_srcComponent() != self.target_compid:
+        handler = self._handlers.get(msg.get_type())
+        if (handler is None or msg.get_srcSystem() != self.target_sysid
+                or msg.get_srcComponent() != self.target_compid):
             return []
-        kind = msg.get_type()
-        handler = getattr(self, "_on_" + kind.lower(), None)
-        if handler is None:
-            return []
-        out: list[TelemetryEvent] = handler(msg, now)
-        return out
+        return handler(msg, now)
 
     def _on_local_position_ned(self, m: MavMessage, now: float) -> list[TelemetryEvent]:
-        v = LocalPosition(now, m.time_boot_ms * 1e-3, (float(m.x), float(m.y), float(m.z)),
-                          (float(m.vx), float(m.vy), float(m.vz)), "LOCAL_POSITION_NED")
+        v = _local_position(now, m.time_boot_ms * 1e-3, (float(m.x), float(m.y), float(m.z)),
+                            (float(m.vx), float(m.vy), float(m.vz)), "LOCAL_POSITION_NED")
         self.position = v
         return [v]
 
@@ -192,8 +248,8 @@ class TelemetryState:
         return out
 
     def _on_attitude_quaternion(self, m: MavMessage, now: float) -> list[TelemetryEvent]:
-        v = Attitude(now, (float(m.q1), float(m.q2), float(m.q3), float(m.q4)),
-                     (float(m.rollspeed), float(m.pitchspeed), float(m.yawspeed)))
+        v = _attitude(now, (float(m.q1), float(m.q2), float(m.q3), float(m.q4)),
+                      (float(m.rollspeed), float(m.pitchspeed), float(m.yawspeed)))
         self.attitude = v
         return [v]
 

@@ -33,7 +33,7 @@ def traj_with_yaw() -> PiecewiseBezier:
 def test_matches_trajectory_evaluate(t: float) -> None:
     traj = traj_with_yaw()
     src = TrajectoryPositionSource(traj)
-    assert src._fast is not None  # the fast path is in use
+    assert src._fast == traj.scalar_evaluator(2).values  # the fast path is in use
     sp = src(float(t), SNAP)
     tc = min(max(t, 0.0), traj.duration)
     assert np.allclose(sp.pos_ned, traj.evaluate(tc, 0), atol=1e-9)
@@ -66,3 +66,36 @@ def test_hold_setpoint_uses_position_and_heading() -> None:
     assert sp is not None and sp.pos_ned == (1.0, 2.0, -3.0) and sp.vel_ned == (0.0, 0.0, 0.0)
     assert sp.yaw == pytest.approx(yaw)
     assert hold_setpoint(TelemetrySnapshot()) is None
+
+
+class _DuckTrajectory:
+    """Only ``duration`` and ``evaluate`` (no scalar evaluator): the source's generic path."""
+
+    def __init__(self, traj: PiecewiseBezier) -> None:
+        self._traj = traj
+        self.yaw = None if traj.yaw is None else _DuckTrajectory(traj.yaw)
+
+    @property
+    def duration(self) -> float:
+        return self._traj.duration
+
+    def evaluate(self, t: float, order: int = 0) -> np.ndarray:
+        assert 0.0 <= t <= self._traj.duration  # the source clamps before asking
+        return self._traj.evaluate(t, order)
+
+
+@pytest.mark.parametrize("feedforward", ["acc", "vel", "none"])
+def test_duck_typed_trajectory_gives_the_same_setpoints(feedforward: str) -> None:
+    traj = traj_with_yaw()
+    fast = TrajectoryPositionSource(traj, feedforward=feedforward)
+    duck = TrajectoryPositionSource(_DuckTrajectory(traj), feedforward=feedforward)
+    for t in (-1.0, 0.0, 0.4, 1.0, 3.3, traj.duration, traj.duration + 2.0):
+        a, b = fast(t, SNAP), duck(t, SNAP)
+        for x, y in ((a.pos_ned, b.pos_ned), (a.vel_ned, b.vel_ned), (a.acc_ned, b.acc_ned),
+                     (a.yaw, b.yaw), (a.yaw_rate, b.yaw_rate)):
+            assert (x is None) == (y is None)
+            if x is not None:
+                assert np.allclose(x, y, rtol=1e-12, atol=1e-12)  # type: ignore[arg-type]
+    for src in (fast, duck):
+        with pytest.raises(ValueError, match="NaN"):
+            src(math.nan, SNAP)
