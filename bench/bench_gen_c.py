@@ -5,7 +5,8 @@ Builds ``bench/bench_gen_c.c`` against ``gen_c/ecca_setpoint`` with the system c
 Bezier evaluation, multirotor flatness and the full setpoint (evaluate + flatness), in double
 and float; measures the Python path one sample at a time (``PiecewiseBezier.evaluate`` orders
 0..4 + yaw 0..2, ``multirotor_setpoint``) and the ctypes path (``gen_c.native``) in the same
-run; cross-compiles both variants for a Cortex-M7 (code size, worst stack). Prints the
+run; counts instructions per call with valgrind's callgrind (if installed: load-independent);
+cross-compiles both variants for a Cortex-M7 (code size, worst stack). Prints the
 "## gen_c" section of BENCHMARKS.md and writes it there (``--no-write`` to skip).
 
     python bench/bench_gen_c.py [--calls 1000000] [--no-write]
@@ -17,6 +18,7 @@ import argparse
 import os
 import platform
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -55,17 +57,59 @@ def _best(fn: Callable[[], object], repeat: int) -> float:
     return best
 
 
+# Callgrind: instructions per call (inclusive, libm included) of these API functions.
+CALLGRIND_FUNCS = ("ecca_full_setpoint", "ecca_full_setpoint_f", "ecca_bezier_eval",
+                   "ecca_multirotor_setpoint")
+CALLGRIND_CALLS = 10_000
+# The same measurement on the library before the 2026-11-22 speed-up (commit e7a0c52: separate
+# kernels, element-by-element validation before and after each kernel, libm fmax/fmin calls,
+# CasADi's NULL guards on every argument): valgrind 3.19 callgrind, same compiler and flags.
+CALLGRIND_BEFORE = {"ecca_full_setpoint": 2753, "ecca_full_setpoint_f": 2697,
+                    "ecca_bezier_eval": 1206, "ecca_multirotor_setpoint": 1545}
+# One-off wall-clock comparison of the same two versions (bench_gen_c.c built against each,
+# run alternately, 1e6 calls x 15 repetitions, best; load average 3.4-3.9), 2026-11-22.
+BEFORE_AFTER_NS = ("full double setpoint, before / after, run alternately in one session "
+                   "(load average 3.4-3.9): 382 / 211 ns and 321 / 204 ns")
+
+
+def _build(exe: Path) -> None:
+    cmd = ["cc", *CFLAGS, f"-I{LIB}", str(ROOT / "bench" / "bench_gen_c.c"),
+           *(str(LIB / s) for s in native.SOURCES), "-lm", "-o", str(exe)]
+    subprocess.run(cmd, check=True, timeout=300)
+
+
 def run_c(calls: int, reps: int) -> tuple[dict[str, float], str]:
     with tempfile.TemporaryDirectory(prefix="bench_gen_c_") as tmp:
         exe = Path(tmp) / "bench_gen_c"
-        cmd = ["cc", *CFLAGS, f"-I{LIB}", str(ROOT / "bench" / "bench_gen_c.c"),
-               *(str(LIB / s) for s in native.SOURCES), "-lm", "-o", str(exe)]
-        subprocess.run(cmd, check=True, timeout=300)
+        _build(exe)
         out = subprocess.run([str(exe), str(calls), str(reps)], check=True, capture_output=True,
                              text=True, timeout=600).stdout
     version = subprocess.run(["cc", "--version"], capture_output=True, text=True,
                              check=True).stdout.splitlines()[0]
     return {k: float(v) for k, v in (line.split() for line in out.splitlines())}, version
+
+
+def run_callgrind() -> dict[str, float]:
+    """Instructions per call of :data:`CALLGRIND_FUNCS` (valgrind's callgrind: counts
+    instructions, so the result does not depend on the machine's load); {} without valgrind."""
+    if shutil.which("valgrind") is None:
+        return {}
+    out: dict[str, float] = {}
+    with tempfile.TemporaryDirectory(prefix="bench_gen_c_cg_") as tmp:
+        exe = Path(tmp) / "bench_gen_c"
+        _build(exe)
+        for fn in CALLGRIND_FUNCS:
+            prof = Path(tmp) / f"{fn}.out"
+            subprocess.run(["valgrind", "--tool=callgrind", f"--toggle-collect={fn}",
+                            f"--callgrind-out-file={prof}", str(exe), str(CALLGRIND_CALLS), "1"],
+                           check=True, capture_output=True, timeout=600)
+            m = re.search(r"^(?:summary|totals): (\d+)", prof.read_text(), re.M)
+            assert m is not None, f"no totals in {prof}"
+            # Each loop calls fn CALLGRIND_CALLS times; ecca_bezier_eval also fills the 1024
+            # precomputed states of bench_gen_c.c.
+            calls = CALLGRIND_CALLS + (1024 if fn == "ecca_bezier_eval" else 0)
+            out[fn] = int(m.group(1)) / calls
+    return out
 
 
 def run_python(m: int) -> dict[str, float]:
@@ -114,7 +158,7 @@ def run_python(m: int) -> dict[str, float]:
 
 
 def render(c: dict[str, float], py: dict[str, float], arm: list[crossbuild.ArmReport],
-           env: str, cmd: str, calls: int, reps: int) -> str:
+           env: str, cmd: str, calls: int, reps: int, cg: dict[str, float] | None = None) -> str:
     lines = [
         "## gen_c",
         "",
@@ -146,10 +190,26 @@ def render(c: dict[str, float], py: dict[str, float], arm: list[crossbuild.ArmRe
         f"{'met' if full_d <= GOAL_FULL_NS else 'NOT met'} ({full_d:.0f} ns); >= "
         f"{GOAL_SPEEDUP:g}x the single-sample Python path: "
         f"{'met' if speed >= GOAL_SPEEDUP else 'NOT met'} ({speed:.0f}x). The machine is "
-        "shared with other jobs (load average above): repeated runs vary by about +-30 %. About "
-        "30 % of the full setpoint's instructions are input/output validation (finite, "
-        "|x| <= 1e12, parameter ranges), the rest is the generated math (callgrind).",
+        "shared with other jobs (load average above): repeated runs vary by about +-30 %.",
         "",
+    ]
+    if cg:
+        lines += [
+            f"Instructions per call (callgrind, inclusive of libm; {CALLGRIND_CALLS} calls of "
+            "the same loops; independent of the load), now and before the 2026-11-22 speed-up "
+            "(commit e7a0c52, measured the same way):",
+            "",
+            "| function | instructions / call | before |",
+            "| --- | ---: | ---: |",
+        ]
+        for fn, n in cg.items():
+            before = CALLGRIND_BEFORE.get(fn)
+            lines.append(f"| `{fn}` | {n:.0f} | {before if before else '-'} |")
+        lines += ["", f"Wall clock, {BEFORE_AFTER_NS}. Changes: one fused CasADi kernel for "
+                  "evaluate + flatness; validation by sums of outputs (a finite sum proves "
+                  "every term finite) with the element-by-element checks as fallback that "
+                  "decides every error code; no CasADi NULL guards; inline fmax/fmin.", ""]
+    lines += [
         "Cortex-M7 cross-build (`arm-none-eabi-gcc -mcpu=cortex-m7 -mfpu=fpv5-d16 "
         "-mfloat-abi=hard -mthumb -O2 -fstack-usage`, one variant per build, linked against "
         "newlib's libm; `gen_c.crossbuild`, checked by `tests/golden/test_gen_c_arm.py`). Code "
@@ -193,6 +253,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-write", action="store_true", help="do not update BENCHMARKS.md")
     ns = ap.parse_args(argv)
     c, cc_version = run_c(ns.calls, ns.reps)
+    cg = run_callgrind()
     py = run_python(ns.samples)
     arm = []
     if crossbuild.have_arm_toolchain():
@@ -204,7 +265,7 @@ def main(argv: list[str] | None = None) -> int:
     cmd = "python bench/bench_gen_c.py" + ("" if ns.calls == 1_000_000 else
                                            f" --calls {ns.calls}") + (
         "" if ns.reps == 15 else f" --reps {ns.reps}")
-    text = render(c, py, arm, env, cmd, ns.calls, ns.reps)
+    text = render(c, py, arm, env, cmd, ns.calls, ns.reps, cg)
     print(text)
     if not ns.no_write:
         write_section(text)

@@ -17,7 +17,11 @@ variants can be included in one translation unit:
 3. ``(void)`` casts are added for unused ``iw``/``w``/``mem`` parameters;
 4. each source includes its own header (prototypes for ``-Wmissing-prototypes``);
 5. float variant only: ``<math.h>`` calls use the ``f`` functions (``sqrtf``, ``atan2f``...) and
-   floating literals get an ``f`` suffix, so no double arithmetic is left on single-precision FPUs.
+   floating literals get an ``f`` suffix, so no double arithmetic is left on single-precision FPUs;
+6. CasADi's NULL guards on every argument read / result write are removed (the wrapper always
+   passes every argument and result) and ``casadi_fmax``/``casadi_fmin`` become inline selects
+   with fmax/fmin's exact NaN semantics instead of libm calls (speed: a call spills every live
+   register of the kernel); ``-ffinite-math-only`` builds are refused with ``#error``.
 
 Usage: ``python -m gen_c [--check] [--out DIR] [--vectors]``.
 """
@@ -163,6 +167,29 @@ _KERNEL_DEF = re.compile(
     re.MULTILINE,
 )
 _RELEASE_DEF = re.compile(r"^(CASADI_SYMBOL_EXPORT void \w+_release\(int mem\) \{\n)", re.MULTILINE)
+# CasADi guards every input read and output write against NULL arg/res entries (optional
+# arguments). ecca_setpoint.c always passes every input and output, so the guards are dropped:
+# the generated kernels require all arg[i] and res[i] to be valid (said in the banner).
+# casadi_fmax/fmin call libm's fmax/fmin, which GCC does not inline on x86 (a call makes the
+# kernel spill every live register). Replaced by inline selects with the same result for every
+# input, NaN included (IEEE maxNum/minNum: a NaN operand yields the other one); only the sign
+# of a zero result of fmax(+0, -0) may differ, which C99 leaves unspecified too.
+_MINMAX_DEF = re.compile(
+    r"^(casadi_real casadi_(fmax|fmin)\(casadi_real x, casadi_real y\) "
+    r"\{\n)/\* Pre-c99 compatibility \*/\n#if __STDC_VERSION__ < 199901L\n  return [^\n]*\n"
+    r"#else\n  return fm(?:ax|in)\(x, y\);\n#endif\n\}",
+    re.MULTILINE,
+)
+
+
+def _minmax(m: re.Match[str]) -> str:
+    op = ">" if m.group(2) == "fmax" else "<"
+    body = f"  return (x {op} y || y != y) ? x : y; /* {m.group(2)}(x, y), inline */\n}}"
+    return m.group(1) + body
+
+
+_ARG_READ = re.compile(r"\barg\[(\d+)\]\? arg\[\1\]\[(\d+)\] : 0\b")
+_RES_WRITE = re.compile(r"\bif \(res\[(\d+)\]!=0\) res\[\1\]\[(\d+)\]=")
 
 
 def _banner(filename: str, ctype: str) -> str:
@@ -173,7 +200,8 @@ def _banner(filename: str, ctype: str) -> str:
         f"{BEZIER_DEGREE}),\n"
         f" * emitted by CasADi {CASADI_VERSION} CodeGenerator with casadi_real = {ctype}, then\n"
         " * post-processed by gen_c/generate.py: concrete real/int types, static helpers,\n"
-        " * (void) casts for unused parameters, own-header include, -Wfloat-equal pragma"
+        " * (void) casts for unused parameters, own-header include, -Wfloat-equal pragma,\n"
+        " * no NULL guards (every arg[i]/res[i] must be valid), inline fmax/fmin"
         + (",\n * float math functions (sqrtf...), f-suffixed literals (clamped to float's normal"
            " range).\n" if ctype == "float" else ".\n")
         + " */\n"
@@ -185,6 +213,9 @@ _FLT_MAX = 3.40282347e38
 _PRAGMA = (
     "/* Flags are stored as 0/1 reals and tested with ?: (exact by construction). */\n"
     "#if defined(__GNUC__)\n#pragma GCC diagnostic ignored \"-Wfloat-equal\"\n#endif\n"
+    "/* NaN handling (fmax/fmin below, the callers' checks) needs IEEE semantics. */\n"
+    "#if defined(__FINITE_MATH_ONLY__) && __FINITE_MATH_ONLY__\n"
+    "#error \"ecca_setpoint must not be compiled with -ffast-math/-ffinite-math-only\"\n#endif\n"
 )
 
 
@@ -203,6 +234,11 @@ def _postprocess(text: str, ctype: str, own_header: str | None) -> str:
     text = _TYPE_BLOCK.sub("", text)
     text = _KERNEL_DEF.sub(r"\1  (void)iw; (void)w; (void)mem;\n", text)
     text = _RELEASE_DEF.sub(r"\1  (void)mem;\n", text)
+    text, n_minmax = _MINMAX_DEF.subn(_minmax, text)
+    if "casadi_fmax" in text and n_minmax == 0:
+        raise GeneratorError("CasADi's casadi_fmax/fmin helpers changed: update _MINMAX_DEF")
+    text = _ARG_READ.sub(r"arg[\1][\2]", text)
+    text = _RES_WRITE.sub(r"res[\1][\2]=", text)
     text = _HELPER_DEF.sub(r"static \1 \2(", text)
     text = re.sub(r"\bcasadi_real\b", ctype, text)
     text = re.sub(r"\bcasadi_int\b", "int", text)
@@ -315,17 +351,41 @@ def rover_function(name: str, source: ca.Function) -> ca.Function:
     return ca.Function(name, [sym[n] for n in ROVER_IN], outs, list(ROVER_IN), list(ROVER_OUT))
 
 
+FULL_IN = BEZIER_IN + MULTIROTOR_IN[7:]
+FULL_OUT = MULTIROTOR_OUT + BEZIER_OUT
+
+
+def full_function(name: str, bezier: ca.Function, multirotor: ca.Function) -> ca.Function:
+    """Fused evaluate + multirotor flatness: ``multirotor(bezier(segment, t)[vel..], params)``.
+
+    Inputs: the segment and time of :func:`bezier_function`, then the parameters of
+    :func:`multirotor_function`; outputs: the multirotor outputs, then the Bezier outputs (the
+    attitude first, so CasADi's depth-first order starts the flatness chain early). The same
+    operations as the two separate functions (bit-identical results), one kernel: the C
+    compiler overlaps the flatness with the higher derivatives (~8 % faster full setpoint).
+    """
+    sym = [ca.SX.sym(n, bezier.size1_in(i)) for i, n in enumerate(BEZIER_IN)]
+    par = [ca.SX.sym(n, multirotor.size1_in(7 + i))
+           for i, n in enumerate(MULTIROTOR_IN[7:])]
+    state = bezier(*sym)
+    att = multirotor(*state[1:], *par)
+    outs = list(ca.cse([*att, *state]))
+    return ca.Function(name, [*sym, *par], outs, list(FULL_IN), list(FULL_OUT))
+
+
 def library_functions(variant: str) -> list[ca.Function]:
     """The generated functions of one variant (``"d"`` or ``"f"``), C names ``ecca_<v>_*``."""
     from companion.flatness import symbolic
 
     sf = symbolic()
-    # No fused "evaluate + flatness" kernel: measured (callgrind) it saves ~3 % of the
-    # instructions of the full setpoint for ~9 KB more flash per variant.
+    bezier = bezier_function(f"ecca_{variant}_bezier")
+    multirotor = multirotor_function(f"ecca_{variant}_multirotor", sf.multirotor)
     return [
-        bezier_function(f"ecca_{variant}_bezier"),
-        multirotor_function(f"ecca_{variant}_multirotor", sf.multirotor),
+        bezier,
+        multirotor,
         rover_function(f"ecca_{variant}_rover", sf.rover),
+        # ~9 KB more flash per variant (drop it with --gc-sections if unused).
+        full_function(f"ecca_{variant}_full", bezier, multirotor),
     ]
 
 

@@ -3,7 +3,8 @@
  * Source: companion.flatness.symbolic() and gen_c/generate.py (Bezier degree 7),
  * emitted by CasADi 3.8.2 CodeGenerator with casadi_real = double, then
  * post-processed by gen_c/generate.py: concrete real/int types, static helpers,
- * (void) casts for unused parameters, own-header include, -Wfloat-equal pragma.
+ * (void) casts for unused parameters, own-header include, -Wfloat-equal pragma,
+ * no NULL guards (every arg[i]/res[i] must be valid), inline fmax/fmin.
  */
 #ifndef ECCA_GEN_D_H
 #define ECCA_GEN_D_H
@@ -73,6 +74,24 @@ int ecca_d_rover_work_bytes(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w);
 #define ecca_d_rover_SZ_RES 6
 #define ecca_d_rover_SZ_IW 0
 #define ecca_d_rover_SZ_W 0
+int ecca_d_full(const double** arg, double** res, int* iw, double* w, int mem);
+int ecca_d_full_checkout(void);
+void ecca_d_full_release(int mem);
+void ecca_d_full_incref(void);
+void ecca_d_full_decref(void);
+int ecca_d_full_n_in(void);
+int ecca_d_full_n_out(void);
+double ecca_d_full_default_in(int i);
+const char* ecca_d_full_name_in(int i);
+const char* ecca_d_full_name_out(int i);
+const int* ecca_d_full_sparsity_in(int i);
+const int* ecca_d_full_sparsity_out(int i);
+int ecca_d_full_work(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w);
+int ecca_d_full_work_bytes(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w);
+#define ecca_d_full_SZ_ARG 9
+#define ecca_d_full_SZ_RES 18
+#define ecca_d_full_SZ_IW 0
+#define ecca_d_full_SZ_W 0
 void ecca_gen_d_casadi_version(int* major, int* minor, int* patch);
 int ecca_gen_d_casadi_int_size(void);
 int ecca_gen_d_casadi_real_size(void);

@@ -4,6 +4,7 @@
  * emitted by CasADi 3.8.2 CodeGenerator with casadi_real = float, then
  * post-processed by gen_c/generate.py: concrete real/int types, static helpers,
  * (void) casts for unused parameters, own-header include, -Wfloat-equal pragma,
+ * no NULL guards (every arg[i]/res[i] must be valid), inline fmax/fmin,
  * float math functions (sqrtf...), f-suffixed literals (clamped to float's normal range).
  */
 #ifndef ECCA_GEN_F_H
@@ -74,6 +75,24 @@ int ecca_f_rover_work_bytes(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w);
 #define ecca_f_rover_SZ_RES 6
 #define ecca_f_rover_SZ_IW 0
 #define ecca_f_rover_SZ_W 0
+int ecca_f_full(const float** arg, float** res, int* iw, float* w, int mem);
+int ecca_f_full_checkout(void);
+void ecca_f_full_release(int mem);
+void ecca_f_full_incref(void);
+void ecca_f_full_decref(void);
+int ecca_f_full_n_in(void);
+int ecca_f_full_n_out(void);
+float ecca_f_full_default_in(int i);
+const char* ecca_f_full_name_in(int i);
+const char* ecca_f_full_name_out(int i);
+const int* ecca_f_full_sparsity_in(int i);
+const int* ecca_f_full_sparsity_out(int i);
+int ecca_f_full_work(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w);
+int ecca_f_full_work_bytes(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w);
+#define ecca_f_full_SZ_ARG 9
+#define ecca_f_full_SZ_RES 18
+#define ecca_f_full_SZ_IW 0
+#define ecca_f_full_SZ_W 0
 void ecca_gen_f_casadi_version(int* major, int* minor, int* patch);
 int ecca_gen_f_casadi_int_size(void);
 int ecca_gen_f_casadi_real_size(void);

@@ -12,6 +12,12 @@
 #include "ecca_gen_d.h"
 #include "ecca_gen_f.h"
 
+/* The NaN/inf checks rely on IEEE semantics (NaN compares false and propagates through + and
+ * *); -ffast-math or -ffinite-math-only would let the compiler delete them. */
+#if defined(__FINITE_MATH_ONLY__) && __FINITE_MATH_ONLY__
+#error "ecca_setpoint must not be compiled with -ffast-math/-ffinite-math-only (its NaN checks)"
+#endif
+
 #if ECCA_GEN_BEZIER_DEGREE != ECCA_BEZIER_DEGREE
 #error "generated code and ecca_setpoint.h disagree on the Bezier degree: run python -m gen_c"
 #endif
@@ -24,12 +30,14 @@ const char *ecca_setpoint_casadi_version(void) { return ECCA_GEN_CASADI_VERSION;
 #define ECCA_GEN(n) ecca_d_##n
 #define ECCA_SZ(n, k) ecca_d_##n##_SZ_##k
 #define ECCA_ISFINITE(x) isfinite(x)
+#define ECCA_FABS(x) fabs(x)
 #include "ecca_setpoint_impl.inc"
 #undef ECCA_REAL
 #undef ECCA_API
 #undef ECCA_GEN
 #undef ECCA_SZ
 #undef ECCA_ISFINITE
+#undef ECCA_FABS
 
 #endif /* ECCA_SETPOINT_NO_DOUBLE */
 
@@ -39,10 +47,12 @@ const char *ecca_setpoint_casadi_version(void) { return ECCA_GEN_CASADI_VERSION;
 #define ECCA_GEN(n) ecca_f_##n
 #define ECCA_SZ(n, k) ecca_f_##n##_SZ_##k
 #define ECCA_ISFINITE(x) isfinite(x)
+#define ECCA_FABS(x) fabsf(x)
 #include "ecca_setpoint_impl.inc"
 #undef ECCA_REAL
 #undef ECCA_API
 #undef ECCA_GEN
 #undef ECCA_SZ
 #undef ECCA_ISFINITE
+#undef ECCA_FABS
 #endif /* ECCA_SETPOINT_NO_FLOAT */
