@@ -17,7 +17,7 @@ import heapq
 import logging
 import math
 import struct
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from enum import Enum
@@ -27,7 +27,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sitl_mock import telemetry
 from sitl_mock.faults import FaultyChannel, LinkFaults, ScenarioFaults
-from sitl_mock.mavwire import pack_v2
+from sitl_mock.mavwire import MessageCodec, decode_datagram, pack_v2
 from sitl_mock.mission_server import MISSION, MissionExecutor, MissionServer, project_to_ned
 from sitl_mock.params import PARAMS, ParamStore
 from sitl_mock.setpoints import NAN3, AttitudeTarget, IdleTarget, PositionTarget, Target, Vec3
@@ -141,6 +141,9 @@ class Link:
     tx: FaultyChannel[bytes]
     streams: telemetry.StreamScheduler
     peer: Addr | None = None
+    # outbound without faults: a FIFO of (time since boot [s], frame), exactly the order and due
+    # times the pass-through FaultyChannel would give, without its heap entries
+    tx_fifo: deque[tuple[float, bytes]] | None = None
 
     @property
     def destination(self) -> Addr | None:
@@ -220,6 +223,7 @@ class Autopilot:
                 rx=FaultyChannel(f_in, seed * 1000 + 2 * i + 1),
                 tx=FaultyChannel(f_out, seed * 1000 + 2 * i + 2),
                 streams=telemetry.StreamScheduler(rates, 0.0),
+                tx_fifo=None if f_out is not None and f_out.active else deque(),
             )
         # commander state
         self.mode = Mode.AUTO_LOITER
@@ -295,6 +299,10 @@ class Autopilot:
             raise KeyError(f"unknown link {link!r}; links are {sorted(self.links)}")
         if lk.peer is None:
             lk.peer = addr  # like PX4: lock onto the first peer that talks to us
+        if not lk.rx.faults.active and not len(lk.rx):  # pass-through: deliver now
+            lk.rx.stats.passed += 1
+            self._process_datagram(lk, bytes(data), addr)
+            return
         lk.rx.push((bytes(data), addr), self._t, self._t)
         for d, a in lk.rx.pop_due(self._t):
             self._process_datagram(lk, d, a)
@@ -305,6 +313,13 @@ class Autopilot:
         out: list[tuple[bytes, Addr]] = []
         for lk in self.links.values() if link is None else (self.links[link],):
             dest = lk.destination
+            fifo = lk.tx_fifo
+            if fifo is not None:
+                while fifo and fifo[0][0] <= t:
+                    data = fifo.popleft()[1]
+                    if dest is not None:
+                        out.append((data, dest))
+                continue
             for data in lk.tx.pop_due(t):
                 if dest is not None:
                     out.append((data, dest))
@@ -317,6 +332,8 @@ class Autopilot:
             t = min(t, self._events[0][0])
         for lk in self.links.values():
             t = min(t, lk.rx.next_due(), lk.tx.next_due())
+            if lk.tx_fifo:
+                t = min(t, lk.tx_fifo[0][0])
         return self._boot + t
 
     def handle_timer(self, now: float) -> None:
@@ -552,14 +569,23 @@ class Autopilot:
         )
 
     def _send(self, link: Link, msg: Msg) -> None:
+        """Queue `msg` on `link`: a pymavlink message or a telemetry (codec, fields) pair."""
         try:
-            data = pack_v2(msg, link.mav.seq, SYSID, COMPID)
+            if type(msg) is tuple:
+                c: MessageCodec = msg[0]
+                data = c.frame(link.mav.seq, SYSID, COMPID, msg[1])
+            else:
+                data = pack_v2(msg, link.mav.seq, SYSID, COMPID)
         except (OverflowError, struct.error):
             # a value outside float32 range (e.g. echoing an absurd setpoint): drop, count
             self.stats["tx_encode_errors"] += 1
             return
         link.mav.seq = (link.mav.seq + 1) & 0xFF
-        link.tx.push(data, self._t, self._t)
+        if link.tx_fifo is not None:
+            link.tx_fifo.append((self._t, data))
+            link.tx.stats.passed += 1
+        else:
+            link.tx.push(data, self._t, self._t)
         self.stats["tx_messages"] += 1
 
     def _broadcast(self, msg: Msg) -> None:
@@ -596,13 +622,15 @@ class Autopilot:
     # ================================================================== inbound
     def _process_datagram(self, link: Link, data: bytes, addr: Addr) -> None:
         self.stats["rx_datagrams"] += 1
-        parser = mavlink.MAVLink(None)
-        parser.robust_parsing = True
-        try:
-            msgs = parser.parse_buffer(data) or []
-        except Exception:  # pymavlink raises on some malformed input even when robust
-            self.stats["rx_bad_data"] += 1
-            return
+        msgs = decode_datagram(data)  # fast path: clean unsigned MAVLink 2 frames
+        if msgs is None:  # anything unusual: pymavlink's robust parser, counted as always
+            parser = mavlink.MAVLink(None)
+            parser.robust_parsing = True
+            try:
+                msgs = parser.parse_buffer(data) or []
+            except Exception:  # pymavlink raises on some malformed input even when robust
+                self.stats["rx_bad_data"] += 1
+                return
         for msg in msgs:
             kind = msg.get_type()
             if kind == "BAD_DATA":
@@ -612,7 +640,10 @@ class Autopilot:
                 self.stats["rx_mavlink1"] += 1  # PX4 in MAVLink 2 mode ignores v1 frames
                 continue
             self.stats["rx_messages"] += 1
-            handler = getattr(self, "_on_" + kind.lower(), None)
+            name = _HANDLER_NAMES.get(kind)
+            if name is None:
+                name = _HANDLER_NAMES[kind] = "_on_" + kind.lower()
+            handler = getattr(self, name, None)
             if handler is None:
                 self.stats["rx_unhandled"] += 1
                 continue
@@ -1370,6 +1401,7 @@ def _param_name(raw: Any) -> str:
 
 
 _IDLE = IdleTarget()
+_HANDLER_NAMES: dict[str, str] = {}  # message type -> handler method name
 
 _COMMANDS: dict[int, Callable[[Autopilot, Link, Msg, tuple[float, ...], int], int | None]] = {
     mavlink.MAV_CMD_COMPONENT_ARM_DISARM: Autopilot._cmd_arm_disarm,

@@ -1,8 +1,11 @@
 """Telemetry: stream tables (PX4 onboard / normal link rates) and message builders.
 
-The builders turn the autopilot's view (vehicle state, mode, targets) into pymavlink message
-objects; the autopilot packs them on a link. Attitude math here is the mock's own (explicit
-Euler 3-2-1 from the Hamilton quaternion body FRD -> NED), independent of `companion`.
+The builders turn the autopilot's view (vehicle state, mode, targets) into messages the
+autopilot packs on a link: either a pymavlink message object or, on the hot path, a
+`(MessageCodec, fields)` pair with the pymavlink constructor's positional arguments, packed
+without building the message object (same bytes: tests/unit/test_sitl_mavwire_codec.py).
+Attitude math here is the mock's own (explicit Euler 3-2-1 from the Hamilton quaternion
+body FRD -> NED), independent of `companion`.
 """
 
 from __future__ import annotations
@@ -13,6 +16,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from pymavlink.dialects.v20 import common as mavlink
+
+from sitl_mock.mavwire import codec
 
 if TYPE_CHECKING:
     from sitl_mock.autopilot import Autopilot
@@ -62,6 +67,20 @@ BIT_GPS = mavlink.MAV_SYS_STATUS_SENSOR_GPS
 BIT_PREARM = mavlink.MAV_SYS_STATUS_PREARM_CHECK
 BIT_XY_POS = mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
 
+_C_ATTITUDE = codec(mavlink.MAVLink_attitude_message)
+_C_ATTITUDE_QUATERNION = codec(mavlink.MAVLink_attitude_quaternion_message)
+_C_ATTITUDE_TARGET = codec(mavlink.MAVLink_attitude_target_message)
+_C_BATTERY_STATUS = codec(mavlink.MAVLink_battery_status_message)
+_C_EXTENDED_SYS_STATE = codec(mavlink.MAVLink_extended_sys_state_message)
+_C_GLOBAL_POSITION_INT = codec(mavlink.MAVLink_global_position_int_message)
+_C_GPS_RAW_INT = codec(mavlink.MAVLink_gps_raw_int_message)
+_C_LOCAL_POSITION_NED = codec(mavlink.MAVLink_local_position_ned_message)
+_C_ODOMETRY = codec(mavlink.MAVLink_odometry_message)
+_C_PING = codec(mavlink.MAVLink_ping_message)
+_C_POSITION_TARGET_LOCAL_NED = codec(mavlink.MAVLink_position_target_local_ned_message)
+_C_SYS_STATUS = codec(mavlink.MAVLink_sys_status_message)
+_C_TIMESYNC = codec(mavlink.MAVLink_timesync_message)
+_C_VFR_HUD = codec(mavlink.MAVLink_vfr_hud_message)
 UINT16_MAX = 65535
 INT16_MAX = 32767
 
@@ -135,16 +154,14 @@ def build_attitude(ap: Autopilot) -> Msg:
     s = ap.state
     roll, pitch, yaw = euler_321(s.q_wxyz)
     p, q, r = s.omega_frd
-    return mavlink.MAVLink_attitude_message(ap.time_boot_ms, roll, pitch, yaw, p, q, r)
+    return (_C_ATTITUDE, (ap.time_boot_ms, roll, pitch, yaw, p, q, r))
 
 
 def build_attitude_quaternion(ap: Autopilot) -> Msg:
     s = ap.state
     w, x, y, z = s.q_wxyz
     p, q, r = s.omega_frd
-    return mavlink.MAVLink_attitude_quaternion_message(
-        ap.time_boot_ms, w, x, y, z, p, q, r, (0.0, 0.0, 0.0, 0.0)
-    )
+    return (_C_ATTITUDE_QUATERNION, (ap.time_boot_ms, w, x, y, z, p, q, r, (0.0, 0.0, 0.0, 0.0)))
 
 
 def build_local_position_ned(ap: Autopilot) -> Msg | None:
@@ -153,7 +170,7 @@ def build_local_position_ned(ap: Autopilot) -> Msg | None:
         return None
     x, y, z = s.pos_ned
     vx, vy, vz = s.vel_ned
-    return mavlink.MAVLink_local_position_ned_message(ap.time_boot_ms, x, y, z, vx, vy, vz)
+    return (_C_LOCAL_POSITION_NED, (ap.time_boot_ms, x, y, z, vx, vy, vz))
 
 
 def build_odometry(ap: Autopilot) -> Msg | None:
@@ -164,25 +181,28 @@ def build_odometry(ap: Autopilot) -> Msg | None:
     vb = rotate_ned_to_body(s.q_wxyz, s.vel_ned)
     p, q, r = s.omega_frd
     nan21 = [math.nan] + [0.0] * 20
-    return mavlink.MAVLink_odometry_message(
-        ap.time_usec,
-        mavlink.MAV_FRAME_LOCAL_NED,
-        mavlink.MAV_FRAME_BODY_FRD,
-        x,
-        y,
-        z,
-        list(s.q_wxyz),
-        vb[0],
-        vb[1],
-        vb[2],
-        p,
-        q,
-        r,
-        nan21,
-        nan21,
-        0,
-        mavlink.MAV_ESTIMATOR_TYPE_AUTOPILOT,
-        100,
+    return (
+        _C_ODOMETRY,
+        (
+            ap.time_usec,
+            mavlink.MAV_FRAME_LOCAL_NED,
+            mavlink.MAV_FRAME_BODY_FRD,
+            x,
+            y,
+            z,
+            list(s.q_wxyz),
+            vb[0],
+            vb[1],
+            vb[2],
+            p,
+            q,
+            r,
+            nan21,
+            nan21,
+            0,
+            mavlink.MAV_ESTIMATOR_TYPE_AUTOPILOT,
+            100,
+        ),
     )
 
 
@@ -191,16 +211,19 @@ def build_global_position_int(ap: Autopilot) -> Msg:
     _, _, yaw = euler_321(s.q_wxyz)
     hdg = round(math.degrees(yaw) % 360.0 * 100.0) % 36000
     vx, vy, vz = s.vel_ned
-    return mavlink.MAVLink_global_position_int_message(
-        ap.time_boot_ms,
-        round(s.lat_deg * 1e7),
-        round(s.lon_deg * 1e7),
-        round(s.alt_amsl_m * 1000.0),
-        round((s.alt_amsl_m - ap.home[2]) * 1000.0),
-        _clamp_i16(vx * 100.0),
-        _clamp_i16(vy * 100.0),
-        _clamp_i16(vz * 100.0),
-        hdg,
+    return (
+        _C_GLOBAL_POSITION_INT,
+        (
+            ap.time_boot_ms,
+            round(s.lat_deg * 1e7),
+            round(s.lon_deg * 1e7),
+            round(s.alt_amsl_m * 1000.0),
+            round((s.alt_amsl_m - ap.home[2]) * 1000.0),
+            _clamp_i16(vx * 100.0),
+            _clamp_i16(vy * 100.0),
+            _clamp_i16(vz * 100.0),
+            hdg,
+        ),
     )
 
 
@@ -222,8 +245,9 @@ def build_attitude_target(ap: Autopilot) -> Msg | None:
     if rates is None:
         rates = (0.0, 0.0, 0.0)
         mask |= 7
-    return mavlink.MAVLink_attitude_target_message(
-        ap.time_boot_ms, mask, list(q), rates[0], rates[1], rates[2], float(thrust)
+    return (
+        _C_ATTITUDE_TARGET,
+        (ap.time_boot_ms, mask, list(q), rates[0], rates[1], rates[2], float(thrust)),
     )
 
 
@@ -231,15 +255,18 @@ def build_position_target_local_ned(ap: Autopilot) -> Msg | None:
     t = ap.vehicle.last_position_target
     if t is None:
         return None
-    return mavlink.MAVLink_position_target_local_ned_message(
-        ap.time_boot_ms,
-        mavlink.MAV_FRAME_LOCAL_NED,
-        type_mask_of(t),
-        *(_f(c) for c in t.pos_ned),
-        *(_f(c) for c in t.vel_ned),
-        *(_f(c) for c in t.acc_ned),
-        _f(t.yaw),
-        _f(t.yaw_rate),
+    return (
+        _C_POSITION_TARGET_LOCAL_NED,
+        (
+            ap.time_boot_ms,
+            mavlink.MAV_FRAME_LOCAL_NED,
+            type_mask_of(t),
+            *(_f(c) for c in t.pos_ned),
+            *(_f(c) for c in t.vel_ned),
+            *(_f(c) for c in t.acc_ned),
+            _f(t.yaw),
+            _f(t.yaw_rate),
+        ),
     )
 
 
@@ -252,27 +279,28 @@ def build_sys_status(ap: Autopilot) -> Msg:
     if not ap.local_position_valid:
         health &= ~(BIT_GPS | BIT_XY_POS)
     rem = ap.battery_remaining
-    return mavlink.MAVLink_sys_status_message(
-        SENSORS_PRESENT,
-        SENSORS_ENABLED,
-        health,
-        250,
-        ap.battery_voltage_mv,
-        -1,
-        round(rem * 100.0),
-        0,
-        min(ap.errors_comm, UINT16_MAX),
-        0,
-        0,
-        0,
-        0,
+    return (
+        _C_SYS_STATUS,
+        (
+            SENSORS_PRESENT,
+            SENSORS_ENABLED,
+            health,
+            250,
+            ap.battery_voltage_mv,
+            -1,
+            round(rem * 100.0),
+            0,
+            min(ap.errors_comm, UINT16_MAX),
+            0,
+            0,
+            0,
+            0,
+        ),
     )
 
 
 def build_extended_sys_state(ap: Autopilot) -> Msg:
-    return mavlink.MAVLink_extended_sys_state_message(
-        mavlink.MAV_VTOL_STATE_UNDEFINED, ap.landed_state
-    )
+    return (_C_EXTENDED_SYS_STATE, (mavlink.MAV_VTOL_STATE_UNDEFINED, ap.landed_state))
 
 
 def build_home_position(ap: Autopilot) -> Msg | None:
@@ -282,7 +310,7 @@ def build_home_position(ap: Autopilot) -> Msg | None:
 
 
 def build_timesync(ap: Autopilot) -> Msg:
-    return mavlink.MAVLink_timesync_message(0, ap.time_ns)
+    return (_C_TIMESYNC, (0, ap.time_ns))
 
 
 def build_battery_status(ap: Autopilot) -> Msg:
@@ -293,18 +321,21 @@ def build_battery_status(ap: Autopilot) -> Msg:
         charge = mavlink.MAV_BATTERY_CHARGE_STATE_CRITICAL
     elif rem < 0.15:
         charge = mavlink.MAV_BATTERY_CHARGE_STATE_LOW
-    return mavlink.MAVLink_battery_status_message(
-        0,
-        mavlink.MAV_BATTERY_FUNCTION_ALL,
-        mavlink.MAV_BATTERY_TYPE_LIPO,
-        INT16_MAX,
-        voltages,
-        -1,
-        -1,
-        -1,
-        round(rem * 100.0),
-        0,
-        charge,
+    return (
+        _C_BATTERY_STATUS,
+        (
+            0,
+            mavlink.MAV_BATTERY_FUNCTION_ALL,
+            mavlink.MAV_BATTERY_TYPE_LIPO,
+            INT16_MAX,
+            voltages,
+            -1,
+            -1,
+            -1,
+            round(rem * 100.0),
+            0,
+            charge,
+        ),
     )
 
 
@@ -314,7 +345,7 @@ def build_mission_current(ap: Autopilot) -> Msg:
 
 def build_ping(ap: Autopilot) -> Msg:
     ap.ping_seq = (ap.ping_seq + 1) & 0xFFFFFFFF
-    return mavlink.MAVLink_ping_message(ap.time_usec, ap.ping_seq, 0, 0)
+    return (_C_PING, (ap.time_usec, ap.ping_seq, 0, 0))
 
 
 def build_vfr_hud(ap: Autopilot) -> Msg:
@@ -322,13 +353,16 @@ def build_vfr_hud(ap: Autopilot) -> Msg:
     vn, ve, vd = s.vel_ned
     _, _, yaw = euler_321(s.q_wxyz)
     speed = math.hypot(vn, ve)
-    return mavlink.MAVLink_vfr_hud_message(
-        speed,
-        speed,
-        round(math.degrees(yaw)) % 360,
-        round(100.0 * max(0.0, min(1.0, s.thrust_norm))),
-        s.alt_amsl_m,
-        -vd,
+    return (
+        _C_VFR_HUD,
+        (
+            speed,
+            speed,
+            round(math.degrees(yaw)) % 360,
+            round(100.0 * max(0.0, min(1.0, s.thrust_norm))),
+            s.alt_amsl_m,
+            -vd,
+        ),
     )
 
 
@@ -337,17 +371,20 @@ def build_gps_raw_int(ap: Autopilot) -> Msg:
     vn, ve, _ = s.vel_ned
     fix = 3 if ap.local_position_valid else 0
     cog = round(math.degrees(math.atan2(ve, vn)) % 360.0 * 100.0) % 36000
-    return mavlink.MAVLink_gps_raw_int_message(
-        ap.time_usec,
-        fix,
-        round(s.lat_deg * 1e7),
-        round(s.lon_deg * 1e7),
-        round(s.alt_amsl_m * 1000.0),
-        100,
-        150,
-        min(round(math.hypot(vn, ve) * 100.0), UINT16_MAX - 1),
-        cog,
-        10,
+    return (
+        _C_GPS_RAW_INT,
+        (
+            ap.time_usec,
+            fix,
+            round(s.lat_deg * 1e7),
+            round(s.lon_deg * 1e7),
+            round(s.alt_amsl_m * 1000.0),
+            100,
+            150,
+            min(round(math.hypot(vn, ve) * 100.0), UINT16_MAX - 1),
+            cog,
+            10,
+        ),
     )
 
 
@@ -413,12 +450,17 @@ class StreamScheduler:
         if now < self.earliest:
             return []
         out = []
-        for k, t in self.next_due.items():
+        next_due, interval_s = self.next_due, self.interval_s
+        earliest = math.inf
+        for k, t in next_due.items():
             if t <= now:
                 out.append(k)
-                nxt = t + self.interval_s[k]
-                if nxt <= now:  # fell behind: skip missed slots rather than bursting
-                    nxt = now + self.interval_s[k]
-                self.next_due[k] = nxt
-        self._refresh()
+                dt = interval_s[k]
+                t = t + dt
+                if t <= now:  # fell behind: skip missed slots rather than bursting
+                    t = now + dt
+                next_due[k] = t
+            if t < earliest:
+                earliest = t
+        self.earliest = earliest  # = min(next_due.values()), computed in the same pass
         return out
