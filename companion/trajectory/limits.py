@@ -541,7 +541,8 @@ def check(
     ``{name: LimitReport}`` with names among speed, acc, jerk, tilt, max_thrust, min_thrust,
     body_rate (multirotor) or speed, yaw_rate, lat_acc (rover). Body rates use the trajectory's
     yaw channel (yaw 0 when it has none). Rover yaw rate and lateral acceleration are not
-    evaluated below ``ROVER_MIN_SPEED_M_S`` (singular at rest).
+    evaluated below ``ROVER_MIN_SPEED_M_S`` (singular at rest); rover maxima also include
+    :func:`rover_extrema` (critical points), which sees peaks narrower than the grid.
     """
     _validate(traj, limits, params)
     table = _limit_table(limits)
@@ -549,6 +550,7 @@ def check(
     t, seg = _sample_times(traj, SAMPLES_PER_SEGMENT)
     vals = _metrics(_sample(traj, t, names), names, params)
     hull_order = {"speed": 1, "acc": 2, "jerk": 3}
+    exact = rover_extrema(traj) if isinstance(limits, RoverLimits) else None
     reports: dict[str, LimitReport] = {}
     for name, limit, kind in table:
         v = vals[name]
@@ -565,6 +567,13 @@ def check(
         worst, t_worst = float(v[i]), float(t[i])
         if (kind == "min" and vf[j] < worst) or (kind == "max" and vf[j] > worst):
             worst, t_worst = float(vf[j]), float(tf[j])
+        if exact is not None:
+            # rover: maxima at the critical points catch peaks narrower than the grid
+            ke = int(np.argmax(exact[name][0]))
+            if float(exact[name][0][ke]) > worst:
+                worst = float(exact[name][0][ke])
+                k = ke
+                t_worst = float(traj.breaks[ke] + exact[name][1][ke] * traj.durations[ke])
         bound: float | None = None
         if name in hull_order:
             bound = float(np.max(traj.hull_bounds(hull_order[name])))
@@ -580,3 +589,104 @@ def check(
             kind=kind,
         )
     return reports
+
+
+# --------------------------------------------------------------------------- rover extrema
+_P = np.polynomial.polynomial
+#: Evenly spaced normalised times added to the critical points (robustness against root error).
+_ROVER_GRID = np.linspace(0.0, 1.0, 17)
+
+
+def _root_candidates(coef: FloatArray) -> FloatArray:
+    """Real parts, clipped to [0, 1], of all roots of the polynomial with ascending
+    coefficients ``coef``. Complex roots are kept: a pair close to the real axis marks a
+    near-double root (a narrow peak) whose computed roots are not real to round-off, and
+    extra candidates can only raise the maximum found, never lower it."""
+    scale = float(np.max(np.abs(coef))) if coef.shape[0] else 0.0
+    if scale == 0.0:
+        return np.zeros(0)
+    keep = np.flatnonzero(np.abs(coef) > 1e-13 * scale)
+    c = coef[: int(keep[-1]) + 1] / scale
+    if c.shape[0] < 2:
+        return np.zeros(0)
+    r = np.clip(_P.polyroots(c).real, 0.0, 1.0)
+    # Newton polish (near-double roots come out of the eigenvalue solver with ~sqrt(eps)
+    # error); raw and polished both kept
+    dc = _P.polyder(c)
+    x = r.copy()
+    for _ in range(6):
+        d = _P.polyval(x, dc)
+        step = np.where(d != 0.0, _P.polyval(x, c) / np.where(d != 0.0, d, 1.0), 0.0)
+        x = np.clip(x - step, 0.0, 1.0)
+    return np.asarray(np.concatenate([r, x]), dtype=np.float64)
+
+
+#: Offsets (normalised time) around the best candidate evaluated as well, against root error.
+_ZOOM = np.concatenate([-np.logspace(-10.0, -2.0, 17), np.logspace(-10.0, -2.0, 17)])
+
+
+def rover_extrema(
+    traj: PiecewiseBezier, min_speed_m_s: float = ROVER_MIN_SPEED_M_S
+) -> dict[str, tuple[FloatArray, FloatArray]]:
+    """Per-segment maxima of the rover quantities, from their critical points (no sampling).
+
+    For each segment (normalised time tau in [0, 1], velocity v, acceleration a, cross
+    ``c = x' y'' - y' x''``) the speed ``V``, yaw rate ``|c| / V^2`` and lateral acceleration
+    ``|c| / V`` are evaluated where V >= ``min_speed_m_s`` at the roots in [0, 1] of
+    ``(V^2)'``, ``c' V^2 - c (V^2)'``, ``2 c' V^2 - c (V^2)'`` (the derivatives of V^2,
+    c / V^2 and c^2 / V^2), of ``V^2 - min_speed^2`` (the edge of the evaluated set), at both
+    ends and on a 17-point grid. Critical points do not move when the durations are scaled
+    uniformly, so these are the maxima of the (guarded) quantities in ``check`` up to root
+    accuracy, however narrow a peak is. Returns ``{name: (worst (M,), tau_worst (M,))}``.
+    """
+    if traj.dim != 2:
+        raise ValueError(f"rover quantities need a 2-D trajectory, this one is {traj.dim}-D")
+    cp = traj.control_points
+    n = cp.shape[1] - 1
+    mono = np.einsum("kj,mjd->mkd", _monomial_matrix(n), cp)  # ascending in tau
+    names = ("speed", "yaw_rate", "lat_acc")
+    out = {nm: (np.zeros(cp.shape[0]), np.zeros(cp.shape[0])) for nm in names}
+    for k in range(cp.shape[0]):
+        h = float(traj.durations[k])
+        vx, vy = _P.polyder(mono[k, :, 0]), _P.polyder(mono[k, :, 1])
+        ax, ay = _P.polyder(vx), _P.polyder(vy)
+        c: FloatArray = np.asarray(_P.polysub(_P.polymul(vx, ay), _P.polymul(vy, ax)))
+        v2: FloatArray = np.asarray(_P.polyadd(_P.polymul(vx, vx), _P.polymul(vy, vy)))
+        dv2, dc = _P.polyder(v2), _P.polyder(c)
+        cands = [_ROVER_GRID, _root_candidates(dv2)]
+        cands.append(_root_candidates(_P.polysub(_P.polymul(dc, v2), _P.polymul(c, dv2))))
+        cands.append(_root_candidates(_P.polysub(2.0 * _P.polymul(dc, v2), _P.polymul(c, dv2))))
+        edge = v2.copy()
+        edge[0] -= (min_speed_m_s * h) ** 2
+        cands.append(_root_candidates(edge))
+        tau0 = np.concatenate(cands)
+        vals0 = _rover_values(tau0, v2, c, h, min_speed_m_s)
+        for nm in names:
+            i = int(np.argmax(vals0[nm]))
+            best_v, best_t = float(vals0[nm][i]), float(tau0[i])
+            for _ in range(2):  # zoom around the best candidate (root error on narrow peaks)
+                tz = np.clip(best_t + _ZOOM, 0.0, 1.0)
+                vz = _rover_values(tz, v2, c, h, min_speed_m_s)[nm]
+                j = int(np.argmax(vz))
+                if vz[j] > best_v:
+                    best_v, best_t = float(vz[j]), float(tz[j])
+            out[nm][0][k] = best_v
+            out[nm][1][k] = best_t
+    return out
+
+
+def _rover_values(
+    tau: FloatArray, v2: FloatArray, c: FloatArray, h: float, min_speed_m_s: float
+) -> dict[str, FloatArray]:
+    """Speed, yaw rate and lateral acceleration at normalised times tau of a segment of
+    duration h with ``V^2`` and ``v x a`` given as polynomials in tau (ascending)."""
+    speed = np.sqrt(np.maximum(_P.polyval(tau, v2), 0.0)) / h  # m/s
+    ct = np.abs(_P.polyval(tau, c)) / h**3  # |v x a|, m^2/s^3
+    # the edge roots sit on V = min speed up to round-off: keep them (conservative)
+    ok = speed >= min_speed_m_s * (1.0 - 1e-9)
+    sv = np.where(ok, speed, 1.0)
+    return {
+        "speed": np.asarray(speed, dtype=np.float64),
+        "yaw_rate": np.asarray(np.where(ok, ct / (sv * sv), 0.0), dtype=np.float64),
+        "lat_acc": np.asarray(np.where(ok, ct / sv, 0.0), dtype=np.float64),
+    }

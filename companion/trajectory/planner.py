@@ -23,6 +23,19 @@ so speed, acceleration and jerk scale in closed form and only tilt, thrust and b
 recomputed). (4) Feasibility pass: stretch the segments where a limit is still exceeded (by
 re-solved dense sampling, ``limits.SAMPLES_PER_SEGMENT`` per segment), until every limit holds.
 
+Rover (:class:`RoverLimits`). Yaw rate ``|v x a| / V^2`` and lateral acceleration
+``|v x a| / V`` peak sharply where the path turns while the speed dips (near a sharp corner
+the minimum-snap path can nearly stop and swing round): such peaks are far narrower than any
+fixed sampling grid and hypersensitive to round-off, which is what made the former
+penalty-plus-local-stretch scheme miss violations, fail ("could not satisfy the limits") and
+swing between runs. Rovers therefore use ``ROVER_ALLOCATION_PIECES`` (1) segment per leg,
+refine ``sum h + rho J`` only (no sampled penalty: a smooth objective, deterministic), and
+meet the limits by one exact uniform time scaling of the shorter of the refined and initial
+durations: the maxima come from the critical points of each segment's polynomials
+(``limits.rover_extrema``), and scaling all durations by k keeps the path while speed and yaw
+rate scale by 1/k and lateral acceleration by 1/k^2 (``_Planner._rover_stretch``), so the
+result always exists and meets every limit.
+
 Cost (100 waypoints, 297 segments, all multirotor limits): about 55 fixed-duration solves, each
 with one penalty evaluation of 8 samples per segment. All samples of all segments are evaluated
 with one matrix product per step (no per-segment Python loops, no multi-threaded BLAS), and the
@@ -51,6 +64,7 @@ from companion.trajectory.limits import (
     RoverLimits,
     TimeScaledRatio,
     _validate,
+    rover_extrema,
     segment_samples,
     segment_worst,
     thin_matmul,
@@ -69,13 +83,20 @@ ALLOCATION_PIECES = 3
 #: Time-allocation objective sum(h) + rho J + w P: rho relative to the initial guess, w, and
 #: the L-BFGS iteration cap. Multirotor: a moderate w keeps the problem well conditioned, so
 #: L-BFGS gets there in fewer iterations (the saturation and feasibility passes enforce the
-#: limits exactly afterwards). Rover: the penalty covers only the speed (yaw rate and lateral
-#: acceleration are left to the saturation), where a stiffer w and more iterations do better.
+#: limits exactly afterwards). Rover: no penalty (w = 0, a smooth objective whose optimum
+#: moves continuously with the waypoints); the limits are then met by an exact uniform time
+#: scaling (see ``_Planner._allocate_rover``).
 REFINE_RHO = 0.01
 REFINE_PENALTY_WEIGHT = 1e3
 REFINE_MAXITER = 45
-ROVER_REFINE_PENALTY_WEIGHT = 1e4
 ROVER_REFINE_MAXITER = 60
+#: Pieces per waypoint leg of a time-allocated rover plan: joints pinned on the straight legs
+#: force tight turns at sharp corners, which the yaw-rate limit then slows down (about 2.7x
+#: longer plans with 3 pieces on random 8-10 waypoint sets).
+ROVER_ALLOCATION_PIECES = 1
+#: Rover: passes that shorten the segments with slack (exact per-segment ratio < 1) before
+#: the uniform scaling again; kept only while the total duration drops.
+ROVER_LOCAL_PASSES = 6
 REFINE_FTOL = 1e-5
 #: yaw="velocity": heading samples per segment and smoothing time as a fraction of the median
 #: segment duration (see ``_heading_fit``).
@@ -750,36 +771,111 @@ class _Planner:
         vmax = limits.max_speed_m_s
         amax = limits.max_lat_acc_m_s2 if isinstance(limits, RoverLimits) else limits.max_acc_m_s2
         h0 = _polyline_profile_durations(joints, self.is_waypoint, vmax, amax)
+        if isinstance(limits, RoverLimits):
+            return self._allocate_rover(h0, limits)
         h = self._refine(h0, limits, params)
         return self._saturate(h, limits, params)
+
+    # ------------------------------------------------------------------ rover allocation
+    def _rover_stretch(self, h: FloatArray, limits: RoverLimits) -> FloatArray:
+        """Uniform time scaling of h meeting every rover limit (guaranteed feasible).
+
+        Scaling all durations by k maps the (homogeneous) optimum onto the same path traversed
+        k times slower: speed and yaw rate scale by 1/k and lateral acceleration by 1/k^2, and
+        the set where they are evaluated (speed >= ``ROVER_MIN_SPEED_M_S``) only shrinks for
+        k > 1, so ``k = max(r_speed, r_yaw, sqrt(r_lat)) >= 1`` meets every limit exactly. A
+        first k < 1 (limits not active) is re-checked and corrected by a second step with
+        k >= 1. Non-homogeneous problems (non-zero fixed derivatives) are re-solved and grown
+        geometrically until the exact maxima pass."""
+        for i in range(200):
+            k = float(np.max(self._rover_segment_ratio(h, limits)))
+            if not math.isfinite(k):
+                raise ValueError(
+                    "rover time allocation: the limits cannot be evaluated (non-finite values)"
+                )
+            if i == 0 and self.homogeneous and 0.0 < k < 1.0:
+                h = h * k  # limits not active: speed up to the tightest one, then re-check
+                continue
+            if k <= 1.0:
+                return h
+            h = h * (k * (1.0 + 1e-9) if self.homogeneous else min(max(k, 1.05), 4.0))
+        raise ValueError(
+            "rover time allocation could not satisfy the limits: the fixed start/end or "
+            "waypoint derivatives are not reachable within max_speed / max_yaw_rate / "
+            "max_lat_acc"
+        )
+
+    def _allocate_rover(self, h0: FloatArray, limits: RoverLimits) -> FloatArray:
+        """Rover durations: the shortest of the refined durations, the initial guess and
+        durations proportional to the segment lengths, each after the feasible uniform scaling
+        of :meth:`_rover_stretch`; then segments with slack are shortened (factor >= 0.5 per
+        pass, ``ROVER_LOCAL_PASSES``) and the whole scaled again, while that helps. Every
+        candidate ends with :meth:`_rover_stretch`, so the result meets every limit."""
+        lengths = np.linalg.norm(np.diff(self.joints, axis=0), axis=1)
+        cands = [self._refine(h0, limits, None), h0, np.maximum(lengths, 1e-9)]
+        best: FloatArray | None = None
+        for h in cands:
+            hs = self._rover_stretch(h, limits)
+            if best is None or float(hs.sum()) < float(best.sum()):
+                best = hs
+        assert best is not None
+        for _ in range(ROVER_LOCAL_PASSES):
+            k = self._rover_segment_ratio(best, limits)
+            if not np.all(np.isfinite(k)):
+                break
+            hs = self._rover_stretch(best * np.clip(k, 0.5, 1.0), limits)
+            if float(hs.sum()) >= float(best.sum()) * (1.0 - 1e-3):
+                break
+            best = hs
+        return best
+
+    def _rover_segment_ratio(self, h: FloatArray, limits: RoverLimits) -> FloatArray:
+        """Per-segment uniform-scaling factor ``max(r_speed, r_yaw, sqrt(r_lat))`` (M,),
+        r = exact maximum (:func:`limits.rover_extrema`) / (margin * limit), of the
+        trajectory with durations h (> 1: over a limit)."""
+        x, _ = self.solve(h)
+        ex = rover_extrema(PiecewiseBezier.from_control_points(self.system.control_points(x, h), h))
+        m = ALLOCATION_MARGIN
+        return np.asarray(
+            np.maximum(
+                np.maximum(
+                    ex["speed"][0] / (limits.max_speed_m_s * m),
+                    ex["yaw_rate"][0] / (limits.max_yaw_rate_rad_s * m),
+                ),
+                np.sqrt(ex["lat_acc"][0] / (limits.max_lat_acc_m_s2 * m)),
+            ),
+            dtype=np.float64,
+        )
 
     def _refine(self, h0: FloatArray, limits: Limits | RoverLimits, params: Any) -> FloatArray:
         """Minimise ``sum(h) + rho J(h) + w P(h)`` over log-durations (projected L-BFGS) and the
         analytic gradient (envelope theorem for J, adjoint of the banded system for the
         sampled limit penalty P). rho is set relative to the initial guess (small: time
-        dominates, the penalty keeps the limits)."""
+        dominates, the penalty keeps the limits). Rover: w = 0 (no P), see
+        ``_allocate_rover``."""
         _, j0 = self.solve(h0)
         if not np.isfinite(j0) or j0 <= 0.0:
             return h0
         t0 = float(h0.sum())
         rho = REFINE_RHO * t0 / ((2 * self.s - 1) * j0)
-        penalty = _Penalty(self.system, limits, params)
-        lz = np.log(h0)
         rover = isinstance(limits, RoverLimits)
-        weight = ROVER_REFINE_PENALTY_WEIGHT if rover else REFINE_PENALTY_WEIGHT
+        penalty = None if rover else _Penalty(self.system, limits, params)
+        lz = np.log(h0)
+        weight = REFINE_PENALTY_WEIGHT
         maxiter = ROVER_REFINE_MAXITER if rover else REFINE_MAXITER
 
         def fun(z: FloatArray) -> tuple[float, Callable[[], FloatArray]]:
             h = np.exp(z)
             x, j = self.solve(h)
-            p, state = penalty.value(x, h)
+            p, state = (0.0, None) if penalty is None else penalty.value(x, h)
 
             def grad() -> FloatArray:
                 # the factorisation of this h is still current: the line search asks for the
                 # gradient of the point it accepts before solving another one
                 dqx = self.system.dq_x(x, h)
-                dp = penalty.gradient(state, x, h, dqx)
-                g = 1.0 + rho * self.system.cost_grad(x, h, dqx) + weight * dp
+                g = 1.0 + rho * self.system.cost_grad(x, h, dqx)
+                if penalty is not None:
+                    g = g + weight * penalty.gradient(state, x, h, dqx)
                 return np.asarray(g * h / t0, dtype=np.float64)
 
             return float(h.sum() + rho * j + weight * p) / t0, grad
@@ -1002,10 +1098,11 @@ def plan(
       heading: speed-weighted least-squares fit with snap smoothing, see ``_heading_fit``).
 
     - ``pieces``: segments per waypoint leg. Default 1 with ``durations``; with time
-      allocation ``ALLOCATION_PIECES`` (3): the extra joints lie on the straight leg between
-      the waypoints (at 1/3 and 2/3), which keeps the path close to the legs and lets the
-      speed profile accelerate, cruise and brake. ``PlanResult.waypoint_times`` says when each
-      waypoint is reached.
+      allocation ``ALLOCATION_PIECES`` (3) under :class:`Limits`: the extra joints lie on the
+      straight leg between the waypoints (at 1/3 and 2/3), which keeps the path close to the
+      legs and lets the speed profile accelerate, cruise and brake; under
+      :class:`RoverLimits` ``ROVER_ALLOCATION_PIECES`` (1). ``PlanResult.waypoint_times``
+      says when each waypoint is reached.
 
     Consecutive duplicate waypoints are merged with a warning; a single waypoint gives a hover
     trajectory of ``HOVER_DURATION_S`` (or ``durations[0]``). Raises ValueError with the
@@ -1210,7 +1307,12 @@ def plan_with_info(
 
     if h_in is None and limits is None:
         raise ValueError("give either durations or limits (for the time allocation)")
-    k = (1 if h_in is not None else ALLOCATION_PIECES) if pieces is None else int(pieces)
+    if pieces is not None:
+        k = int(pieces)
+    elif h_in is not None:
+        k = 1
+    else:
+        k = ROVER_ALLOCATION_PIECES if isinstance(limits, RoverLimits) else ALLOCATION_PIECES
     if k < 1:
         raise ValueError(f"pieces must be >= 1, got {pieces}")
     if h_in is not None and k != 1:

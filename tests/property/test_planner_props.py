@@ -110,3 +110,38 @@ def test_time_allocated_plans_hit_waypoints_within_limits(wp: np.ndarray) -> Non
     np.testing.assert_allclose(tr.evaluate(res.waypoint_times), wp, atol=1e-8)
     assert not any(r.exceeded for r in check(tr, lim).values())
     _check(tr, tr.evaluate(tr.breaks), tr.breaks, 4)
+
+
+@st.composite
+def rover_problems(draw: st.DrawFn) -> np.ndarray:
+    """3..8 waypoints with legs >= max_speed^2 / max_lat_acc and turns up to a near-U-turn."""
+    n = draw(st.integers(min_value=3, max_value=8))
+    heading = draw(st.floats(-np.pi, np.pi))
+    pts = [np.zeros(2)]
+    for i in range(n - 1):
+        if i > 0:
+            heading += draw(st.floats(-np.pi + 1e-3, np.pi - 1e-3))
+        step = draw(st.floats(4.0, 16.0))
+        pts.append(pts[-1] + step * np.array([np.cos(heading), np.sin(heading)]))
+    return np.array(pts)
+
+
+@settings(max_examples=10, deadline=None)
+@given(rover_problems())
+def test_rover_time_allocation_always_succeeds_within_limits(wp: np.ndarray) -> None:
+    from companion.trajectory import RoverLimits, plan_with_info
+
+    lim = RoverLimits(max_speed_m_s=2.0, max_yaw_rate_rad_s=0.8, max_lat_acc_m_s2=1.0)
+    res = plan_with_info(wp, limits=lim)
+    tr = res.trajectory
+    np.testing.assert_allclose(tr.evaluate(res.waypoint_times), wp, atol=1e-8)
+    tol = 1.0 + 1e-6
+    for seg in tr.segments:
+        t = np.linspace(0.0, seg.duration, 1000)
+        v, a = seg.evaluate(t, 1), seg.evaluate(t, 2)
+        speed = np.hypot(v[:, 0], v[:, 1])
+        assert speed.max() <= 2.0 * tol
+        cross = v[:, 0] * a[:, 1] - v[:, 1] * a[:, 0]
+        ok = speed > 1e-3  # heading undefined at rest (RoverLimits convention)
+        assert np.all(np.abs(cross[ok]) / speed[ok] ** 2 <= 0.8 * tol)
+        assert np.all(np.abs(cross[ok]) / speed[ok] <= 1.0 * tol)
