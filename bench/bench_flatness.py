@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import re
 import sys
 import time
 from collections.abc import Callable
@@ -24,6 +23,7 @@ from pathlib import Path
 
 import casadi as ca
 import numpy as np
+from benchmarks_md import write_section
 
 from companion.flatness import MultirotorParams, multirotor_setpoint, symbolic
 
@@ -120,17 +120,6 @@ def render(rows: list[Row], env: str, cmd: str) -> str:
     return "\n".join(lines)
 
 
-def write_section(text: str) -> None:
-    path = ROOT / "BENCHMARKS.md"
-    old = path.read_text() if path.exists() else "# Benchmarks\n"
-    pat = re.compile(r"^## Flatness\n.*?(?=^## |\Z)", re.S | re.M)
-    if pat.search(old):
-        new = pat.sub(lambda _: text + "\n", old, count=1)
-    else:
-        new = old.rstrip("\n") + "\n\n" + text + "\n"
-    path.write_text(new.rstrip("\n") + "\n")
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="Per-sample cost of the flatness map.")
     ap.add_argument("--n", type=int, default=100_000, help="batch size (default 100000)")
@@ -141,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     text = render(rows, env, cmd)
     print(text)
     if not ns.no_write:
-        write_section(text)
+        write_section("Flatness", text)
         print(f"updated {ROOT / 'BENCHMARKS.md'}")
     return 0
 

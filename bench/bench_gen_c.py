@@ -27,6 +27,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+from benchmarks_md import write_section
 
 from companion.flatness import MultirotorParams, multirotor_setpoint
 from companion.trajectory import Bezier, PiecewiseBezier
@@ -234,17 +235,6 @@ def render(c: dict[str, float], py: dict[str, float], arm: list[crossbuild.ArmRe
     return "\n".join(lines)
 
 
-def write_section(text: str) -> None:
-    path = ROOT / "BENCHMARKS.md"
-    old = path.read_text() if path.exists() else "# Benchmarks\n"
-    pat = re.compile(r"^## gen_c\n.*?(?=^## |\Z)", re.S | re.M)
-    if pat.search(old):
-        new = pat.sub(lambda _: text + "\n", old, count=1)
-    else:
-        new = old.rstrip("\n") + "\n\n" + text + "\n"
-    path.write_text(new.rstrip("\n") + "\n")
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--calls", type=int, default=1_000_000, help="C calls per loop (1e6)")
@@ -268,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
     text = render(c, py, arm, env, cmd, ns.calls, ns.reps, cg)
     print(text)
     if not ns.no_write:
-        write_section(text)
+        write_section("gen_c", text)
         print(f"updated {ROOT / 'BENCHMARKS.md'}")
     return 0
 

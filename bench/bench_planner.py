@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import scipy
+from benchmarks_md import BENCHMARKS_MD, write_section
 
 from companion.flatness import MultirotorParams
 from companion.trajectory import Limits, plan, plan_with_info
@@ -260,16 +261,8 @@ def main() -> int:
     section = "## Planner\n\n" + header + "\n\n" + "\n".join(lines) + "\n"
     print(section)
     if args.write:
-        path = ROOT / "BENCHMARKS.md"
-        text = path.read_text(encoding="utf-8")
-        start = text.find("## Planner\n")
-        if start >= 0:
-            nxt = text.find("\n## ", start + 1)
-            end = len(text) if nxt < 0 else nxt + 1
-            text = text[:start] + section + ("\n" if nxt >= 0 else "") + text[end:]
-        else:
-            text = text.rstrip("\n") + "\n\n" + section
-        path.write_text(text, encoding="utf-8")
+        write_section("Planner", section)
+        path = BENCHMARKS_MD
         print(f"updated {path}", file=sys.stderr)
     return 0
 

@@ -18,6 +18,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks_md import write_section  # noqa: E402
+
 from companion.cli import main as cli_main  # noqa: E402
 from companion.replay import ReplayConfig, replay_file  # noqa: E402
 
@@ -83,15 +85,7 @@ def main() -> None:
     print(text)
     print(json.dumps({"single": single, "jobs1_s": w1, "jobs2_s": w2}, indent=1))
     if args.write:
-        _write_section(ROOT / "BENCHMARKS.md", "## Replay", text)
-
-
-def _write_section(path: Path, header: str, text: str) -> None:
-    doc = path.read_text(encoding="utf-8") if path.exists() else "# Benchmarks\n"
-    parts = doc.split("\n## ")
-    kept = [p for p in parts if not ("## " + p).startswith(header)]
-    doc = "\n## ".join(kept).rstrip("\n") + "\n\n" + text
-    path.write_text(doc, encoding="utf-8")
+        write_section("Replay", text)
 
 
 if __name__ == "__main__":
