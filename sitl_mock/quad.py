@@ -50,6 +50,8 @@ MAX_STEP_S = 1.0 / 250.0  # longer steps are split (integration always at >= 250
 ATT_LOOP_PERIOD_S = 0.004
 RATE_LOOP_PERIOD_S = 0.002  # rate loop at <= 500 Hz (every physics step below 500 Hz)
 LAND_DETECT_TIME_S = 0.5
+_SPLIT_ABOVE_S = MAX_STEP_S + 1e-12
+_RATE_TICK_S = RATE_LOOP_PERIOD_S - 1e-9
 
 
 class Quadrotor:
@@ -73,11 +75,17 @@ class Quadrotor:
         "_bat_min",
         "_battery",
         "_gains",
+        "_hdt",
+        "_hdt2",
         "_home",
         "_idle",
+        "_invdt",
         "_ixx",
+        "_ixx_m_izz",
         "_iyy",
+        "_iyy_m_ixx",
         "_izz",
+        "_izz_m_iyy",
         "_kdv",
         "_kdw",
         "_land_timer",
@@ -86,7 +94,9 @@ class Quadrotor:
         "_last_pos_target",
         "_local_pos_valid",
         "_lpitch",
+        "_lpitch_t",
         "_lroll",
+        "_lroll_t",
         "_mass",
         "_motor_cmd",
         "_noise",
@@ -298,6 +308,12 @@ class Quadrotor:
         self._lpitch = p["SIH_L_PITCH"]
         self._kdv = p["SIH_KDV"]
         self._kdw = p["SIH_KDW"]
+        # products/differences used every physics step (same evaluation order as written out)
+        self._lroll_t = self._lroll * self._tmax
+        self._lpitch_t = self._lpitch * self._tmax
+        self._izz_m_iyy = self._izz - self._iyy
+        self._ixx_m_izz = self._ixx - self._izz
+        self._iyy_m_ixx = self._iyy - self._ixx
         tau = p["SIH_T_TAU"]
         if tau != getattr(self, "_tau", None):
             self._tau = tau
@@ -313,7 +329,7 @@ class Quadrotor:
         """
         if not (dt > 0.0 and dt < 1.0):
             raise ValueError(f"physics step must be in (0, 1) s, got {dt!r}")
-        if dt > MAX_STEP_S + 1e-12:
+        if dt > _SPLIT_ABOVE_S:
             n = math.ceil(dt / MAX_STEP_S - 1e-9)
             for _ in range(n):
                 self._step(dt / n, target, armed)
@@ -337,18 +353,38 @@ class Quadrotor:
             self._tko_state = DISARMED
         self._armed_prev = armed
         if armed:
-            self._battery = max(self._bat_min, self._battery - dt / self._bat_drain)
+            bat = self._battery - dt / self._bat_drain
+            self._battery = bat if bat > self._bat_min else self._bat_min
 
         # ---------------------------------------------------------------- control
-        if not armed or not isinstance(target, (PositionTarget, AttitudeTarget)):
-            self._control_idle()
-        elif isinstance(target, PositionTarget):
+        if armed and isinstance(target, PositionTarget):
             self._control_position(dt, target)
-        else:
+        elif armed and isinstance(target, AttitudeTarget):
             self._control_attitude(dt, target)
+        else:
+            self._control_idle()
 
         self._integrate(dt)
-        self._land_detector(dt, armed)
+
+        # land detector (PX4-like)
+        if not armed:
+            self._landed = self._on_ground
+            self._land_timer = 0.0
+            return
+        g = self._gains
+        # "landed": on the ground with low thrust, or on the ground while the position
+        # controller still commands a descent into it (PX4: hit ground while descending)
+        if self._on_ground and (
+            self._idle
+            or self._thrust_sp <= g.thr_min + (g.hover - g.thr_min) * 0.3
+            or (self._last_mode == "pos" and self._pvc.vel_sp[2] > 0.3)
+        ):
+            self._land_timer += dt
+            if self._land_timer >= LAND_DETECT_TIME_S or self._idle:
+                self._landed = True
+        else:
+            self._land_timer = 0.0
+            self._landed = False
 
     def _control_idle(self) -> None:
         if self._last_mode != "idle":
@@ -383,7 +419,6 @@ class Quadrotor:
         )
 
     def _control_position(self, dt: float, tgt: PositionTarget) -> None:
-        g = self._gains
         if self._last_mode != "pos":
             self._last_mode = "pos"
             self._pos_acc = math.inf
@@ -468,7 +503,12 @@ class Quadrotor:
             self._motor_cmd = (0.0, 0.0, 0.0, 0.0)
             self._rate_sp = (0.0, 0.0, 0.0)
             return
-        self._run_attitude_and_rate(dt, self._q_sp, self._yaw_ff, None)
+        # same as _run_attitude_and_rate, with the rate-loop hold checked here (hot path)
+        self._att_acc += dt
+        self._rate_acc += dt
+        if self._rate_acc < _RATE_TICK_S:
+            return  # motor commands held until the next rate-loop tick
+        self._rate_loop(dt, self._q_sp, self._yaw_ff, None)
 
     def _control_attitude(self, dt: float, tgt: AttitudeTarget) -> None:
         if self._last_mode != "att":
@@ -522,8 +562,12 @@ class Quadrotor:
     ) -> None:
         self._att_acc += dt
         self._rate_acc += dt
-        if self._rate_acc < RATE_LOOP_PERIOD_S - 1e-9:
+        if self._rate_acc < _RATE_TICK_S:
             return  # motor commands held until the next rate-loop tick
+        self._rate_loop(dt, q_sp, yaw_ff, rates)
+
+    def _rate_loop(self, dt: float, q_sp: Quat, yaw_ff: float, rates: Vec3 | None) -> None:
+        """Rate-loop tick (attitude loop when due); `_rate_acc` holds the time since the last."""
         dtr = self._rate_acc if self._rate_acc < 0.05 else dt
         self._rate_acc = 0.0
         g = self._gains
@@ -549,32 +593,14 @@ class Quadrotor:
         torque = self._rc.update(g, omega, self._rate_sp, dtr, self._landed)
         self._motor_cmd = mix_quad_x(torque, self._thrust_sp)
 
-    def _land_detector(self, dt: float, armed: bool) -> None:
-        if not armed:
-            self._landed = self._on_ground
-            self._land_timer = 0.0
-            return
-        g = self._gains
-        # "landed": on the ground with low thrust, or on the ground while the position
-        # controller still commands a descent into it (PX4: hit ground while descending)
-        low = (
-            self._idle
-            or self._thrust_sp <= g.thr_min + (g.hover - g.thr_min) * 0.3
-            or (self._last_mode == "pos" and self._pvc.vel_sp[2] > 0.3)
-        )
-        if self._on_ground and low:
-            self._land_timer += dt
-            if self._land_timer >= LAND_DETECT_TIME_S or self._idle:
-                self._landed = True
-        else:
-            self._land_timer = 0.0
-            self._landed = False
-
     def _integrate(self, dt: float) -> None:
         # motor lag
         if dt != self._alpha_dt:
             self._alpha_dt = dt
             self._alpha = 1.0 - math.exp(-dt / self._tau) if self._tau > 1e-6 else 1.0
+            self._hdt = 0.5 * dt
+            self._hdt2 = 0.5 * dt * dt
+            self._invdt = 1.0 / dt
         a = self._alpha
         u = self._u
         c = self._motor_cmd
@@ -583,10 +609,9 @@ class Quadrotor:
         u2 = u[2] + (c[2] - u[2]) * a
         u3 = u[3] + (c[3] - u[3]) * a
         u[0], u[1], u[2], u[3] = u0, u1, u2, u3
-        tmax = self._tmax
-        thrust = tmax * (u0 + u1 + u2 + u3)
-        mx = self._lroll * tmax * (-u0 + u1 + u2 - u3)
-        my = self._lpitch * tmax * (u0 - u1 + u2 - u3)
+        thrust = self._tmax * (u0 + u1 + u2 + u3)
+        mx = self._lroll_t * (-u0 + u1 + u2 - u3)
+        my = self._lpitch_t * (u0 - u1 + u2 - u3)
         mz = self._qmax * (u0 + u1 - u2 - u3)
 
         qw, qx, qy, qz = self._qw, self._qx, self._qy, self._qz
@@ -601,7 +626,7 @@ class Quadrotor:
         ax = (-thrust * bzx - kdv * (vx - wnd[0])) / m
         ay = (-thrust * bzy - kdv * (vy - wnd[1])) / m
         az = (-thrust * bzz - kdv * (vz - wnd[2])) / m + G
-        hdt2 = 0.5 * dt * dt
+        hdt2 = self._hdt2
         px = self._px + vx * dt + ax * hdt2
         py = self._py + vy * dt + ay * hdt2
         pz = self._pz + vz * dt + az * hdt2
@@ -609,30 +634,31 @@ class Quadrotor:
 
         # rotational dynamics (Euler's equations), midpoint rule
         ixx, iyy, izz, kdw = self._ixx, self._iyy, self._izz, self._kdw
+        d_yz, d_zx, d_xy = self._izz_m_iyy, self._ixx_m_izz, self._iyy_m_ixx
         wx, wy, wz = self._wx, self._wy, self._wz
-        dwx = (mx - kdw * wx - (izz - iyy) * wy * wz) / ixx
-        dwy = (my - kdw * wy - (ixx - izz) * wz * wx) / iyy
-        dwz = (mz - kdw * wz - (iyy - ixx) * wx * wy) / izz
-        hx, hy, hz = wx + 0.5 * dt * dwx, wy + 0.5 * dt * dwy, wz + 0.5 * dt * dwz
-        dwx = (mx - kdw * hx - (izz - iyy) * hy * hz) / ixx
-        dwy = (my - kdw * hy - (ixx - izz) * hz * hx) / iyy
-        dwz = (mz - kdw * hz - (iyy - ixx) * hx * hy) / izz
+        hdt = self._hdt
+        hx = wx + hdt * ((mx - kdw * wx - d_yz * wy * wz) / ixx)
+        hy = wy + hdt * ((my - kdw * wy - d_zx * wz * wx) / iyy)
+        hz = wz + hdt * ((mz - kdw * wz - d_xy * wx * wy) / izz)
+        dwx = (mx - kdw * hx - d_yz * hy * hz) / ixx
+        dwy = (my - kdw * hy - d_zx * hz * hx) / iyy
+        dwz = (mz - kdw * hz - d_xy * hx * hy) / izz
         nwx, nwy, nwz = wx + dt * dwx, wy + dt * dwy, wz + dt * dwz
         # attitude: q <- q * exp(omega_mid dt / 2)
-        ox, oy, oz = hx, hy, hz
-        ang = math.sqrt(ox * ox + oy * oy + oz * oz) * dt
+        ang = math.sqrt(hx * hx + hy * hy + hz * hz) * dt
         if ang > 1e-12:
             s = math.sin(0.5 * ang) * dt / ang
             dw = math.cos(0.5 * ang)
-            dx, dy, dz = ox * s, oy * s, oz * s
-            qw, qx, qy, qz = (
-                qw * dw - qx * dx - qy * dy - qz * dz,
-                qw * dx + qx * dw + qy * dz - qz * dy,
-                qw * dy - qx * dz + qy * dw + qz * dx,
-                qw * dz + qx * dy - qy * dx + qz * dw,
-            )
-            n = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-            qw, qx, qy, qz = qw * n, qx * n, qy * n, qz * n
+            dx, dy, dz = hx * s, hy * s, hz * s
+            rw = qw * dw - qx * dx - qy * dy - qz * dz
+            rx = qw * dx + qx * dw + qy * dz - qz * dy
+            ry = qw * dy - qx * dz + qy * dw + qz * dx
+            rz = qw * dz + qx * dy - qy * dx + qz * dw
+            n = 1.0 / math.sqrt(rw * rw + rx * rx + ry * ry + rz * rz)
+            qw = rw * n
+            qx = rx * n
+            qy = ry * n
+            qz = rz * n
 
         # ground contact
         if pz >= 0.0 and nvz >= 0.0:
@@ -645,7 +671,7 @@ class Quadrotor:
             self._on_ground = True
         else:
             self._on_ground = False
-        inv = 1.0 / dt
+        inv = self._invdt
         self._ax, self._ay, self._az = (nvx - vx) * inv, (nvy - vy) * inv, (nvz - vz) * inv
         self._px, self._py, self._pz = px, py, pz
         self._vx, self._vy, self._vz = nvx, nvy, nvz
