@@ -88,18 +88,51 @@ class Transport:
         self.failed = exc
         self._deliver(b"")
 
-    def send(self, data: bytes) -> bool:  # pragma: no cover - abstract
-        """Send bytes; returns False if they could not be sent (counted in send_errors)."""
+    #: Exceptions of `_write` that count as a failed send (not a crash).
+    _write_errors: tuple[type[BaseException], ...] = (OSError,)
+    _loop: asyncio.AbstractEventLoop
+
+    def _can_send(self) -> bool:
+        return not self._closed
+
+    def _write(self, data: bytes) -> None:  # pragma: no cover - abstract
         raise NotImplementedError
+
+    def _fileno(self) -> int:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _release(self) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def send(self, data: bytes) -> bool:
+        """Send bytes (thread-safe); returns False if they could not be sent (counted in
+        send_errors)."""
+        if not self._can_send():
+            return False
+        try:
+            with self._send_lock:
+                self._write(data)
+            return True
+        except self._write_errors:
+            self.send_errors += 1
+            return False
 
     @property
     def local_address(self) -> tuple[str, int]:  # pragma: no cover - abstract
         """Local (host, port) where applicable."""
         raise NotImplementedError
 
-    def close(self) -> None:  # pragma: no cover - abstract
+    def _stop_reading(self) -> None:
+        with contextlib.suppress(Exception):
+            self._loop.remove_reader(self._fileno())
+
+    def close(self) -> None:
         """Release the transport (idempotent)."""
-        raise NotImplementedError
+        if self._closed:
+            return
+        self._closed = True
+        self._stop_reading()
+        self._release()
 
 
 class UdpTransport(Transport):
@@ -143,24 +176,16 @@ class UdpTransport(Transport):
                 self.peer = addr
             self._deliver(data)
 
-    def send(self, data: bytes) -> bool:
-        peer = self.peer
-        if peer is None or self._closed:
-            return False
-        try:
-            with self._send_lock:
-                self.sock.sendto(data, peer)
-            return True
-        except OSError:
-            self.send_errors += 1
-            return False
+    def _can_send(self) -> bool:
+        return self.peer is not None and not self._closed
 
-    def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
-        with contextlib.suppress(Exception):
-            self._loop.remove_reader(self.sock.fileno())
+    def _write(self, data: bytes) -> None:
+        self.sock.sendto(data, self.peer)
+
+    def _fileno(self) -> int:
+        return self.sock.fileno()
+
+    def _release(self) -> None:
         self.sock.close()
 
 
@@ -213,26 +238,16 @@ class TcpTransport(Transport):
             return
         self._deliver(data)
 
-    def _stop_reading(self) -> None:
-        with contextlib.suppress(Exception):
-            self._loop.remove_reader(self.sock.fileno())
+    def _can_send(self) -> bool:
+        return not self._closed and self.failed is None
 
-    def send(self, data: bytes) -> bool:
-        if self._closed or self.failed is not None:
-            return False
-        try:
-            with self._send_lock:
-                self.sock.sendall(data)
-            return True
-        except OSError:
-            self.send_errors += 1
-            return False
+    def _write(self, data: bytes) -> None:
+        self.sock.sendall(data)
 
-    def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
-        self._stop_reading()
+    def _fileno(self) -> int:
+        return self.sock.fileno()
+
+    def _release(self) -> None:
         self.sock.close()
 
 
@@ -262,30 +277,21 @@ class SerialTransport(Transport):
         try:
             data = self.port.read(4096)
         except Exception as exc:
-            with contextlib.suppress(Exception):
-                self._loop.remove_reader(self.port.fileno())
+            self._stop_reading()
             self._fail(exc)
             return
         if data:
             self._deliver(bytes(data))
 
-    def send(self, data: bytes) -> bool:
-        if self._closed:
-            return False
-        try:
-            with self._send_lock:
-                self.port.write(data)
-            return True
-        except Exception:
-            self.send_errors += 1
-            return False
+    _write_errors = (Exception,)  # serial.SerialException and write timeouts
 
-    def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
-        with contextlib.suppress(Exception):
-            self._loop.remove_reader(self.port.fileno())
+    def _write(self, data: bytes) -> None:
+        self.port.write(data)
+
+    def _fileno(self) -> int:
+        return int(self.port.fileno())
+
+    def _release(self) -> None:
         self.port.close()
 
 
