@@ -128,7 +128,7 @@ def fake_px4_main(port: int) -> None:
 
 
 async def run_case(rate: float, duration: float, naive: bool,
-                   rt: int | None = None) -> dict[str, float]:
+                   **streamer_kw: Any) -> dict[str, float]:
     link = VehicleLink()
     tr = await open_transport("udpin://127.0.0.1:0")
     child = subprocess.Popen([sys.executable, __file__, "--fake-px4", str(tr.local_address[1])],
@@ -166,7 +166,8 @@ async def run_case(rate: float, duration: float, naive: bool,
             send_times.append(now)
             lateness.append(now - t_next)
     else:
-        st = FixedRateStreamer(rate, tr.send, producer, realtime_priority=rt)
+        st = FixedRateStreamer(rate, tr.send, producer, target=tr.datagram_target,
+                               **streamer_kw)
         st.start()
         await asyncio.sleep(duration)
         st.stop()
@@ -289,15 +290,25 @@ def evaluator_bench(n: int = 3000) -> dict[str, tuple[float, float]]:
     }, n)
 
 
+CASES: list[tuple[str, bool, dict[str, Any]]] = [
+    ("asyncio.sleep loop (baseline)", True, {}),
+    ("Python deadline thread: sleep + spin (previous design)", False, {"native": False}),
+    ("deadline thread, C wait + send: sleep + spin", False, {"native": True}),
+    ("deadline thread, C wait + send: sleep + spin, SCHED_FIFO", False,
+     {"native": True, "realtime_priority": 10}),
+    ("deadline thread, C wait + send: busy wait", False, {"native": True, "wait": "busy"}),
+]
+
+
 async def main_async(args: argparse.Namespace) -> None:
     print("| rate Hz | sender | achieved Hz | sent | missed | period err p50/p99/max us "
           "(send) | (arrival) | lateness p99 us | CPU % of one core |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for rate in [] if args.compute_only else args.rates:
-        for naive, rt in ((True, None), (False, None), (False, 10)):
-            r = await run_case(rate, args.duration, naive, rt)
-            name = ("asyncio.sleep loop (baseline)" if naive else
-                    "deadline thread" + (" + SCHED_FIFO" if rt else ""))
+        for name, naive, kw in CASES:
+            if args.cases and not any(c in name for c in args.cases):
+                continue
+            r = await run_case(rate, args.duration, naive, **kw)
             print(f"| {rate:g} | {name} | {r['achieved']:.2f} | {r['sent']:.0f} | "
                   f"{r['missed']:.0f} | {r['p50']:.0f} / {r['p99']:.0f} / {r['max']:.0f} | "
                   f"{r['rx_p50']:.0f} / {r['rx_p99']:.0f} / {r['rx_max']:.0f} | "
@@ -321,6 +332,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--duration", type=float, default=8.0)
     ap.add_argument("--rates", type=float, nargs="+", default=[100.0, 250.0])
+    ap.add_argument("--cases", nargs="*", default=[],
+                    help="only the sender rows whose name contains one of these strings")
     ap.add_argument("--compute-only", action="store_true", help="only the per-cycle compute table")
     ap.add_argument("--fake-px4", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()

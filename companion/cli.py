@@ -192,6 +192,7 @@ def _cmd_fly(args: argparse.Namespace) -> int:
         target=args.target, connect=args.connect, mode=args.mode, rate_hz=args.rate,
         vehicle_file=args.vehicle, log=args.log, size_m=args.size, speed_m_s=args.speed,
         alt_m=args.alt, laps=args.laps, mock_params=tuple(args.mock_param),
+        busy_wait=args.busy_wait, sender_cpu=args.sender_cpu,
     )
     return _run_vehicle_command(lambda: asyncio.run(fly(opts, console)))
 
@@ -274,6 +275,10 @@ def build_parser() -> argparse.ArgumentParser:
     fl.add_argument("--speed", type=float, default=3.0, help="pattern speed [m/s] (default 3)")
     fl.add_argument("--alt", type=float, default=5.0, help="pattern altitude [m] (default 5)")
     fl.add_argument("--laps", type=int, default=1, help="pattern laps (default 1)")
+    fl.add_argument("--busy-wait", action="store_true",
+                    help="sender thread busy-waits each deadline (tightest timing, costs a core)")
+    fl.add_argument("--sender-cpu", type=int, default=None, metavar="N",
+                    help="pin the setpoint sender thread to core N")
     fl.add_argument("--mock-param", type=_mock_param, action="append", default=[],
                     metavar="NAME=VALUE", help="parameter of the embedded mock (repeatable)")
     fl.set_defaults(func=_cmd_fly)

@@ -46,6 +46,8 @@ class FlyOptions:
     alt_m: float
     laps: int
     mock_params: tuple[tuple[str, float], ...] = ()
+    busy_wait: bool = False
+    sender_cpu: int | None = None
 
 
 def _free_udp_port() -> int:
@@ -127,7 +129,9 @@ async def fly(opts: FlyOptions, console: Console) -> int:
     elif not (opts.alt_m > 0.5):
         raise ValueError(f"--alt must be above 0.5 m, got {opts.alt_m}")
     log_path = opts.log or f"flight-{dt.datetime.now(dt.UTC):%Y%m%dT%H%M%SZ}.tlog"
-    vconfig = VehicleConfig(rate_hz=opts.rate_hz, tlog_path=log_path)
+    vconfig = VehicleConfig(rate_hz=opts.rate_hz, tlog_path=log_path,
+                            stream_wait="busy" if opts.busy_wait else "sleep",
+                            stream_cpu=opts.sender_cpu)
     async with contextlib.AsyncExitStack() as stack:
         url = opts.connect
         if url is None:

@@ -105,7 +105,8 @@ def find_compiler() -> str | None:
     return None
 
 
-def _source_hash(lib_dir: Path, compiler: str, flags: tuple[str, ...]) -> str:
+def _source_hash(lib_dir: Path, compiler: str, flags: tuple[str, ...],
+                 files: tuple[str, ...] = SOURCES + HEADERS) -> str:
     h = hashlib.sha256()
     try:
         version = subprocess.run([compiler, "--version"], capture_output=True, text=True,
@@ -113,14 +114,17 @@ def _source_hash(lib_dir: Path, compiler: str, flags: tuple[str, ...]) -> str:
     except (OSError, subprocess.SubprocessError):
         version = ""
     h.update(compiler.encode() + b"\0" + version.encode() + b"\0" + " ".join(flags).encode())
-    for name in SOURCES + HEADERS:
+    for name in files:
         h.update(b"\0" + name.encode() + b"\0" + (lib_dir / name).read_bytes())
     return h.hexdigest()[:20]
 
 
 def build_library(lib_dir: Path = LIB_DIR, *, cache: Path | None = None,
-                  compiler: str | None = None, extra_flags: tuple[str, ...] = ()) -> Path:
-    """Compile ``lib_dir`` into a shared library in the cache (if not there yet); its path.
+                  compiler: str | None = None, extra_flags: tuple[str, ...] = (),
+                  sources: tuple[str, ...] = SOURCES, headers: tuple[str, ...] = HEADERS,
+                  name: str = "ecca_setpoint") -> Path:
+    """Compile ``sources`` of ``lib_dir`` into a shared library ``lib<name>-<hash>.so`` in the
+    cache (if not there yet); its path. The defaults build the setpoint library.
 
     Raises :class:`NativeBuildError` with the compiler output if compilation fails.
     """
@@ -129,20 +133,20 @@ def build_library(lib_dir: Path = LIB_DIR, *, cache: Path | None = None,
         raise NativeBuildError("no C compiler found (set $CC or install cc/gcc/clang)")
     flags = CFLAGS + tuple(extra_flags)
     out_dir = cache or cache_dir()
-    key = _source_hash(lib_dir, cc, flags)
-    target = out_dir / f"libecca_setpoint-{key}.so"
+    key = _source_hash(lib_dir, cc, flags, sources + headers)
+    target = out_dir / f"lib{name}-{key}.so"
     if target.exists():
         return target
     out_dir.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=".build-", suffix=".so", dir=out_dir)
     os.close(fd)
-    cmd = [cc, *flags, f"-I{lib_dir}", *(str(lib_dir / s) for s in SOURCES), "-o", tmp_name,
+    cmd = [cc, *flags, f"-I{lib_dir}", *(str(lib_dir / s) for s in sources), "-o", tmp_name,
            "-lm"]
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, check=False)
         if proc.returncode != 0:
             raise NativeBuildError(
-                f"compiling the C setpoint library failed ({' '.join(cmd)}):\n{proc.stderr}")
+                f"compiling the C library {name} failed ({' '.join(cmd)}):\n{proc.stderr}")
         os.replace(tmp_name, target)  # atomic: concurrent builders race harmlessly
     finally:
         if os.path.exists(tmp_name):

@@ -1,18 +1,31 @@
 """Deadline-based fixed-rate sender thread.
 
-A dedicated thread sleeps until ``spin_s`` (default 200 us) before each deadline
-``t0 + k / rate_hz`` and busy-waits the rest, then calls the producer (which returns the frame
-to send: the latest setpoint, computed from the latest telemetry) and sends it. Deadlines are
-absolute, so there is no drift; a cycle that starts more than one period late skips the missed
-deadlines (counted in ``missed``) instead of bursting. The asyncio side feeds it by swapping the
-producer (``set_producer``) or the latest frame (``feed``) and drains ``sent_times`` (a
-thread-safe deque) to follow the stream.
+A dedicated thread serves the absolute deadlines ``t0 + k / rate_hz`` (no drift). For each
+deadline it wakes ``lead_s`` early (default 1 ms, half a period with ``wait="busy"``; at most
+half a period), calls the producer
+with the deadline time (the producer returns the frame due at that time: the setpoint computed
+from the latest telemetry, extrapolated to the deadline), waits for the deadline and sends.
+A cycle that starts more than one period late skips the missed deadlines, and a frame that is
+ready only more than a period after its deadline is dropped (both counted in ``missed``)
+instead of bursting. The asyncio side feeds it by swapping the producer
+(``set_producer``) or the latest frame (``feed``) and drains ``sent_times`` (a thread-safe
+deque) to follow the stream.
+
+The final wait and the send run in a small C helper (``deadline.py``; ctypes releases the GIL)
+when it can be built and the clock is the real one: the send then never waits for the
+interpreter, and with ``target`` returning a UDP socket and peer the datagram leaves from C.
+``wait="sleep"`` (default) sleeps until ``spin_s`` (200 us) before each wake-up and busy-waits
+the rest; ``wait="busy"`` busy-waits the whole period, off the GIL, which keeps a core awake:
+the choice for a dedicated core, and on virtual machines, where waking a halted vCPU can take
+milliseconds (measured in BENCHMARKS.md "Stream"). Without the C helper the waits are Python
+``sleep`` + spin, and ``busy`` falls back to ``sleep``.
 
 While running, the interpreter's GIL switch interval is lowered (``gil_switch_interval_s``,
-default 0.1 ms; restored on stop) so that the waking sender thread waits at most that long for
-the GIL when the asyncio thread is busy. This is a process-wide setting. ``realtime_priority``
-(Linux, needs CAP_SYS_NICE) puts the sender thread in SCHED_FIFO at that priority; if refused it
-runs at normal priority and says so in ``last_error``.
+default 0.1 ms; restored on stop) so that the sender thread waits at most that long for the GIL
+to run the producer. This is a process-wide setting. ``realtime_priority`` (Linux, needs
+CAP_SYS_NICE) puts the sender thread in SCHED_FIFO at that priority (not with ``busy``: the
+kernel throttles a spinning real-time thread for 50 ms every second); ``cpu`` pins it to one
+core. Failures of either are reported in ``last_error`` and the thread runs on.
 """
 
 from __future__ import annotations
@@ -24,14 +37,20 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Literal
+
+from .deadline import NativeDeadline, load_deadline_library
 
 Producer = Callable[[float], bytes | None]
 Clock = Callable[[], float]
+#: Returns (socket fd, packed peer sockaddr) to send from C, or None to use ``send``.
+Target = Callable[[], tuple[int, bytes] | None]
 
 
 @dataclass(frozen=True)
 class StreamStats:
-    """Counters of a streamer; ``periods_s`` are the recent intervals between sends [s]."""
+    """Counters of a streamer; ``periods_s`` are the recent intervals between sends, ``lateness_s``
+    send time minus deadline, ``compute_s`` the producer's time per cycle [s]."""
 
     rate_hz: float
     sent: int
@@ -42,6 +61,8 @@ class StreamStats:
     periods_s: tuple[float, ...]
     lateness_s: tuple[float, ...]
     compute_s: tuple[float, ...]
+    native: bool = False
+    wait: str = "sleep"
 
 
 class FixedRateStreamer:
@@ -53,27 +74,48 @@ class FixedRateStreamer:
         send: Callable[[bytes], bool],
         producer: Producer | None = None,
         *,
+        target: Target | None = None,
+        wait: Literal["sleep", "busy"] = "sleep",
+        lead_s: float | None = None,
         spin_s: float = 200e-6,
-        clock: Clock = time.monotonic,
-        sleep: Callable[[float], None] = time.sleep,
+        clock: Clock | None = None,
+        sleep: Callable[[float], None] | None = None,
+        native: bool | None = None,
         history: int = 4096,
         on_sent: Callable[[bytes, float], None] | None = None,
         gil_switch_interval_s: float | None = 0.0001,
         realtime_priority: int | None = None,
+        cpu: int | None = None,
         name: str = "setpoint-streamer",
     ) -> None:
         if not rate_hz > 0:
             raise ValueError("rate must be positive")
+        if wait not in ("sleep", "busy"):
+            raise ValueError(f"wait must be 'sleep' or 'busy', not {wait!r}")
         self.rate_hz = rate_hz
         self.period_s = 1.0 / rate_hz
         self._send = send
+        self._target = target
         self._producer: Producer | None = producer
         self.spin_s = spin_s
-        self._clock = clock
-        self._sleep = sleep
+        # the C helper reads CLOCK_MONOTONIC: only with the real clock (tests inject fake ones)
+        fake_time = clock is not None or sleep is not None
+        self._native: NativeDeadline | None = None
+        if native is not False and not fake_time:
+            self._native = load_deadline_library()
+            if native and self._native is None:
+                raise RuntimeError("native deadline sender requested but it cannot be built "
+                                   "(no C compiler?)")
+        self.wait = wait if self._native is not None else "sleep"
+        if lead_s is None:  # busy: the producer gets half a period to take the GIL and compute
+            lead_s = 0.5 * self.period_s if self.wait == "busy" else 1e-3
+        self.lead_s = min(max(lead_s, 0.0), 0.5 * self.period_s)
+        self._clock: Clock = clock or time.monotonic
+        self._sleep: Callable[[float], None] = sleep or time.sleep
         self._on_sent = on_sent
         self._gil = gil_switch_interval_s
         self._rt_prio = realtime_priority
+        self._cpu = cpu
         self.realtime = False
         self._old_gil: float | None = None
         self._stop = threading.Event()
@@ -86,8 +128,13 @@ class FixedRateStreamer:
         self.missed = 0
         self.send_errors = 0
         self.producer_errors = 0
-        self.last_error = ""
+        self.last_error = "" if self.wait == wait else "busy wait needs the C helper: sleeping"
         self._last_frame: bytes | None = None
+
+    @property
+    def native(self) -> bool:
+        """True when the C helper does the final wait (and the send, given a UDP ``target``)."""
+        return self._native is not None
 
     # -- feeding --------------------------------------------------------------------------
     def set_producer(self, producer: Producer | None) -> None:
@@ -113,7 +160,7 @@ class FixedRateStreamer:
     def stop(self, timeout_s: float = 2.0) -> None:
         """Stop the thread (returns after it exited or the timeout)."""
         self._stop.set()
-        if self._thread.is_alive():
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(timeout_s)
         if self._old_gil is not None:
             sys.setswitchinterval(self._old_gil)
@@ -135,53 +182,75 @@ class FixedRateStreamer:
         """Snapshot of counters and recent timing samples."""
         return StreamStats(self.rate_hz, self.sent, self.missed, self.send_errors,
                            self.producer_errors, self.last_error, tuple(self._periods),
-                           tuple(self._lateness), tuple(self._compute))
+                           tuple(self._lateness), tuple(self._compute), self.native, self.wait)
 
     # -- thread -------------------------------------------------------------------------------
-    def _set_realtime(self) -> None:
-        if self._rt_prio is None or not hasattr(os, "sched_setscheduler"):
-            return
-        try:  # pid 0 = the calling thread on Linux
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self._rt_prio))
-            self.realtime = True
-        except (OSError, AttributeError) as exc:
-            self.last_error = f"SCHED_FIFO unavailable ({exc}); running at normal priority"
+    def _configure_thread(self) -> None:
+        errors = []
+        if self._cpu is not None and hasattr(os, "sched_setaffinity"):
+            try:  # pid 0 = the calling thread on Linux
+                os.sched_setaffinity(0, {self._cpu})
+            except (OSError, ValueError) as exc:
+                errors.append(f"cannot pin to CPU {self._cpu} ({exc})")
+        if self._rt_prio is not None and self.wait == "busy":
+            errors.append("SCHED_FIFO not used with busy wait (real-time throttling)")
+        elif self._rt_prio is not None and hasattr(os, "sched_setscheduler"):
+            try:
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self._rt_prio))
+                self.realtime = True
+            except (OSError, AttributeError) as exc:
+                errors.append(f"SCHED_FIFO unavailable ({exc}); running at normal priority")
+        if self._native is not None and self.wait == "sleep":
+            self._native.set_timer_slack(1e-6)  # the default 50 us slack delays every wake-up
+        if errors:
+            self.last_error = "; ".join([self.last_error, *errors]).lstrip("; ")
+
+    def _wait_python(self, deadline: float) -> None:
+        remaining = deadline - self._clock()
+        if remaining > self.spin_s:
+            self._sleep(remaining - self.spin_s)
+        while self._clock() < deadline:
+            pass
 
     def _run(self) -> None:
-        self._set_realtime()
-        clock, sleep, period, spin = self._clock, self._sleep, self.period_s, self.spin_s
+        self._configure_thread()
+        clock, period, lead = self._clock, self.period_s, self.lead_s
+        native = self._native
+        spin: float | None = None if self.wait == "busy" else self.spin_s
         t0 = clock() + period
         k = 0
         last_send: float | None = None
         while not self._stop.is_set():
             deadline = t0 + k * period
-            remaining = deadline - clock()
-            if remaining > spin:
-                sleep(remaining - spin)
-            while clock() < deadline:
-                pass
+            if native is not None:
+                native.wait_until(deadline - lead, spin)
+            else:
+                self._wait_python(deadline - lead)
             if self._stop.is_set():
                 break
-            t_send = clock()
             producer = self._producer
             frame: bytes | None = None
+            t_prod = clock()
             if producer is not None:
                 try:
-                    frame = producer(t_send)
+                    frame = producer(deadline)
                 except Exception as exc:  # never let a bad setpoint kill the stream silently
                     self.producer_errors += 1
                     self.last_error = f"{type(exc).__name__}: {exc}"
                     frame = None
             t_built = clock()
-            if frame:
-                if self._send(frame):
+            if frame and t_built - deadline > period:  # stalled: the frame is stale, drop it
+                self.missed += 1
+            elif frame:
+                ok, t_send = self._send_at(deadline, frame, spin)
+                if ok:
                     self.sent += 1
                     self.sent_times.append(t_send)
                     if last_send is not None:
                         self._periods.append(t_send - last_send)
                     last_send = t_send
                     self._lateness.append(t_send - deadline)
-                    self._compute.append(t_built - t_send)
+                    self._compute.append(t_built - t_prod)
                     if self._on_sent is not None:
                         self._on_sent(frame, t_send)
                 else:
@@ -192,3 +261,19 @@ class FixedRateStreamer:
                 skip = int(behind / period)
                 k += skip
                 self.missed += skip
+
+    def _send_at(self, deadline: float, frame: bytes, spin: float | None) -> tuple[bool, float]:
+        """Wait for the deadline and send: (sent, send time [s])."""
+        native = self._native
+        if native is None:
+            self._wait_python(deadline)
+            t_send = self._clock()
+            return self._send(frame), t_send
+        target = self._target() if self._target is not None else None
+        if target is None:
+            t_send = native.wait_until(deadline, spin)
+            return self._send(frame), t_send
+        t_send, err = native.wait_send(deadline, spin, target[0], frame, target[1])
+        if err:
+            self.last_error = f"send failed: {os.strerror(err)}"
+        return err == 0, t_send

@@ -15,6 +15,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import socket
+import sys
 import threading
 from dataclasses import dataclass
 from typing import Any
@@ -56,6 +57,21 @@ def parse_url(url: str) -> Endpoint:
         raise ValueError(f"connection URL {url!r} needs a numeric port")
     host = host.strip("[]") or ("0.0.0.0" if scheme == "udpin" else "127.0.0.1")
     return Endpoint(scheme, host, int(port))
+
+
+def sockaddr_bytes(family: int, address: tuple[object, ...]) -> bytes:
+    """Packed Linux ``struct sockaddr_in`` / ``sockaddr_in6`` of a numeric (host, port[, flow,
+    scope]) address, as ``sendto`` takes it."""
+    fam = int(family).to_bytes(2, sys.byteorder)
+    host, port = str(address[0]), int(str(address[1]))
+    if family == socket.AF_INET:
+        return fam + port.to_bytes(2, "big") + socket.inet_pton(socket.AF_INET, host) + bytes(8)
+    if family == socket.AF_INET6:
+        flow = int(str(address[2])) if len(address) > 2 else 0
+        scope = int(str(address[3])) if len(address) > 3 else 0
+        return (fam + port.to_bytes(2, "big") + flow.to_bytes(4, "big")
+                + socket.inet_pton(socket.AF_INET6, host) + scope.to_bytes(4, sys.byteorder))
+    raise ValueError(f"unsupported address family {family}")
 
 
 class Transport:
@@ -117,6 +133,12 @@ class Transport:
             self.send_errors += 1
             return False
 
+    def datagram_target(self) -> tuple[int, bytes] | None:
+        """(socket fd, packed peer sockaddr) for sending one datagram without the GIL (see
+        ``deadline.py``); None where a send is not a single atomic datagram (TCP, serial) or
+        there is no peer yet: then use :meth:`send`."""
+        return None
+
     @property
     def local_address(self) -> tuple[str, int]:  # pragma: no cover - abstract
         """Local (host, port) where applicable."""
@@ -142,6 +164,7 @@ class UdpTransport(Transport):
         super().__init__()
         self._loop = loop
         self.listen = ep.kind == "udpin"
+        self._target: tuple[Any, tuple[int, bytes]] | None = None
         fam = socket.AF_INET6 if ":" in ep.host else socket.AF_INET
         self.sock = socket.socket(fam, socket.SOCK_DGRAM)
         try:
@@ -181,6 +204,20 @@ class UdpTransport(Transport):
 
     def _write(self, data: bytes) -> None:
         self.sock.sendto(data, self.peer)
+
+    def datagram_target(self) -> tuple[int, bytes] | None:
+        peer = self.peer
+        if peer is None or self._closed:
+            return None
+        cached = self._target
+        if cached is not None and cached[0] == peer:
+            return cached[1]
+        try:
+            target = (self.sock.fileno(), sockaddr_bytes(self.sock.family, peer))
+        except (OSError, ValueError):  # a host name (udpout://localhost:...): send() resolves it
+            return None
+        self._target = (peer, target)
+        return target
 
     def _fileno(self) -> int:
         return self.sock.fileno()

@@ -26,7 +26,7 @@ import signal
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable, Generator, Sequence
 from dataclasses import dataclass
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic, Literal, TypeVar
 
 from companion.mavlink import (
     ArmedChanged,
@@ -91,6 +91,8 @@ class VehicleConfig:
 
     rate_hz: float = 100.0
     realtime_priority: int | None = 10  # SCHED_FIFO for the sender thread (Linux; None: off)
+    stream_wait: Literal["sleep", "busy"] = "sleep"  # "busy": spin off the GIL (a whole core)
+    stream_cpu: int | None = None  # pin the sender thread to this core
     prime_s: float = 0.5
     prime_timeout_s: float = 3.0
     stale_telemetry_s: float = 0.5
@@ -626,8 +628,13 @@ class Vehicle:
             tr = self.transport
             return tr is not None and tr.send(frame)
 
-        streamer = FixedRateStreamer(rate, send, producer, on_sent=on_sent,
-                                     realtime_priority=cfg.realtime_priority)
+        def target() -> tuple[int, bytes] | None:
+            tr = self.transport
+            return None if tr is None else tr.datagram_target()
+
+        streamer = FixedRateStreamer(rate, send, producer, target=target, on_sent=on_sent,
+                                     realtime_priority=cfg.realtime_priority,
+                                     wait=cfg.stream_wait, cpu=cfg.stream_cpu)
         sm.start(time.monotonic())
         streamer.start()
 
