@@ -146,13 +146,13 @@ def test_fly_figure8_attitude_mode_against_embedded_mock(tmp_path: Path) -> None
     print("attitude:", check_figure8(f, 4.0, 0.35))
 
 
-async def _fly_cli(mode: str, log: Path, alt_m: float) -> None:
+async def _fly_cli(mode: str, log: Path, alt_m: float, *extra: str) -> None:
     """`python -m companion fly figure8 --connect ...` against its own `sitl_mock serve`."""
     async with run_mock("--estimator-ready", "0.5") as mock:
         comp = await asyncio.create_subprocess_exec(
             sys.executable, "-m", "companion", "fly", "figure8", "--mode", mode,
             "--connect", f"udpin://127.0.0.1:{mock.client_port}", "--size", str(SIZE_M),
-            "--speed", str(SPEED_M_S), "--alt", str(alt_m), "--log", str(log),
+            "--speed", str(SPEED_M_S), "--alt", str(alt_m), "--log", str(log), *extra,
             stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
         )
         try:
@@ -168,7 +168,9 @@ async def _fly_cli(mode: str, log: Path, alt_m: float) -> None:
 async def test_fly_figure8_position_and_rates_mode_over_udp(tmp_path: Path) -> None:
     alt = 2.5
     logs = {mode: tmp_path / f"{mode}.tlog" for mode in ("position", "rates")}
-    await asyncio.gather(*(_fly_cli(mode, log, alt) for mode, log in logs.items()))
+    # the rates flight also exercises the busy-wait sender (C wait + send off the GIL)
+    await asyncio.gather(_fly_cli("position", logs["position"], alt),
+                         _fly_cli("rates", logs["rates"], alt, "--busy-wait"))
 
     pos = read_flight(logs["position"])
     # position mode: only SET_POSITION_TARGET_LOCAL_NED, never attitude targets; in flight
