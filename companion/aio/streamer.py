@@ -15,7 +15,9 @@ The final wait and the send run in a small C helper (``deadline.py``; ctypes rel
 when it can be built and the clock is the real one: the send then never waits for the
 interpreter, and with ``target`` returning a UDP socket and peer the datagram leaves from C.
 ``wait="sleep"`` (default) sleeps until ``spin_s`` (200 us) before each wake-up and busy-waits
-the rest; ``wait="busy"`` busy-waits the whole period, off the GIL, which keeps a core awake:
+the rest, including the time between the producer's return and the deadline (so the thread
+spins about ``(lead_s + spin_s) * rate_hz`` of a core: 12 % at 100 Hz); ``wait="busy"``
+busy-waits the whole period, off the GIL, which keeps a core awake:
 the choice for a dedicated core, and on virtual machines, where waking a halted vCPU can take
 milliseconds (measured in BENCHMARKS.md "Stream"). Without the C helper the waits are Python
 ``sleep`` + spin, and ``busy`` falls back to ``sleep``.
@@ -242,7 +244,7 @@ class FixedRateStreamer:
             if frame and t_built - deadline > period:  # stalled: the frame is stale, drop it
                 self.missed += 1
             elif frame:
-                ok, t_send = self._send_at(deadline, frame, spin)
+                ok, t_send = self._send_at(deadline, frame)
                 if ok:
                     self.sent += 1
                     self.sent_times.append(t_send)
@@ -262,8 +264,10 @@ class FixedRateStreamer:
                 k += skip
                 self.missed += skip
 
-    def _send_at(self, deadline: float, frame: bytes, spin: float | None) -> tuple[bool, float]:
-        """Wait for the deadline and send: (sent, send time [s])."""
+    def _send_at(self, deadline: float, frame: bytes) -> tuple[bool, float]:
+        """Busy-wait for the deadline (at most ``lead_s`` away: a second sleep would add a
+        second wake-up delay) and send: (sent, send time [s])."""
+        spin = None
         native = self._native
         if native is None:
             self._wait_python(deadline)
