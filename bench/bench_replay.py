@@ -32,11 +32,32 @@ EIGHT = [ROOT / "examples" / "missions" / n for n in (
 
 def run_single(mode: str) -> dict[str, float]:
     with tempfile.TemporaryDirectory() as out:
+        load = os.getloadavg()[0]
+        c0 = time.process_time()
         t0 = time.perf_counter()
         r = replay_file(FIVE_MIN, out, ReplayConfig(mode=mode))  # type: ignore[arg-type]
         wall = time.perf_counter() - t0
+        cpu = time.process_time() - c0
     sim = float(r.report["simulated_s"])
-    return {"sim_s": sim, "wall_s": wall, "factor": sim / wall, "ok": float(r.ok)}
+    return {"sim_s": sim, "wall_s": wall, "factor": sim / wall, "cpu_s": cpu,
+            "cpu_factor": sim / cpu, "load1": load, "ok": float(r.ok)}
+
+
+#: Text after this line in the existing "## Replay" section is kept by --write (notes and
+#: A/B measurements that this script does not produce itself).
+NOTES_MARK = "<!-- notes below are kept by bench_replay.py --write -->"
+
+
+def _kept_notes() -> str:
+    md = ROOT / "BENCHMARKS.md"
+    text = md.read_text(encoding="utf-8") if md.exists() else ""
+    start = text.find("\n## Replay\n")
+    if start < 0:
+        return ""
+    end = text.find("\n## ", start + 1)
+    section = text[start : end if end >= 0 else len(text)]
+    i = section.find(NOTES_MARK)
+    return section[i:].strip("\n") if i >= 0 else ""
 
 
 def run_jobs(jobs: int) -> float:
@@ -67,20 +88,27 @@ def main() -> None:
         "Command: `python bench/bench_replay.py --write` "
         f"({platform.processor() or platform.machine()}, {os.cpu_count()} cores).",
         "",
-        "| case | simulated s | wall s | x real time |",
-        "| --- | ---: | ---: | ---: |",
+        "| case | simulated s | wall s | x real time | CPU s | x real time (CPU) "
+        "| load avg (1 min) before |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for m, r in single.items():
         lines.append(
             f"| five_minute.plan, {m} mode | {r['sim_s']:.0f} | {r['wall_s']:.1f} | "
-            f"{r['factor']:.1f} |"
+            f"{r['factor']:.1f} | {r['cpu_s']:.1f} | {r['cpu_factor']:.1f} | {r['load1']:.2f} |"
         )
     lines += [
+        "",
+        "Wall and CPU time of `replay_file` (flight, report, tlog and PNG); the attitude run "
+        "comes first and also pays the one-time matplotlib import (~0.5 s).",
         "",
         f"8 missions: `--jobs 1` {w1:.1f} s, `--jobs 2` {w2:.1f} s wall: "
         f"throughput ratio {w1 / w2:.2f}x (goal: close to 2 on 2 cores).",
         "",
     ]
+    notes = _kept_notes()
+    if notes:
+        lines += [notes, ""]
     text = "\n".join(lines)
     print(text)
     print(json.dumps({"single": single, "jobs1_s": w1, "jobs2_s": w2}, indent=1))

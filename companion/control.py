@@ -47,7 +47,7 @@ from companion.estimation import (
     HoverThrustEstimator,
 )
 from companion.flatness import MultirotorParams, rover_setpoint
-from companion.flatness.numeric import multirotor_setpoint_scalar
+from companion.flatness.numeric import multirotor_attitude_scalar
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -286,6 +286,45 @@ class Reference:
                 ],
             )
         )
+
+
+def reference_of_arrays(
+    pos_ned: FloatArray,
+    vel_ned: FloatArray,
+    acc_ned: FloatArray,
+    jerk_ned: FloatArray,
+    snap_ned: FloatArray,
+    yaw: float,
+    yaw_rate: float,
+    yaw_acc: float,
+) -> Reference:
+    """`Reference(...)` from vectors that are already float64 arrays of shape (3,) (what its
+    `__post_init__` would make of them; not checked) and float scalars: the per-setpoint fast
+    path of the schedule, without the constructor's conversions."""
+    ref: Reference = object.__new__(Reference)
+    ref.__dict__.update(
+        pos_ned=pos_ned, vel_ned=vel_ned, acc_ned=acc_ned, jerk_ned=jerk_ned,
+        snap_ned=snap_ned, yaw=yaw, yaw_rate=yaw_rate, yaw_acc=yaw_acc,
+    )
+    return ref
+
+
+def state_estimate_of_arrays(
+    t_s: float,
+    pos_ned: FloatArray,
+    vel_ned: FloatArray,
+    q_wxyz: FloatArray,
+    omega_frd: FloatArray,
+    airborne: bool = True,
+) -> StateEstimate:
+    """`StateEstimate(...)` (without `acc_ned`) from float64 arrays of shape (3,) / (4,) (not
+    checked): the per-sample fast path of the telemetry adapter, without the conversions."""
+    est: StateEstimate = object.__new__(StateEstimate)
+    est.__dict__.update(
+        t_s=t_s, pos_ned=pos_ned, vel_ned=vel_ned, q_wxyz=q_wxyz, omega_frd=omega_frd,
+        acc_ned=None, airborne=airborne,
+    )
+    return est
 
 
 def reference_from_trajectory(traj: object, t: float, yaw: float = 0.0) -> Reference:
@@ -644,6 +683,18 @@ class TrackingController:
     # -- public API ---------------------------------------------------------------------------
     def attitude(self, now: float, est: StateEstimate, ref: Reference) -> AttitudeCommand:
         """`attitude` mode setpoint at `now`: q + normalised thrust + yaw-rate feed-forward."""
+        out = self.attitude_values(now, est, ref)
+        if isinstance(out, AttitudeCommand):
+            return out
+        q_des, thrust, rate_ff, sat = out
+        return AttitudeCommand(np.array(q_des), thrust, rate_ff, saturated=sat)
+
+    def attitude_values(
+        self, now: float, est: StateEstimate, ref: Reference
+    ) -> tuple[tuple[float, float, float, float], float, float, bool] | AttitudeCommand:
+        """`attitude` without building the command: a regular one as its plain floats
+        `(q_wxyz, thrust_norm, yaw_rate_ff, saturated)`, a hover fallback as the (flagged)
+        `AttitudeCommand`. Same state update as `attitude` (it is `attitude`'s core)."""
         out = self._core(now, est, ref, self.config.attitude_lead_s)
         if out is None:
             return self._fallback_attitude(now, est)
@@ -651,7 +702,7 @@ class TrackingController:
         self._record_thrust(now, thrust)
         rate_ff = ref.yaw_rate if math.isfinite(ref.yaw_rate) else 0.0
         self._publish_diag(None)
-        return AttitudeCommand(np.array(q_des), thrust, rate_ff, saturated=sat)
+        return q_des, thrust, rate_ff, sat
 
     def rates(self, now: float, est: StateEstimate, ref: Reference) -> RateCommand:
         """`rates` mode setpoint at `now`: body rates from the SO(3) loop + thrust."""
@@ -747,10 +798,28 @@ class TrackingController:
         c = self.config
         p = c.params
         self._fallback_reason = ""
-        if not (math.isfinite(now) and est.is_finite()):
+        isfinite = math.isfinite
+        # Each vector as floats once: the finiteness checks below are `est.is_finite()` and
+        # `ref.is_finite()` on these lists, and the arithmetic further down uses them too.
+        px0, py0, pz0 = pos0 = est.pos_ned.tolist()
+        vx0, vy0, vz0 = vel0 = est.vel_ned.tolist()
+        q_est = est.q_wxyz.tolist()
+        w_est = est.omega_frd.tolist()
+        acc0 = est.acc_ned.tolist() if est.acc_ned is not None else []
+        if not (
+            isfinite(now)
+            and isfinite(est.t_s)
+            and all(map(isfinite, pos0 + vel0 + q_est + w_est + acc0))
+            and 0.5 < math.hypot(*q_est) < 2.0  # est.quat_ok()
+        ):
             self._fallback_reason = "telemetry not finite"
             return None
-        if not ref.is_finite():
+        rp = ref.pos_ned.tolist()
+        rv = ref.vel_ned.tolist()
+        ra = ref.acc_ned.tolist()
+        rj = ref.jerk_ned.tolist()
+        rs = ref.snap_ned.tolist()
+        if not all(map(isfinite, rp + rv + ra + rj + rs + [ref.yaw, ref.yaw_rate, ref.yaw_acc])):
             self._fallback_reason = "reference not finite"
             return None
         age = now - est.t_s
@@ -758,7 +827,7 @@ class TrackingController:
             self._fallback_reason = f"telemetry stale ({age:.2f} s old)"
             return None
         self._ingest(est)
-        qw, qx, qy, qz = est.q_wxyz.tolist()
+        qw, qx, qy, qz = q_est
         self._last_yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
 
         dt_ctrl = 0.0 if self._t_last_update is None else now - self._t_last_update
@@ -769,38 +838,30 @@ class TrackingController:
         # single samples, where numpy's per-operation overhead dominates.
         # 1. latency compensation
         tau = min(max(age, 0.0), c.max_extrapolation_s) if c.latency_compensation else 0.0
-        if est.acc_ned is not None:
-            ax0, ay0, az0 = est.acc_ned.tolist()
+        if acc0:
+            ax0, ay0, az0 = acc0
         else:
             ax0, ay0, az0 = self._last_acc_cmd
-        px0, py0, pz0 = est.pos_ned.tolist()
-        vx0, vy0, vz0 = est.vel_ned.tolist()
         h2 = 0.5 * tau * tau
         pos = (px0 + vx0 * tau + ax0 * h2, py0 + vy0 * tau + ay0 * h2, pz0 + vz0 * tau + az0 * h2)
         vel = (vx0 + ax0 * tau, vy0 + ay0 * tau, vz0 + az0 * tau)
-        q_est = est.q_wxyz.tolist()
         self._q_now = (
-            _quat_integrate_f(q_est, est.omega_frd.tolist(), tau)
-            if tau > 0
-            else _quat_normalize_f(*q_est)
+            _quat_integrate_f(q_est, w_est, tau) if tau > 0 else _quat_normalize_f(*q_est)
         )
 
         # 2. acceleration command
-        rp = ref.pos_ned.tolist()
-        rv = ref.vel_ned.tolist()
-        ra = ref.acc_ned.tolist()
-        rj = ref.jerk_ned.tolist()
-        rs = ref.snap_ned.tolist()
         L = lead_s
         hL2 = 0.5 * L * L
         kp, kd, integ = self._kp_l, self._kd_l, self._integ_l
-        e_p = [rp[i] - pos[i] for i in range(3)]
-        e_v = [rv[i] - vel[i] for i in range(3)]
-        a_cmd = [
-            ra[i] + rj[i] * L + rs[i] * hL2 + kp[i] * e_p[i] + kd[i] * e_v[i] + integ[i]
-            for i in range(3)
-        ]
-        j_ff = [rj[i] + rs[i] * L for i in range(3)]
+        # (per component, written out: a comprehension costs a frame per call)
+        e_p = (rp[0] - pos[0], rp[1] - pos[1], rp[2] - pos[2])
+        e_v = (rv[0] - vel[0], rv[1] - vel[1], rv[2] - vel[2])
+        a_cmd = (
+            ra[0] + rj[0] * L + rs[0] * hL2 + kp[0] * e_p[0] + kd[0] * e_v[0] + integ[0],
+            ra[1] + rj[1] * L + rs[1] * hL2 + kp[1] * e_p[1] + kd[1] * e_v[1] + integ[1],
+            ra[2] + rj[2] * L + rs[2] * hL2 + kp[2] * e_p[2] + kd[2] * e_v[2] + integ[2],
+        )
+        j_ff = (rj[0] + rs[0] * L, rj[1] + rs[1] * L, rj[2] + rs[2] * L)
 
         # 3. thrust vector t = m (g e3 - a) - D v with drag, saturation
         h = self.hover_thrust
@@ -837,25 +898,21 @@ class TrackingController:
         yaw_rate = ref.yaw_rate
         yaw_acc = 0.0 if sat else ref.yaw_acc
         try:
-            sp = multirotor_setpoint_scalar(
+            qw, qx, qy, qz, thrust_n, wx, wy, wz, singular = multirotor_attitude_scalar(
                 v_drag, a_sat, jerk, snap, ref.yaw, yaw_rate, yaw_acc, params
             )
         except ValueError as exc:  # e.g. absurd magnitudes the flatness map refuses
             self._fallback_reason = f"flatness map refused the input: {exc}"
             return None
-        qw, qx, qy, qz = sp["q_wxyz"]
         # normalised thrust with the hover thrust in use (MATH.md "MAVLink thrust")
-        thrust = h * float(sp["thrust"]) / (m * p.g)
-        wx, wy, wz = sp["omega_frd"]
-        singular = bool(sp["singular"])
-        isfinite = math.isfinite
+        thrust = h * thrust_n / (m * p.g)
         if not all(map(isfinite, (qw, qx, qy, qz, wx, wy, wz, thrust))):
             self._fallback_reason = "flatness output not finite"
             return None
         omega_ff = (0.0, 0.0, 0.0) if singular else (float(wx), float(wy), float(wz))
         q_des = _quat_normalize_f(float(qw), float(qx), float(qy), float(qz))
         thrust = min(max(thrust, c.thrust_min), c.thrust_max)
-        self._diag = (now, tuple(e_p), tuple(e_v), a_sat, tuple(integ), h, D, tau, sat,
+        self._diag = (now, e_p, e_v, a_sat, tuple(integ), h, D, tau, sat,
                       "singular flatness point" if singular else "")
         return q_des, thrust, omega_ff, sat
 
@@ -1061,7 +1118,9 @@ __all__ = [
     "quat_integrate",
     "quat_to_dcm",
     "reference_from_trajectory",
+    "reference_of_arrays",
     "so3_rate_command",
     "so3_rate_command_dcm",
+    "state_estimate_of_arrays",
     "yaw_quat",
 ]

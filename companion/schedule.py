@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.control import Reference
+from companion.control import Reference, reference_of_arrays
 from companion.flatness import MultirotorParams
 from companion.mission import FlightChunk, FlightPlan, split_flight_plan
 from companion.trajectory import Limits, PiecewiseBezier, RoverLimits, hermite, plan
@@ -97,17 +97,34 @@ class Schedule:
         if piece.kind == "traj":
             ev = piece._eval
             assert ev is not None
+            ey = piece._eval_yaw
+            # values are order-major: every dim-th is yaw, its rate, its acceleration (floats)
+            y = ey.values(tl)[:: ey.dim] if ey is not None else (piece.yaw0, 0.0, 0.0)
+            if ev.dim == 3 and (
+                origin is None or (type(origin) is np.ndarray and origin.shape == (3,))
+            ):
+                # fast path: [pos, vel, acc, jerk, snap] as 15 floats, the origin added in
+                # floats (the same IEEE sums as `d[0] + origin`), then one float64 (5, 3)
+                # array whose rows are already what Reference's conversions would give
+                v = ev.values(tl)
+                if origin is not None:
+                    o0, o1, o2 = origin.tolist()
+                    v[0] += o0
+                    v[1] += o1
+                    v[2] += o2
+                d = np.array(v, dtype=np.float64).reshape(5, 3)
+                return reference_of_arrays(
+                    d[0], d[1], d[2], d[3], d[4], float(y[0]), float(y[1]), float(y[2])
+                )
             d = ev(tl)
             if d.shape[1] == 2:
                 d = np.column_stack([d, np.zeros(5)])
-            ey = piece._eval_yaw
-            y = ey(tl)[:, 0] if ey is not None else (piece.yaw0, 0.0, 0.0)
             p = d[0] if origin is None else d[0] + origin
             return Reference(p, d[1], d[2], d[3], d[4], float(y[0]), float(y[1]), float(y[2]))
         if piece.kind == "turn":
             ey = piece._eval_yaw
             assert ey is not None
-            y = ey(tl)[:, 0]
+            y = ey.values(tl)[:: ey.dim]
             p = piece.pos_ned if origin is None else piece.pos_ned + origin
             return Reference(p, yaw=float(y[0]), yaw_rate=float(y[1]), yaw_acc=float(y[2]))
         p = piece.pos_ned if origin is None else piece.pos_ned + origin

@@ -16,12 +16,14 @@ from typing import Literal
 import numpy as np
 
 from companion.control import (
+    AttitudeCommand,
     Reference,
     RoverController,
     StateEstimate,
     TrackingConfig,
     TrackingController,
     position_command,
+    state_estimate_of_arrays,
 )
 from companion.flatness import MultirotorParams
 from companion.mavlink.setpoints import (
@@ -83,13 +85,15 @@ def estimate_from_telemetry(
         return None
     airborne = snap.extended.in_air if snap.extended is not None else True
     t_s = pos.t_s if clock is None else clock.local_time(pos.time_boot_s, pos.t_s)
-    return StateEstimate(
-        t_s=t_s,
-        pos_ned=np.array(pos.pos_ned),
-        vel_ned=np.array(pos.vel_ned),
-        q_wxyz=np.array(att.q_wxyz),
-        omega_frd=np.array(att.omega_frd),
-        airborne=airborne,
+    # float tuples of the decoded messages -> float64 arrays: StateEstimate's own conversions
+    # would leave them as they are
+    return state_estimate_of_arrays(
+        t_s,
+        np.array(pos.pos_ned, dtype=np.float64),
+        np.array(pos.vel_ned, dtype=np.float64),
+        np.array(att.q_wxyz, dtype=np.float64),
+        np.array(att.omega_frd, dtype=np.float64),
+        airborne,
     )
 
 
@@ -223,12 +227,16 @@ class TrackingSource:
             )
         assert self.controller is not None
         if self.mode == "attitude":
-            a = self.controller.attitude(now, est, ref)
-            qw, qx, qy, qz = a.q_wxyz.tolist()
+            out = self.controller.attitude_values(now, est, ref)
+            if isinstance(out, AttitudeCommand):  # a hover fallback
+                qw, qx, qy, qz = out.q_wxyz.tolist()
+                thrust, rate_ff = out.thrust_norm, out.yaw_rate_ff
+            else:  # the regular command as floats (no arrays on the way)
+                (qw, qx, qy, qz), thrust, rate_ff, _sat = out
             return AttitudeSetpoint(
                 (float(qw), float(qx), float(qy), float(qz)),
-                float(a.thrust_norm),
-                _opt(float(a.yaw_rate_ff)),
+                float(thrust),
+                _opt(float(rate_ff)),
             )
         r = self.controller.rates(now, est, ref)
         w = r.omega_frd

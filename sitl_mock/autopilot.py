@@ -378,6 +378,15 @@ class Autopilot:
         """
         if self._descend or (self._nav_active and self._nav_target is None):
             return
+        dt = self.dt
+        n = self._n_steps
+        t_next = (n + 1) * dt
+        # the cheap bounds of the horizon below first (a step is due for one of them on most
+        # calls): the same early return, without computing the rest
+        if t_next >= t_end + 1e-12 or t_next >= self._cmd_next_t - 1e-9 or (
+            t_next >= self._tele_next_t
+        ):
+            return
         horizon = min(
             t_end + 1e-12,
             self._next_input_time(),
@@ -386,9 +395,7 @@ class Autopilot:
         )
         if self._nav_active and self.armed and self.mode != Mode.OFFBOARD:
             horizon = min(horizon, self._nav_next_t - 1e-9)
-        dt = self.dt
-        n = self._n_steps
-        if (n + 1) * dt >= horizon:
+        if t_next >= horizon:
             return
         step = self.vehicle.step
         target, armed = self._last_target, self.armed
@@ -847,12 +854,18 @@ class Autopilot:
         mask = int(msg.type_mask)
         q_wxyz = None
         if not mask & 128:
-            q = tuple(float(c) for c in msg.q)
-            n = math.sqrt(sum(c * c for c in q)) if _finite(*q) else 0.0
+            q0, q1, q2, q3 = msg.q
+            q0, q1, q2, q3 = float(q0), float(q1), float(q2), float(q3)
+            isfinite = math.isfinite
+            n = (
+                math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+                if isfinite(q0) and isfinite(q1) and isfinite(q2) and isfinite(q3)
+                else 0.0
+            )
             if not n > 1e-6:
                 self.stats["rx_invalid_setpoint"] += 1
                 return
-            q_wxyz = (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
+            q_wxyz = (q0 / n, q1 / n, q2 / n, q3 / n)
         rates = None
         if not (mask & 1) and not (mask & 2):
             r = (msg.body_roll_rate, msg.body_pitch_rate, 0.0 if mask & 4 else msg.body_yaw_rate)

@@ -211,14 +211,15 @@ def build_global_position_int(ap: Autopilot) -> Msg:
     _, _, yaw = euler_321(s.q_wxyz)
     hdg = round(math.degrees(yaw) % 360.0 * 100.0) % 36000
     vx, vy, vz = s.vel_ned
+    lat, lon, alt = s.lat_lon_alt  # one projection (the same values as lat_deg, lon_deg, ...)
     return (
         _C_GLOBAL_POSITION_INT,
         (
             ap.time_boot_ms,
-            round(s.lat_deg * 1e7),
-            round(s.lon_deg * 1e7),
-            round(s.alt_amsl_m * 1000.0),
-            round((s.alt_amsl_m - ap.home[2]) * 1000.0),
+            round(lat * 1e7),
+            round(lon * 1e7),
+            round(alt * 1000.0),
+            round((alt - ap.home[2]) * 1000.0),
             _clamp_i16(vx * 100.0),
             _clamp_i16(vy * 100.0),
             _clamp_i16(vz * 100.0),

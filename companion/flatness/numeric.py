@@ -7,6 +7,7 @@ vector component, for a batch.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -16,7 +17,12 @@ import numpy.typing as npt
 from companion.flatness import _formulas as fm
 from companion.flatness.types import FloatArray, MultirotorParams, MultirotorSetpoint, RoverSetpoint
 
-__all__ = ["multirotor_setpoint", "multirotor_setpoint_scalar", "rover_setpoint"]
+__all__ = [
+    "multirotor_attitude_scalar",
+    "multirotor_setpoint",
+    "multirotor_setpoint_scalar",
+    "rover_setpoint",
+]
 
 
 def _vec_input(x: npt.ArrayLike, d: int, name: str) -> FloatArray:
@@ -84,6 +90,101 @@ def multirotor_setpoint_scalar(
         fm.FLOAT, v, a, j, s, y[0], y[1], y[2],
         params.mass, params.inertia, params.g, params.hover_thrust, params.drag,
     )
+
+
+def multirotor_attitude_scalar(
+    vel: Sequence[float],
+    acc: Sequence[float],
+    jerk: Sequence[float],
+    snap: Sequence[float],
+    yaw: float,
+    yaw_rate: float,
+    yaw_acc: float,
+    params: MultirotorParams,
+) -> tuple[float, float, float, float, float, float, float, float, bool]:
+    """The attitude part of :func:`multirotor_setpoint_scalar`, for the tracking controller.
+
+    Same inputs, input checks and errors. Returns ``(qw, qx, qy, qz, thrust [N], p, q, r
+    [rad/s FRD], singular)``: the ``q_wxyz``, ``thrust``, ``omega_frd`` and ``singular != 0``
+    of :func:`_formulas.multirotor` evaluated on floats, with the same operations in the same
+    order (bit-identical; tests compare the two), but with ``if`` in place of the evaluate-both
+    ``where`` and without the outputs the controller does not use (thrust derivatives, angular
+    acceleration, moments, flags). `snap` and `yaw_acc` only enter those, so here they are
+    only checked.
+    """
+    if not len(vel) == len(acc) == len(jerk) == len(snap) == 3:
+        for name, x in zip(_NAMES, (vel, acc, jerk, snap), strict=True):
+            if len(x) != 3:
+                raise ValueError(f"{name} must have shape (3,) or (N, 3), got ({len(x)},)")
+    vx, vy, vz = float(vel[0]), float(vel[1]), float(vel[2])
+    ax, ay, az = float(acc[0]), float(acc[1]), float(acc[2])
+    jx, jy, jz = float(jerk[0]), float(jerk[1]), float(jerk[2])
+    yaw, yaw_rate = float(yaw), float(yaw_rate)
+    s = (float(snap[0]), float(snap[1]), float(snap[2]))
+    if not all(map(INPUT_LIMIT.__ge__, map(abs, (vx, vy, vz, ax, ay, az, jx, jy, jz, *s,
+                                                 yaw, yaw_rate, float(yaw_acc))))):
+        multirotor_setpoint_scalar(vel, acc, jerk, snap, yaw, yaw_rate, yaw_acc, params)
+        raise AssertionError("unreachable: the input check above raises")  # pragma: no cover
+    sqrt = math.sqrt
+    m = params.mass
+    D = params.drag
+    g = params.g
+    # thrust vector t and its first derivative (the second only enters what is not returned)
+    t0, t1, t2 = -m * ax - D * vx, -m * ay - D * vy, m * (g - az) - D * vz
+    d0, d1, d2 = -m * jx - D * ax, -m * jy - D * ay, -m * jz - D * az
+    T = sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+    mg = m * g
+    low = fm.THRUST_MIN_FRAC * mg > T
+    if fm.THRUST_DIR_FRAC * mg > T:
+        z0, z1, z2 = 0.0, 0.0, 1.0
+    else:
+        z0, z1, z2 = t0 / T, t1 / T, t2 / T
+    cy = math.cos(yaw)
+    sy = math.sin(yaw)
+    zc = z0 * cy + z1 * sy
+    u0, u1, u2 = cy * z2, sy * z2, -zc
+    n = sqrt(z2 * z2 + zc * zc)
+    sing = n < fm.COS_ROLL_MIN
+    if sing:
+        w0, w1, w2 = cy - zc * z0, sy - zc * z1, -zc * z2
+        k_w = 1.0 / sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+        x0, x1, x2 = w0 * k_w, w1 * k_w, w2 * k_w
+    else:
+        if abs(z2) < fm.HORIZONTAL_EPS:
+            sigma = -1.0 if u2 < 0.0 else 1.0
+        else:
+            sigma = -1.0 if z2 < 0.0 else 1.0
+        k_n = sigma / n
+        x0, x1, x2 = u0 * k_n, u1 * k_n, u2 * k_n
+    y0, y1, y2 = z1 * x2 - z2 * x1, z2 * x0 - z0 * x2, z0 * x1 - z1 * x0
+    if low or sing:
+        p = q = r = 0.0
+    else:
+        p = -(d0 * y0 + d1 * y1 + d2 * y2) / T
+        q = (d0 * x0 + d1 * x1 + d2 * x2) / T
+        xc_xb = cy * x0 + sy * x1 + 0.0 * x2
+        yc_yb = -sy * y0 + cy * y1 + 0.0 * y2
+        yc_zb = -sy * z0 + cy * z1
+        r = (yaw_rate * xc_xb + q * yc_zb) / yc_yb
+    # quaternion of C_eb = [x_b y_b z_b] (columns), Shepperd's method as fm.dcm_to_quat
+    e0 = 1.0 + x0 + y1 + z2
+    e1 = 1.0 + x0 - y1 - z2
+    e2 = 1.0 - x0 + y1 - z2
+    e3 = 1.0 - x0 - y1 + z2
+    wx, wy, wz = y2 - z1, z0 - x2, x1 - y0
+    xy, xz, yz = y0 + x1, z0 + x2, z1 + y2
+    e23 = e2 if e2 >= e3 else e3
+    if e0 >= (e1 if e1 >= e23 else e23):
+        qw, qx, qy, qz = e0, wx, wy, wz
+    elif e1 >= e23:
+        qw, qx, qy, qz = wx, e1, xy, xz
+    elif e2 >= e3:
+        qw, qx, qy, qz = wy, xy, e2, yz
+    else:
+        qw, qx, qy, qz = wz, xz, yz, e3
+    n2 = qw * qw + qx * qx + qy * qy + qz * qz
+    k = (-1.0 if qw < 0.0 else 1.0) / sqrt(n2 if n2 >= 1e-300 else 1e-300)
+    return (qw * k, qx * k, qy * k, qz * k, T, p, q, r, low or sing or z2 <= 0.0)
 
 
 def _refuse(name: str) -> None:
