@@ -19,7 +19,6 @@ import json
 import math
 import os
 import shutil
-import struct
 import tempfile
 import time
 from collections.abc import Callable
@@ -62,7 +61,6 @@ DEFAULT_QUAD = MultirotorParams(
 )
 #: Simulated t = 0 on the tlog's UNIX clock: 2026-01-01T00:00:00Z, for deterministic timestamps.
 TLOG_EPOCH_S = 1_767_225_600.0
-_TS = struct.Struct(">Q")  # tlog record time stamp: UNIX microseconds, big-endian
 
 
 @dataclass(frozen=True)
@@ -165,7 +163,7 @@ class LockstepLink:
         self,
         autopilot: Any,
         link: VehicleLink,
-        tlog: TlogWriter | TlogBuffer | None,
+        tlog: TlogWriter | None,
         wanted: frozenset[int] | None = COMPANION_MSG_IDS,
     ) -> None:
         self.wanted = wanted
@@ -208,44 +206,6 @@ class LockstepLink:
         if frames:
             self.to_vehicle(frames)
         return events
-
-
-class TlogBuffer:
-    """`TlogWriter` for one thread: the same records (8-byte big-endian UNIX microseconds +
-    frame), collected in memory and written in large blocks (a replay writes ~400 frames per
-    simulated second). `write(frame, unix_time_s)`, `frames`, `close()`; a context manager."""
-
-    _FLUSH_AT = 1 << 20  # bytes
-
-    def __init__(self, path: str | os.PathLike[str]) -> None:
-        self.path = Path(path)
-        self._f: Any = open(self.path, "ab")  # noqa: SIM115 - closed in close()
-        self._buf = bytearray()
-        self.frames = 0
-
-    def write(self, frame: bytes, unix_time_s: float) -> None:
-        """Record one complete MAVLink frame stamped `unix_time_s` [s]."""
-        buf = self._buf
-        buf += _TS.pack(int(unix_time_s * 1e6))
-        buf += frame
-        self.frames += 1
-        if len(buf) >= self._FLUSH_AT:
-            self._f.write(buf)
-            buf.clear()
-
-    def close(self) -> None:
-        """Write what is buffered and close the file (idempotent)."""
-        if self._f is not None:
-            self._f.write(self._buf)
-            self._buf.clear()
-            self._f.close()
-            self._f = None
-
-    def __enter__(self) -> TlogBuffer:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def _make_autopilot(config: ReplayConfig, home: tuple[float, float, float]) -> Any:
@@ -435,7 +395,7 @@ def fly_schedule(
     config: ReplayConfig,
     schedule: Schedule,
     home: tuple[float, float, float],
-    tlog: TlogWriter | TlogBuffer | None,
+    tlog: TlogWriter | None,
     progress: Callable[[float, float], None] | None = None,
 ) -> tuple[Flight, FlightLog]:
     """Fly `schedule` in lockstep against a fresh mock; returns the flight and its log."""
@@ -695,7 +655,7 @@ def replay_file(
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=out_root))
     wall0 = time.perf_counter()
     try:
-        with TlogBuffer(tmp / "flight.tlog") as tlog:
+        with TlogWriter(tmp / "flight.tlog", buffer_bytes=1 << 20) as tlog:
             flight, log = fly_schedule(config, schedule, home, tlog, progress)
         wall = time.perf_counter() - wall0
         report = summarize(log, schedule, mission, flight.origin)

@@ -265,8 +265,9 @@ class FixedRateStreamer:
                 self.missed += skip
 
     def _send_at(self, deadline: float, frame: bytes) -> tuple[bool, float]:
-        """Busy-wait for the deadline (at most ``lead_s`` away: a second sleep would add a
-        second wake-up delay) and send: (sent, send time [s])."""
+        """Wait for the deadline and send: (sent, send time [s]). The C helper busy-waits (at
+        most ``lead_s``: a second sleep would add a second wake-up delay); the Python fallback
+        sleeps and spins as for the wake-up."""
         spin = None
         native = self._native
         if native is None:

@@ -7,7 +7,8 @@
   constructors, and `Schedule.reference`'s fast path vs its general path;
 - `TrackingController.attitude_values` vs `attitude` on the same input sequence, and the
   `TrackingSource` output against the controller's command;
-- `TlogBuffer` writes the same bytes as `TlogWriter`, and pymavlink reads them back.
+- `TlogWriter` with a large buffer writes the same bytes as with the default one, and
+  pymavlink reads them back.
 """
 
 from __future__ import annotations
@@ -34,7 +35,6 @@ from companion.control import (
 )
 from companion.flatness import MultirotorParams, multirotor_setpoint
 from companion.flatness.numeric import multirotor_attitude_scalar, multirotor_setpoint_scalar
-from companion.replay import TlogBuffer
 
 PARAMS = MultirotorParams(mass=1.3, inertia=(0.021, 0.023, 0.04), hover_thrust=0.45, drag=0.7)
 G = PARAMS.g
@@ -197,9 +197,7 @@ def test_attitude_values_equals_attitude_on_a_sequence() -> None:
 # ----------------------------------------------------------------------------- tlog
 
 
-def test_tlog_buffer_writes_the_tlog_writer_bytes(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_tlog_buffer_writes_the_tlog_writer_bytes(tmp_path: Path) -> None:
     mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
     frames = [
         mavlink2.MAVLink_heartbeat_message(2, 12, 0, 0, 4, 3).pack(mav),
@@ -207,8 +205,9 @@ def test_tlog_buffer_writes_the_tlog_writer_bytes(
         mavlink2.MAVLink_statustext_message(6, b"hello", 0, 0).pack(mav),
     ] * 500
     times = [1_767_225_600.0 + 0.01 * i for i in range(len(frames))]
-    monkeypatch.setattr(TlogBuffer, "_FLUSH_AT", 4096)  # exercise the block writes too
-    with TlogBuffer(tmp_path / "fast.tlog") as fast, TlogWriter(tmp_path / "ref.tlog") as ref:
+    # 4 KiB: exercise the block writes too
+    with TlogWriter(tmp_path / "fast.tlog", buffer_bytes=4096) as fast, \
+            TlogWriter(tmp_path / "ref.tlog") as ref:
         for fr, t in zip(frames, times, strict=True):
             fast.write(fr, t)
             ref.write(fr, t)
