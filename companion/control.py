@@ -40,6 +40,7 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
+from companion._frozen import frozen_new
 from companion.estimation import (
     DragConfig,
     DragEstimator,
@@ -301,12 +302,10 @@ def reference_of_arrays(
     """`Reference(...)` from vectors that are already float64 arrays of shape (3,) (what its
     `__post_init__` would make of them; not checked) and float scalars: the per-setpoint fast
     path of the schedule, without the constructor's conversions."""
-    ref: Reference = object.__new__(Reference)
-    ref.__dict__.update(
-        pos_ned=pos_ned, vel_ned=vel_ned, acc_ned=acc_ned, jerk_ned=jerk_ned,
+    return frozen_new(
+        Reference, pos_ned=pos_ned, vel_ned=vel_ned, acc_ned=acc_ned, jerk_ned=jerk_ned,
         snap_ned=snap_ned, yaw=yaw, yaw_rate=yaw_rate, yaw_acc=yaw_acc,
     )
-    return ref
 
 
 def state_estimate_of_arrays(
@@ -319,12 +318,10 @@ def state_estimate_of_arrays(
 ) -> StateEstimate:
     """`StateEstimate(...)` (without `acc_ned`) from float64 arrays of shape (3,) / (4,) (not
     checked): the per-sample fast path of the telemetry adapter, without the conversions."""
-    est: StateEstimate = object.__new__(StateEstimate)
-    est.__dict__.update(
-        t_s=t_s, pos_ned=pos_ned, vel_ned=vel_ned, q_wxyz=q_wxyz, omega_frd=omega_frd,
-        acc_ned=None, airborne=airborne,
+    return frozen_new(
+        StateEstimate, t_s=t_s, pos_ned=pos_ned, vel_ned=vel_ned, q_wxyz=q_wxyz,
+        omega_frd=omega_frd, acc_ned=None, airborne=airborne,
     )
-    return est
 
 
 def reference_from_trajectory(traj: object, t: float, yaw: float = 0.0) -> Reference:

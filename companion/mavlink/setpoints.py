@@ -15,6 +15,8 @@ from math import isfinite
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+from companion._frozen import frozen_new
+
 from .codec import MavMessage
 
 Vec3 = tuple[float, float, float]
@@ -62,22 +64,13 @@ class PositionSetpoint:
     yaw_rate: float | None = None
 
 
-_new = object.__new__
-
-
 def make_position_setpoint(pos_ned: Vec3 | None, vel_ned: Vec3 | None, acc_ned: Vec3 | None,
                            yaw: float | None, yaw_rate: float | None) -> PositionSetpoint:
     """``PositionSetpoint(pos_ned, vel_ned, acc_ned, yaw, yaw_rate)`` for per-cycle sources: the
     same object, built ~3x faster than by the frozen dataclass ``__init__`` (which only assigns
     the fields). Validation happens when it is built into a message, as for any setpoint."""
-    v: PositionSetpoint = _new(PositionSetpoint)
-    d = v.__dict__
-    d["pos_ned"] = pos_ned
-    d["vel_ned"] = vel_ned
-    d["acc_ned"] = acc_ned
-    d["yaw"] = yaw
-    d["yaw_rate"] = yaw_rate
-    return v
+    return frozen_new(PositionSetpoint, pos_ned=pos_ned, vel_ned=vel_ned, acc_ned=acc_ned,
+                      yaw=yaw, yaw_rate=yaw_rate)
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,8 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from companion._frozen import frozen_new
+
 from .codec import MavMessage
 
 Vec3 = tuple[float, float, float]
@@ -122,42 +124,22 @@ class TelemetrySnapshot:
 # Per-cycle constructors of the hot values: the same objects as the dataclass constructors (whose
 # generated frozen __init__ only assigns the fields, one object.__setattr__ each, ~3x slower),
 # checked field by field against them in tests/unit/test_mavlink_hot_path.py.
-_new = object.__new__
-
-
 def _local_position(t_s: float, time_boot_s: float, pos_ned: Vec3, vel_ned: Vec3,
                     source: str) -> LocalPosition:
-    v: LocalPosition = _new(LocalPosition)
-    d = v.__dict__
-    d["t_s"] = t_s
-    d["time_boot_s"] = time_boot_s
-    d["pos_ned"] = pos_ned
-    d["vel_ned"] = vel_ned
-    d["source"] = source
-    return v
+    return frozen_new(LocalPosition, t_s=t_s, time_boot_s=time_boot_s, pos_ned=pos_ned,
+                      vel_ned=vel_ned, source=source)
 
 
 def _attitude(t_s: float, q_wxyz: Quat, omega_frd: Vec3) -> Attitude:
-    v: Attitude = _new(Attitude)
-    d = v.__dict__
-    d["t_s"] = t_s
-    d["q_wxyz"] = q_wxyz
-    d["omega_frd"] = omega_frd
-    return v
+    return frozen_new(Attitude, t_s=t_s, q_wxyz=q_wxyz, omega_frd=omega_frd)
 
 
 def _snapshot(position: LocalPosition | None, attitude: Attitude | None,
               global_position: GlobalPosition | None, home: HomePosition | None,
               extended: ExtendedState | None) -> TelemetrySnapshot:
-    v: TelemetrySnapshot = _new(TelemetrySnapshot)
-    d = v.__dict__
-    d["position"] = position
-    d["attitude"] = attitude
-    d["global_position"] = global_position
-    d["home"] = home
-    d["extended"] = extended
-    d["now_s"] = math.nan
-    return v
+    return frozen_new(TelemetrySnapshot, position=position, attitude=attitude,
+                      global_position=global_position, home=home, extended=extended,
+                      now_s=math.nan)
 
 
 def _rotate(q: Quat, v: Vec3) -> Vec3:
