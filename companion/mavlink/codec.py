@@ -163,20 +163,31 @@ class Codec:
         packer = self._packers.get(cls, _MISSING)
         if packer is _MISSING:
             packer = self._packers[cls] = _payload_packer(cls)
+        if packer is None or self.mav.signing.sign_outgoing:
+            with self._lock:
+                mav = self.mav
+                frame = bytes(msg.pack(mav))
+                mav.seq = (mav.seq + 1) & 0xFF
+            return frame
+        msg_id, extra, pack = packer
+        return self.encode_payload(msg_id, extra, pack(msg))
+
+    def encode_payload(self, msg_id: int, crc_extra: bytes, payload: bytes) -> bytes:
+        """One MAVLink 2 frame around a full-length ``payload`` already packed in wire order
+        (the message class's ``struct``), trailing zeros truncated as MAVLink 2 does; advances
+        the sequence number. ``crc_extra`` is the class's CRC_EXTRA as one byte. Signed output
+        needs the message object: use ``encode``."""
+        payload = payload.rstrip(b"\x00") or b"\x00"
         with self._lock:
             mav = self.mav
+            if mav.signing.sign_outgoing:
+                raise ValueError("encode_payload cannot sign; use encode(msg)")
             seq = mav.seq
-            if packer is None or mav.signing.sign_outgoing:
-                frame = bytes(msg.pack(mav))
-            else:
-                msg_id, extra, pack = packer
-                payload = pack(msg).rstrip(b"\x00") or b"\x00"
-                header = _V2_HEADER.pack(MAVLINK2_MAGIC, len(payload), 0, 0, seq, mav.srcSystem,
-                                         mav.srcComponent, msg_id & 0xFFFF, msg_id >> 16)
-                crc = _crc_mcrf4xx(extra, _crc_mcrf4xx(header[1:] + payload, 0xFFFF))
-                frame = header + payload + _CRC.pack(crc)
+            header = _V2_HEADER.pack(MAVLINK2_MAGIC, len(payload), 0, 0, seq, mav.srcSystem,
+                                     mav.srcComponent, msg_id & 0xFFFF, msg_id >> 16)
             mav.seq = (seq + 1) & 0xFF
-        return frame
+        crc = _crc_mcrf4xx(crc_extra, _crc_mcrf4xx(header[1:] + payload, 0xFFFF))
+        return header + payload + _CRC.pack(crc)
 
     def decode(self, data: bytes | bytearray) -> list[MavMessage]:
         """Parse bytes (any fragmentation) into complete, CRC-valid MAVLink 2 messages.

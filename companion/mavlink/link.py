@@ -28,7 +28,7 @@ from .commands import (
 from .heartbeat import HeartbeatEvent, HeartbeatTracker
 from .mission_client import MissionClient, MissionTransferDone
 from .px4_mode import FlightMode, custom_mode_of, set_mode_params
-from .setpoints import SetpointCommand, build_setpoint
+from .setpoints import SetpointCommand, build_setpoint, pack_setpoint
 from .telemetry import TelemetryEvent, TelemetryState
 from .timesync import TimeSync, TimesyncUpdate
 
@@ -107,9 +107,11 @@ class VehicleLink:
 
     def encode_setpoint(self, sp: SetpointCommand, now: float) -> bytes:
         """Validate and encode one setpoint frame (thread-safe; raises SetpointError)."""
-        msg = build_setpoint(sp, self.config.target_sysid, self.config.target_compid,
-                             self.time_boot_ms(now))
-        return self.codec.encode(msg)
+        ts, tc, tbm = self.config.target_sysid, self.config.target_compid, self.time_boot_ms(now)
+        packed = pack_setpoint(sp, ts, tc, tbm)
+        if packed is not None and not self.codec.mav.signing.sign_outgoing:
+            return self.codec.encode_payload(*packed)
+        return self.codec.encode(build_setpoint(sp, ts, tc, tbm))
 
     # -- input ------------------------------------------------------------------------------
     def receive_bytes(self, data: bytes, now: float) -> list[LinkEvent]:

@@ -12,6 +12,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from math import isfinite
+from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
 
@@ -187,14 +188,8 @@ def _unit_quat(q: Sequence[float]) -> list[float]:
     return qq
 
 
-def build_attitude_target(
-    sp: AttitudeSetpoint, target_system: int, target_component: int, time_boot_ms: int
-) -> MavMessage:
-    """SET_ATTITUDE_TARGET with q + thrust (+ body_yaw_rate): type_mask 3 (7 without yaw rate).
-
-    Roll/pitch rates stay ignored: with a quaternion they would make PX4 publish a competing
-    rate setpoint (PX4.md).
-    """
+def _attitude_fields(sp: AttitudeSetpoint) -> tuple[int, list[float], float, float]:
+    """Validated (type_mask, q_wxyz, body_yaw_rate, thrust) of an attitude setpoint."""
     q = _unit_quat(sp.q_wxyz)
     thrust = _thrust(sp.thrust_norm)
     mask = ATT_IGNORE_ROLL_RATE | ATT_IGNORE_PITCH_RATE
@@ -203,6 +198,25 @@ def build_attitude_target(
         mask |= ATT_IGNORE_YAW_RATE
     else:
         yaw_rate = _scalar("yaw rate", sp.yaw_rate)
+    return mask, q, yaw_rate, thrust
+
+
+def _rates_fields(sp: RatesSetpoint) -> tuple[Vec3, float]:
+    """Validated (body rates, thrust) of a rates setpoint."""
+    w = _vec3("body rates", sp.omega_frd)
+    assert w is not None
+    return w, _thrust(sp.thrust_norm)
+
+
+def build_attitude_target(
+    sp: AttitudeSetpoint, target_system: int, target_component: int, time_boot_ms: int
+) -> MavMessage:
+    """SET_ATTITUDE_TARGET with q + thrust (+ body_yaw_rate): type_mask 3 (7 without yaw rate).
+
+    Roll/pitch rates stay ignored: with a quaternion they would make PX4 publish a competing
+    rate setpoint (PX4.md).
+    """
+    mask, q, yaw_rate, thrust = _attitude_fields(sp)
     return mavlink2.MAVLink_set_attitude_target_message(
         time_boot_ms & 0xFFFFFFFF, target_system, target_component, mask, q,
         0.0, 0.0, yaw_rate, thrust,
@@ -213,13 +227,43 @@ def build_rates_target(
     sp: RatesSetpoint, target_system: int, target_component: int, time_boot_ms: int
 ) -> MavMessage:
     """SET_ATTITUDE_TARGET with body rates + thrust, attitude ignored: type_mask 128."""
-    w = _vec3("body rates", sp.omega_frd)
-    assert w is not None
-    thrust = _thrust(sp.thrust_norm)
+    w, thrust = _rates_fields(sp)
     return mavlink2.MAVLink_set_attitude_target_message(
         time_boot_ms & 0xFFFFFFFF, target_system, target_component, ATT_IGNORE_ATTITUDE,
         [1.0, 0.0, 0.0, 0.0], w[0], w[1], w[2], thrust,
     )
+
+
+_SET_ATTITUDE_TARGET: Any = mavlink2.MAVLink_set_attitude_target_message
+#: SET_ATTITUDE_TARGET's payload in wire order (pymavlink's ``ordered_fieldnames``, arrays
+#: flattened), checked at import so that a regenerated dialect cannot silently reorder it.
+_SAT_WIRE_ORDER = ["time_boot_ms", "q", "body_roll_rate", "body_pitch_rate", "body_yaw_rate",
+                   "thrust", "target_system", "target_component", "type_mask"]
+if list(_SET_ATTITUDE_TARGET.ordered_fieldnames) != _SAT_WIRE_ORDER:  # pragma: no cover
+    raise ImportError("pymavlink's SET_ATTITUDE_TARGET layout changed: update setpoints.py")
+_SAT_ID = int(_SET_ATTITUDE_TARGET.id)
+_SAT_EXTRA = bytes((int(_SET_ATTITUDE_TARGET.crc_extra),))
+_SAT_PACK = _SET_ATTITUDE_TARGET.unpacker.pack
+
+
+def pack_setpoint(
+    sp: SetpointCommand, target_system: int, target_component: int, time_boot_ms: int
+) -> tuple[int, bytes, bytes] | None:
+    """(message id, CRC_EXTRA byte, full wire-order payload) of an attitude or rates setpoint,
+    validated exactly as ``build_setpoint`` does, for ``Codec.encode_payload`` (the per-cycle
+    path: no message object). None for the other setpoint types (use ``build_setpoint``)."""
+    tbm = time_boot_ms & 0xFFFFFFFF
+    if type(sp) is AttitudeSetpoint:
+        mask, q, yaw_rate, thrust = _attitude_fields(sp)
+        payload = _SAT_PACK(tbm, q[0], q[1], q[2], q[3], 0.0, 0.0, yaw_rate, thrust,
+                            target_system, target_component, mask)
+    elif type(sp) is RatesSetpoint:
+        w, thrust = _rates_fields(sp)
+        payload = _SAT_PACK(tbm, 1.0, 0.0, 0.0, 0.0, w[0], w[1], w[2], thrust,
+                            target_system, target_component, ATT_IGNORE_ATTITUDE)
+    else:
+        return None
+    return _SAT_ID, _SAT_EXTRA, payload
 
 
 def rover_type_mask() -> int:

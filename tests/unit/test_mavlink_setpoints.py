@@ -123,3 +123,99 @@ def test_position_needs_motion_and_rover_refuses_nan() -> None:
         build_setpoint(PositionSetpoint(yaw=0.0), 1, 1, 0)
     with pytest.raises(SetpointError):
         build_setpoint(RoverVelocitySetpoint(vel_ne=(math.nan, 0.0), yaw_rate=0.0), 1, 1, 0)
+
+
+# -- the per-cycle path: pack_setpoint + Codec.encode_payload against pymavlink -----------------
+UNIT = st.floats(-1.0, 1.0, allow_nan=False)
+
+
+def _pymavlink_frame(msg: Any, seq: int) -> bytes:
+    from pymavlink.dialects.v20 import common as m
+
+    mav = m.MAVLink(None, srcSystem=1, srcComponent=191)
+    mav.seq = seq
+    return bytes(msg.pack(mav))
+
+
+@given(q=st.tuples(UNIT, UNIT, UNIT, UNIT), thrust=st.floats(0.0, 1.0),
+       yaw_rate=st.none() | st.floats(-10, 10) | st.just(0.0) | st.just(-0.0),
+       rates=st.tuples(FIN, FIN, FIN), tbm=st.integers(0, 2**40), seq=st.integers(0, 255),
+       target=st.tuples(st.integers(0, 255), st.integers(0, 255)))
+@settings(max_examples=120, deadline=None)
+def test_pack_setpoint_frames_equal_pymavlink(
+    q: tuple[float, float, float, float], thrust: float, yaw_rate: float | None,
+    rates: tuple[float, float, float], tbm: int, seq: int, target: tuple[int, int],
+) -> None:
+    """The frame the link sends per cycle is byte-for-byte pymavlink's pack of the message that
+    build_setpoint gives (zero truncation, wire order, CRC, sequence)."""
+    from companion.mavlink import Codec
+    from companion.mavlink.setpoints import pack_setpoint
+
+    n = math.sqrt(sum(x * x for x in q))
+    qn = (1.0, 0.0, 0.0, 0.0) if n < 1e-3 else tuple(x / n for x in q)
+    for sp in (AttitudeSetpoint(q_wxyz=qn, thrust_norm=thrust, yaw_rate=yaw_rate),  # type: ignore[arg-type]
+               RatesSetpoint(omega_frd=rates, thrust_norm=thrust)):
+        packed = pack_setpoint(sp, *target, tbm)
+        assert packed is not None
+        c = Codec(1, 191)
+        c.mav.seq = seq
+        ours = c.encode_payload(*packed)
+        assert ours == _pymavlink_frame(build_setpoint(sp, *target, tbm), seq)
+        assert c.mav.seq == (seq + 1) % 256
+
+
+@given(bad=BAD, idx=st.integers(0, 6))
+@settings(max_examples=40, deadline=None)
+def test_pack_setpoint_refuses_what_build_refuses(bad: float, idx: int) -> None:
+    from companion.mavlink.setpoints import pack_setpoint
+
+    q = [1.0, 0.0, 0.0, 0.0]
+    if idx < 4:
+        q[idx] = bad
+        sp: Any = AttitudeSetpoint(q_wxyz=(q[0], q[1], q[2], q[3]), thrust_norm=0.5)
+    elif idx == 4:
+        sp = AttitudeSetpoint(q_wxyz=(1.0, 0.0, 0.0, 0.0), thrust_norm=0.5, yaw_rate=bad)
+    elif idx == 5:
+        sp = RatesSetpoint(omega_frd=(0.0, 0.0, bad), thrust_norm=0.5)
+    else:
+        sp = AttitudeSetpoint(q_wxyz=(0.9, 0.0, 0.0, 0.0), thrust_norm=0.5)  # not unit
+    for fn in (build_setpoint, pack_setpoint):
+        with pytest.raises(SetpointError):
+            fn(sp, 1, 1, 0)
+
+
+def test_pack_setpoint_leaves_position_types_to_build() -> None:
+    from companion.mavlink.setpoints import pack_setpoint
+
+    assert pack_setpoint(PositionSetpoint(pos_ned=P), 1, 1, 0) is None
+    assert pack_setpoint(RoverVelocitySetpoint(vel_ne=(1.0, 0.0), yaw_rate=0.0), 1, 1, 0) is None
+
+
+def test_encode_payload_refuses_signing() -> None:
+    from companion.mavlink import Codec
+
+    c = Codec(1, 191)
+    c.mav.signing.secret_key = bytes(32)
+    c.mav.signing.sign_outgoing = True
+    with pytest.raises(ValueError, match="sign"):
+        c.encode_payload(82, b"\x31", bytes(39))
+
+
+def test_link_signs_setpoints_when_signing_is_on() -> None:
+    """With outgoing signing configured, the link's per-cycle setpoint is a signed frame that a
+    receiver holding the key accepts (the unsigned struct path must not be taken)."""
+    from pymavlink.dialects.v20 import common as m
+
+    from companion.mavlink import LinkConfig, VehicleLink
+
+    key = bytes(range(32))
+    link = VehicleLink(LinkConfig())
+    link.codec.mav.signing.secret_key = key
+    link.codec.mav.signing.sign_outgoing = True
+    frame = link.encode_setpoint(AttitudeSetpoint(q_wxyz=(1.0, 0.0, 0.0, 0.0), thrust_norm=0.5),
+                                 1.0)
+    assert frame[2] & 0x01  # MAVLINK_IFLAG_SIGNED
+    rx = m.MAVLink(None)
+    rx.signing.secret_key = key
+    (msg,) = rx.parse_buffer(frame)
+    assert msg.get_type() == "SET_ATTITUDE_TARGET" and msg.get_signed() and msg.thrust == 0.5
