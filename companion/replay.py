@@ -177,9 +177,9 @@ class LockstepLink:
         now = self.now
         tlog = self.tlog
         receive = self.ap.receive_datagram
+        if tlog is not None:
+            tlog.write_many(frames, TLOG_EPOCH_S + now)
         for fr in frames:
-            if tlog is not None:
-                tlog.write(fr, TLOG_EPOCH_S + now)
             receive(fr, "companion", now)
 
     def advance(self, t: float) -> list[Any]:
@@ -192,9 +192,10 @@ class LockstepLink:
         on_message = self.on_message
         link = self.link
         t_log = TLOG_EPOCH_S + t
-        for data, _addr in self.ap.datagrams_to_send(t):
-            if tlog is not None:
-                tlog.write(data, t_log)
+        out = self.ap.datagrams_to_send(t)
+        if tlog is not None and out:
+            tlog.write_many([data for data, _addr in out], t_log)
+        for data, _addr in out:
             if wanted is not None and _msgid(data) not in wanted:
                 continue
             for msg in link.codec.decode(data):

@@ -34,6 +34,18 @@ class TlogWriter:
             self._f.write(rec)
             self.frames += 1
 
+    def write_many(self, frames: list[bytes], unix_time_s: float) -> None:
+        """Record several complete frames that share one timestamp (a bulk writer's batch)."""
+        if not frames:
+            return
+        ts = _TS.pack(int(unix_time_s * 1e6))
+        rec = ts + ts.join(frames)
+        with self._lock:
+            if self._f is None:
+                return
+            self._f.write(rec)
+            self.frames += len(frames)
+
     def flush(self) -> None:
         """Push buffered records to the OS."""
         with self._lock:

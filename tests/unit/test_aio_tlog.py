@@ -49,3 +49,25 @@ def test_tlog_close_is_idempotent_and_write_after_close_ignored(tmp_path: Path) 
     tlog.write(b"\xfd")
     tlog.close()
     assert (tmp_path / "x.tlog").read_bytes() == b""
+
+
+def test_write_many_reads_back_like_single_writes(tmp_path: Path) -> None:
+    """A batch sharing one timestamp reads back with pymavlink as the same frames, each with that
+    timestamp, and the file equals the one written frame by frame."""
+    px4 = m.MAVLink(None, srcSystem=1, srcComponent=1)
+    frames = [bytes(m.MAVLink_heartbeat_message(2, 12, 157, k, 4, 3).pack(px4)) for k in range(5)]
+    t = 1_700_000_123.25
+    with TlogWriter(tmp_path / "a.tlog") as a, TlogWriter(tmp_path / "b.tlog") as b:
+        a.write_many(frames[:3], t)
+        a.write_many([], t + 1.0)  # nothing recorded
+        a.write_many(frames[3:], t + 0.5)
+        for k, f in enumerate(frames):
+            b.write(f, t if k < 3 else t + 0.5)
+        assert a.frames == b.frames == 5
+    assert (tmp_path / "a.tlog").read_bytes() == (tmp_path / "b.tlog").read_bytes()
+    conn = mavutil.mavlink_connection(str(tmp_path / "a.tlog"))
+    got = [conn.recv_match() for _ in range(6)]
+    conn.close()
+    assert got[5] is None
+    assert [g.custom_mode for g in got[:5]] == list(range(5))
+    assert [g._timestamp for g in got[:5]] == [t, t, t, t + 0.5, t + 0.5]
