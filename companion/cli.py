@@ -108,18 +108,27 @@ def _cmd_replay(args: argparse.Namespace) -> int:
             f: progress.add_task(Path(f).name, total=totals[f], sim="") for f in args.files
         }
         if args.jobs <= 1:
-            for f in args.files:
-                def cb(t: float, t_max: float, f: str = f) -> None:
-                    progress.update(tasks[f], completed=min(t, totals[f]), sim=f"sim {t:6.0f} s")
-                from companion.mission import MissionError
-                from companion.replay import replay_file
+            from companion.mission import MissionError
+            from companion.plotting import PlotWorker
+            from companion.replay import replay_file
 
-                try:
-                    r = replay_file(f, args.out, ReplayConfig(**config_kw), cb)  # type: ignore[arg-type]
-                    results[f] = (r.report, None)
-                except (MissionError, ValueError, OSError) as exc:
-                    results[f] = (None, str(exc))
-                progress.update(tasks[f], completed=totals[f])
+            # a helper process draws the flight.png files; it imports matplotlib while the
+            # first file flies, which the replay would otherwise wait for
+            with PlotWorker() as plotter:
+                for f in args.files:
+                    def cb(t: float, t_max: float, f: str = f) -> None:
+                        progress.update(
+                            tasks[f], completed=min(t, totals[f]), sim=f"sim {t:6.0f} s")
+
+                    try:
+                        r = replay_file(
+                            f, args.out, ReplayConfig(**config_kw), cb,  # type: ignore[arg-type]
+                            plotter=plotter,
+                        )
+                        results[f] = (r.report, None)
+                    except (MissionError, ValueError, OSError) as exc:
+                        results[f] = (None, str(exc))
+                    progress.update(tasks[f], completed=totals[f])
         else:
             with mp.Manager() as manager, ProcessPoolExecutor(max_workers=args.jobs) as pool:
                 queue = manager.Queue()

@@ -45,6 +45,7 @@ from companion.mavlink.setpoints import (
 )
 from companion.mission import Mission, MissionError, load_mission, mission_to_flight_plan
 from companion.mission.upload import mission_upload_items
+from companion.plotting import PlotData, PlotWorker, draw_flight_png
 from companion.schedule import Schedule, VehicleLimits, build_schedule
 from companion.tracking import SetpointMode, TrackingSource
 
@@ -587,6 +588,35 @@ def summarize(
     }
 
 
+def plot_data(
+    title: str,
+    log: FlightLog,
+    schedule: Schedule,
+    origin: FloatArray,
+    px4_log: FlightLog | None = None,
+) -> PlotData:
+    """What flight.png shows for a flight: the plan sampled at 20 Hz, the flown positions and
+    the tracking error (all NED, shifted by the flight's `origin`)."""
+    ts = np.linspace(0.0, schedule.duration_s, max(int(schedule.duration_s * 20), 2))
+    te, err = tracking_error(log, schedule, origin)
+    p4 = None
+    if px4_log is not None and px4_log.pos:
+        p4 = np.asarray(px4_log.pos, dtype=np.float64).reshape(-1, 3)
+    return PlotData(
+        title=title,
+        plan_t=ts,
+        plan_ned=schedule.sample(ts) + origin,
+        t=np.asarray(log.t, dtype=np.float64),
+        pos_ned=np.asarray(log.pos, dtype=np.float64).reshape(-1, 3),
+        px4_pos_ned=p4,
+        waypoints_ned=schedule.waypoints_ned + origin,
+        acceptance_m=tuple(schedule.acceptance_m),
+        t_fly0=log.fly_t0 or 0.0,
+        err_t=te,
+        err_m=err,
+    )
+
+
 def plot_flight(
     path: Path,
     title: str,
@@ -596,44 +626,7 @@ def plot_flight(
     px4_log: FlightLog | None = None,
 ) -> None:
     """flight.png: top view and altitude / tracking error vs time, planned vs flown."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Circle
-
-    pos = np.asarray(log.pos).reshape(-1, 3)
-    t = np.asarray(log.t)
-    ts = np.linspace(0.0, schedule.duration_s, max(int(schedule.duration_s * 20), 2))
-    plan_xyz = schedule.sample(ts) + origin
-    fig, ax = plt.subplots(1, 3, figsize=(16, 5.2))
-    ax[0].plot(plan_xyz[:, 1], plan_xyz[:, 0], "--", color="C0", label="planned")
-    ax[0].plot(pos[:, 1], pos[:, 0], color="C1", label="flown (companion)")
-    if px4_log is not None and px4_log.pos:
-        p4 = np.asarray(px4_log.pos).reshape(-1, 3)
-        ax[0].plot(p4[:, 1], p4[:, 0], color="C2", alpha=0.7, label="flown (PX4 mission)")
-    wps = schedule.waypoints_ned + origin
-    for w, r in zip(wps, schedule.acceptance_m, strict=True):
-        ax[0].add_patch(Circle((w[1], w[0]), r, fill=False, color="C3", lw=0.8))
-    ax[0].plot(wps[:, 1], wps[:, 0], "x", color="C3", label="waypoints")
-    ax[0].set(xlabel="East [m]", ylabel="North [m]", title="Top view", aspect="equal")
-    ax[0].legend(fontsize=8)
-    t_fly0 = log.fly_t0 or 0.0
-    ax[1].plot(ts + t_fly0, -plan_xyz[:, 2], "--", label="planned")
-    ax[1].plot(t, -pos[:, 2], label="flown")
-    ax[1].set(xlabel="t [s]", ylabel="altitude above start [m]", title="Altitude")
-    ax[1].legend(fontsize=8)
-    te, err = tracking_error(log, schedule, origin)
-    if len(te):
-        ax[2].plot(te, err)
-    ax[2].set(xlabel="t [s]", ylabel="|flown - planned| [m]", title="Tracking error")
-    fig.suptitle(title)
-    fig.tight_layout()
-    # tight_layout leaves a placeholder layout engine, which makes savefig run a second,
-    # non-rendering draw first; the layout is already final: drop it (same pixels, ~30 % faster)
-    fig.set_layout_engine(None)
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    draw_flight_png(path, plot_data(title, log, schedule, origin, px4_log))
 
 
 def replay_file(
@@ -641,9 +634,13 @@ def replay_file(
     out_root: str | os.PathLike[str],
     config: ReplayConfig,
     progress: Callable[[float, float], None] | None = None,
+    plotter: PlotWorker | None = None,
 ) -> ReplayResult:
     """Replay one mission file; writes `out_root/<name>/{flight.tlog, report.json, flight.png}`
-    atomically (a temporary folder renamed at the end). Raises MissionError on a bad file."""
+    atomically (a temporary folder renamed at the end). Raises MissionError on a bad file.
+
+    `plotter` draws flight.png in its helper process (started before the flight, it has
+    imported matplotlib by the time the figure is needed); None draws it here."""
     src = Path(path)
     mission = load_mission(src)
     flight_plan = mission_to_flight_plan(mission, vehicle=config.vehicle)
@@ -686,14 +683,17 @@ def replay_file(
             report["px4_mission"] = px4
         with open(tmp / "report.json", "w", encoding="utf-8") as f:
             json.dump(report, f, indent=2, allow_nan=False, default=_json_default)
-        plot_flight(
-            tmp / "flight.png",
+        data = plot_data(
             f"{src.name}: {config.vehicle}, {config.mode} mode",
             log,
             schedule,
             flight.origin,
             px4_log,
         )
+        if plotter is not None:
+            plotter.draw(tmp / "flight.png", data)
+        else:
+            draw_flight_png(tmp / "flight.png", data)
         final = out_root / name
         if final.exists():
             old = out_root / f".{name}.old"
