@@ -21,7 +21,9 @@ def _data(n: int = 4000) -> PlotData:
     pos = plan + 0.05 * np.sin(7 * t)[:, None]
     return PlotData(
         title="test: quad, attitude mode", plan_t=t, plan_ned=plan, t=t + 2.0, pos_ned=pos,
-        px4_pos_ned=plan[::3] + 0.3, waypoints_ned=plan[np.linspace(0, n - 1, 5).astype(int)], acceptance_m=(1.0,) * 5,
+        px4_pos_ned=plan[::3] + 0.3,
+        waypoints_ned=plan[np.linspace(0, n - 1, 5).astype(int)],
+        acceptance_m=(1.0,) * 5,
         t_fly0=2.0, err_t=t + 2.0, err_m=np.linalg.norm(pos - plan, axis=1),
     )
 
