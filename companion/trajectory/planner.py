@@ -104,6 +104,10 @@ HEADING_SAMPLES_PER_SEGMENT = 16
 VELOCITY_YAW_SMOOTHING = 0.1
 #: Samples per segment while bisecting the common time scale (final checks use more).
 BISECTION_SAMPLES_PER_SEGMENT = 16
+#: The multirotor feasibility pass stretches the offending segments only while the worst
+#: limit ratio stays below this multiple of the best seen; beyond it the local stretch is
+#: distorting the path and the pass falls back to uniform scaling.
+LOCAL_STRETCH_GIVE_UP = 1.25
 #: Duration of the hover trajectory returned for a single waypoint (s), unless given.
 HOVER_DURATION_S = 1.0
 _MERGE_TOL_M = 1e-9
@@ -905,21 +909,30 @@ class _Planner:
         """Scale all durations by the smallest common factor that satisfies every limit
         (bisection; a uniform time scaling keeps the path shape), then stretch locally where a
         limit is still exceeded (feasibility pass)."""
-        h = h * self._uniform_scale(h, limits, params)
+        h_uniform = h = h * self._uniform_scale(h, limits, params)
         # feasibility pass on the real trajectory (re-solved, not scaled)
+        worst0 = math.inf
         for _ in range(30):
             worst, per_seg = self._max_ratio(h, limits, params)
             if worst <= 1.0:
                 return h
+            worst0 = min(worst0, worst)
+            if worst > LOCAL_STRETCH_GIVE_UP * worst0:
+                # stretching single segments of a minimum-snap path can make it balloon
+                # (a long segment between short ones overshoots): stop making it worse
+                break
             bad = per_seg > 1.0
             grow = np.where(bad, np.minimum(per_seg, 1.5) * 1.002, 1.0)
             grow[1:] = np.maximum(grow[1:], np.where(bad[:-1], 1.002, 1.0))
             grow[:-1] = np.maximum(grow[:-1], np.where(bad[1:], 1.002, 1.0))
             h = h * grow
+        # fallback: uniform scaling of the bisection's durations, which keeps the path shape
+        # (speed ~ 1/k, acceleration ~ 1/k^2, ...); only the dense check's last percent is missing
+        h = h_uniform
         for _ in range(60):
+            h = h * 1.02
             if self._max_ratio(h, limits, params)[0] <= 1.0:
                 return h
-            h = h * 1.02
         raise ValueError("time allocation could not satisfy the limits (check their values)")
 
     def _uniform_scale(self, h: FloatArray, limits: Limits | RoverLimits, params: Any) -> float:

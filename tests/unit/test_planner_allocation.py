@@ -115,6 +115,19 @@ def test_rover_time_allocation() -> None:
     assert np.max((speed * np.abs(rate))[moving]) <= 1.0 * 1.01
 
 
+def test_short_collinear_legs_where_local_stretching_balloons() -> None:
+    """Regression (found by hypothesis): stretching only the offending segment of this plan made
+    the minimum-snap path overshoot more at every pass until the allocation gave up. Limits and
+    waypoints are checked here by dense sampling, the duration against the polyline bound."""
+    wp = np.array([[0.0, 0.0, 0.0], [2.0625, 0.0, 0.0], [4.453125, 0.0, 0.0]])
+    res = plan_with_info(wp, limits=Limits(max_speed_m_s=4.0, max_acc_m_s2=3.0))
+    tr = res.trajectory
+    np.testing.assert_allclose(tr.evaluate(res.waypoint_times), wp, atol=1e-9)
+    assert np.max(np.linalg.norm(dense(tr, 1), axis=1)) <= 4.0 * (1 + 1e-9)
+    assert np.max(np.linalg.norm(dense(tr, 2), axis=1)) <= 3.0 * (1 + 1e-9)
+    assert tr.duration <= 1.5 * 4.453125 / 4.0 + 2.0 * 4.0 / 3.0
+
+
 def test_duration_bound_holds_on_average_well_below_one() -> None:
     """Mean duration / bound over a handful of sets (the benchmark reports the same figure)."""
     ratios = []
