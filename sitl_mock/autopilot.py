@@ -27,10 +27,18 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sitl_mock import telemetry
 from sitl_mock.faults import FaultyChannel, LinkFaults, ScenarioFaults
-from sitl_mock.mavwire import MessageCodec, decode_datagram, pack_v2
+from sitl_mock.mavwire import MessageCodec, codec, decode_datagram, pack_v2, unpack_single
 from sitl_mock.mission_server import MISSION, MissionExecutor, MissionServer, project_to_ned
 from sitl_mock.params import PARAMS, ParamStore
-from sitl_mock.setpoints import NAN3, AttitudeTarget, IdleTarget, PositionTarget, Target, Vec3
+from sitl_mock.setpoints import (
+    NAN3,
+    AttitudeTarget,
+    IdleTarget,
+    PositionTarget,
+    Target,
+    Vec3,
+    make_attitude_target,
+)
 from sitl_mock.vehicle import DEFAULT_HOME, Vehicle, VehicleState, make_vehicle
 
 log = logging.getLogger(__name__)
@@ -113,6 +121,11 @@ _MODE_LABELS = {
     Mode.OFFBOARD: "Offboard",
     Mode.STABILIZED: "Stabilized",
 }
+# the modes compared on every physics step / commander tick (a module global is ~10x cheaper
+# to reach than an Enum class attribute)
+_OFFBOARD = Mode.OFFBOARD
+_AUTO_MISSION = Mode.AUTO_MISSION
+_AUTO_TAKEOFF = Mode.AUTO_TAKEOFF
 MANUAL_MODES = frozenset({Mode.MANUAL, Mode.ALTCTL, Mode.POSCTL, Mode.ACRO, Mode.STABILIZED})
 AUTO_MODES = frozenset(
     {Mode.AUTO_TAKEOFF, Mode.AUTO_LOITER, Mode.AUTO_MISSION, Mode.AUTO_RTL, Mode.AUTO_LAND}
@@ -144,6 +157,8 @@ class Link:
     # outbound without faults: a FIFO of (time since boot [s], frame), exactly the order and due
     # times the pass-through FaultyChannel would give, without its heap entries
     tx_fifo: deque[tuple[float, bytes]] | None = None
+    # inbound without faults: datagrams are processed on arrival (rx never queues anything)
+    rx_direct: bool = False
 
     @property
     def destination(self) -> Addr | None:
@@ -224,7 +239,11 @@ class Autopilot:
                 tx=FaultyChannel(f_out, seed * 1000 + 2 * i + 2),
                 streams=telemetry.StreamScheduler(rates, 0.0),
                 tx_fifo=None if f_out is not None and f_out.active else deque(),
+                rx_direct=not (f_in is not None and f_in.active),
             )
+        # inbound channels that can hold datagrams back (faults configured); a pass-through
+        # channel delivers at once in receive_datagram and never queues anything
+        self._delayed_rx = [lk.rx for lk in self.links.values() if not lk.rx_direct]
         # commander state
         self.mode = Mode.AUTO_LOITER
         self.user_mode = Mode.AUTO_LOITER
@@ -293,13 +312,14 @@ class Autopilot:
 
     def receive_datagram(self, data: bytes, addr: Addr, now: float, link: str = "offboard") -> None:
         """Feed one datagram received on `link` from `addr` at time `now`."""
-        self.advance(now)
+        if now - self._boot > self._t:  # (advance's own early return, without the call)
+            self.advance(now)
         lk = self.links.get(link)
         if lk is None:
             raise KeyError(f"unknown link {link!r}; links are {sorted(self.links)}")
         if lk.peer is None:
             lk.peer = addr  # like PX4: lock onto the first peer that talks to us
-        if not lk.rx.faults.active and not len(lk.rx):  # pass-through: deliver now
+        if lk.rx_direct:  # pass-through: deliver now
             lk.rx.stats.passed += 1
             self._process_datagram(lk, bytes(data), addr)
             return
@@ -312,7 +332,7 @@ class Autopilot:
         t = now - self._boot + 1e-9  # physics steps may land a hair past `now`
         out: list[tuple[bytes, Addr]] = []
         for lk in self.links.values() if link is None else (self.links[link],):
-            dest = lk.destination
+            dest = lk.peer if lk.peer is not None else lk.remote  # lk.destination
             fifo = lk.tx_fifo
             if fifo is not None:
                 while fifo and fifo[0][0] <= t:
@@ -346,28 +366,37 @@ class Autopilot:
         if not t_end > self._t:  # also rejects NaN
             return
         dt = self.dt
+        t_lim = t_end + 1e-12
+        delayed_rx = self._delayed_rx
         while True:
             t_phys = (self._n_steps + 1) * dt
-            t_next_ev = self._events[0][0] if self._events else math.inf
-            for lk in self.links.values():
-                if len(lk.rx):
-                    t_next_ev = min(t_next_ev, lk.rx.next_due())
-            if t_next_ev <= t_end and t_next_ev <= t_phys:
-                self._t = max(self._t, t_next_ev)
-                self._run_events()
-                continue
-            if t_phys <= t_end + 1e-12:
+            if self._events or delayed_rx:
+                t_next_ev = self._next_input_time()
+                if t_next_ev <= t_end and t_next_ev <= t_phys:
+                    self._t = max(self._t, t_next_ev)
+                    self._run_events()
+                    continue
+            if t_phys <= t_lim:
                 self._physics_step(t_phys)
-                self._quiet_steps(t_end)
+                # physics-only steps follow only if neither the end, the commander nor the
+                # telemetry is due at the next step (rare while streaming: skip the call)
+                t_next = (self._n_steps + 1) * dt
+                if (
+                    t_next < t_lim
+                    and t_next < self._cmd_next_t - 1e-9
+                    and t_next < self._tele_next_t
+                ):
+                    self._quiet_steps(t_end)
                 continue
             break
         self._t = max(self._t, t_end)
 
     def _next_input_time(self) -> float:
+        """Time of the next scheduled event or delayed inbound datagram (inf if none)."""
         t = self._events[0][0] if self._events else math.inf
-        for lk in self.links.values():
-            if len(lk.rx):
-                t = min(t, lk.rx.next_due())
+        for rx in self._delayed_rx:
+            if len(rx):
+                t = min(t, rx.next_due())
         return t
 
     def _quiet_steps(self, t_end: float) -> None:
@@ -393,7 +422,7 @@ class Autopilot:
             self._cmd_next_t - 1e-9,
             self._tele_next_t,
         )
-        if self._nav_active and self.armed and self.mode != Mode.OFFBOARD:
+        if self._nav_active and self.armed and self.mode is not _OFFBOARD:
             horizon = min(horizon, self._nav_next_t - 1e-9)
         if t_next >= horizon:
             return
@@ -417,6 +446,7 @@ class Autopilot:
 
     @property
     def state(self) -> VehicleState:
+        """Vehicle state snapshot (the same object until the next physics step)."""
         return self._state
 
     @property
@@ -442,7 +472,7 @@ class Autopilot:
 
     @property
     def local_position_valid(self) -> bool:
-        return self.estimator_ready and self._state.local_position_valid
+        return self.estimator_ready and self.vehicle.local_position_valid
 
     @property
     def offboard_fresh(self) -> bool:
@@ -451,7 +481,7 @@ class Autopilot:
 
     @property
     def battery_remaining(self) -> float:
-        return max(0.0, min(1.0, self._battery_cap, float(self._state.battery_remaining)))
+        return max(0.0, min(1.0, self._battery_cap, float(self.vehicle.battery_remaining)))
 
     @property
     def battery_voltage_mv(self) -> int:
@@ -463,7 +493,7 @@ class Autopilot:
 
     @property
     def in_air(self) -> bool:
-        return self.kind == "quad" and not self._state.landed
+        return self.kind == "quad" and not self.vehicle.landed
 
     @property
     def landed_state(self) -> int:
@@ -471,7 +501,7 @@ class Autopilot:
             return int(mavlink.MAV_LANDED_STATE_ON_GROUND)
         if self.armed and self.mode == Mode.AUTO_TAKEOFF and not self._takeoff_done:
             return int(mavlink.MAV_LANDED_STATE_TAKEOFF)
-        if self._state.landed:
+        if self.vehicle.landed:
             return int(mavlink.MAV_LANDED_STATE_ON_GROUND)
         if self.armed and self._is_landing():
             return int(mavlink.MAV_LANDED_STATE_LANDING)
@@ -488,7 +518,7 @@ class Autopilot:
         return self._arming_denial(mode or self.mode) is None
 
     def _arming_denial(self, mode: Mode) -> str | None:
-        if not self.estimator_ready or not self._state.local_position_valid:
+        if not self.estimator_ready or not self.vehicle.local_position_valid:
             return "Arming denied: Resolve system health failures first"
         if self.battery_remaining < float(self.params["BAT_CRIT_THR"]):
             return "Arming denied: Resolve system health failures first"
@@ -580,16 +610,18 @@ class Autopilot:
         try:
             if type(msg) is tuple:
                 c: MessageCodec = msg[0]
-                data = c.frame(link.mav.seq, SYSID, COMPID, msg[1])
+                data = c.pack_frame(link.mav.seq, SYSID, COMPID, msg[1])
             else:
                 data = pack_v2(msg, link.mav.seq, SYSID, COMPID)
         except (OverflowError, struct.error):
             # a value outside float32 range (e.g. echoing an absurd setpoint): drop, count
             self.stats["tx_encode_errors"] += 1
             return
-        link.mav.seq = (link.mav.seq + 1) & 0xFF
-        if link.tx_fifo is not None:
-            link.tx_fifo.append((self._t, data))
+        mav = link.mav
+        mav.seq = (mav.seq + 1) & 0xFF
+        fifo = link.tx_fifo
+        if fifo is not None:
+            fifo.append((self._t, data))
             link.tx.stats.passed += 1
         else:
             link.tx.push(data, self._t, self._t)
@@ -628,7 +660,20 @@ class Autopilot:
 
     # ================================================================== inbound
     def _process_datagram(self, link: Link, data: bytes, addr: Addr) -> None:
-        self.stats["rx_datagrams"] += 1
+        stats = self.stats
+        stats["rx_datagrams"] += 1
+        # hot path: a datagram that is exactly one clean SET_ATTITUDE_TARGET frame (what the
+        # companion streams at 50-250 Hz), handled from its unpacked fields: the same counters
+        # and effects as the general path below, without a pymavlink object
+        f = unpack_single(data, _C_SET_ATTITUDE_TARGET)
+        if f is not None:
+            stats["rx_messages"] += 1
+            try:  # wire order: time, q[4], roll/pitch/yaw rate, thrust, target sys/comp, mask
+                self._attitude_setpoint(f[9], f[10], f[11], f[1:5], f[5], f[6], f[7], f[8])
+            except Exception:  # never let one bad message stop the vehicle
+                stats["handler_errors"] += 1
+                log.exception("error handling SET_ATTITUDE_TARGET")
+            return
         msgs = decode_datagram(data)  # fast path: clean unsigned MAVLink 2 frames
         if msgs is None:  # anything unusual: pymavlink's robust parser, counted as always
             parser = mavlink.MAVLink(None)
@@ -661,7 +706,11 @@ class Autopilot:
                 log.exception("error handling %s", kind)
 
     def _targets_us(self, msg: Msg) -> bool:
-        ok = msg.target_system in (0, SYSID) and msg.target_component in (0, COMPID)
+        return self._targets(msg.target_system, msg.target_component)
+
+    def _targets(self, target_system: int, target_component: int) -> bool:
+        """Addressed to us (or broadcast, 0); anything else is counted and ignored, like PX4."""
+        ok = target_system in (0, SYSID) and target_component in (0, COMPID)
         if not ok:
             self.stats["rx_wrong_target"] += 1
         return bool(ok)
@@ -849,12 +898,36 @@ class Autopilot:
         self._offboard_setpoint(target)
 
     def _on_set_attitude_target(self, link: Link, msg: Msg) -> None:
-        if not self._targets_us(msg):
+        self._attitude_setpoint(
+            msg.target_system,
+            msg.target_component,
+            msg.type_mask,
+            msg.q,
+            msg.body_roll_rate,
+            msg.body_pitch_rate,
+            msg.body_yaw_rate,
+            msg.thrust,
+        )
+
+    def _attitude_setpoint(
+        self,
+        target_system: int,
+        target_component: int,
+        type_mask: int,
+        q: Any,
+        body_roll_rate: float,
+        body_pitch_rate: float,
+        body_yaw_rate: float,
+        thrust_norm: float,
+    ) -> None:
+        """SET_ATTITUDE_TARGET fields (PX4 v1.16 mavlink_receiver semantics): q (w, x, y, z)
+        body FRD -> NED, body rates [rad/s FRD], thrust 0..1; ignore bits in `type_mask`."""
+        if not self._targets(target_system, target_component):
             return
-        mask = int(msg.type_mask)
+        mask = int(type_mask)
         q_wxyz = None
         if not mask & 128:
-            q0, q1, q2, q3 = msg.q
+            q0, q1, q2, q3 = q
             q0, q1, q2, q3 = float(q0), float(q1), float(q2), float(q3)
             isfinite = math.isfinite
             n = (
@@ -868,19 +941,19 @@ class Autopilot:
             q_wxyz = (q0 / n, q1 / n, q2 / n, q3 / n)
         rates = None
         if not (mask & 1) and not (mask & 2):
-            r = (msg.body_roll_rate, msg.body_pitch_rate, 0.0 if mask & 4 else msg.body_yaw_rate)
+            r = (body_roll_rate, body_pitch_rate, 0.0 if mask & 4 else body_yaw_rate)
             if not _finite(*r):
                 self.stats["rx_invalid_setpoint"] += 1
                 return
             rates = (float(r[0]), float(r[1]), float(r[2]))
-        thrust = float(msg.thrust)
+        thrust = float(thrust_norm)
         if (q_wxyz is None and rates is None) or mask & 64 or not math.isfinite(thrust):
             self.stats["rx_invalid_setpoint"] += 1
             return
         yaw_ff = math.nan
-        if q_wxyz is not None and not mask & 4 and math.isfinite(msg.body_yaw_rate):
-            yaw_ff = float(msg.body_yaw_rate)
-        target = AttitudeTarget(q_wxyz, min(max(thrust, 0.0), 1.0), rates, yaw_ff)
+        if q_wxyz is not None and not mask & 4 and math.isfinite(body_yaw_rate):
+            yaw_ff = float(body_yaw_rate)
+        target = make_attitude_target(q_wxyz, min(max(thrust, 0.0), 1.0), rates, yaw_ff)
         self._offboard_setpoint(target)
 
     def _offboard_setpoint(self, target: PositionTarget | AttitudeTarget) -> None:
@@ -1206,7 +1279,11 @@ class Autopilot:
     def _physics_step(self, t_phys: float) -> None:
         self._n_steps += 1
         self._t = t_phys
-        target = self._target()
+        ob_target = self._ob_target
+        if self.armed and self.mode is _OFFBOARD and ob_target is not None:
+            target: Target = ob_target  # the streaming case of `_target`, without the call
+        else:
+            target = self._target()
         self._last_target = target
         self.vehicle.step(self.dt, target, self.armed)
         self._state_stale = True
@@ -1216,24 +1293,50 @@ class Autopilot:
         if self._events and self._events[0][0] <= t_phys:
             self._run_events()
         if t_phys >= self._tele_next_t:
-            nxt = math.inf
-            for lk in self.links.values():
-                if t_phys >= lk.streams.earliest:
-                    for msg_id in lk.streams.due(t_phys):
-                        try:
-                            m = telemetry.BUILDERS[msg_id](self)
-                        except (ValueError, OverflowError):  # non-finite state: skip, count
-                            self.stats["tx_encode_errors"] += 1
-                            continue
-                        if m is not None:
-                            self._send(lk, m)
-                nxt = min(nxt, lk.streams.earliest)
-            self._tele_next_t = nxt
+            self._telemetry(t_phys)
+
+    def _telemetry(self, t: float) -> None:
+        """Build and queue the periodic messages due at `t` on every link."""
+        builders = telemetry.BUILDERS
+        stats = self.stats
+        nxt = math.inf
+        for lk in self.links.values():
+            streams = lk.streams
+            if t >= streams.earliest:
+                fifo = lk.tx_fifo
+                mav = lk.mav
+                queued = 0  # frames queued below (counters updated once per link)
+                for msg_id in streams.due(t):
+                    try:
+                        m = builders[msg_id](self)
+                    except (ValueError, OverflowError):  # non-finite state: skip, count
+                        stats["tx_encode_errors"] += 1
+                        continue
+                    if m is None:
+                        continue
+                    if fifo is None or type(m) is not tuple:
+                        self._send(lk, m)
+                        continue
+                    # `_send` written out for a (codec, fields) pair on a fault-free link
+                    try:
+                        data = m[0].pack_frame(mav.seq, SYSID, COMPID, m[1])
+                    except (OverflowError, struct.error):
+                        stats["tx_encode_errors"] += 1
+                        continue
+                    mav.seq = (mav.seq + 1) & 0xFF
+                    fifo.append((self._t, data))
+                    queued += 1
+                if queued:
+                    lk.tx.stats.passed += queued
+                    stats["tx_messages"] += queued
+            if streams.earliest < nxt:
+                nxt = streams.earliest
+        self._tele_next_t = nxt
 
     def _target(self) -> Target:
         if not self.armed:
             return _IDLE
-        if self.mode == Mode.OFFBOARD:
+        if self.mode is _OFFBOARD:
             return self._ob_target if self._ob_target is not None else _IDLE
         if self._descend:
             s = self._state
@@ -1255,7 +1358,10 @@ class Autopilot:
         return _IDLE
 
     def _commander(self, t: float) -> None:
-        s = self._state
+        # the flags of the vehicle state at this tick (read without building a snapshot)
+        veh = self.vehicle
+        landed = veh.landed
+        pos_valid = veh.local_position_valid
         p = self.params
         if not self._home_announced and self.estimator_ready:
             self._home_announced = True
@@ -1266,8 +1372,8 @@ class Autopilot:
             self._battery_check()
         if self.mission_server.state != "idle":
             self.mission_server.update(t)
-        if self.mode == Mode.AUTO_MISSION and self.mission.active:
-            self.mission.update(t, s)
+        if self.mode is _AUTO_MISSION and self.mission.active:
+            self.mission.update(t, self._state)
         if self._reached_seq is not None and t >= self._reached_next_t:
             self._reached_next_t += 1.0
             self._broadcast(mavlink.MAVLink_mission_item_reached_message(self._reached_seq))
@@ -1275,13 +1381,13 @@ class Autopilot:
             return
         # takeoff / landing bookkeeping (quad)
         if self.kind == "quad":
-            if not s.landed:
+            if not landed:
                 self._taken_off = True
-            if self.mode == Mode.AUTO_TAKEOFF and not self._takeoff_done and self.nav.reached:
+            if self.mode is _AUTO_TAKEOFF and not self._takeoff_done and self.nav.reached:
                 self._takeoff_done = True
                 self._set_mode(Mode.AUTO_LOITER, user=False)
                 self.user_mode = Mode.AUTO_LOITER
-            if s.landed and self._taken_off:
+            if landed and self._taken_off:
                 if self._landed_since is None:
                     self._landed_since = t
                 elif t - self._landed_since >= float(p["COM_DISARM_LAND"]):
@@ -1289,12 +1395,13 @@ class Autopilot:
                     return
             else:
                 self._landed_since = None
-            prflt = float(p["COM_DISARM_PRFLT"])
-            if not self._taken_off and prflt > 0 and t - self._armed_t >= prflt:
-                self._disarm("auto preflight disarming")
-                return
+            if not self._taken_off:
+                prflt = float(p["COM_DISARM_PRFLT"])
+                if prflt > 0 and t - self._armed_t >= prflt:
+                    self._disarm("auto preflight disarming")
+                    return
         # offboard loss
-        if self.mode == Mode.OFFBOARD:
+        if self.mode is _OFFBOARD:
             if self._ob_loss_t is None:
                 if not self.offboard_fresh:
                     self._ob_loss_t = t
@@ -1309,7 +1416,7 @@ class Autopilot:
                 action = OFFBOARD_LOSS_ACTIONS.get(int(p["COM_OBL_RC_ACT"]), Mode.POSCTL)
                 self._failsafe_to(action)
         # local position loss while a position is needed
-        if self.in_air and not s.local_position_valid and not self.failsafe:
+        if not pos_valid and not self.failsafe and self.in_air:
             needs_pos = (
                 self.mode in AUTO_MODES
                 or self.mode == Mode.POSCTL
@@ -1414,6 +1521,7 @@ def _param_name(raw: Any) -> str:
 
 
 _IDLE = IdleTarget()
+_C_SET_ATTITUDE_TARGET = codec(mavlink.MAVLink_set_attitude_target_message)
 _HANDLER_NAMES: dict[str, str] = {}  # message type -> handler method name
 
 _COMMANDS: dict[int, Callable[[Autopilot, Link, Msg, tuple[float, ...], int], int | None]] = {

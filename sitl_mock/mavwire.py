@@ -9,6 +9,10 @@ which dominated the mock's MAVLink cost. Here:
 - each message class gets a `MessageCodec` once: its `struct.Struct`, CRC_EXTRA, and small
   generated functions that flatten fields into wire order (encoding) and reorder the unpacked
   tuple into constructor order (decoding), exactly as pymavlink's `pack` / `decode` do;
+  `pack_frame` packs constructor-order values straight into a frame, with the header and the
+  CRC state after it cached per (payload length, seq, sysid, compid);
+- `unpack_single` reads the fields of a datagram that is exactly one clean frame of a given
+  message (the autopilot's SET_ATTITUDE_TARGET hot path), without a pymavlink object;
 - `decode_datagram` splits a datagram into unsigned MAVLink 2 frames, checks each CRC and
   builds the same pymavlink message objects as `MAVLink.parse_buffer` (fields, header,
   srcSystem/srcComponent, `_msgbuf`). Anything unusual (MAVLink 1, signed or flagged frames,
@@ -16,7 +20,7 @@ which dominated the mock's MAVLink cost. Here:
   hand the whole datagram to pymavlink's robust parser and count it exactly as before.
 
 Tests compare every path with pymavlink (tests/unit/test_sitl_autopilot_mavwire.py,
-tests/unit/test_sitl_mavwire_codec.py).
+tests/unit/test_sitl_mavwire_codec.py, tests/unit/test_sitl_fastpaths.py).
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 _REV8 = bytes(int(f"{i:08b}"[::-1], 2) for i in range(256))
 _HDR6 = struct.Struct("<BBBBBB").pack  # len, incompat, compat, seq, sysid, compid
+_B2 = struct.Struct("<BB").pack
 _crc_hqx = binascii.crc_hqx
 _Header = mavlink.MAVLink_header
 
@@ -40,6 +45,22 @@ def crc_mcrf4xx(data: bytes, crc: int = 0xFFFF) -> int:
     rev_init = (_REV8[crc & 0xFF] << 8) | _REV8[crc >> 8]
     r = _crc_hqx(data.translate(_REV8), rev_init)
     return (_REV8[r & 0xFF] << 8) | _REV8[r >> 8]
+
+
+# One MAVLink 2 frame around a full-size payload: trailing zeros truncated, the header (and the
+# CRC state after it) cached per (length, seq, sysid, compid), then the CRC continued over the
+# payload and CRC_EXTRA. Generated per message as `pack_frame(seq, sysid, compid, a)` (payload
+# packed from constructor-order values `a`) and `frame_payload(payload, seq, sysid, compid)`.
+_FRAME_SRC = """
+def {name}({params}):
+{prelude}    payload = {payload}.rstrip(b"\\x00") or b"\\x00"
+    key = (len(payload), seq & 0xFF, sysid, compid)
+    head = _headers.get(key)
+    if head is None:
+        head = _header(key)
+    r = _crc_hqx((payload + _crc_extra).translate(_REV8), head[1])
+    return head[0] + payload + _B2(_REV8[r >> 8], _REV8[r & 0xFF])
+"""
 
 
 def _as_bytes(v: Any) -> Any:
@@ -52,7 +73,8 @@ class MessageCodec:
 
     `frame(seq, sysid, compid, args)` packs constructor-order field values `args` (the
     positional arguments of the pymavlink class, extensions optional) into a complete frame;
-    `frame_of(msg, seq, sysid, compid)` does the same from a message object.
+    `frame_of(msg, seq, sysid, compid)` does the same from a message object. `pack_frame` is
+    `frame` as one generated function (the autopilot's telemetry hot path).
     """
 
     def __init__(self, cls: type) -> None:
@@ -87,13 +109,46 @@ class MessageCodec:
             else:
                 from_args.append(f"a[{i}]")
                 from_msg.append(f"m.{name}")
-        env = {"_b": _as_bytes}
+        env: dict[str, Any] = {"_b": _as_bytes}
         self.flat_args: Callable[[tuple[Any, ...]], tuple[Any, ...]] = eval(
             "lambda a: (" + ", ".join(from_args) + ",)", env
         )
         self.flat_msg: Callable[[Any], tuple[Any, ...]] = eval(
             "lambda m: (" + ", ".join(from_msg) + ",)", env
         )
+        # (payload length, seq, sysid, compid) -> (frame start b"\xfd" + header, CRC state after
+        # the header); at most 256 x (payload size) entries per message
+        self._headers: dict[tuple[int, int, int, int], tuple[bytes, int]] = {}
+        env.update(
+            _pack=self.struct.pack,
+            _complete=self._complete,
+            _headers=self._headers,
+            _header=self._header,
+            _crc_extra=self.crc_extra_b,
+            _crc_hqx=_crc_hqx,
+            _REV8=_REV8,
+            _B2=_B2,
+        )
+        exec(
+            _FRAME_SRC.format(
+                name="frame_payload",
+                params="payload, seq, sysid, compid",
+                prelude="",
+                payload="payload",
+            ),
+            env,
+        )
+        exec(
+            _FRAME_SRC.format(
+                name="pack_frame",
+                params="seq, sysid, compid, a",
+                prelude=f"    if len(a) < {self.n_fields}:\n        a = _complete(a)\n",
+                payload=f"_pack({', '.join(from_args)})",
+            ),
+            env,
+        )
+        self._frame_payload: Callable[[bytes, int, int, int], bytes] = env["frame_payload"]
+        self.pack_frame: Callable[[int, int, int, tuple[Any, ...]], bytes] = env["pack_frame"]
         # decoding: pymavlink's MAVLink.decode reordering, resolved once per class
         zero = self.struct.unpack(bytes(self.size))
         lengths: list[int] = list(c.lengths)
@@ -111,19 +166,25 @@ class MessageCodec:
             "lambda t: (" + ", ".join(parts) + ",)", {}
         )
 
+    def _header(self, key: tuple[int, int, int, int]) -> tuple[bytes, int]:
+        """(b"\\xfd" + header, CRC state after it) for (payload length, seq, sysid, compid)."""
+        n, seq, sysid, compid = key
+        hdr = _HDR6(n, 0, 0, seq, sysid, compid) + self.id3  # struct.error if not 0..255
+        head = self._headers[key] = (b"\xfd" + hdr, _crc_hqx(hdr.translate(_REV8), 0xFFFF))
+        return head
+
     def _frame(self, flat: tuple[Any, ...], seq: int, sysid: int, compid: int) -> bytes:
-        payload = self.struct.pack(*flat).rstrip(b"\x00") or b"\x00"
-        body = _HDR6(len(payload), 0, 0, seq & 0xFF, sysid, compid) + self.id3 + payload
-        r = _crc_hqx((body + self.crc_extra_b).translate(_REV8), 0xFFFF)
-        return b"\xfd" + body + bytes((_REV8[r >> 8], _REV8[r & 0xFF]))
+        return self._frame_payload(self.struct.pack(*flat), seq, sysid, compid)
+
+    def _complete(self, args: tuple[Any, ...]) -> tuple[Any, ...]:
+        """`args` with the omitted extension fields at their constructor defaults."""
+        if len(args) < self.n_required:
+            raise TypeError(f"{self.cls.__name__} needs {self.n_required} fields")
+        return args + self.defaults[len(args) :]
 
     def frame(self, seq: int, sysid: int, compid: int, args: tuple[Any, ...]) -> bytes:
         """MAVLink 2 frame (unsigned) of constructor-order values `args`."""
-        if len(args) < self.n_fields:
-            if len(args) < self.n_required:
-                raise TypeError(f"{self.cls.__name__} needs {self.n_required} fields")
-            args = args + self.defaults[len(args) :]
-        return self._frame(self.flat_args(args), seq, sysid, compid)
+        return self.pack_frame(seq, sysid, compid, args)
 
     def frame_of(self, msg: Any, seq: int, sysid: int, compid: int) -> bytes:
         """MAVLink 2 frame (unsigned) of pymavlink message object `msg`."""
@@ -159,6 +220,29 @@ def pack_v2(msg: Any, seq: int, sysid: int, compid: int) -> bytes:
     if c is None:
         c = codec(type(msg))
     return c._frame(c.flat_msg(msg), seq, sysid, compid)
+
+
+def unpack_single(data: bytes, c: MessageCodec) -> tuple[Any, ...] | None:
+    """Wire-order field values of `data` if it is exactly one clean frame of `c`'s message.
+
+    The hot inbound path (one SET_ATTITUDE_TARGET per datagram) without building a pymavlink
+    object: returns `c.struct.unpack` of the zero-extended payload, or None whenever
+    `decode_datagram` would not accept `data` as that single frame (another id, several
+    frames, MAVLink 1, signed or flagged, over-long, truncated, bad CRC), so the caller falls
+    back to the general path with unchanged results.
+    """
+    n = len(data)
+    if n < 12 or data[0] != 0xFD or data[2] or n != 12 + data[1] or data[1] > c.size:
+        return None
+    if data[7:10] != c.id3:
+        return None
+    r = _crc_hqx((data[1:-2] + c.crc_extra_b).translate(_REV8), 0xFFFF)
+    if data[-2] != _REV8[r >> 8] or data[-1] != _REV8[r & 0xFF]:
+        return None
+    payload = data[10:-2]
+    if n - 12 < c.size:
+        payload += bytes(c.size - (n - 12))  # MAVLink 2 trailing-zero truncation
+    return c.struct.unpack(payload)
 
 
 def decode_datagram(data: bytes) -> list[Any] | None:

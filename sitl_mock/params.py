@@ -115,6 +115,7 @@ class ParamStore(Mapping[str, float]):
 
     def __init__(self, overrides: Mapping[str, float] | None = None) -> None:
         self._values: dict[str, float] = {k: float(v.default) for k, v in PARAMS.items()}
+        self.version = 0  # counts `set` calls: readers re-read their cached values on change
         for name, value in (overrides or {}).items():
             self.set(name, value)
 
@@ -136,6 +137,7 @@ class ParamStore(Mapping[str, float]):
         if v != v or v in (float("inf"), float("-inf")):
             raise ValueError(f"parameter {name} must be finite, got {value!r}")
         self._values[name] = float(round(v)) if spec.is_int else v
+        self.version += 1
 
     def index(self, name: str) -> int:
         """Position of `name` in the stable parameter list (MAVLink param_index)."""

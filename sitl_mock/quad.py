@@ -104,6 +104,7 @@ class Quadrotor:
         "_nvel",
         "_on_ground",
         "_param_acc",
+        "_param_version",
         "_params",
         "_pos_acc",
         "_pvc",
@@ -161,7 +162,7 @@ class Quadrotor:
         self._az = 0.0
         self._qw, self._qx, self._qy, self._qz = 1.0, 0.0, 0.0, 0.0
         self._wx = self._wy = self._wz = 0.0
-        self._u = [0.0, 0.0, 0.0, 0.0]  # actual rotor thrust fractions
+        self._u: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # rotor thrust 0..1
         self._on_ground = True
         self._wind: Vec3 = (0.0, 0.0, 0.0)
         # derived
@@ -171,6 +172,7 @@ class Quadrotor:
         self._land_timer = 0.0
         # controllers
         self._gains = McGains.from_params(params)
+        self._param_version: int | None = getattr(params, "version", None)
         self._pvc = PositionVelocityController()
         self._rc = RateController()
         self._pos_acc = math.inf
@@ -228,8 +230,27 @@ class Quadrotor:
     @property
     def motor_outputs(self) -> tuple[float, float, float, float]:
         """Actual rotor thrust fractions 0..1 (after the motor lag)."""
-        u = self._u
-        return (u[0], u[1], u[2], u[3])
+        return self._u
+
+    @property
+    def landed(self) -> bool:
+        """Land detector output (= `state.landed`, without building a snapshot)."""
+        return self._landed
+
+    @property
+    def local_position_valid(self) -> bool:
+        """= `state.local_position_valid` (False while a position-loss fault is injected)."""
+        return self._local_pos_valid
+
+    @property
+    def battery_remaining(self) -> float:
+        """= `state.battery_remaining`: state of charge 0..1."""
+        return self._battery
+
+    @property
+    def attitude(self) -> tuple[Quat, Vec3]:
+        """= (`state.q_wxyz`, `state.omega_frd`): attitude body FRD -> NED, body rates [rad/s]."""
+        return (self._qw, self._qx, self._qy, self._qz), (self._wx, self._wy, self._wz)
 
     @property
     def last_attitude_target(self) -> AttitudeTargetReport:
@@ -248,19 +269,19 @@ class Quadrotor:
             return self._state_cache
         pos = (self._px + self._npos[0], self._py + self._npos[1], self._pz + self._npos[2])
         u = self._u
-        self._state_cache = st = make_state(
-            t_s=self._t,
-            pos_ned=pos,
-            vel_ned=(self._vx + self._nvel[0], self._vy + self._nvel[1], self._vz + self._nvel[2]),
-            acc_ned=(self._ax, self._ay, self._az),
-            q_wxyz=(self._qw, self._qx, self._qy, self._qz),
-            omega_frd=(self._wx, self._wy, self._wz),
-            on_ground=self._on_ground,
-            landed=self._landed,
-            thrust_norm=0.25 * (u[0] + u[1] + u[2] + u[3]),
-            battery_remaining=self._battery,
-            local_position_valid=self._local_pos_valid,
-            home_lat_lon_alt=self._home,
+        self._state_cache = st = make_state(  # positional: the VehicleState field order
+            self._t,
+            pos,
+            (self._vx + self._nvel[0], self._vy + self._nvel[1], self._vz + self._nvel[2]),
+            (self._ax, self._ay, self._az),
+            (self._qw, self._qx, self._qy, self._qz),
+            (self._wx, self._wy, self._wz),
+            self._on_ground,
+            self._landed,
+            0.25 * (u[0] + u[1] + u[2] + u[3]),
+            self._battery,
+            self._local_pos_valid,
+            self._home,
         )
         return st
 
@@ -282,7 +303,8 @@ class Quadrotor:
         self._wx, self._wy, self._wz = (float(c) for c in omega_frd)
         self._on_ground = self._pz >= 0.0 and self._vz >= 0.0
         if motors is not None:
-            self._u = [float(motors)] * 4
+            m = float(motors)
+            self._u = (m, m, m, m)
         if not self._on_ground:
             self._landed = False
             self._land_timer = 0.0
@@ -293,7 +315,8 @@ class Quadrotor:
         self._tko_state = FLIGHT
         self._armed_prev = True
         self._landed = False
-        self._u = [float(thrust)] * 4
+        f = float(thrust)
+        self._u = (f, f, f, f)
 
     # ------------------------------------------------------------------ stepping
     def _read_physical_params(self) -> None:
@@ -337,16 +360,21 @@ class Quadrotor:
             self._step(dt, target, armed)
 
     def _step(self, dt: float, target: Target, armed: bool) -> None:
-        self._t += dt
+        t = self._t + dt
+        self._t = t
         self._state_cache = None
-        self._param_acc += dt
-        if self._param_acc >= PARAM_REFRESH_S:
-            self._param_acc = 0.0
-            self._gains = McGains.from_params(self._params)
-            self._read_physical_params()
+        param_acc = self._param_acc + dt
+        if param_acc >= PARAM_REFRESH_S:
+            param_acc = 0.0
+            version = getattr(self._params, "version", None)
+            if version is None or version != self._param_version:
+                self._param_version = version
+                self._gains = McGains.from_params(self._params)
+                self._read_physical_params()
+        self._param_acc = param_acc
         # arming transitions
         if armed and not self._armed_prev:
-            self._arm_t = self._t
+            self._arm_t = t
             self._tko_state = SPOOLUP if self._on_ground else FLIGHT
             self.reset_integrators()
         elif not armed:
@@ -371,10 +399,14 @@ class Quadrotor:
             self._landed = self._on_ground
             self._land_timer = 0.0
             return
+        if not self._on_ground:  # in the air: not landed (the hot path)
+            self._land_timer = 0.0
+            self._landed = False
+            return
         g = self._gains
         # "landed": on the ground with low thrust, or on the ground while the position
         # controller still commands a descent into it (PX4: hit ground while descending)
-        if self._on_ground and (
+        if (
             self._idle
             or self._thrust_sp <= g.thr_min + (g.hover - g.thr_min) * 0.3
             or (self._last_mode == "pos" and self._pvc.vel_sp[2] > 0.3)
@@ -503,7 +535,7 @@ class Quadrotor:
             self._motor_cmd = (0.0, 0.0, 0.0, 0.0)
             self._rate_sp = (0.0, 0.0, 0.0)
             return
-        # same as _run_attitude_and_rate, with the rate-loop hold checked here (hot path)
+        # attitude / rate loop timing (the rate-loop hold checked inline: hot path)
         self._att_acc += dt
         self._rate_acc += dt
         if self._rate_acc < _RATE_TICK_S:
@@ -517,58 +549,61 @@ class Quadrotor:
             self._rate_acc = math.inf
         self._last_pos_target = None
         self._idle = False
-        self._pos_acc += dt
-        if self._pos_acc >= POS_LOOP_PERIOD_S - 1e-9:
-            self._pos_acc = 0.0
+        pos_acc = self._pos_acc + dt
+        if pos_acc >= POS_LOOP_PERIOD_S - 1e-9:
+            pos_acc = 0.0
             self._refresh()
+        self._pos_acc = pos_acc
         if tgt is not self._att_tgt:
-            # validate once per target object (the autopilot passes the same one every step)
-            self._att_tgt = tgt
-            thrust = tgt.thrust_norm
-            self._att_thrust = min(max(thrust, 0.0), 1.0) if _isfinite(thrust) else 0.0
-            q_in = tgt.q_wxyz
-            q_ok: Quat | None = None
-            if q_in is not None:
-                n2 = q_in[0] ** 2 + q_in[1] ** 2 + q_in[2] ** 2 + q_in[3] ** 2
-                # an invalid quaternion is treated as "attitude not given"
-                q_ok = quat_normalize(q_in) if _isfinite(n2) and n2 > 1e-6 else None
-            self._att_q = q_ok
-            r_in = tgt.body_rates_frd
-            self._att_rates = (
-                None
-                if r_in is None
-                else (
-                    r_in[0] if _isfinite(r_in[0]) else 0.0,
-                    r_in[1] if _isfinite(r_in[1]) else 0.0,
-                    r_in[2] if _isfinite(r_in[2]) else 0.0,
-                )
-            )
+            self._accept_attitude_target(tgt)
         self._thrust_sp = self._att_thrust
-        q = (self._qw, self._qx, self._qy, self._qz)
-        q_tgt = self._att_q
+        q_sp = self._att_q
         rates = self._att_rates
+        yaw_ff = math.nan
         if rates is not None:
-            self._q_sp = q if q_tgt is None else q_tgt
-            self._run_attitude_and_rate(dt, self._q_sp, math.nan, rates)
-        elif q_tgt is not None:
-            self._q_sp = q_tgt
-            self._run_attitude_and_rate(dt, q_tgt, tgt.yaw_rate_ff, None)
+            if q_sp is None:
+                q_sp = (self._qw, self._qx, self._qy, self._qz)
+        elif q_sp is not None:
+            yaw_ff = tgt.yaw_rate_ff
         else:
-            self._q_sp = q
-            self._run_attitude_and_rate(dt, q, math.nan, (0.0, 0.0, 0.0))
-
-    def _run_attitude_and_rate(
-        self, dt: float, q_sp: Quat, yaw_ff: float, rates: Vec3 | None
-    ) -> None:
+            q_sp = (self._qw, self._qx, self._qy, self._qz)
+            rates = (0.0, 0.0, 0.0)
+        self._q_sp = q_sp
+        # attitude / rate loop timing (the rate-loop hold checked inline: hot path)
         self._att_acc += dt
-        self._rate_acc += dt
-        if self._rate_acc < _RATE_TICK_S:
+        rate_acc = self._rate_acc + dt
+        self._rate_acc = rate_acc
+        if rate_acc < _RATE_TICK_S:
             return  # motor commands held until the next rate-loop tick
         self._rate_loop(dt, q_sp, yaw_ff, rates)
 
+    def _accept_attitude_target(self, tgt: AttitudeTarget) -> None:
+        """Validate a new AttitudeTarget once (the autopilot passes the same object each step)."""
+        self._att_tgt = tgt
+        thrust = tgt.thrust_norm
+        self._att_thrust = min(max(thrust, 0.0), 1.0) if _isfinite(thrust) else 0.0
+        q_in = tgt.q_wxyz
+        q_ok: Quat | None = None
+        if q_in is not None:
+            n2 = q_in[0] ** 2 + q_in[1] ** 2 + q_in[2] ** 2 + q_in[3] ** 2
+            # an invalid quaternion is treated as "attitude not given"
+            q_ok = quat_normalize(q_in) if _isfinite(n2) and n2 > 1e-6 else None
+        self._att_q = q_ok
+        r_in = tgt.body_rates_frd
+        self._att_rates = (
+            None
+            if r_in is None
+            else (
+                r_in[0] if _isfinite(r_in[0]) else 0.0,
+                r_in[1] if _isfinite(r_in[1]) else 0.0,
+                r_in[2] if _isfinite(r_in[2]) else 0.0,
+            )
+        )
+
     def _rate_loop(self, dt: float, q_sp: Quat, yaw_ff: float, rates: Vec3 | None) -> None:
         """Rate-loop tick (attitude loop when due); `_rate_acc` holds the time since the last."""
-        dtr = self._rate_acc if self._rate_acc < 0.05 else dt
+        rate_acc = self._rate_acc
+        dtr = rate_acc if rate_acc < 0.05 else dt
         self._rate_acc = 0.0
         g = self._gains
         if rates is None:
@@ -580,8 +615,8 @@ class Quadrotor:
         else:
             self._att_acc = math.inf
             self._rate_sp = rates
-        if self._noise[2] > 0.0:
-            s = self._noise[2]
+        s = self._noise[2]
+        if s > 0.0:
             gauss = self._rng.gauss
             omega = (
                 self._wx + gauss(0.0, s),
@@ -602,13 +637,13 @@ class Quadrotor:
             self._hdt2 = 0.5 * dt * dt
             self._invdt = 1.0 / dt
         a = self._alpha
-        u = self._u
-        c = self._motor_cmd
-        u0 = u[0] + (c[0] - u[0]) * a
-        u1 = u[1] + (c[1] - u[1]) * a
-        u2 = u[2] + (c[2] - u[2]) * a
-        u3 = u[3] + (c[3] - u[3]) * a
-        u[0], u[1], u[2], u[3] = u0, u1, u2, u3
+        u0, u1, u2, u3 = self._u
+        c0, c1, c2, c3 = self._motor_cmd
+        u0 = u0 + (c0 - u0) * a
+        u1 = u1 + (c1 - u1) * a
+        u2 = u2 + (c2 - u2) * a
+        u3 = u3 + (c3 - u3) * a
+        self._u = (u0, u1, u2, u3)
         thrust = self._tmax * (u0 + u1 + u2 + u3)
         mx = self._lroll_t * (-u0 + u1 + u2 - u3)
         my = self._lpitch_t * (u0 - u1 + u2 - u3)
@@ -621,11 +656,11 @@ class Quadrotor:
         bzz = 1.0 - 2.0 * (qx * qx + qy * qy)
         m = self._mass
         kdv = self._kdv
-        wnd = self._wind
+        wnx, wny, wnz = self._wind
         vx, vy, vz = self._vx, self._vy, self._vz
-        ax = (-thrust * bzx - kdv * (vx - wnd[0])) / m
-        ay = (-thrust * bzy - kdv * (vy - wnd[1])) / m
-        az = (-thrust * bzz - kdv * (vz - wnd[2])) / m + G
+        ax = (-thrust * bzx - kdv * (vx - wnx)) / m
+        ay = (-thrust * bzy - kdv * (vy - wny)) / m
+        az = (-thrust * bzz - kdv * (vz - wnz)) / m + G
         hdt2 = self._hdt2
         px = self._px + vx * dt + ax * hdt2
         py = self._py + vy * dt + ay * hdt2

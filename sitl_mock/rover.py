@@ -83,6 +83,26 @@ class Rover:
         self._x, self._y, self._yaw, self._v = float(north_m), float(east_m), float(yaw), speed
 
     @property
+    def landed(self) -> bool:
+        """= `state.landed`: landed while disarmed."""
+        return not self._armed
+
+    @property
+    def local_position_valid(self) -> bool:
+        """= `state.local_position_valid` (False while a position-loss fault is injected)."""
+        return self._local_pos_valid
+
+    @property
+    def battery_remaining(self) -> float:
+        """= `state.battery_remaining`: state of charge 0..1."""
+        return self._battery
+
+    @property
+    def attitude(self) -> tuple[Quat, Vec3]:
+        """= (`state.q_wxyz`, `state.omega_frd`): level, heading yaw; yaw rate only."""
+        return quat_from_yaw(self._yaw), (0.0, 0.0, self._r)
+
+    @property
     def last_attitude_target(self) -> AttitudeTargetReport:
         """(q_wxyz, body_rates_frd, thrust_norm): heading and speed fraction commanded."""
         vmax = max(self._params["RO_MAX_SPEED"], 1e-6)

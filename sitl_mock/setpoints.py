@@ -9,6 +9,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from sitl_mock._frozen import frozen_new
+
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
 
@@ -60,6 +62,21 @@ class AttitudeTarget:
     yaw_rate_ff: float = math.nan
 
 
+def make_attitude_target(
+    q_wxyz: Quat | None, thrust_norm: float, body_rates_frd: Vec3 | None, yaw_rate_ff: float
+) -> AttitudeTarget:
+    """`AttitudeTarget(...)` without the frozen-dataclass __init__ (one per setpoint message)."""
+    return frozen_new(
+        AttitudeTarget,
+        {
+            "q_wxyz": q_wxyz,
+            "thrust_norm": thrust_norm,
+            "body_rates_frd": body_rates_frd,
+            "yaw_rate_ff": yaw_rate_ff,
+        },
+    )
+
+
 @dataclass(frozen=True)
 class IdleTarget:
     """Motors at idle (armed on ground) or stopped (disarmed)."""
@@ -75,4 +92,5 @@ __all__ = [
     "Quat",
     "Target",
     "Vec3",
+    "make_attitude_target",
 ]

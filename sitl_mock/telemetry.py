@@ -82,6 +82,7 @@ _C_SYS_STATUS = codec(mavlink.MAVLink_sys_status_message)
 _C_TIMESYNC = codec(mavlink.MAVLink_timesync_message)
 _C_VFR_HUD = codec(mavlink.MAVLink_vfr_hud_message)
 UINT16_MAX = 65535
+_NAN21 = (math.nan,) + (0.0,) * 20  # covariance "unknown" (first element NaN)
 INT16_MAX = 32767
 
 
@@ -151,16 +152,14 @@ def build_heartbeat(ap: Autopilot) -> Msg:
 
 
 def build_attitude(ap: Autopilot) -> Msg:
-    s = ap.state
-    roll, pitch, yaw = euler_321(s.q_wxyz)
-    p, q, r = s.omega_frd
+    q_wxyz, omega_frd = ap.vehicle.attitude  # = state.q_wxyz, state.omega_frd
+    roll, pitch, yaw = euler_321(q_wxyz)
+    p, q, r = omega_frd
     return (_C_ATTITUDE, (ap.time_boot_ms, roll, pitch, yaw, p, q, r))
 
 
 def build_attitude_quaternion(ap: Autopilot) -> Msg:
-    s = ap.state
-    w, x, y, z = s.q_wxyz
-    p, q, r = s.omega_frd
+    (w, x, y, z), (p, q, r) = ap.vehicle.attitude  # = state.q_wxyz, state.omega_frd
     return (_C_ATTITUDE_QUATERNION, (ap.time_boot_ms, w, x, y, z, p, q, r, (0.0, 0.0, 0.0, 0.0)))
 
 
@@ -180,7 +179,7 @@ def build_odometry(ap: Autopilot) -> Msg | None:
     x, y, z = s.pos_ned
     vb = rotate_ned_to_body(s.q_wxyz, s.vel_ned)
     p, q, r = s.omega_frd
-    nan21 = [math.nan] + [0.0] * 20
+    nan21 = _NAN21
     return (
         _C_ODOMETRY,
         (
@@ -208,7 +207,7 @@ def build_odometry(ap: Autopilot) -> Msg | None:
 
 def build_global_position_int(ap: Autopilot) -> Msg:
     s = ap.state
-    _, _, yaw = euler_321(s.q_wxyz)
+    yaw = s.yaw  # the yaw of euler_321 (same expression), without roll and pitch
     hdg = round(math.degrees(yaw) % 360.0 * 100.0) % 36000
     vx, vy, vz = s.vel_ned
     lat, lon, alt = s.lat_lon_alt  # one projection (the same values as lat_deg, lon_deg, ...)
@@ -229,9 +228,11 @@ def build_global_position_int(ap: Autopilot) -> Msg:
 
 
 def _clamp_i16(v: float) -> int:
+    """Nearest int16 (saturated); 0 for NaN / inf."""
     if not math.isfinite(v):
         return 0
-    return max(-32768, min(32767, round(v)))
+    r = round(v)
+    return -32768 if r < -32768 else 32767 if r > 32767 else r
 
 
 def build_attitude_target(ap: Autopilot) -> Msg | None:

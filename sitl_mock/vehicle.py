@@ -11,6 +11,7 @@ import math
 from dataclasses import dataclass
 from typing import Literal, Protocol
 
+from sitl_mock._frozen import frozen_new
 from sitl_mock.params import ParamStore
 from sitl_mock.setpoints import PositionTarget, Quat, Target, Vec3
 
@@ -86,22 +87,23 @@ def make_state(
     home_lat_lon_alt: tuple[float, float, float],
 ) -> VehicleState:
     """Build a VehicleState ~2x faster than its frozen-dataclass __init__ (used every step)."""
-    st = object.__new__(VehicleState)
-    st.__dict__.update(
-        t_s=t_s,
-        pos_ned=pos_ned,
-        vel_ned=vel_ned,
-        acc_ned=acc_ned,
-        q_wxyz=q_wxyz,
-        omega_frd=omega_frd,
-        on_ground=on_ground,
-        landed=landed,
-        thrust_norm=thrust_norm,
-        battery_remaining=battery_remaining,
-        local_position_valid=local_position_valid,
-        home_lat_lon_alt=home_lat_lon_alt,
+    return frozen_new(
+        VehicleState,
+        {
+            "t_s": t_s,
+            "pos_ned": pos_ned,
+            "vel_ned": vel_ned,
+            "acc_ned": acc_ned,
+            "q_wxyz": q_wxyz,
+            "omega_frd": omega_frd,
+            "on_ground": on_ground,
+            "landed": landed,
+            "thrust_norm": thrust_norm,
+            "battery_remaining": battery_remaining,
+            "local_position_valid": local_position_valid,
+            "home_lat_lon_alt": home_lat_lon_alt,
+        },
     )
-    return st
 
 
 AttitudeTargetReport = tuple[Quat, Vec3, float]
@@ -119,6 +121,26 @@ class Vehicle(Protocol):
     @property
     def state(self) -> VehicleState:
         """Current state snapshot (with sensor noise if enabled)."""
+        ...
+
+    @property
+    def landed(self) -> bool:
+        """`state.landed` without building a snapshot (the commander reads it at 200 Hz)."""
+        ...
+
+    @property
+    def local_position_valid(self) -> bool:
+        """`state.local_position_valid` without building a snapshot."""
+        ...
+
+    @property
+    def battery_remaining(self) -> float:
+        """`state.battery_remaining` (0..1) without building a snapshot."""
+        ...
+
+    @property
+    def attitude(self) -> tuple[Quat, Vec3]:
+        """(`state.q_wxyz`, `state.omega_frd`) without building a snapshot (100 Hz ATTITUDE)."""
         ...
 
     @property
