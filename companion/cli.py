@@ -61,9 +61,9 @@ def _replay_one(
     from companion.mission import MissionError
     from companion.replay import ReplayConfig, replay_file
 
-    def progress(t: float, t_max: float) -> None:
+    def progress(t: float, expected: float) -> None:
         if queue is not None:
-            queue.put((path, t))  # type: ignore[attr-defined]
+            queue.put((path, t, expected))  # type: ignore[attr-defined]
 
     try:
         result = replay_file(path, out, ReplayConfig(**config_kw), progress)  # type: ignore[arg-type]
@@ -116,9 +116,10 @@ def _cmd_replay(args: argparse.Namespace) -> int:
             # first file flies, which the replay would otherwise wait for
             with PlotWorker() as plotter:
                 for f in args.files:
-                    def cb(t: float, t_max: float, f: str = f) -> None:
-                        progress.update(
-                            tasks[f], completed=min(t, totals[f]), sim=f"sim {t:6.0f} s")
+                    def cb(t: float, expected: float, f: str = f) -> None:
+                        totals[f] = expected
+                        progress.update(tasks[f], completed=t, total=expected,
+                                        sim=f"sim {t:6.0f} s")
 
                     try:
                         r = replay_file(
@@ -128,7 +129,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
                         results[f] = (r.report, None)
                     except (MissionError, ValueError, OSError) as exc:
                         results[f] = (None, str(exc))
-                    progress.update(tasks[f], completed=totals[f])
+                    progress.update(tasks[f], completed=totals[f], total=totals[f])
         else:
             with mp.Manager() as manager, ProcessPoolExecutor(max_workers=args.jobs) as pool:
                 queue = manager.Queue()
@@ -137,15 +138,15 @@ def _cmd_replay(args: argparse.Namespace) -> int:
                 pending = set(futures)
                 while pending:
                     while not queue.empty():
-                        f, t = queue.get()
-                        progress.update(
-                            tasks[f], completed=min(t, totals[f]), sim=f"sim {t:6.0f} s"
-                        )
+                        f, t, expected = queue.get()
+                        totals[f] = expected
+                        progress.update(tasks[f], completed=t, total=expected,
+                                        sim=f"sim {t:6.0f} s")
                     done = {fu for fu in pending if fu.done()}
                     for fu in done:
                         f, rep, err = fu.result()
                         results[f] = (rep, err)
-                        progress.update(tasks[f], completed=totals[f])
+                        progress.update(tasks[f], completed=totals[f], total=totals[f])
                     pending -= done
                     if pending:
                         import time
@@ -166,14 +167,16 @@ def _cmd_replay(args: argparse.Namespace) -> int:
             continue
         wps = rep["waypoints"]
         assert isinstance(wps, list)
-        ok = rep["result"] == "ok" and rep["waypoints_reached"] == len(wps)
+        missed = len(wps) - int(rep["waypoints_reached"])  # type: ignore[call-overload]
+        ok = rep["result"] == "ok" and missed == 0
         if not ok and exit_code == EXIT_OK:
             exit_code = EXIT_FAILURE
+        verdict = str(rep["result"]) if rep["result"] != "ok" else f"missed {missed} waypoint(s)"
         rms = rep["rms_error_m"]
         mx = rep["max_error_m"]
         table.add_row(
             Path(f).name,
-            "[green]ok[/green]" if ok else f"[yellow]{rep['result']}[/yellow]",
+            "[green]ok[/green]" if ok else f"[yellow]{verdict}[/yellow]",
             f"{rep['duration_s']:.1f}",
             "-" if rms is None else f"{rms:.2f}",
             "-" if mx is None else f"{mx:.2f}",

@@ -12,6 +12,7 @@ Example `vehicle.toml` (every key optional; defaults are PX4's SIH quadrotor)::
     max_acc_m_s2 = 3.0
     max_tilt_deg = 35.0
     max_body_rate_rad_s = 3.0
+    rover_max_speed_m_s = 2.7               # rover: plan below the vehicle's top speed
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from companion.flatness import MultirotorParams
 from companion.schedule import VehicleLimits
 
 _VEHICLE_KEYS = {"mass_kg", "inertia_kg_m2", "hover_thrust", "drag_n_per_m_s"}
-_LIMIT_KEYS = {"max_acc_m_s2", "max_tilt_deg", "max_body_rate_rad_s"}
+_LIMIT_KEYS = {"max_acc_m_s2", "max_tilt_deg", "max_body_rate_rad_s", "rover_max_speed_m_s"}
 
 
 @dataclass(frozen=True)
@@ -84,7 +85,13 @@ def load_vehicle_file(path: str | Path) -> VehicleFile:
         max_acc_m_s2=_number(lim, "max_acc_m_s2", where, 3.0),
         max_tilt_rad=math.radians(_number(lim, "max_tilt_deg", where, 35.0)),
         max_body_rate_rad_s=_number(lim, "max_body_rate_rad_s", where, 3.0),
+        rover_max_speed_m_s=(
+            None if "rover_max_speed_m_s" not in lim
+            else _number(lim, "rover_max_speed_m_s", where, 0.0)
+        ),
     )
     if not (limits.max_acc_m_s2 > 0 and 0 < limits.max_tilt_rad < math.radians(80.0)):
         raise ValueError(f"{where}: need max_acc_m_s2 > 0 and 0 < max_tilt_deg < 80")
+    if limits.rover_max_speed_m_s is not None and not limits.rover_max_speed_m_s > 0:
+        raise ValueError(f"{where}: need rover_max_speed_m_s > 0")
     return VehicleFile(params=params, limits=limits)

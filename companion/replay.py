@@ -13,6 +13,7 @@ schedule, then hand over to PX4's NAV_LAND (or Hold for a loiter ending) and wai
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import functools
 import json
@@ -57,6 +58,13 @@ PRIME_S = 0.5
 #: Extra time after the schedule before handing over to PX4's landing [s].
 SETTLE_S = 1.0
 #: The companion's view of the default mock quadrotor (PX4 SIH: 1 kg, 4 x 5 N, drag 1 N/(m/s)).
+#: Simulated time a replay spends outside the schedule (waiting for the vehicle, priming,
+#: switching to OFFBOARD, the final descent and disarm), for progress reporting only [s].
+EXPECTED_OVERHEAD_S = 8.0
+#: A rover is planned at most at this fraction of the mock rover's top speed (RO_MAX_SPEED) unless
+#: `VehicleLimits.rover_max_speed_m_s` says otherwise: a plan at the top speed leaves the
+#: tracking controller nothing to catch up with, and the rover falls behind and cuts corners.
+ROVER_SPEED_FRACTION = 0.9
 DEFAULT_QUAD = MultirotorParams(
     mass=1.0, inertia=(0.025, 0.025, 0.030), hover_thrust=0.5, drag=1.0
 )
@@ -208,6 +216,18 @@ class LockstepLink:
         if frames:
             self.to_vehicle(frames)
         return events
+
+
+def planning_limits(config: ReplayConfig) -> VehicleLimits:
+    """`config.limits`, with a rover's speed capped at ROVER_SPEED_FRACTION of the mock rover's
+    RO_MAX_SPEED (with `config.mock_params` applied) unless the limits already set a cap."""
+    lim = config.limits
+    if config.vehicle != "rover" or lim.rover_max_speed_m_s is not None:
+        return lim
+    from sitl_mock.params import ParamStore
+
+    top = float(ParamStore(dict(config.mock_params))["RO_MAX_SPEED"])
+    return dataclasses.replace(lim, rover_max_speed_m_s=ROVER_SPEED_FRACTION * top)
 
 
 def _make_autopilot(config: ReplayConfig, home: tuple[float, float, float]) -> Any:
@@ -400,7 +420,10 @@ def fly_schedule(
     tlog: TlogWriter | None,
     progress: Callable[[float, float], None] | None = None,
 ) -> tuple[Flight, FlightLog]:
-    """Fly `schedule` in lockstep against a fresh mock; returns the flight and its log."""
+    """Fly `schedule` in lockstep against a fresh mock; returns the flight and its log.
+
+    `progress(now_s, expected_s)` is called every 100 setpoint cycles with the simulated time
+    and the expected end of the flight (the schedule plus the start-up and landing)."""
     ap = _make_autopilot(config, home)
     link = VehicleLink(LinkConfig())
     log = FlightLog()
@@ -409,6 +432,7 @@ def fly_schedule(
     flight = Flight(config, schedule, lk, log)
     dt = 1.0 / config.rate_hz
     t_max = schedule.duration_s + config.timeout_margin_s
+    expected = schedule.duration_s + EXPECTED_OVERHEAD_S
     k = 0
     while flight.phase not in (Phase.DONE, Phase.ABORTED):
         k += 1
@@ -419,7 +443,7 @@ def fly_schedule(
         flight.on_events(lk.advance(now), now)
         flight.tick(now)
         if progress is not None and k % 100 == 0:
-            progress(now, t_max)
+            progress(now, max(expected, now))
     # let the last frames out and record the landing
     end = lk.now + 1.0
     while lk.now < end:
@@ -645,7 +669,7 @@ def replay_file(
     mission = load_mission(src)
     flight_plan = mission_to_flight_plan(mission, vehicle=config.vehicle)
     params = None if config.vehicle == "rover" else config.params
-    schedule = build_schedule(flight_plan, params, config.limits)
+    schedule = build_schedule(flight_plan, params, planning_limits(config))
     home = (mission.home.lat_deg, mission.home.lon_deg, mission.home.alt_amsl_m)
     name = src.stem
     out_root = Path(out_root)

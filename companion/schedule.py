@@ -43,6 +43,9 @@ class VehicleLimits:
     """Peak collective thrust allowed in planning, as a multiple of the hover thrust m g."""
     rover_max_yaw_rate_rad_s: float = math.radians(60.0)
     rover_max_lat_acc_m_s2: float = 1.5
+    rover_max_speed_m_s: float | None = None
+    """Cap on the rover's planned speed [m/s] (leave the controller headroom below the
+    vehicle's top speed); None plans at the mission's leg speeds."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -301,6 +304,8 @@ def _plan_chunk(
     speed = max(min(chunk.leg_speed_m_s), 0.1)
     lim: Limits | RoverLimits
     if rover:
+        if limits.rover_max_speed_m_s is not None:
+            speed = min(speed, limits.rover_max_speed_m_s)
         lim = RoverLimits(
             max_speed_m_s=speed,
             max_yaw_rate_rad_s=limits.rover_max_yaw_rate_rad_s,

@@ -120,3 +120,56 @@ def test_malformed_file_exits_2_and_others_still_run(tmp_path: Path) -> None:
     assert code == 2
     assert (out / "square" / "report.json").is_file()
     assert not (out / "broken").exists()
+
+
+# ----------------------------------------------------------------------------- rover
+ROVER_MISSION = ROOT / "examples" / "missions" / "rover_square.plan"
+
+
+def _rover_track(tlog: Path, lat0: float, lon0: float) -> tuple[np.ndarray, np.ndarray]:
+    """(north, east) positions [m] and ground speeds [m/s] from the tlog's GLOBAL_POSITION_INT."""
+    mlog = mavutil.mavlink_connection(str(tlog))
+    pos, speed = [], []
+    while True:
+        m = mlog.recv_match(type="GLOBAL_POSITION_INT")
+        if m is None:
+            break
+        pos.append(_flat_ne(m.lat * 1e-7, m.lon * 1e-7, lat0, lon0))
+        speed.append(math.hypot(m.vx, m.vy) * 0.01)
+    return np.asarray(pos), np.asarray(speed)
+
+
+def test_rover_replay_reaches_every_corner_within_its_top_speed(tmp_path: Path) -> None:
+    """The rover is planned below the mock rover's RO_MAX_SPEED (3 m/s): judged from the tlog
+    against the file's own coordinates, every corner is reached and the speed stays below it."""
+    plan = json.loads(ROVER_MISSION.read_text())
+    lat0, lon0, _ = plan["mission"]["plannedHomePosition"]
+    corners = [
+        _flat_ne(*it["params"][4:6], lat0, lon0)
+        for it in plan["mission"]["items"]
+        if it["command"] == 16
+    ]
+    assert len(corners) == 4
+    code = cli_main(["replay", str(ROVER_MISSION), "--vehicle", "rover", "--out", str(tmp_path)])
+    assert code == 0
+    pos, speed = _rover_track(tmp_path / ROVER_MISSION.stem / "flight.tlog", lat0, lon0)
+    assert len(pos) > 100
+    for i, c in enumerate(corners):
+        closest = float(np.min(np.linalg.norm(pos - np.asarray(c), axis=1)))
+        assert closest <= 2.0, f"corner {i + 1}: closest approach {closest:.2f} m"
+    assert float(np.max(speed)) <= 3.0 + 0.01
+
+
+def test_rover_planned_above_its_top_speed_misses_corners_and_says_so(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Without the speed cap (5 m/s legs for a 3 m/s rover) the rover falls behind and cuts the
+    corners: the replay exits 1 and the summary names the missed waypoints."""
+    import companion.replay as replay
+
+    monkeypatch.setattr(replay, "ROVER_SPEED_FRACTION", 2.0)  # cap 6 m/s: legs at 5 m/s
+    code = cli_main(["replay", str(ROVER_MISSION), "--vehicle", "rover", "--out", str(tmp_path)])
+    assert code == 1
+    assert "missed" in capsys.readouterr().out
+    report = json.loads((tmp_path / ROVER_MISSION.stem / "report.json").read_text())
+    assert report["waypoints_reached"] < len(report["waypoints"])

@@ -1,0 +1,91 @@
+"""Vehicle TOML files (`companion.config`) and the rover speed cap they feed to the schedule."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from companion.config import load_vehicle_file
+from companion.mission import load_mission, mission_to_flight_plan
+from companion.schedule import VehicleLimits, build_schedule
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "vehicle.toml"
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+def test_every_key_is_read_with_its_unit(tmp_path: Path) -> None:
+    vf = load_vehicle_file(_write(tmp_path, """
+[vehicle]
+mass_kg = 1.5
+inertia_kg_m2 = [0.03, 0.03, 0.05]
+hover_thrust = 0.6
+drag_n_per_m_s = 0.4
+[limits]
+max_acc_m_s2 = 4.0
+max_tilt_deg = 30.0
+max_body_rate_rad_s = 2.0
+rover_max_speed_m_s = 1.5
+"""))
+    assert vf.params.mass == 1.5 and vf.params.hover_thrust == 0.6 and vf.params.drag == 0.4
+    np.testing.assert_allclose(np.diag(vf.params.inertia), [0.03, 0.03, 0.05])
+    lim = vf.limits
+    assert lim.max_acc_m_s2 == 4.0 and lim.max_body_rate_rad_s == 2.0
+    assert lim.max_tilt_rad == pytest.approx(math.pi / 6)
+    assert lim.rover_max_speed_m_s == 1.5
+
+
+def test_an_empty_file_gives_the_defaults(tmp_path: Path) -> None:
+    vf = load_vehicle_file(_write(tmp_path, ""))
+    assert vf.limits == VehicleLimits()
+    assert vf.limits.rover_max_speed_m_s is None
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ("[limits]\nmax_speed = 3\n", "unknown key"),
+        ("[wheels]\n", "unknown section"),
+        ("[limits]\nrover_max_speed_m_s = 0\n", "rover_max_speed_m_s > 0"),
+        ("[limits]\nrover_max_speed_m_s = -2.0\n", "rover_max_speed_m_s > 0"),
+        ("[limits]\nrover_max_speed_m_s = 'fast'\n", "must be a finite number"),
+        ("[limits]\nrover_max_speed_m_s = nan\n", "must be a finite number"),
+        ("[limits]\nmax_tilt_deg = 85\n", "max_tilt_deg < 80"),
+        ("[limits\n", "not valid TOML"),
+    ],
+)
+def test_bad_files_name_the_file_and_the_problem(tmp_path: Path, text: str, words: str) -> None:
+    p = _write(tmp_path, text)
+    with pytest.raises(ValueError, match=words) as exc:
+        load_vehicle_file(p)
+    assert str(p) in str(exc.value)
+
+
+def test_missing_file_is_a_clean_error(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="not found"):
+        load_vehicle_file(tmp_path / "nope.toml")
+
+
+@pytest.mark.parametrize("cap", [None, 1.2, 2.7])
+def test_rover_speed_cap_bounds_the_planned_speed(cap: float | None) -> None:
+    """Planned ground speed (sampled derivative of every trajectory piece) <= the cap, and
+    reaches close to it on the square's 30 m legs; without a cap, the mission's 5 m/s."""
+    fp = mission_to_flight_plan(
+        load_mission(ROOT / "examples" / "missions" / "rover_square.plan"), vehicle="rover"
+    )
+    sched = build_schedule(fp, None, VehicleLimits(rover_max_speed_m_s=cap))
+    top = 0.0
+    for piece in sched.pieces:
+        if piece.traj is not None:
+            t = np.linspace(0.0, piece.traj.duration, 4000)
+            top = max(top, float(np.max(np.linalg.norm(piece.traj.evaluate(t, 1), axis=1))))
+    want = 5.0 if cap is None else cap
+    assert top <= want * (1 + 1e-6)
+    assert top >= 0.8 * want
