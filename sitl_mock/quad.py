@@ -50,6 +50,10 @@ MAX_STEP_S = 1.0 / 250.0  # longer steps are split (integration always at >= 250
 ATT_LOOP_PERIOD_S = 0.004
 RATE_LOOP_PERIOD_S = 0.002  # rate loop at <= 500 Hz (every physics step below 500 Hz)
 LAND_DETECT_TIME_S = 0.5
+#: Touching the ground while the position controller asks for more than this descent rate
+#: [m/s] is "ground contact" (PX4's land detector stage): the thrust is cut (see
+#: `_control_position`); the land detector uses the same threshold.
+GROUND_CONTACT_DESCENT_M_S = 0.3
 _SPLIT_ABOVE_S = MAX_STEP_S + 1e-12
 _RATE_TICK_S = RATE_LOOP_PERIOD_S - 1e-9
 
@@ -409,7 +413,7 @@ class Quadrotor:
         if (
             self._idle
             or self._thrust_sp <= g.thr_min + (g.hover - g.thr_min) * 0.3
-            or (self._last_mode == "pos" and self._pvc.vel_sp[2] > 0.3)
+            or (self._last_mode == "pos" and self._pvc.vel_sp[2] > GROUND_CONTACT_DESCENT_M_S)
         ):
             self._land_timer += dt
             if self._land_timer >= LAND_DETECT_TIME_S or self._idle:
@@ -526,11 +530,22 @@ class Quadrotor:
                 body_z, thrust = self._pvc.update(
                     g, dtc, pos, vel, (self._ax, self._ay, self._az), tgt, up_limit, st == FLIGHT
                 )
-                if self._landed:
-                    self._pvc.vel_int[0] = self._pvc.vel_int[1] = 0.0
-                self._q_sp = body_z_to_attitude(body_z, yaw_sp)
-                self._thrust_sp = thrust
-                self._yaw_ff = yaw_ff
+                if self._on_ground and self._pvc.vel_sp[2] > GROUND_CONTACT_DESCENT_M_S:
+                    # ground contact while descending (PX4 limit_thrust_during_landing): zero
+                    # thrust, level at the current yaw, no integrator windup; otherwise the
+                    # controller keeps fighting wind or drift on the ground and the vehicle
+                    # hops instead of being detected as landed
+                    self._pvc.reset()
+                    self._rc.reset()
+                    self._q_sp = quat_from_yaw(yaw_now)
+                    self._thrust_sp = 0.0
+                    self._yaw_ff = math.nan
+                else:
+                    if self._landed:
+                        self._pvc.vel_int[0] = self._pvc.vel_int[1] = 0.0
+                    self._q_sp = body_z_to_attitude(body_z, yaw_sp)
+                    self._thrust_sp = thrust
+                    self._yaw_ff = yaw_ff
         if self._idle:
             self._motor_cmd = (0.0, 0.0, 0.0, 0.0)
             self._rate_sp = (0.0, 0.0, 0.0)

@@ -173,3 +173,17 @@ def test_rover_planned_above_its_top_speed_misses_corners_and_says_so(
     assert "missed" in capsys.readouterr().out
     report = json.loads((tmp_path / ROVER_MISSION.stem / "report.json").read_text())
     assert report["waypoints_reached"] < len(report["waypoints"])
+
+
+def test_replay_in_wind_lands_and_completes_both_flights(tmp_path: Path) -> None:
+    """4 m/s of wind: the companion's flight and the mock's AUTO.MISSION both finish (landed and
+    disarmed, not timed out) with every waypoint reached."""
+    square = ROOT / "examples" / "missions" / "square.plan"
+    code = cli_main(
+        ["replay", str(square), "--wind", "4", "--compare-px4-mission", "--out", str(tmp_path)]
+    )
+    assert code == 0
+    report = json.loads((tmp_path / "square" / "report.json").read_text())
+    assert report["result"] == "ok"
+    assert report["px4_mission"]["result"] == "ok"
+    assert report["px4_mission"]["waypoints_reached"] == len(report["px4_mission"]["waypoints"])

@@ -125,6 +125,30 @@ def test_land_descends_slowly_near_ground_and_detects_landing() -> None:
     assert max(st.vel_ned[2] for st in f.states) <= f.p["MPC_Z_VEL_MAX_DN"] + 0.15
 
 
+@pytest.mark.parametrize("wind_m_s", [4.0, 8.0])
+def test_land_in_wind_is_detected_and_the_vehicle_stays_down(wind_m_s: float) -> None:
+    """A quad landing in steady wind must not keep fighting the wind on the ground (it would
+    tilt, saturate the mixer and hop, resetting the land detector forever): after touchdown
+    it is detected as landed within a second, stays on the ground with the motors near idle,
+    and does not slide further than the wind pushed it during the descent."""
+    f = Flight(z=-6.0)
+    w = wind_m_s / math.sqrt(2.0)
+    f.v.set_wind((w, -w, 0.0))
+    f.nav.land(f.v.state)
+    f.run(40.0)
+    assert f.nav.reached and f.nav.phase == "landed"
+    touchdown = next(i for i, st in enumerate(f.states) if st.on_ground)
+    landed = next(i for i, st in enumerate(f.states) if st.landed)
+    assert (landed - touchdown) * DT <= 1.0
+    after = f.states[landed:]
+    assert all(st.on_ground for st in after)
+    slide = math.dist(after[0].pos_ned[:2], after[-1].pos_ned[:2])
+    assert slide < 0.05
+    # after the land detector: no thrust (a landed, still-armed vehicle idles its motors)
+    f.run(2.0, until_reached=False)
+    assert all(st.on_ground and st.landed and st.thrust_norm < 0.1 for st in f.states[-400:])
+
+
 def test_rtl_climbs_returns_and_lands_at_home() -> None:
     p = ParamStore({"RTL_RETURN_ALT": 8.0})
     f = Flight(p, z=-4.0)
