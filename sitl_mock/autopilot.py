@@ -280,7 +280,7 @@ class Autopilot:
         # navigator and missions
         from sitl_mock.navigator import Navigator
 
-        self.nav = Navigator(self.params)
+        self.nav = Navigator(self.params, ground_vehicle=self.kind == "rover")
         self._mission_link = "offboard"
         self.mission_server = MissionServer(
             self._send_mission_reply, self.statustext, self._on_mission_changed, SYSID, COMPID
@@ -833,6 +833,11 @@ class Autopilot:
     def _on_mission_finished(self, landed: bool) -> None:
         self._broadcast(self.mission_current_message())
         if self.mode != Mode.AUTO_MISSION:
+            return
+        if landed and self.kind == "rover" and self.armed:
+            # a quad's land detector disarms it after touchdown; a rover that ends its
+            # mission with LAND or RTL is disarmed where it stopped
+            self._disarm("mission end (rover stopped at its land point)")
             return
         if landed or not self.armed:
             return

@@ -626,7 +626,8 @@ class MissionExecutor:
                 return False
             return self._next(t)
         if self._phase in ("landing", "rtl"):
-            if state.landed:
+            # a rover has no landing: it is "landed" once stopped at the point (navigator)
+            if state.landed or (nav.ground_vehicle and nav.phase == "landed" and nav.reached):
                 if self._phase == "rtl":
                     self._on_reached(item.seq)
                 self.finished = True

@@ -285,3 +285,29 @@ def test_do_change_speed_limits_the_following_leg() -> None:
     assert 1.7 <= max(speeds) <= 2.3  # MPC_XY_CRUISE (5 m/s) would be far above
     h.command_long(178, 1.0, 4.0)
     assert h.acks(178) == [0]
+
+
+def test_rover_flies_a_multicopter_mission_on_the_ground_and_disarms_at_its_land_point() -> None:
+    """A rover in AUTO.MISSION with TAKEOFF, waypoints at 10 m altitude and LAND: the takeoff
+    completes at once, the waypoints are driven at ground level, LAND stops it and disarms."""
+    h = Harness(step_s=0.02, vehicle_kind="rover")
+    h.run(0.1)
+    items = [
+        item(0, 22, HOME[0], HOME[1], 10.0),
+        item(1, 16, north_of_home(15.0), HOME[1], 10.0),
+        item(2, 16, north_of_home(15.0), east_of_home(10.0), 10.0),
+        item(3, 21, HOME[0], east_of_home(10.0), 0.0),
+    ]
+    assert upload(h, items) == 0
+    h.wait_ready()
+    h.arm()
+    h.set_mode(4, 4)
+    track: list[tuple[float, float, float]] = []
+    h.run_until(lambda: not h.ap.armed, 90.0, lambda: track.append(h.ap.state.pos_ned))
+    assert all(p[2] == 0.0 for p in track)  # on the ground throughout
+    for n, e in ((15.0, 0.0), (15.0, 10.0)):
+        assert min(math.hypot(p[0] - n, p[1] - e) for p in track) <= 2.0
+    assert _dist_to(h, 0.0, 10.0) < 1.0  # stopped at the land point
+    reached = {m.seq for m in h.msgs("MISSION_ITEM_REACHED")}
+    assert reached >= {0, 1, 2, 3}
+    assert any("Disarmed" in t for t in h.texts())
