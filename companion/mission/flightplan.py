@@ -48,6 +48,7 @@ from companion.mission.model import (
     Mission,
     MissionError,
     MissionItem,
+    command_name,
 )
 
 __all__ = [
@@ -70,6 +71,8 @@ _MERGE_TOL_M = 1e-3
 _NAV_COMMANDS = frozenset(
     {CMD_WAYPOINT, CMD_LOITER_UNLIM, CMD_LOITER_TIME, CMD_RETURN_TO_LAUNCH, CMD_LAND, CMD_TAKEOFF}
 )
+#: Items a multicopter flies through or stops at in the air (their altitude is checked).
+_FLY_THROUGH_COMMANDS = frozenset({CMD_WAYPOINT, CMD_LOITER_UNLIM, CMD_LOITER_TIME, CMD_TAKEOFF})
 
 
 @dataclass(frozen=True)
@@ -222,13 +225,16 @@ def mission_to_flight_plan(
     land_speed_m_s: float = 0.7,
     max_items: int = 10_000,
     strict_geofence: bool = False,
+    min_height_m: float = 1.0,
 ) -> FlightPlan:
     """Expand ``mission`` into the :class:`FlightPlan` the companion flies (see module doc).
 
     Defaults are PX4's: MIS_TAKEOFF_ALT 2.5 m, NAV_ACC_RAD 2 m, MPC_XY_CRUISE 5 m/s,
     RTL_RETURN_ALT 60 m, MPC_TKO_SPEED 1.5 m/s, MPC_LAND_SPEED 0.7 m/s. Waypoints or legs outside
     the geofence give warnings (``strict_geofence=True``: a :class:`MissionError`, like PX4's
-    mission feasibility check).
+    mission feasibility check). A multicopter waypoint (WAYPOINT, LOITER, TAKEOFF as a waypoint)
+    less than ``min_height_m`` above home is a :class:`MissionError`: the vehicle would fly at
+    ground level (typically a ground-vehicle mission flown with ``vehicle="quad"``).
     """
     src = mission.source
     for name, v in (
@@ -369,6 +375,18 @@ def mission_to_flight_plan(
             takeoff(alt_rel, it)
         n, e = ne if ne is not None else (cur[0], cur[1])
         d = -alt_rel if math.isfinite(alt_rel) else cur[2]
+        if not rover and cmd in _FLY_THROUGH_COMMANDS and -d < min_height_m:
+            hint = (
+                "the file was written for a ground rover (vehicleType 10)"
+                if mission.vehicle_type == 10
+                else "is this a ground-vehicle mission?"
+            )
+            raise MissionError(
+                src,
+                f"{command_name(cmd)} at {-d:.1f} m above home: a multicopter would fly at ground "
+                f"level (less than {min_height_m:g} m up); {hint}",
+                item=it.index,
+            )
         if cmd == CMD_TAKEOFF:
             if rover and ne is None:
                 continue

@@ -229,6 +229,31 @@ def test_rover_ignores_altitude() -> None:
     check_chunks(sq)
 
 
+def test_multicopter_waypoints_at_ground_level_are_rejected_naming_the_item() -> None:
+    """A ground mission (waypoints at 0 m relative) flown as a multicopter: a clear error naming
+    the first such item, not a flight skimming the ground; the final LAND at 0 m is fine."""
+    rover_square = load_mission(EXAMPLES / "rover_square.plan")
+    with pytest.raises(MissionError, match="ground") as exc:
+        mission_to_flight_plan(rover_square)
+    assert exc.value.item == 1 and "0.0 m above home" in str(exc.value)
+    assert "written for a ground rover" in str(exc.value)  # the file's vehicleType is 10
+    mission_to_flight_plan(rover_square, vehicle="rover")  # the vehicle it was written for
+    doc = json.loads((EXAMPLES / "square.plan").read_text())
+    last = doc["mission"]["items"][-1]
+    assert last["command"] == 21 and last["params"][6] == 0
+    mission_to_flight_plan(parse_plan(json.dumps(doc)))  # LAND at 0 m: accepted
+    for alt, ok in ((0.9, False), (1.0, True), (-3.0, False)):
+        doc["mission"]["items"][2]["params"][6] = alt  # the second waypoint
+        m = parse_plan(json.dumps(doc))
+        if ok:
+            mission_to_flight_plan(m)
+        else:
+            with pytest.raises(MissionError) as exc:
+                mission_to_flight_plan(m)
+            assert exc.value.item == 3
+    mission_to_flight_plan(m, min_height_m=-5.0)  # the threshold is a parameter
+
+
 def test_survey_example_flies_the_pattern_and_respects_the_fence() -> None:
     path = EXAMPLES / "survey.plan"
     fp = mission_to_flight_plan(load_mission(path), strict_geofence=True)
