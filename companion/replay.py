@@ -57,7 +57,6 @@ Mode = Literal["position", "attitude", "rates"]
 PRIME_S = 0.5
 #: Extra time after the schedule before handing over to PX4's landing [s].
 SETTLE_S = 1.0
-#: The companion's view of the default mock quadrotor (PX4 SIH: 1 kg, 4 x 5 N, drag 1 N/(m/s)).
 #: Simulated time a replay spends outside the schedule (waiting for the vehicle, priming,
 #: switching to OFFBOARD, the final descent and disarm), for progress reporting only [s].
 EXPECTED_OVERHEAD_S = 8.0
@@ -65,6 +64,7 @@ EXPECTED_OVERHEAD_S = 8.0
 #: `VehicleLimits.rover_max_speed_m_s` says otherwise: a plan at the top speed leaves the
 #: tracking controller nothing to catch up with, and the rover falls behind and cuts corners.
 ROVER_SPEED_FRACTION = 0.9
+#: The companion's view of the default mock quadrotor (PX4 SIH: 1 kg, 4 x 5 N, drag 1 N/(m/s)).
 DEFAULT_QUAD = MultirotorParams(
     mass=1.0, inertia=(0.025, 0.025, 0.030), hover_thrust=0.5, drag=1.0
 )

@@ -911,13 +911,13 @@ class _Planner:
         limit is still exceeded (feasibility pass)."""
         h_uniform = h = h * self._uniform_scale(h, limits, params)
         # feasibility pass on the real trajectory (re-solved, not scaled)
-        worst0 = math.inf
+        best = math.inf  # the smallest worst ratio seen
         for _ in range(30):
             worst, per_seg = self._max_ratio(h, limits, params)
             if worst <= 1.0:
                 return h
-            worst0 = min(worst0, worst)
-            if worst > LOCAL_STRETCH_GIVE_UP * worst0:
+            best = min(best, worst)
+            if worst > LOCAL_STRETCH_GIVE_UP * best:
                 # stretching single segments of a minimum-snap path can make it balloon
                 # (a long segment between short ones overshoots): stop making it worse
                 break
