@@ -410,12 +410,6 @@ class Autopilot:
         dt = self.dt
         n = self._n_steps
         t_next = (n + 1) * dt
-        # the cheap bounds of the horizon below first (a step is due for one of them on most
-        # calls): the same early return, without computing the rest
-        if t_next >= t_end + 1e-12 or t_next >= self._cmd_next_t - 1e-9 or (
-            t_next >= self._tele_next_t
-        ):
-            return
         horizon = min(
             t_end + 1e-12,
             self._next_input_time(),
@@ -1303,37 +1297,18 @@ class Autopilot:
     def _telemetry(self, t: float) -> None:
         """Build and queue the periodic messages due at `t` on every link."""
         builders = telemetry.BUILDERS
-        stats = self.stats
         nxt = math.inf
         for lk in self.links.values():
             streams = lk.streams
             if t >= streams.earliest:
-                fifo = lk.tx_fifo
-                mav = lk.mav
-                queued = 0  # frames queued below (counters updated once per link)
                 for msg_id in streams.due(t):
                     try:
                         m = builders[msg_id](self)
                     except (ValueError, OverflowError):  # non-finite state: skip, count
-                        stats["tx_encode_errors"] += 1
+                        self.stats["tx_encode_errors"] += 1
                         continue
-                    if m is None:
-                        continue
-                    if fifo is None or type(m) is not tuple:
+                    if m is not None:
                         self._send(lk, m)
-                        continue
-                    # `_send` written out for a (codec, fields) pair on a fault-free link
-                    try:
-                        data = m[0].pack_frame(mav.seq, SYSID, COMPID, m[1])
-                    except (OverflowError, struct.error):
-                        stats["tx_encode_errors"] += 1
-                        continue
-                    mav.seq = (mav.seq + 1) & 0xFF
-                    fifo.append((self._t, data))
-                    queued += 1
-                if queued:
-                    lk.tx.stats.passed += queued
-                    stats["tx_messages"] += queued
             if streams.earliest < nxt:
                 nxt = streams.earliest
         self._tele_next_t = nxt
