@@ -20,6 +20,7 @@ from rich.table import Table
 
 from companion.config import VehicleFile, load_vehicle_file
 from companion.control import Reference
+from companion.mavlink import LinkConfig
 from companion.mission import geodetic_to_ned, load_mission, mission_to_flight_plan
 from companion.patterns import PATTERNS, pattern_trajectory
 from companion.schedule import Schedule, build_schedule, trajectory_reference
@@ -48,6 +49,7 @@ class FlyOptions:
     mock_params: tuple[tuple[str, float], ...] = ()
     busy_wait: bool = False
     sender_cpu: int | None = None
+    target_system: int = 1  # the autopilot's MAVLink system id (PX4 MAV_SYS_ID)
 
 
 def _free_udp_port() -> int:
@@ -137,7 +139,9 @@ async def fly(opts: FlyOptions, console: Console) -> int:
         if url is None:
             url = await stack.enter_async_context(embedded_mock(home, opts.mock_params))
             console.print(f"No --connect: flying the embedded mock PX4 ({url})")
-        v = await stack.enter_async_context(Vehicle.connect(url, config=vconfig))
+        link = LinkConfig(target_sysid=opts.target_system if opts.connect else 1)
+        v = await stack.enter_async_context(Vehicle.connect(url, config=vconfig,
+                                                            link_config=link))
         await stack.enter_async_context(safe_exit(v))
         hb = v.link.heartbeat.last
         rover = hb is not None and hb.vehicle_type == MAV_TYPE_GROUND_ROVER
@@ -235,11 +239,13 @@ async def fly(opts: FlyOptions, console: Console) -> int:
     return 0
 
 
-async def status(url: str, console: Console, timeout_s: float = 10.0) -> int:
+async def status(url: str, console: Console, timeout_s: float = 10.0,
+                 target_system: int = 1) -> int:
     """Connect, wait for telemetry, print the vehicle state once."""
     from companion.aio import Vehicle, VehicleConfig
 
-    async with Vehicle.connect(url, config=VehicleConfig(connect_timeout_s=timeout_s)) as v:
+    async with Vehicle.connect(url, config=VehicleConfig(connect_timeout_s=timeout_s),
+                               link_config=LinkConfig(target_sysid=target_system)) as v:
         deadline = asyncio.get_running_loop().time() + 3.0
         while v.telemetry.position is None and asyncio.get_running_loop().time() < deadline:
             await asyncio.sleep(0.05)  # poll until the first position arrives (bounded)

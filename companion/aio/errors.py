@@ -37,10 +37,15 @@ class OffboardError(VehicleError):
 
 
 class OffboardExitedError(OffboardError):
-    """The vehicle left OFFBOARD (pilot takeover, failsafe): streaming stopped, not re-entered."""
+    """The vehicle left OFFBOARD (pilot takeover, failsafe): streaming stopped, not re-entered.
 
-    def __init__(self, message: str, mode: str) -> None:
+    mode: the new flight mode's name; failsafe: PX4 reported a failsafe (HEARTBEAT
+    system_status MAV_STATE_CRITICAL) when it left OFFBOARD.
+    """
+
+    def __init__(self, message: str, mode: str, failsafe: bool = False) -> None:
         self.mode = mode
+        self.failsafe = failsafe
         super().__init__(message)
 
 

@@ -81,6 +81,7 @@ log = logging.getLogger("companion.aio")
 
 T = TypeVar("T")
 MODES = ("position", "attitude", "rates", "rover")
+MAV_STATE_CRITICAL = 5  # HEARTBEAT system_status while PX4 is in a failsafe
 _CAN_NOT_ARM = {FlightMode.OFFBOARD, FlightMode.POSCTL, FlightMode.ALTCTL,
                 FlightMode.STABILIZED, FlightMode.MANUAL, FlightMode.ACRO}
 
@@ -690,9 +691,12 @@ class Vehicle:
                 if hb is not None and hb.t_s > t_start and hb.mode is not FlightMode.OFFBOARD:
                     sm.on_heartbeat_offboard(False, now, hb.mode.name)
                     streamer.stop()
+                    failsafe = hb.system_status == MAV_STATE_CRITICAL
+                    why = "PX4 failsafe" if failsafe else "pilot takeover or failsafe"
                     raise OffboardExitedError(
-                        f"vehicle left OFFBOARD for {hb.mode.name} (pilot takeover or failsafe);"
-                        " setpoint stream stopped, OFFBOARD not re-requested", hb.mode.name)
+                        f"vehicle left OFFBOARD for {hb.mode.name} ({why});"
+                        " setpoint stream stopped, OFFBOARD not re-requested", hb.mode.name,
+                        failsafe)
                 if state["error"]:
                     await self._hold_and_stop(streamer, sm, "invalid setpoint")
                     raise SetpointSourceError(

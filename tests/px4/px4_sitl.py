@@ -1,0 +1,272 @@
+"""Start and stop a real PX4 SITL (SIH) for tests and benchmarks.
+
+`Px4Sitl()` starts one fresh PX4 v1.16 SITL on the machine's loopback as PX4 instance N (1-9,
+the first free one): PX4 binds UDP 14580+N and sends its onboard/API link to 127.0.0.1:14540+N,
+its GCS link to 127.0.0.1:14550; its MAVLink system id is N+1 (PX4's multi-instance rule).
+
+    with Px4Sitl() as px4:                      # blocks until PX4 reports "Ready for takeoff"
+        Vehicle.connect(px4.url, link_config=LinkConfig(target_sysid=px4.target_system))
+
+Where PX4 comes from: `$ECCA_PX4_SITL` (a folder with bin/px4 and etc/, e.g. a PX4 build's
+`build/px4_sitl_default`), else `../shared/px4_sitl` next to the repository. `find_px4_sitl()`
+says why none was found. A copy whose `bin/px4-*` command links were flattened into plain files
+(as in an archive without symlinks) is repaired in the run folder: PX4's start script runs
+`px4-param` etc. from the folder of the `px4` binary it was started as.
+
+As root, PX4 gets a private /tmp (its lock and socket files) through `unshare -m`, as the
+`with-px4` wrapper does; otherwise the instance's files in /tmp are used. Each instance is
+reserved with a lock file, so parallel test sessions cannot pick the same one. Everything PX4
+writes (console, parameters, ULog) stays in a temporary folder that is removed at `stop()`; the
+console is copied to `log` (if given) first.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import IO
+
+REPO = Path(__file__).resolve().parents[2]
+READY_MARK = "Ready for takeoff"
+_FAIL_MARKS = ("Startup script returned with return value", "PX4 server already running",
+               "ERROR [px4] Startup script", "Permission denied")
+
+
+class Px4SitlError(RuntimeError):
+    """PX4 SITL could not be found or did not start."""
+
+
+@dataclass(frozen=True)
+class Px4Location:
+    """A PX4 SITL installation: `bin/px4` and `etc/`."""
+
+    root: Path
+
+    @property
+    def binary(self) -> Path:
+        return self.root / "bin" / "px4"
+
+    @property
+    def etc(self) -> Path:
+        return self.root / "etc"
+
+
+def find_px4_sitl() -> tuple[Px4Location | None, str]:
+    """The PX4 SITL to use and, when there is none, why (for pytest's skip reason)."""
+    env = os.environ.get("ECCA_PX4_SITL")
+    candidates = [Path(env)] if env else [REPO.parent / "shared" / "px4_sitl"]
+    for root in candidates:
+        loc = Px4Location(root.resolve())
+        if not loc.binary.is_file():
+            why = f"no PX4 SITL binary at {loc.binary}"
+        elif not (loc.etc / "init.d-posix" / "rcS").is_file():
+            why = f"no PX4 start script at {loc.etc / 'init.d-posix' / 'rcS'}"
+        elif not os.access(loc.binary, os.X_OK):
+            why = f"{loc.binary} is not executable"
+        else:
+            return loc, ""
+        src = "ECCA_PX4_SITL" if env else "default location (set ECCA_PX4_SITL to a PX4 build)"
+        return None, f"{why} ({src})"
+    return None, "no PX4 SITL"  # pragma: no cover
+
+
+def _udp_port_free(port: int) -> bool:
+    for host in ("127.0.0.1", "0.0.0.0"):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            try:
+                s.bind((host, port))
+            except OSError:
+                return False
+    return True
+
+
+def _can_unshare() -> bool:
+    return os.geteuid() == 0 and shutil.which("unshare") is not None
+
+
+class Px4Sitl:
+    """One running PX4 SITL instance (context manager; see the module doc).
+
+    model: SIH airframe (`sihsim_quadx`, `sihsim_airplane`, ...). speed_factor: PX4's
+    PX4_SIM_SPEED_FACTOR (>1 runs the simulation faster than real time; the companion keeps wall
+    time, so use it only where timing and tracking are not judged). params: PX4 parameters set
+    at boot (PX4_PARAM_<NAME> in PX4's environment; MAV_SYS_ID stays instance + 1).
+    startup_timeout_s: how long to wait for "Ready for takeoff". log: where to copy PX4's
+    console at stop.
+    """
+
+    def __init__(self, *, model: str = "sihsim_quadx", speed_factor: float = 1.0,
+                 params: dict[str, float] | None = None, startup_timeout_s: float = 40.0,
+                 log: str | Path | None = None, location: Px4Location | None = None) -> None:
+        if location is None:
+            location, why = find_px4_sitl()
+            if location is None:
+                raise Px4SitlError(why)
+        self.location = location
+        self.model = model
+        self.speed_factor = speed_factor
+        self.params = dict(params or {})
+        self.startup_timeout_s = startup_timeout_s
+        self.log = Path(log) if log is not None else None
+        self.instance = 0
+        self._lock: IO[str] | None = None
+        self._run: Path | None = None
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._console: IO[bytes] | None = None
+
+    # -- addresses ------------------------------------------------------------------------
+    @property
+    def port(self) -> int:
+        """Local UDP port PX4's onboard/API link sends to (the companion listens here)."""
+        return 14540 + self.instance
+
+    @property
+    def url(self) -> str:
+        """The companion's connect URL for this PX4."""
+        return f"udpin://127.0.0.1:{self.port}"
+
+    @property
+    def target_system(self) -> int:
+        """PX4's MAVLink system id (MAV_SYS_ID = instance + 1 in PX4 SITL)."""
+        return self.instance + 1
+
+    @property
+    def px4_port(self) -> int:
+        """UDP port PX4 binds for the onboard/API link."""
+        return 14580 + self.instance
+
+    gcs_port = 14550  # PX4's GCS link sends here (every instance)
+
+    @property
+    def console_path(self) -> Path:
+        assert self._run is not None
+        return self._run / "console.log"
+
+    def console_text(self) -> str:
+        """PX4's console output so far."""
+        try:
+            return self.console_path.read_text(errors="replace")
+        except (OSError, AssertionError):
+            return ""
+
+    # -- lifecycle --------------------------------------------------------------------------
+    def _reserve_instance(self) -> None:
+        for n in range(1, 10):
+            lock = open(Path(tempfile.gettempdir()) / f"ecca-px4-instance-{n}.lock", "w")  # noqa: SIM115
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                lock.close()
+                continue
+            ports = (14540 + n, 14580 + n, 18570 + n, 14280 + n, 13030 + n, 19450 + n)
+            if all(_udp_port_free(p) for p in ports):
+                self.instance, self._lock = n, lock
+                return
+            lock.close()
+        raise Px4SitlError("no free PX4 instance 1-9 (UDP ports 14541-14549 in use?)")
+
+    def _bin_dir(self) -> Path:
+        """A folder with `px4` and working `px4-*` command links."""
+        src = self.location.binary.parent
+        probe = src / "px4-param"
+        if probe.is_symlink() or (probe.is_file() and os.access(probe, os.X_OK)
+                                  and probe.stat().st_size > 64):
+            return src
+        assert self._run is not None
+        out = self._run / "bin"
+        out.mkdir()
+        os.symlink(self.location.binary, out / "px4")
+        for f in src.iterdir():
+            if f.name == "px4":
+                continue
+            if f.name.startswith("px4-") and not f.name.endswith(".sh"):
+                os.symlink("px4", out / f.name)
+            else:
+                os.symlink(f, out / f.name)
+        return out
+
+    def start(self) -> Px4Sitl:
+        """Start PX4 and wait until it is ready for takeoff (raises Px4SitlError)."""
+        self._reserve_instance()
+        self._run = Path(tempfile.mkdtemp(prefix="ecca-px4-", dir="/var/tmp"))
+        rootfs = self._run / "rootfs"
+        rootfs.mkdir()
+        binary = self._bin_dir() / "px4"
+        env = dict(os.environ, PX4_SIM_MODEL=self.model, PX4_SIMULATOR="sihsim", HEADLESS="1")
+        # PX4's rcS sets PX4_PARAM_<NAME> before the airframe's defaults (which it overrides)
+        env.update({f"PX4_PARAM_{k}": f"{v:g}" for k, v in self.params.items()})
+        if self.speed_factor != 1.0:
+            env["PX4_SIM_SPEED_FACTOR"] = f"{self.speed_factor:g}"
+        argv = [str(binary), "-i", str(self.instance), "-d", "-w", str(rootfs),
+                str(self.location.etc)]
+        if _can_unshare():
+            argv = ["unshare", "-m", "--propagation", "private", "sh", "-c",
+                    'mount -t tmpfs tmpfs /tmp && exec "$@"', "sh", *argv]
+        self._console = open(self.console_path, "wb")  # noqa: SIM115
+        self._proc = subprocess.Popen(argv, cwd=rootfs, env=env, stdin=subprocess.DEVNULL,
+                                      stdout=self._console, stderr=subprocess.STDOUT,
+                                      start_new_session=True)
+        deadline = time.monotonic() + self.startup_timeout_s
+        try:
+            while True:
+                text = self.console_text()
+                if READY_MARK in text:
+                    break
+                bad = next((m for m in _FAIL_MARKS if m in text), None)
+                if bad is not None or self._proc.poll() is not None:
+                    raise Px4SitlError(f"PX4 did not start ({bad or 'process exited'}); "
+                                       f"console:\n{_tail(text)}")
+                if time.monotonic() > deadline:
+                    raise Px4SitlError(f"PX4 not ready after {self.startup_timeout_s:g} s; "
+                                       f"console:\n{_tail(text)}")
+                time.sleep(0.1)  # polling PX4's console file (bounded by the deadline)
+        except BaseException:
+            self.stop()
+            raise
+        return self
+
+    def stop(self) -> None:
+        """Stop PX4 (SIGTERM, then SIGKILL after 5 s), keep its console in `log`, clean up."""
+        proc, self._proc = self._proc, None
+        if proc is not None and proc.poll() is None:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGTERM)
+            try:
+                proc.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(timeout=5.0)
+        if self._console is not None:
+            self._console.close()
+            self._console = None
+        if self._run is not None:
+            if self.log is not None:
+                with contextlib.suppress(OSError):
+                    shutil.copyfile(self.console_path, self.log)
+            shutil.rmtree(self._run, ignore_errors=True)
+            self._run = None
+        if self._lock is not None:
+            self._lock.close()
+            self._lock = None
+
+    def __enter__(self) -> Px4Sitl:
+        return self.start()
+
+    def __exit__(self, et: type[BaseException] | None, ev: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.stop()
+
+
+def _tail(text: str, lines: int = 30) -> str:
+    return "\n".join(text.splitlines()[-lines:])
