@@ -8,7 +8,8 @@ its GCS link to 127.0.0.1:14550; its MAVLink system id is N+1 (PX4's multi-insta
         Vehicle.connect(px4.url, link_config=LinkConfig(target_sysid=px4.target_system))
 
 Where PX4 comes from: `$ECCA_PX4_SITL` (a folder with bin/px4 and etc/, e.g. a PX4 build's
-`build/px4_sitl_default`), else `../shared/px4_sitl` next to the repository. `find_px4_sitl()`
+`build/px4_sitl_default`), else `shared/px4_sitl` beside the repository (`../shared/px4_sitl`)
+or beside any folder above it. `find_px4_sitl()`
 says why none was found. A copy whose `bin/px4-*` command links were flattened into plain files
 (as in an archive without symlinks) is repaired in the run folder: PX4's start script runs
 `px4-param` etc. from the folder of the `px4` binary it was started as.
@@ -64,20 +65,21 @@ class Px4Location:
 def find_px4_sitl() -> tuple[Px4Location | None, str]:
     """The PX4 SITL to use and, when there is none, why (for pytest's skip reason)."""
     env = os.environ.get("ECCA_PX4_SITL")
-    candidates = [Path(env)] if env else [REPO.parent / "shared" / "px4_sitl"]
+    # ../shared/px4_sitl next to the repository, or next to any folder above it (a CI clone)
+    candidates = [Path(env)] if env else [d / "shared" / "px4_sitl" for d in REPO.parents]
+    whys = []
     for root in candidates:
         loc = Px4Location(root.resolve())
         if not loc.binary.is_file():
-            why = f"no PX4 SITL binary at {loc.binary}"
+            whys.append(f"no PX4 SITL binary at {loc.binary}")
         elif not (loc.etc / "init.d-posix" / "rcS").is_file():
-            why = f"no PX4 start script at {loc.etc / 'init.d-posix' / 'rcS'}"
+            whys.append(f"no PX4 start script at {loc.etc / 'init.d-posix' / 'rcS'}")
         elif not os.access(loc.binary, os.X_OK):
-            why = f"{loc.binary} is not executable"
+            whys.append(f"{loc.binary} is not executable")
         else:
             return loc, ""
-        src = "ECCA_PX4_SITL" if env else "default location (set ECCA_PX4_SITL to a PX4 build)"
-        return None, f"{why} ({src})"
-    return None, "no PX4 SITL"  # pragma: no cover
+    src = "ECCA_PX4_SITL" if env else "set ECCA_PX4_SITL to a PX4 build's px4_sitl_default"
+    return None, f"{whys[0]} ({src})"
 
 
 def _udp_port_free(port: int) -> bool:
