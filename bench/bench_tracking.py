@@ -31,6 +31,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -443,12 +444,28 @@ def main(argv: list[str] | None = None) -> int:
                     help="mock sensor noise on: SIM_POS_NOISE 0.02 m, SIM_VEL_NOISE 0.05 m/s, "
                          "SIM_GYRO_NOISE 0.01 rad/s")
     ap.add_argument("--write", action="store_true", help="print the BENCHMARKS.md table")
+    ap.add_argument("--target", nargs="+", choices=("lockstep", "mock", "px4"),
+                    default=["lockstep"],
+                    help="lockstep: the mock in lockstep (default); mock / px4: the companion's "
+                         "public API (Vehicle + TrackingSource) over UDP against `sitl_mock "
+                         "serve` / a real PX4 SITL, in real time, one fresh autopilot per run "
+                         "(several targets: side by side in one run)")
+    ap.add_argument("--modes", nargs="+", default=None,
+                    help="API targets: modes to fly (default position attitude rates, plus the "
+                         "hover floor 'hover')")
+    ap.add_argument("--repeat", type=int, default=1, help="API targets: runs per cell")
+    ap.add_argument("--out", default="bench_out/tracking",
+                    help="API targets: folder for tlogs and autopilot logs")
     ap.add_argument("--ablation", action="store_true",
                     help="instead: companion modes at 6 m/s without drag feed-forward and/or "
                          "without the attitude lead (comparable to PX4 SITL's PD + flatness)")
     args = ap.parse_args(argv)
     if args.ablation:
         return _ablation(args)
+    if args.target != ["lockstep"]:
+        if "lockstep" in args.target:
+            ap.error("--target lockstep cannot be combined with mock/px4")
+        return _api_main(args)
     rows: list[tuple[float, str, float, float, float]] = []
     store_overrides = NOISE_PARAMS if args.noise else {}
     t0 = time.perf_counter()
@@ -485,6 +502,111 @@ def main(argv: list[str] | None = None) -> int:
             print(f"| {v:.0f} m/s | {mode} | {rms:.3f} | {mx:.3f} | {rms / base[v]:.3f} | "
                   f"{tilt:.1f} |")
     return 0
+
+
+# ----------------------------------------------------------------------------- API targets
+
+API_MODES = ("position", "attitude", "rates")
+HOVER_S = 30.0
+
+
+def _api_cell(target: str, mode: str, speed: float, out: Path, idx: int) -> dict[str, float]:
+    """One flight on a fresh autopilot; lap-2 (or hover) errors vs the estimate and the truth."""
+    import asyncio
+
+    import api_harness as H  # noqa: N812
+
+    tag = f"{target}-{mode}-{speed:g}-{idx}"
+    folder = out / tag
+    with H.launch(target, folder) as ep:
+        if mode in ("hover", "px4_hold"):
+            def hold_ref(t: float) -> tuple[Reference, float]:
+                return Reference(np.array([0.0, 0.0, -5.0])), 0.0
+
+            duration = HOVER_S + 5.0
+            fl = asyncio.run(H.fly_reference(
+                ep, "attitude" if mode == "hover" else "position",
+                lambda t: hold_ref(t)[0], duration, tlog=folder / "flight.tlog"))
+
+            def select(t: float) -> bool:
+                return t >= 5.0
+        else:
+            def ref8(t: float) -> Reference:
+                return figure8_reference(t, speed)[0]
+
+            duration = figure8_seconds(speed)
+            fl = asyncio.run(H.fly_reference(ep, mode, ref8, duration,
+                                              tlog=folder / "flight.tlog"))
+            def select(t: float) -> bool:
+                return 2 * math.pi <= figure8_reference(t, speed)[1] < 4 * math.pi
+
+        data = H.read_flight_tlog(fl.tlog, ep.target_system)
+    est = H.horizontal_errors(data.lpos_t, data.lpos[:, :3], fl, select)
+    rms, mx = H.rms_max(est)
+    tr = H.horizontal_errors(data.truth_t, data.truth, fl, select)
+    trms, tmx = H.rms_max(tr)
+    if len(tr) == 0:  # the mock has no estimator: its estimate is the truth
+        trms, tmx = rms, mx
+    return {"rms": rms, "max": mx, "truth_rms": trms, "truth_max": tmx, "n": float(len(est))}
+
+
+def _api_main(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    modes = args.modes or [*API_MODES, "hover", "px4_hold"]
+    rows: list[tuple[str, str, float, dict[str, float]]] = []
+    t_start = time.perf_counter()
+    cells: list[tuple[str, float]] = []
+    for mode in modes:
+        if mode in ("hover", "px4_hold"):
+            cells.append((mode, 0.0))
+        else:
+            cells += [(mode, v) for v in args.speeds]
+    for mode, v in cells:
+        for target in args.target:
+            runs = [_api_cell(target, mode, v, out, i) for i in range(args.repeat)]
+            agg = {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
+            agg["rms_lo"] = min(r["rms"] for r in runs)
+            agg["rms_hi"] = max(r["rms"] for r in runs)
+            rows.append((target, mode, v, agg))
+            print(f"{target:5s} {mode:9s} {v:4.1f} m/s  estimate RMS {agg['rms']:.3f} m "
+                  f"(runs {agg['rms_lo']:.3f}-{agg['rms_hi']:.3f}) max {agg['max']:.3f} m | "
+                  f"truth RMS {agg['truth_rms']:.3f} max {agg['truth_max']:.3f} m", flush=True)
+    print(f"wall time {time.perf_counter() - t_start:.0f} s")
+    if args.write:
+        print()
+        print(_api_table(rows, args.target, args.repeat))
+    return 0
+
+
+def _fmt(agg: dict[str, float] | None, key: str, lo: str = "", hi: str = "") -> str:
+    if agg is None or not math.isfinite(agg[key]):
+        return "-"
+    if lo and agg[lo] != agg[hi]:
+        return f"{agg[key]:.3f} ({agg[lo]:.3f}-{agg[hi]:.3f})"
+    return f"{agg[key]:.3f}"
+
+
+def _api_table(rows: list[tuple[str, str, float, dict[str, float]]], targets: list[str],
+               repeat: int) -> str:
+    """Markdown: one row per (mode, speed), estimate and truth errors per target."""
+    label = {"position": "position + vel + acc", "attitude": "attitude (q + thrust)",
+             "rates": "rates (body rates + thrust)", "hover": "hover, companion attitude mode",
+             "px4_hold": "hover, PX4 position hold"}
+    by = {(t, m, v): a for t, m, v, a in rows}
+    keys = list(dict.fromkeys((m, v) for _t, m, v, _a in rows))
+    head = ["peak speed", "mode"]
+    for t in targets:
+        name = "real PX4" if t == "px4" else "mock"
+        head += [f"{name} RMS (estimate) [m]", f"{name} max [m]", f"{name} RMS (truth) [m]"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for m, v in keys:
+        cells = ["-" if m in ("hover", "px4_hold") else f"{v:g} m/s", label.get(m, m)]
+        for t in targets:
+            a = by.get((t, m, v))
+            cells += [_fmt(a, "rms", "rms_lo", "rms_hi"), _fmt(a, "max"), _fmt(a, "truth_rms")]
+        lines.append("| " + " | ".join(cells) + " |")
+    note = f"median of {repeat} runs (range in brackets)" if repeat > 1 else "one run each"
+    return "\n".join(lines) + f"\n\n({note}; lap 2 of the figure-8, hover: 30 s)"
 
 
 def _ablation(args: argparse.Namespace) -> int:

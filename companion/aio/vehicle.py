@@ -58,6 +58,7 @@ from companion.mavlink.commands import (
     MAV_CMD_DO_SET_MODE,
     MAV_CMD_NAV_LAND,
     MAV_CMD_NAV_TAKEOFF,
+    MAV_CMD_SET_MESSAGE_INTERVAL,
 )
 
 from .errors import (
@@ -475,6 +476,15 @@ class Vehicle:
         """Change flight mode; raises ModeChangeError with the deciding MAV_RESULT."""
         await self._command(lambda now: self.link.set_mode(mode, now), MAV_CMD_DO_SET_MODE,
                             f"switch to {mode.name}", error=ModeChangeError)
+
+    async def set_message_interval(self, message_id: int, rate_hz: float) -> None:
+        """Ask the autopilot to stream MAVLink message ``message_id`` at ``rate_hz`` (0 stops
+        it); raises CommandError when refused (PX4 refuses it for HEARTBEAT)."""
+        if not (math.isfinite(rate_hz) and rate_hz >= 0.0):
+            raise ValueError(f"rate must be a finite number of Hz >= 0, got {rate_hz}")
+        interval = -1.0 if rate_hz == 0.0 else 1e6 / rate_hz
+        await self._command(lambda now: self.link.set_message_interval(message_id, interval, now),
+                            MAV_CMD_SET_MESSAGE_INTERVAL, f"stream message {message_id}")
 
     async def hold(self) -> None:
         """Switch to Hold (AUTO.LOITER)."""

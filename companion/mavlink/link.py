@@ -22,6 +22,7 @@ from .commands import (
     MAV_CMD_NAV_LAND,
     MAV_CMD_NAV_TAKEOFF,
     MAV_CMD_REQUEST_MESSAGE,
+    MAV_CMD_SET_MESSAGE_INTERVAL,
     CommandClient,
     CommandEvent,
 )
@@ -208,6 +209,12 @@ class VehicleLink:
         """NAV_LAND at the current position."""
         nan = math.nan
         self.commands.send_command(MAV_CMD_NAV_LAND, [0.0, 0.0, 0.0, nan, nan, nan, nan], now)
+
+    def set_message_interval(self, message_id: int, interval_us: float, now: float) -> None:
+        """MAV_CMD_SET_MESSAGE_INTERVAL: stream ``message_id`` every ``interval_us`` [us]
+        (-1 stops it, 0 restores the autopilot's default rate)."""
+        self.commands.send_command(MAV_CMD_SET_MESSAGE_INTERVAL,
+                                   [float(message_id), float(interval_us)], now)
 
     def request_message(self, message_id: int, now: float) -> None:
         """MAV_CMD_REQUEST_MESSAGE (e.g. 242 HOME_POSITION)."""

@@ -3,7 +3,6 @@
 - `multirotor_setpoint_scalar` (plain floats) vs the batched numpy path of `multirotor_setpoint`
   (a batch of one: different backend, different code), and the same refusals of bad input;
 - the float quaternion helpers of the controller vs scipy's Rotation;
-- `SampleClock`'s O(1) sliding-window minimum vs a plain `min` over the last `window` offsets;
 - `StateEstimate.is_finite` / `Reference.is_finite` still catch a non-finite value anywhere.
 """
 
@@ -26,7 +25,6 @@ from companion.control import (
 )
 from companion.flatness import MultirotorParams, multirotor_setpoint
 from companion.flatness.numeric import multirotor_setpoint_scalar
-from companion.tracking import SampleClock
 
 PARAMS = MultirotorParams(mass=1.3, inertia=(0.021, 0.023, 0.04), hover_thrust=0.45, drag=0.7)
 
@@ -103,35 +101,6 @@ def test_degenerate_quaternions_give_identity() -> None:
     assert _quat_normalize_f(0.0, 0.0, 0.0, 0.0) == (1.0, 0.0, 0.0, 0.0)
     assert _quat_normalize_f(math.nan, 0.0, 0.0, 1.0) == (1.0, 0.0, 0.0, 0.0)
     assert _body_z_down(np.array([math.nan, 0.0, 0.0, 0.0])) == 1.0
-
-
-@settings(max_examples=100, deadline=None)
-@given(
-    st.lists(
-        st.tuples(st.integers(0, 50), st.floats(-5.0, 5.0, allow_nan=False), st.booleans()),
-        min_size=1,
-        max_size=120,
-    ),
-    st.integers(1, 20),
-)
-def test_sample_clock_window_minimum_matches_naive_min(samples, window) -> None:  # type: ignore[no-untyped-def]
-    clock = SampleClock(window=window)
-    offsets: list[float] = []
-    last_key = None
-    t_rx = 0.0
-    for boot_ms, latency, repeat in samples:
-        t_boot = boot_ms * 1e-3
-        if not (repeat and last_key is not None):
-            t_rx += 0.01
-            last_key = (t_boot, t_rx + latency)
-            offsets.append(last_key[1] - last_key[0])
-        got = clock.local_time(*last_key)
-        assert got == last_key[0] + min(offsets[-window:])
-
-
-def test_sample_clock_rejects_empty_window() -> None:
-    with pytest.raises(ValueError):
-        SampleClock(window=0)
 
 
 @pytest.mark.parametrize("bad", [math.nan, math.inf])

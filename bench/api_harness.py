@@ -1,0 +1,279 @@
+"""Flights through the companion's public API (`Vehicle` + `TrackingSource`) against a real PX4
+SITL or the mock over UDP, and their analysis from the flight's .tlog.
+
+Used by bench_tracking.py (`--target mock|px4`) and bench_fidelity.py, so the mock and real PX4
+are flown by the same code in the same run.
+
+Metrics come from the .tlog (receive times in Unix seconds), from the autopilot's own messages:
+- estimate: LOCAL_POSITION_NED, placed at its sample time (time_boot_ms mapped to the local
+  clock by `clock_map`: without the link latency, with the autopilot clock's drift);
+- truth: HIL_STATE_QUATERNION (PX4 SITL streams the simulator's state on request; the mock has
+  no estimator, its estimate is the truth), projected to PX4's local frame through
+  HOME_POSITION (geodetic + local position of home).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from pymavlink import mavutil
+
+from companion.aio import CommandError, Vehicle, VehicleConfig
+from companion.control import Reference
+from companion.mavlink import LinkConfig, TelemetrySnapshot
+from companion.mission import GeoPoint, geodetic_to_ned
+from companion.tracking import TrackingSource
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+
+from tests.px4.px4_sitl import Px4Sitl, find_px4_sitl  # noqa: E402
+
+FloatArray = npt.NDArray[np.float64]
+HIL_STATE_QUATERNION = 115
+TARGETS = ("mock", "px4")
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    """Where the companion connects: URL and the autopilot's system id."""
+
+    kind: str
+    url: str
+    target_system: int
+
+
+@contextlib.contextmanager
+def launch(kind: str, log_dir: Path, *, mock_args: tuple[str, ...] = (),
+           px4_params: dict[str, float] | None = None) -> Iterator[Endpoint]:
+    """A fresh autopilot: real PX4 SITL (`px4`) or `python -m sitl_mock serve` (`mock`), both in
+    real time on loopback; stopped on exit."""
+    log_dir.mkdir(parents=True, exist_ok=True)
+    if kind == "px4":
+        loc, why = find_px4_sitl()
+        if loc is None:
+            raise RuntimeError(f"no PX4 SITL: {why}")
+        with Px4Sitl(location=loc, params=px4_params, log=log_dir / "px4-console.log") as px4:
+            yield Endpoint("px4", px4.url, px4.target_system)
+        return
+    if kind != "mock":
+        raise ValueError(f"unknown target {kind!r}, use one of {TARGETS}")
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = int(s.getsockname()[1])
+    err = open(log_dir / "mock-stderr.log", "w")  # noqa: SIM115
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sitl_mock", "serve", "--bind", "127.0.0.1:0", "--remote",
+         f"127.0.0.1:{port}", "--no-gcs", "--speed", "1", *mock_args],
+        stdout=subprocess.PIPE, stderr=err, text=True)
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        if not line.startswith("sitl_mock ready"):
+            raise RuntimeError(f"mock did not start: {line!r}")
+        yield Endpoint("mock", f"udpin://127.0.0.1:{port}", 1)
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+        if proc.stdout is not None:
+            proc.stdout.close()
+        err.close()
+
+
+# ----------------------------------------------------------------------------- flying
+
+
+class ReferenceRecorder:
+    """A setpoint source wrapper that remembers when reference time 0 was (Unix seconds)."""
+
+    def __init__(self, source: Callable[[float, TelemetrySnapshot], Any]) -> None:
+        self.source = source
+        self.t0_unix: float | None = None
+
+    def __call__(self, t_s: float, telemetry: TelemetrySnapshot) -> Any:
+        if self.t0_unix is None and t_s > 0.0:
+            self.t0_unix = time.time() - (time.monotonic() - telemetry.now_s) - t_s
+        return self.source(t_s, telemetry)
+
+
+@dataclass
+class Flight:
+    """One flight of a reference: its tlog and when reference time 0 was."""
+
+    tlog: Path
+    t0_unix: float
+    duration_s: float
+    reference: Callable[[float], Reference]
+    origin_ned: FloatArray
+    notes: dict[str, Any] = field(default_factory=dict)
+
+
+def shifted(reference: Callable[[float], Reference], dx: float, dy: float
+            ) -> Callable[[float], Reference]:
+    """`reference` moved horizontally by (dx, dy) [m]."""
+    off = np.array([dx, dy, 0.0])
+
+    def ref(t: float) -> Reference:
+        r = reference(t)
+        return Reference(r.pos_ned + off, r.vel_ned, r.acc_ned, r.jerk_ned, r.snap_ned, r.yaw,
+                         r.yaw_rate, r.yaw_acc)
+
+    return ref
+
+
+async def fly_reference(
+    ep: Endpoint, mode: str, reference: Callable[[float], Reference], duration_s: float, *,
+    tlog: Path, alt_m: float = 5.0, source_factory: Callable[..., Any] | None = None,
+    truth_hz: float = 50.0, before: Callable[[Vehicle], Any] | None = None,
+) -> Flight:
+    """Connect, stream ground truth, arm, take off to `alt_m`, fly `reference` (shifted to start
+    where the takeoff ended) in `mode` for `duration_s`, then hold. The vehicle is left in the
+    air: the caller stops the autopilot."""
+    from companion.config import VehicleFile
+
+    params = VehicleFile().params
+    config = VehicleConfig(tlog_path=str(tlog), connect_timeout_s=20.0, armable_timeout_s=40.0)
+    async with Vehicle.connect(ep.url, config=config,
+                               link_config=LinkConfig(target_sysid=ep.target_system)) as v:
+        with contextlib.suppress(CommandError):  # the mock has no separate ground truth
+            await v.set_message_interval(HIL_STATE_QUATERNION, truth_hz)
+        await v.arm()
+        await v.takeoff(alt_m)
+        await asyncio.sleep(1.0)  # let the takeoff transient settle (not synchronisation)
+        pos = v.telemetry.position
+        assert pos is not None
+        r0 = reference(0.0).pos_ned
+        ref = shifted(reference, pos.pos_ned[0] - r0[0], pos.pos_ned[1] - r0[1])
+        if before is not None:
+            await before(v)
+        factory = source_factory or (lambda r, m: TrackingSource(r, m, params))
+        rec = ReferenceRecorder(factory(ref, mode))
+        await v.fly(mode=mode, setpoint_source=rec, duration_s=duration_s)
+        assert rec.t0_unix is not None
+        r00 = ref(0.0).pos_ned
+        return Flight(tlog, rec.t0_unix, duration_s, ref, np.array(r00))
+
+
+# ----------------------------------------------------------------------------- tlog analysis
+
+
+@dataclass
+class TlogData:
+    """Autopilot messages of one flight (receive times in Unix seconds)."""
+
+    lpos_t: FloatArray  # sample time (time_boot mapped to the local clock)
+    lpos: FloatArray  # (N, 6) x y z vx vy vz
+    truth_t: FloatArray
+    truth: FloatArray  # (M, 3) local NED
+    att_t: FloatArray
+    att_rpy: FloatArray  # (K, 3) roll pitch yaw [rad] (ATTITUDE)
+    att_rates: FloatArray  # (K, 3) body rates [rad/s]
+    extra: dict[str, list[Any]]
+
+
+def clock_map(boot_s: FloatArray, recv_s: FloatArray) -> FloatArray:
+    """Local times of samples stamped `boot_s` (the autopilot's clock) received at `recv_s`:
+    the offset recv - boot as a line fitted below the per-second minima (Theil-Sen slope),
+    as `companion.tracking.SampleClock` does online. PX4 SITL's clock drifts 0.73 % against
+    ours: a constant offset would misplace the end of a 30 s flight by 0.2 s."""
+    if len(boot_s) == 0:
+        return boot_s
+    off = recv_s - boot_s
+    blk = np.floor(boot_s).astype(np.int64)
+    xs, ys = [], []
+    for b in np.unique(blk):
+        i = np.flatnonzero(blk == b)
+        j = i[np.argmin(off[i])]
+        xs.append(boot_s[j])
+        ys.append(off[j])
+    x, y = np.array(xs), np.array(ys)
+    slope = 0.0
+    if len(x) >= 3:
+        dx = x[None, :] - x[:, None]
+        dy = y[None, :] - y[:, None]
+        ok = dx >= 2.0
+        if np.any(ok):
+            slope = float(np.median(dy[ok] / dx[ok]))
+    a = float(np.min(y - slope * x))
+    return boot_s + a + slope * boot_s
+
+
+def read_flight_tlog(path: Path, target_system: int, keep: tuple[str, ...] = ()) -> TlogData:
+    """Decode `path`; messages of the autopilot (`target_system`, component 1) only."""
+    conn = mavutil.mavlink_connection(str(path))
+    lp: list[tuple[float, ...]] = []
+    hil: list[tuple[float, float, float, float]] = []
+    att: list[tuple[float, ...]] = []
+    home: tuple[float, float, float, float, float, float] | None = None
+    extra: dict[str, list[Any]] = {k: [] for k in keep}
+    want = ["LOCAL_POSITION_NED", "HIL_STATE_QUATERNION", "HOME_POSITION", "ATTITUDE", *keep]
+    try:
+        for _ in range(10_000_000):
+            m = conn.recv_match(type=want)
+            if m is None:
+                break
+            if m.get_srcSystem() != target_system or m.get_srcComponent() != 1:
+                continue
+            kind = m.get_type()
+            t = float(m._timestamp)
+            if kind == "LOCAL_POSITION_NED":
+                lp.append((t, m.time_boot_ms * 1e-3, m.x, m.y, m.z, m.vx, m.vy, m.vz))
+            elif kind == "HIL_STATE_QUATERNION":
+                hil.append((t, m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3))
+            elif kind == "HOME_POSITION":
+                home = (m.latitude * 1e-7, m.longitude * 1e-7, m.altitude * 1e-3, m.x, m.y, m.z)
+            elif kind == "ATTITUDE":
+                att.append((t, m.time_boot_ms * 1e-3, m.roll, m.pitch, m.yaw, m.rollspeed,
+                            m.pitchspeed, m.yawspeed))
+            if kind in extra:
+                extra[kind].append(m)
+    finally:
+        conn.close()
+    lpa = np.array(lp, dtype=float).reshape(-1, 8)
+    truth_t = np.zeros(0)
+    truth = np.zeros((0, 3))
+    if hil and home is not None:
+        h = np.array(hil)
+        g = GeoPoint(home[0], home[1], home[2])
+        truth = geodetic_to_ned(h[:, 1], h[:, 2], h[:, 3], g) + np.array(home[3:])
+        truth_t = h[:, 0]
+    ata = np.array(att, dtype=float).reshape(-1, 8)
+    return TlogData(clock_map(lpa[:, 1], lpa[:, 0]), lpa[:, 2:8], truth_t, truth,
+                    clock_map(ata[:, 1], ata[:, 0]), ata[:, 2:5], ata[:, 5:8], extra)
+
+
+def horizontal_errors(t_unix: FloatArray, pos: FloatArray, flight: Flight,
+                      select: Callable[[float], bool]) -> FloatArray:
+    """|pos - reference| horizontally [m] at the samples whose reference time passes `select`."""
+    out = []
+    for t, p in zip(t_unix, pos, strict=True):
+        tr = float(t) - flight.t0_unix
+        if 0.0 <= tr <= flight.duration_s and select(tr):
+            r = flight.reference(tr).pos_ned
+            out.append(math.hypot(p[0] - r[0], p[1] - r[1]))
+    return np.array(out)
+
+
+def rms_max(e: FloatArray) -> tuple[float, float]:
+    """(RMS, max) of an error series (NaN when empty)."""
+    if len(e) == 0:
+        return math.nan, math.nan
+    return float(np.sqrt(np.mean(e**2))), float(np.max(e))
