@@ -454,6 +454,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="API targets: modes to fly (default position attitude rates, plus the "
                          "hover floor 'hover')")
     ap.add_argument("--repeat", type=int, default=1, help="API targets: runs per cell")
+    ap.add_argument("--ctl", action="append", default=[], metavar="NAME=VALUE",
+                    help="API targets: override a TrackingConfig/TrackingGains field (tuning)")
     ap.add_argument("--out", default="bench_out/tracking",
                     help="API targets: folder for tlogs and autopilot logs")
     ap.add_argument("--ablation", action="store_true",
@@ -510,12 +512,45 @@ API_MODES = ("position", "attitude", "rates")
 HOVER_S = 30.0
 
 
-def _api_cell(target: str, mode: str, speed: float, out: Path, idx: int) -> dict[str, float]:
+def _controller_factory(overrides: list[str]) -> Any:
+    """A TrackingSource factory with TrackingConfig / TrackingGains fields overridden
+    (`kp_xy=12`, `attitude_lead_s=0.1`, ...); None without overrides (the defaults)."""
+    if not overrides:
+        return None
+    from dataclasses import fields, replace
+
+    from companion.control import TrackingGains
+    from companion.tracking import TrackingSource
+
+    gain_names = {f.name for f in fields(TrackingGains)}
+    gkw: dict[str, float] = {}
+    ckw: dict[str, object] = {}
+    for item in overrides:
+        k, _, v = item.partition("=")
+        val: object = {"true": True, "false": False}.get(v.lower())
+        if val is None:
+            try:
+                val = float(v)
+            except ValueError:
+                val = v
+        (gkw if k in gain_names else ckw)[k] = val
+    base = default_controller_config()
+    cfg = replace(base, gains=replace(base.gains, **gkw), **ckw)
+
+    def factory(ref: Any, mode: str) -> Any:
+        return TrackingSource(ref, mode, tracking=cfg)
+
+    return factory
+
+
+def _api_cell(target: str, mode: str, speed: float, out: Path, idx: int,
+              ctl: list[str] | None = None) -> dict[str, float]:
     """One flight on a fresh autopilot; lap-2 (or hover) errors vs the estimate and the truth."""
     import asyncio
 
     import api_harness as H  # noqa: N812
 
+    factory = _controller_factory(ctl or [])
     tag = f"{target}-{mode}-{speed:g}-{idx}"
     folder = out / tag
     with H.launch(target, folder) as ep:
@@ -526,7 +561,8 @@ def _api_cell(target: str, mode: str, speed: float, out: Path, idx: int) -> dict
             duration = HOVER_S + 5.0
             fl = asyncio.run(H.fly_reference(
                 ep, "attitude" if mode == "hover" else "position",
-                lambda t: hold_ref(t)[0], duration, tlog=folder / "flight.tlog"))
+                lambda t: hold_ref(t)[0], duration, tlog=folder / "flight.tlog",
+                source_factory=factory))
 
             def select(t: float) -> bool:
                 return t >= 5.0
@@ -536,7 +572,8 @@ def _api_cell(target: str, mode: str, speed: float, out: Path, idx: int) -> dict
 
             duration = figure8_seconds(speed)
             fl = asyncio.run(H.fly_reference(ep, mode, ref8, duration,
-                                              tlog=folder / "flight.tlog"))
+                                              tlog=folder / "flight.tlog",
+                                              source_factory=factory))
             def select(t: float) -> bool:
                 return 2 * math.pi <= figure8_reference(t, speed)[1] < 4 * math.pi
 
@@ -563,7 +600,7 @@ def _api_main(args: argparse.Namespace) -> int:
             cells += [(mode, v) for v in args.speeds]
     for mode, v in cells:
         for target in args.target:
-            runs = [_api_cell(target, mode, v, out, i) for i in range(args.repeat)]
+            runs = [_api_cell(target, mode, v, out, i, args.ctl) for i in range(args.repeat)]
             agg = {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
             agg["rms_lo"] = min(r["rms"] for r in runs)
             agg["rms_hi"] = max(r["rms"] for r in runs)
