@@ -43,6 +43,8 @@ from tests.px4.px4_sitl import Px4Sitl, find_px4_sitl  # noqa: E402
 
 FloatArray = npt.NDArray[np.float64]
 HIL_STATE_QUATERNION = 115
+LOCAL_POSITION_NED = 32
+ATTITUDE_QUATERNION = 31
 TARGETS = ("mock", "px4")
 
 
@@ -143,6 +145,7 @@ async def fly_reference(
     ep: Endpoint, mode: str, reference: Callable[[float], Reference], duration_s: float, *,
     tlog: Path, alt_m: float = 5.0, source_factory: Callable[..., Any] | None = None,
     truth_hz: float = 50.0, before: Callable[[Vehicle], Any] | None = None,
+    telemetry_hz: float | None = None,
 ) -> Flight:
     """Connect, stream ground truth, arm, take off to `alt_m`, fly `reference` (shifted to start
     where the takeoff ended) in `mode` for `duration_s`, then hold. The vehicle is left in the
@@ -155,6 +158,9 @@ async def fly_reference(
                                link_config=LinkConfig(target_sysid=ep.target_system)) as v:
         with contextlib.suppress(CommandError):  # the mock has no separate ground truth
             await v.set_message_interval(HIL_STATE_QUATERNION, truth_hz)
+        if telemetry_hz is not None:
+            for msg_id in (LOCAL_POSITION_NED, ATTITUDE_QUATERNION):
+                await v.set_message_interval(msg_id, telemetry_hz)
         await v.arm()
         await v.takeoff(alt_m)
         await asyncio.sleep(1.0)  # let the takeoff transient settle (not synchronisation)

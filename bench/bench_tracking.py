@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import shutil
 import sys
 import time
 from collections import deque
@@ -454,6 +455,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="API targets: modes to fly (default position attitude rates, plus the "
                          "hover floor 'hover')")
     ap.add_argument("--repeat", type=int, default=1, help="API targets: runs per cell")
+    ap.add_argument("--request-hz", type=float, default=None,
+                    help="API targets: request LOCAL_POSITION_NED and ATTITUDE_QUATERNION at "
+                         "this rate (default: the autopilot's, 30/50 Hz on PX4)")
     ap.add_argument("--ctl", action="append", default=[], metavar="NAME=VALUE",
                     help="API targets: override a TrackingConfig/TrackingGains field (tuning)")
     ap.add_argument("--out", default="bench_out/tracking",
@@ -519,11 +523,13 @@ def _controller_factory(overrides: list[str]) -> Any:
         return None
     from dataclasses import fields, replace
 
-    from companion.control import TrackingGains
+    from companion.control import AttitudeGains, TrackingGains
     from companion.tracking import TrackingSource
 
     gain_names = {f.name for f in fields(TrackingGains)}
-    gkw: dict[str, float] = {}
+    att_names = {f.name for f in fields(AttitudeGains)}
+    gkw: dict[str, object] = {}
+    akw: dict[str, object] = {}
     ckw: dict[str, object] = {}
     for item in overrides:
         k, _, v = item.partition("=")
@@ -533,9 +539,10 @@ def _controller_factory(overrides: list[str]) -> Any:
                 val = float(v)
             except ValueError:
                 val = v
-        (gkw if k in gain_names else ckw)[k] = val
+        (gkw if k in gain_names else akw if k in att_names else ckw)[k] = val
     base = default_controller_config()
-    cfg = replace(base, gains=replace(base.gains, **gkw), **ckw)
+    cfg = replace(base, gains=replace(base.gains, **gkw),
+                  attitude_gains=replace(base.attitude_gains, **akw), **ckw)
 
     def factory(ref: Any, mode: str) -> Any:
         return TrackingSource(ref, mode, tracking=cfg)
@@ -544,7 +551,8 @@ def _controller_factory(overrides: list[str]) -> Any:
 
 
 def _api_cell(target: str, mode: str, speed: float, out: Path, idx: int,
-              ctl: list[str] | None = None) -> dict[str, float]:
+              ctl: list[str] | None = None, telemetry_hz: float | None = None
+              ) -> dict[str, float]:
     """One flight on a fresh autopilot; lap-2 (or hover) errors vs the estimate and the truth."""
     import asyncio
 
@@ -553,6 +561,7 @@ def _api_cell(target: str, mode: str, speed: float, out: Path, idx: int,
     factory = _controller_factory(ctl or [])
     tag = f"{target}-{mode}-{speed:g}-{idx}"
     folder = out / tag
+    shutil.rmtree(folder, ignore_errors=True)  # tlogs append: start each cell afresh
     with H.launch(target, folder) as ep:
         if mode in ("hover", "px4_hold"):
             def hold_ref(t: float) -> tuple[Reference, float]:
@@ -562,7 +571,7 @@ def _api_cell(target: str, mode: str, speed: float, out: Path, idx: int,
             fl = asyncio.run(H.fly_reference(
                 ep, "attitude" if mode == "hover" else "position",
                 lambda t: hold_ref(t)[0], duration, tlog=folder / "flight.tlog",
-                source_factory=factory))
+                source_factory=factory, telemetry_hz=telemetry_hz))
 
             def select(t: float) -> bool:
                 return t >= 5.0
@@ -573,7 +582,8 @@ def _api_cell(target: str, mode: str, speed: float, out: Path, idx: int,
             duration = figure8_seconds(speed)
             fl = asyncio.run(H.fly_reference(ep, mode, ref8, duration,
                                               tlog=folder / "flight.tlog",
-                                              source_factory=factory))
+                                              source_factory=factory,
+                                              telemetry_hz=telemetry_hz))
             def select(t: float) -> bool:
                 return 2 * math.pi <= figure8_reference(t, speed)[1] < 4 * math.pi
 
@@ -600,7 +610,8 @@ def _api_main(args: argparse.Namespace) -> int:
             cells += [(mode, v) for v in args.speeds]
     for mode, v in cells:
         for target in args.target:
-            runs = [_api_cell(target, mode, v, out, i, args.ctl) for i in range(args.repeat)]
+            runs = [_api_cell(target, mode, v, out, i, args.ctl, args.request_hz)
+                    for i in range(args.repeat)]
             agg = {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
             agg["rms_lo"] = min(r["rms"] for r in runs)
             agg["rms_hi"] = max(r["rms"] for r in runs)
