@@ -13,26 +13,37 @@ Example `vehicle.toml` (every key optional; defaults are PX4's SIH quadrotor)::
     max_tilt_deg = 35.0
     max_body_rate_rad_s = 3.0
     rover_max_speed_m_s = 2.7               # rover: plan below the vehicle's top speed
+
+    [tracking]                              # attitude/rates-mode controller (TrackingGains)
+    kp_xy = 20.0                            # defaults suit a wired or UDP link (< 50 ms);
+    kd_xy = 8.5                             # over a link with ~100 ms latency use
+    ki_xy = 3.0                             # kp_xy 6, kd_xy 4.5, ki_xy 1
+    k_roll = 6.5                            # attitude gains of rates mode [1/s]
 """
 
 from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+from companion.control import AttitudeGains, TrackingConfig, TrackingGains
 from companion.flatness import MultirotorParams
 from companion.schedule import VehicleLimits
 
 _VEHICLE_KEYS = {"mass_kg", "inertia_kg_m2", "hover_thrust", "drag_n_per_m_s"}
 _LIMIT_KEYS = {"max_acc_m_s2", "max_tilt_deg", "max_body_rate_rad_s", "rover_max_speed_m_s"}
+_GAIN_KEYS = {f.name for f in fields(TrackingGains)}
+_ATT_KEYS = {"k_roll", "k_pitch", "k_yaw"}
+_SECTIONS = {"vehicle": _VEHICLE_KEYS, "limits": _LIMIT_KEYS, "tracking": _GAIN_KEYS | _ATT_KEYS}
 
 
 @dataclass(frozen=True)
 class VehicleFile:
-    """What a vehicle TOML file configures: flatness parameters and planning limits."""
+    """What a vehicle TOML file configures: flatness parameters, planning limits and the
+    attitude/rates-mode controller gains."""
 
     params: MultirotorParams = field(
         default_factory=lambda: MultirotorParams(
@@ -40,6 +51,13 @@ class VehicleFile:
         )
     )
     limits: VehicleLimits = field(default_factory=VehicleLimits)
+    gains: TrackingGains = field(default_factory=TrackingGains)
+    attitude_gains: AttitudeGains = field(default_factory=AttitudeGains)
+
+    def tracking_config(self, max_tilt_rad: float) -> TrackingConfig:
+        """The controller configuration for attitude/rates mode (tilt limit [rad])."""
+        return TrackingConfig(params=self.params, gains=self.gains,
+                              attitude_gains=self.attitude_gains, max_tilt_rad=max_tilt_rad)
 
 
 def _number(table: dict[str, Any], key: str, where: str, default: float) -> float:
@@ -58,12 +76,15 @@ def load_vehicle_file(path: str | Path) -> VehicleFile:
         raise ValueError(f"{p}: vehicle file not found") from None
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{p}: not valid TOML: {exc}") from None
-    unknown = set(data) - {"vehicle", "limits"}
+    unknown = set(data) - set(_SECTIONS)
     if unknown:
-        raise ValueError(f"{p}: unknown section(s) {sorted(unknown)}; use [vehicle] and [limits]")
+        names = " and ".join(f"[{n}]" for n in _SECTIONS)
+        raise ValueError(f"{p}: unknown section(s) {sorted(unknown)}; use {names}")
     veh = data.get("vehicle", {})
     lim = data.get("limits", {})
-    for name, table, keys in (("vehicle", veh, _VEHICLE_KEYS), ("limits", lim, _LIMIT_KEYS)):
+    trk = data.get("tracking", {})
+    for name, keys in _SECTIONS.items():
+        table = data.get(name, {})
         if not isinstance(table, dict):
             raise ValueError(f"{p}: [{name}] must be a table")
         extra = set(table) - keys
@@ -94,4 +115,12 @@ def load_vehicle_file(path: str | Path) -> VehicleFile:
         raise ValueError(f"{where}: need max_acc_m_s2 > 0 and 0 < max_tilt_deg < 80")
     if limits.rover_max_speed_m_s is not None and not limits.rover_max_speed_m_s > 0:
         raise ValueError(f"{where}: need rover_max_speed_m_s > 0")
-    return VehicleFile(params=params, limits=limits)
+    where = f"{p} [tracking]"
+    base_g, base_a = TrackingGains(), AttitudeGains()
+    gains = replace(base_g, **{k: _number(trk, k, where, getattr(base_g, k))
+                               for k in _GAIN_KEYS if k in trk})
+    att = replace(base_a, **{k: _number(trk, k, where, getattr(base_a, k))
+                             for k in _ATT_KEYS if k in trk})
+    if any(getattr(gains, k) < 0 for k in _GAIN_KEYS) or any(getattr(att, k) <= 0 for k in _ATT_KEYS):
+        raise ValueError(f"{where}: gains must be >= 0 (attitude gains > 0)")
+    return VehicleFile(params=params, limits=limits, gains=gains, attitude_gains=att)

@@ -428,12 +428,15 @@ class TrackingGains:
     """Position-loop gains: a = a_ref + kp e_p + kd e_v + ki int(e_p) (per axis, xy and z).
 
     kp [1/s^2], kd [1/s], ki [1/s^3]; i_max_xy / i_max_z: clamp of the integrator's
-    acceleration contribution [m/s^2].
+    acceleration contribution [m/s^2]. The xy defaults (omega_n 4.5 rad/s, zeta 0.95) were tuned
+    on real PX4 v1.16 SITL over UDP, figure-8 at 2 and 6 m/s (BENCHMARKS.md); kp_xy 30
+    oscillates there in attitude mode, so they sit at about 2/3 of the stability limit. They
+    assume telemetry latency under ~50 ms; with ~100 ms use kp_xy 6, kd_xy 4.5, ki_xy 1.
     """
 
-    kp_xy: float = 6.0
-    kd_xy: float = 4.5
-    ki_xy: float = 1.0
+    kp_xy: float = 20.0
+    kd_xy: float = 8.5
+    ki_xy: float = 3.0
     kp_z: float = 8.0
     kd_z: float = 5.5
     ki_z: float = 2.0
@@ -462,6 +465,8 @@ class AttitudeGains:
     """Companion-side SO(3) attitude loop producing body-rate commands.
 
     k_roll/k_pitch/k_yaw: attitude gains [1/s] (PX4 MC_ROLL_P/MC_PITCH_P/MC_YAW_P defaults).
+        12 tracked 8-17 % better on real PX4 SITL over UDP, but lost the large-angle recovery
+        (170 deg: overshoot back above 10 deg) and 100 ms telemetry latency (2.6 m RMS).
     max_rate_rp / max_rate_yaw: rate command limits [rad/s] (MC_*RATE_MAX).
     large_angle: scale e_R by 1/cos(angle/2) so the error grows monotonically up to 180 deg
     (Lee 2011's alternative error function; small-angle behaviour unchanged).

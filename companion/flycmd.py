@@ -216,7 +216,10 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                 def ref(t: float) -> Reference:
                     return rel_ref(t, origin)
 
-                source = TrackingSource(ref, mode, vf.params)  # type: ignore[arg-type]
+                source = TrackingSource(
+                    ref, mode, vf.params,  # type: ignore[arg-type]
+                    tracking=(vf.tracking_config(math.radians(50.0))
+                              if mode in ("attitude", "rates") else None))
                 started = asyncio.get_running_loop().time()
                 report = await v.fly(mode=mode, setpoint_source=source, duration_s=duration)
                 ended = asyncio.get_running_loop().time()

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from companion.config import load_vehicle_file
+from companion.control import AttitudeGains, TrackingGains
 from companion.mission import load_mission, mission_to_flight_plan
 from companion.schedule import VehicleLimits, build_schedule
 
@@ -33,6 +34,11 @@ max_acc_m_s2 = 4.0
 max_tilt_deg = 30.0
 max_body_rate_rad_s = 2.0
 rover_max_speed_m_s = 1.5
+[tracking]
+kp_xy = 6.0
+kd_xy = 4.5
+ki_z = 0.0
+k_roll = 5.0
 """))
     assert vf.params.mass == 1.5 and vf.params.hover_thrust == 0.6 and vf.params.drag == 0.4
     np.testing.assert_allclose(np.diag(vf.params.inertia), [0.03, 0.03, 0.05])
@@ -40,12 +46,19 @@ rover_max_speed_m_s = 1.5
     assert lim.max_acc_m_s2 == 4.0 and lim.max_body_rate_rad_s == 2.0
     assert lim.max_tilt_rad == pytest.approx(math.pi / 6)
     assert lim.rover_max_speed_m_s == 1.5
+    g, a = vf.gains, vf.attitude_gains
+    assert (g.kp_xy, g.kd_xy, g.ki_z, a.k_roll) == (6.0, 4.5, 0.0, 5.0)
+    assert g.kp_z == TrackingGains().kp_z and a.k_pitch == AttitudeGains().k_pitch  # untouched
+    cfg = vf.tracking_config(math.radians(40.0))
+    assert cfg.gains == g and cfg.attitude_gains == a and cfg.params == vf.params
+    assert cfg.max_tilt_rad == pytest.approx(math.radians(40.0))
 
 
 def test_an_empty_file_gives_the_defaults(tmp_path: Path) -> None:
     vf = load_vehicle_file(_write(tmp_path, ""))
     assert vf.limits == VehicleLimits()
     assert vf.limits.rover_max_speed_m_s is None
+    assert vf.gains == TrackingGains() and vf.attitude_gains == AttitudeGains()
 
 
 @pytest.mark.parametrize(
@@ -59,6 +72,10 @@ def test_an_empty_file_gives_the_defaults(tmp_path: Path) -> None:
         ("[limits]\nrover_max_speed_m_s = nan\n", "must be a finite number"),
         ("[limits]\nmax_tilt_deg = 85\n", "max_tilt_deg < 80"),
         ("[limits\n", "not valid TOML"),
+        ("[tracking]\nkp = 3\n", "unknown key"),
+        ("[tracking]\nkp_xy = -1\n", "gains must be >= 0"),
+        ("[tracking]\nk_yaw = 0\n", "attitude gains > 0"),
+        ("tracking = 3\n", r"\[tracking\] must be a table"),
     ],
 )
 def test_bad_files_name_the_file_and_the_problem(tmp_path: Path, text: str, words: str) -> None:
