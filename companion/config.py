@@ -119,8 +119,10 @@ def load_vehicle_file(path: str | Path) -> VehicleFile:
     base_g, base_a = TrackingGains(), AttitudeGains()
     gains = replace(base_g, **{k: _number(trk, k, where, getattr(base_g, k))
                                for k in _GAIN_KEYS if k in trk})
-    att = replace(base_a, **{k: _number(trk, k, where, getattr(base_a, k))
-                             for k in _ATT_KEYS if k in trk})
-    if any(getattr(gains, k) < 0 for k in _GAIN_KEYS) or any(getattr(att, k) <= 0 for k in _ATT_KEYS):
+    att = replace(base_a, k_roll=_number(trk, "k_roll", where, base_a.k_roll),
+                  k_pitch=_number(trk, "k_pitch", where, base_a.k_pitch),
+                  k_yaw=_number(trk, "k_yaw", where, base_a.k_yaw))
+    if (any(getattr(gains, k) < 0 for k in _GAIN_KEYS)
+            or any(getattr(att, k) <= 0 for k in _ATT_KEYS)):
         raise ValueError(f"{where}: gains must be >= 0 (attitude gains > 0)")
     return VehicleFile(params=params, limits=limits, gains=gains, attitude_gains=att)
