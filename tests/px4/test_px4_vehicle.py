@@ -145,7 +145,10 @@ async def test_short_flight_in_each_setpoint_mode(px4: Px4Sitl, tmp_path: Path,
         assert len(err) > 20 * traj.duration  # LOCAL_POSITION_NED at ~30 Hz
         rms = float(np.sqrt(np.mean(err**2)))
         print(f"{mode}: {traj.duration:.1f} s, horizontal RMS {rms:.3f} m, max {err.max():.3f} m")
-        assert rms < 0.6 and err.max() < 1.2
+        # position mode is PX4's own controller on pos + vel + acc (0.5 m here, up to 0.8 m on
+        # a loaded machine); the companion's loops measure ~0.1-0.15 m
+        rms_cap, max_cap = (1.0, 1.6) if mode == "position" else (0.35, 0.8)
+        assert rms < rms_cap and err.max() < max_cap
         end = v.telemetry.position
         assert end is not None
         assert horizontal_distance(end.pos_ned, reference(traj.duration).pos_ned) < 0.6
@@ -210,7 +213,13 @@ async def test_mission_upload_download_round_trip(px4: Px4Sitl, tmp_path: Path) 
         await v.mission.upload(items)
         back = await v.mission.download()
         await v.mission.clear()
+        # Seen on PX4 v1.16 under load: MISSION_ACK for the clear arrives before the cleared
+        # mission is what a download reads, so poll (bounded) until it is.
+        deadline = time.monotonic() + 3.0
         empty = await v.mission.download()
+        while empty and time.monotonic() < deadline:
+            await asyncio.sleep(0.2)
+            empty = await v.mission.download()
     assert empty == []
     assert len(back) == len(items)
     for sent, got in zip(items, back, strict=True):
