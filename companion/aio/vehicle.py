@@ -629,9 +629,11 @@ class Vehicle:
                         raise
             return link.encode_setpoint(hold, now)
 
-        def on_sent(frame: bytes, _t: float) -> None:
-            if self.tlog is not None:
-                self.tlog.write(frame)
+        wall_minus_mono = time.time() - time.monotonic()
+
+        def on_sent(frame: bytes, t_send: float) -> None:
+            if self.tlog is not None:  # stamped with the send time, not the (later) log time
+                self.tlog.write(frame, t_send + wall_minus_mono)
 
         assert self.transport is not None
 
