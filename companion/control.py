@@ -480,6 +480,24 @@ class AttitudeGains:
     large_angle: bool = True
 
 
+def rates_mode_gains(gains: TrackingGains, attitude: AttitudeGains,
+                     separation: float = 2.0) -> TrackingGains:
+    """Position gains used in `rates` mode: the horizontal loop's natural frequency
+    sqrt(kp_xy) [rad/s] is capped at min(k_roll, k_pitch) / `separation`, so the companion's own
+    attitude loop (which `attitude` mode leaves to PX4's faster one) stays at least that much
+    quicker than the position loop it serves. The damping ratio is kept (kd_xy scales with the
+    frequency) and ki_xy scales with its cube. With the defaults (kp_xy 20, k_roll 6.5) the mock
+    in lockstep flew the 2 m/s figure-8 with a limit cycle (tilt 33 deg instead of 15) before
+    the cap, and cleanly after it; vertical gains are untouched."""
+    cap = min(attitude.k_roll, attitude.k_pitch) / separation
+    wn = math.sqrt(gains.kp_xy)
+    if wn <= cap:
+        return gains
+    s = cap / wn
+    return replace(gains, kp_xy=gains.kp_xy * s * s, kd_xy=gains.kd_xy * s,
+                   ki_xy=gains.ki_xy * s ** 3)
+
+
 @dataclass(frozen=True)
 class TrackingConfig:
     """Configuration of `TrackingController`.
@@ -614,11 +632,12 @@ class TrackingController:
         self.hover_estimator = HoverThrustEstimator(htc)
         dc = config.drag_config or DragConfig(initial_drag_over_mass=p.drag / p.mass, g=p.g)
         self.drag_estimator = DragEstimator(dc)
-        gains = config.gains
-        self._kp_l = gains.kp().tolist()
-        self._kd_l = gains.kd().tolist()
-        self._ki_l = gains.ki().tolist()
-        self._imax_l = gains.i_max().tolist()
+        self._gain_lists = {
+            rates: (g.kp().tolist(), g.kd().tolist(), g.ki().tolist(), g.i_max().tolist())
+            for rates, g in ((False, config.gains),
+                             (True, rates_mode_gains(config.gains, config.attitude_gains)))
+        }
+        self._kp_l, self._kd_l, self._ki_l, self._imax_l = self._gain_lists[False]
         self._integ_l = [0.0, 0.0, 0.0]
         self._cos_tilt = math.cos(config.max_tilt_rad)
         self._tan_tilt = math.tan(config.max_tilt_rad)
@@ -708,7 +727,7 @@ class TrackingController:
 
     def rates(self, now: float, est: StateEstimate, ref: Reference) -> RateCommand:
         """`rates` mode setpoint at `now`: body rates from the SO(3) loop + thrust."""
-        out = self._core(now, est, ref, 0.0)
+        out = self._core(now, est, ref, 0.0, rates=True)
         if out is None:
             return self._fallback_rates(now, est)
         q_des_t, thrust, omega_ff_t, sat = out
@@ -794,9 +813,11 @@ class TrackingController:
             )
 
     def _core(
-        self, now: float, est: StateEstimate, ref: Reference, lead_s: float
+        self, now: float, est: StateEstimate, ref: Reference, lead_s: float, rates: bool = False
     ) -> tuple[tuple[float, float, float, float], float, tuple[float, float, float], bool] | None:
-        """q_des, thrust_norm, omega_ff_frd, saturated; None -> fallback (see _fallback_reason)."""
+        """q_des, thrust_norm, omega_ff_frd, saturated; None -> fallback (see _fallback_reason).
+        `rates`: use the `rates_mode_gains` position gains."""
+        self._kp_l, self._kd_l, self._ki_l, self._imax_l = self._gain_lists[rates]
         c = self.config
         p = c.params
         self._fallback_reason = ""
