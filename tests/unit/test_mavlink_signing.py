@@ -23,8 +23,8 @@ from companion.mavlink import (
     Signer,
     SigningConfig,
     SigningKeyError,
-    Verdict,
     VehicleLink,
+    Verdict,
     load_signing_key,
 )
 from companion.mavlink.signing import strip_signature

@@ -4,6 +4,7 @@ own signing signs the client's frames and checks the mock's: an independent impl
 from __future__ import annotations
 
 import hashlib
+import itertools
 from pathlib import Path
 from typing import Any
 
@@ -121,9 +122,9 @@ def test_mock_signature_recomputed_from_the_spec() -> None:
         assert raw[-13] == 0  # the offboard link is the mock's link 0
         stamps.append(int.from_bytes(raw[-12:-6], "little"))
         assert mavlink.MAVLink(None).parse_buffer(raw)[0].get_type() != "BAD_DATA"
-    assert all(b > a for a, b in zip(stamps, stamps[1:], strict=False))
+    assert all(b > a for a, b in itertools.pairwise(stamps))
     # the timestamps follow simulated time from the wall clock given at boot (+1 per frame)
-    assert BOOT_TICKS < stamps[0] and stamps[-1] <= BOOT_TICKS + 100_000 + len(stamps)
+    assert stamps[0] > BOOT_TICKS and stamps[-1] <= BOOT_TICKS + 100_000 + len(stamps)
 
 
 def test_unkeyed_mock_still_accepts_unsigned_commands() -> None:
@@ -157,5 +158,5 @@ def test_mock_key_file_parsing(tmp_path: Path, content: bytes, ok: bool) -> None
 
 
 def test_mock_refuses_a_missing_key_file(tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match="signing key file .*nope"):
+    with pytest.raises(ValueError, match=r"signing key file .*nope"):
         read_key_file(str(tmp_path / "nope"))
