@@ -14,9 +14,11 @@ from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
+import pytest
 from pymavlink.dialects.v20 import common as m
 
 from companion.aio import Vehicle, VehicleConfig
+from companion.cli import main as cli_main
 from companion.mavlink import LinkConfig, PositionSetpoint, SigningConfig, TelemetrySnapshot
 from sitl_mock.autopilot import Autopilot
 from sitl_mock.server import LinkConfig as MockLink
@@ -169,3 +171,18 @@ async def test_status_with_the_right_key_reports_and_with_a_wrong_key_names_it(
             _status(f"udpin://127.0.0.1:{m2.client_port}", bad))
     assert ok_code == 0 and "ready to arm" in ok_out, ok_out
     assert bad_code == 1 and "signing keys differ" in bad_out.replace("\n", " "), bad_out
+
+
+def test_fly_with_a_signing_key_flies_the_keyed_embedded_mock(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`fly --signing-key` keys both ends: the companion drops unsigned frames and the embedded
+    mock refuses unsigned commands, so a flight that ends in exit code 0 was signed both ways."""
+    key_file = tmp_path / "key.hex"
+    key_file.write_text(KEY.hex())
+    log = tmp_path / "c.tlog"
+    code = cli_main(["fly", "circle", "--size", "2", "--speed", "1", "--alt", "2",
+                     "--signing-key", str(key_file), "--log", str(log)])
+    out = capsys.readouterr().out
+    assert code == 0, out[-2000:]
+    assert "MAVLink 2 signing on" in out
+    assert log.stat().st_size > 10_000
