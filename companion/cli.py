@@ -15,7 +15,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
-from companion.link_options import add_link_options
+from companion.link_options import add_signing_option
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -236,6 +236,21 @@ def _run_vehicle_command(run: Callable[[], int]) -> int:
         return EXIT_FAILURE
 
 
+def _target_system_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--target-system", type=_system_id, default=1, metavar="ID",
+                   help="the autopilot's MAVLink system id, PX4's MAV_SYS_ID (default 1)")
+
+
+def _system_id(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        v = 0
+    if not 1 <= v <= 255:
+        raise argparse.ArgumentTypeError(f"a MAVLink system id is 1-255, got {text!r}")
+    return v
+
+
 def _mock_param(text: str) -> tuple[str, float]:
     name, _, value = text.partition("=")
     try:
@@ -282,7 +297,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="a .plan / QGC WPL file, or a pattern: figure8, circle, square")
     fl.add_argument("--connect", metavar="URL", default=None,
                     help="vehicle link, e.g. udpin://0.0.0.0:14540 (default: an embedded mock)")
-    add_link_options(fl)
+    _target_system_option(fl)
+    add_signing_option(fl)
     fl.add_argument("--mode", choices=("position", "attitude", "rates"), default="attitude")
     fl.add_argument("--rate", type=float, default=100.0, help="setpoint rate [Hz] (default 100)")
     fl.add_argument("--vehicle", metavar="FILE.toml", default=None,
@@ -303,7 +319,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     stp = sub.add_parser("status", help="connect and print the vehicle state")
     stp.add_argument("--connect", metavar="URL", required=True, help="e.g. udpin://0.0.0.0:14540")
-    add_link_options(stp)
+    _target_system_option(stp)
+    add_signing_option(stp)
     stp.set_defaults(func=_cmd_status)
     return parser
 

@@ -1,10 +1,9 @@
 """Vehicle-link options shared by every command that talks to a vehicle (`fly`, `status`, and
-any later one such as `serve`): ``add_link_options(parser)`` adds them, ``link_config(args)``
-turns the parsed values into the :class:`companion.mavlink.LinkConfig` the link runs with.
-
-- ``--target-system ID``: the autopilot's MAVLink system id (PX4's MAV_SYS_ID).
-- ``--signing-key FILE``: MAVLink 2 signing with a 32-byte key (64 hex digits or 32 raw bytes);
-  read and checked while parsing, so a bad key file fails (exit 2) before anything is sent.
+any later one such as `serve`): ``add_signing_option(parser)`` adds ``--signing-key FILE``
+(MAVLink 2 signing with a 32-byte key, 64 hex digits or 32 raw bytes; read and checked while
+parsing, so a bad key file fails with exit code 2 before anything is sent), and
+``link_config(args)`` turns the parsed link options (``--target-system``, ``--signing-key``) into
+the :class:`companion.mavlink.LinkConfig` the link runs with.
 """
 
 from __future__ import annotations
@@ -14,17 +13,6 @@ import dataclasses
 from typing import Any
 
 from companion.mavlink import LinkConfig, SigningConfig, SigningKeyError, load_signing_key
-
-
-def system_id(text: str) -> int:
-    """argparse type: a MAVLink system id 1-255."""
-    try:
-        v = int(text)
-    except ValueError:
-        v = 0
-    if not 1 <= v <= 255:
-        raise argparse.ArgumentTypeError(f"a MAVLink system id is 1-255, got {text!r}")
-    return v
 
 
 def signing_key_file(path: str) -> bytes:
@@ -40,13 +28,6 @@ def add_signing_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--signing-key", type=signing_key_file, default=None, metavar="FILE",
                    help="MAVLink 2 signing key (64 hex digits or 32 raw bytes): sign every frame "
                         "sent, drop unsigned or wrongly signed frames received")
-
-
-def add_link_options(p: argparse.ArgumentParser) -> None:
-    """``--target-system ID`` and ``--signing-key FILE``."""
-    p.add_argument("--target-system", type=system_id, default=1, metavar="ID",
-                   help="the autopilot's MAVLink system id, PX4's MAV_SYS_ID (default 1)")
-    add_signing_option(p)
 
 
 def signing_config(key: bytes | None) -> SigningConfig | None:

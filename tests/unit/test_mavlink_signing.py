@@ -248,3 +248,21 @@ def test_cli_refuses_a_bad_key_file_before_connecting(tmp_path: Path, command: s
                      "--signing-key", str(path)])
     err = capsys.readouterr().err
     assert code == 2 and "--signing-key" in err and "4 hex digits" in err
+
+
+def test_shared_link_options_give_the_link_config(tmp_path: Path) -> None:
+    """What a command (fly, status, serve) does with `add_signing_option` + `link_config`."""
+    import argparse
+
+    from companion.link_options import add_signing_option, link_config
+
+    path = tmp_path / "k"
+    path.write_text(KEY.hex())
+    p = argparse.ArgumentParser()
+    p.add_argument("--target-system", type=int, default=1)
+    add_signing_option(p)
+    cfg = link_config(p.parse_args(["--target-system", "3", "--signing-key", str(path)]),
+                      compid=190)
+    assert cfg.target_sysid == 3 and cfg.compid == 190
+    assert cfg.signing is not None and cfg.signing.key == KEY
+    assert link_config(p.parse_args([])).signing is None
