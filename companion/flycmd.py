@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import datetime as dt
 import math
 import socket
-import time
 from collections.abc import AsyncIterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +21,6 @@ from rich.table import Table
 
 from companion.config import VehicleFile, load_vehicle_file
 from companion.control import Reference
-from companion.link_options import signing_config
 from companion.mavlink import LinkConfig
 from companion.mission import geodetic_to_ned, load_mission, mission_to_flight_plan
 from companion.patterns import PATTERNS, pattern_trajectory
@@ -52,7 +51,7 @@ class FlyOptions:
     busy_wait: bool = False
     sender_cpu: int | None = None
     target_system: int = 1  # the autopilot's MAVLink system id (PX4 MAV_SYS_ID)
-    signing_key: bytes | None = field(default=None, repr=False)  # MAVLink 2 signing (32 bytes)
+    signing_key: bytes | None = dataclasses.field(default=None, repr=False)  # MAVLink 2 signing
 
 
 def _free_udp_port() -> int:
@@ -68,6 +67,8 @@ async def embedded_mock(
 ) -> AsyncIterator[str]:
     """Run `sitl_mock` in this process on loopback; yields the URL the companion connects to.
     With a signing key the mock signs everything and refuses unsigned frames."""
+    import time
+
     from sitl_mock.autopilot import Autopilot
     from sitl_mock.params import ParamStore
     from sitl_mock.server import LinkConfig, MockServer, ServerConfig
@@ -127,6 +128,7 @@ def _takeoff_end(schedule: Schedule) -> float:
 async def fly(opts: FlyOptions, console: Console) -> int:
     """Run `fly`; returns the exit code (0 ok, 1 flight failure, 2 bad input)."""
     from companion.aio import Vehicle, VehicleConfig, VehicleError, safe_exit
+    from companion.link_options import signing_config
 
     vf = load_vehicle_file(opts.vehicle_file) if opts.vehicle_file else VehicleFile()
     mission = None
@@ -148,15 +150,15 @@ async def fly(opts: FlyOptions, console: Console) -> int:
             console.print(f"No --connect: flying the embedded mock PX4 ({url})")
         link = LinkConfig(target_sysid=opts.target_system if opts.connect else 1,
                           signing=signing_config(opts.signing_key))
+        if link.signing is not None:
+            console.print("MAVLink 2 signing on: frames not signed with the key are dropped")
         v = await stack.enter_async_context(Vehicle.connect(url, config=vconfig,
                                                             link_config=link))
         await stack.enter_async_context(safe_exit(v))
         hb = v.link.heartbeat.last
         rover = hb is not None and hb.vehicle_type == MAV_TYPE_GROUND_ROVER
         mode = "rover" if rover else opts.mode
-        signed = ", MAVLink 2 signing on" if opts.signing_key is not None else ""
-        console.print(f"Connected: {'rover' if rover else 'multicopter'}{signed}, "
-                      f"logging to {log_path}")
+        console.print(f"Connected: {'rover' if rover else 'multicopter'}, logging to {log_path}")
         source: TrackingSource | None = None
         started: float | None = None
         ended: float | None = None
@@ -253,6 +255,7 @@ async def status(url: str, console: Console, timeout_s: float = 10.0,
                  target_system: int = 1, signing_key: bytes | None = None) -> int:
     """Connect, wait for telemetry, print the vehicle state once (signed with ``signing_key``)."""
     from companion.aio import Vehicle, VehicleConfig
+    from companion.link_options import signing_config
 
     link = LinkConfig(target_sysid=target_system, signing=signing_config(signing_key))
     async with Vehicle.connect(url, config=VehicleConfig(connect_timeout_s=timeout_s),
