@@ -128,7 +128,6 @@ def _takeoff_end(schedule: Schedule) -> float:
 async def fly(opts: FlyOptions, console: Console) -> int:
     """Run `fly`; returns the exit code (0 ok, 1 flight failure, 2 bad input)."""
     from companion.aio import Vehicle, VehicleConfig, VehicleError, safe_exit
-    from companion.link_options import signing_config
 
     vf = load_vehicle_file(opts.vehicle_file) if opts.vehicle_file else VehicleFile()
     mission = None
@@ -148,8 +147,8 @@ async def fly(opts: FlyOptions, console: Console) -> int:
             url = await stack.enter_async_context(
                 embedded_mock(home, opts.mock_params, opts.signing_key))
             console.print(f"No --connect: flying the embedded mock PX4 ({url})")
-        link = LinkConfig(target_sysid=opts.target_system if opts.connect else 1,
-                          signing=signing_config(opts.signing_key))
+        link = LinkConfig(target_sysid=opts.target_system if opts.connect else 1
+                          ).with_signing_key(opts.signing_key)
         if link.signing is not None:
             console.print("MAVLink 2 signing on: frames not signed with the key are dropped")
         v = await stack.enter_async_context(Vehicle.connect(url, config=vconfig,
@@ -255,9 +254,8 @@ async def status(url: str, console: Console, timeout_s: float = 10.0,
                  target_system: int = 1, signing_key: bytes | None = None) -> int:
     """Connect, wait for telemetry, print the vehicle state once (signed with ``signing_key``)."""
     from companion.aio import Vehicle, VehicleConfig
-    from companion.link_options import signing_config
 
-    link = LinkConfig(target_sysid=target_system, signing=signing_config(signing_key))
+    link = LinkConfig(target_sysid=target_system).with_signing_key(signing_key)
     async with Vehicle.connect(url, config=VehicleConfig(connect_timeout_s=timeout_s),
                                link_config=link) as v:
         deadline = asyncio.get_running_loop().time() + 3.0

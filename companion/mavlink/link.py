@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from pymavlink.dialects.v20 import common as mavlink2
 
@@ -60,6 +60,10 @@ class LinkConfig:
     mission_retries: int = 20
     timesync_interval_s: float = 1.0
     signing: SigningConfig | None = None
+
+    def with_signing_key(self, key: bytes | None) -> LinkConfig:
+        """This configuration signing with ``key`` (32 bytes, default link ids; None: as is)."""
+        return self if key is None else replace(self, signing=SigningConfig(key))
 
 
 class VehicleLink:
