@@ -26,6 +26,8 @@ from __future__ import annotations
 import enum
 import hashlib
 import hmac
+import logging
+import stat
 import string
 import threading
 from collections import Counter
@@ -47,6 +49,8 @@ IFLAG_SIGNED = 0x01
 _HEADER_LEN = 10  # magic .. msgid, MAVLink 2
 #: Accepted unsigned even when signing is required (PX4's list).
 PX4_UNSIGNED_IDS = frozenset({109, 246, 247})  # RADIO_STATUS, ADSB_VEHICLE, COLLISION
+
+log = logging.getLogger(__name__)
 
 
 class SigningKeyError(ValueError):
@@ -73,12 +77,18 @@ def parse_signing_key(data: bytes, source: str = "signing key") -> bytes:
 
 
 def load_signing_key(path: str | Path) -> bytes:
-    """Read a key file (see :func:`parse_signing_key`); raises SigningKeyError with the path."""
+    """Read a key file (see :func:`parse_signing_key`); raises SigningKeyError with the path.
+    Logs a warning when the file is readable by other users (it should be mode 600)."""
     try:
         data = Path(path).read_bytes()
+        mode = Path(path).stat().st_mode
     except OSError as exc:
         raise SigningKeyError(f"signing key file {path}: {exc.strerror or exc}") from None
-    return parse_signing_key(data, f"signing key file {path}")
+    key = parse_signing_key(data, f"signing key file {path}")
+    if mode & (stat.S_IRWXG | stat.S_IRWXO):
+        log.warning("signing key file %s is accessible to other users (mode %03o); "
+                    "`chmod 600 %s` keeps the key secret", path, mode & 0o777, path)
+    return key
 
 
 def signing_timestamp(unix_s: float) -> int:

@@ -266,3 +266,16 @@ def test_shared_link_options_give_the_link_config(tmp_path: Path) -> None:
     assert cfg.target_sysid == 3 and cfg.compid == 190
     assert cfg.signing is not None and cfg.signing.key == KEY
     assert link_config(p.parse_args([])).signing is None
+
+
+def test_key_file_readable_by_others_is_warned_about(tmp_path: Path,
+                                                     caplog: pytest.LogCaptureFixture) -> None:
+    path = tmp_path / "key"
+    path.write_text(KEY.hex())
+    path.chmod(0o600)
+    with caplog.at_level("WARNING", logger="companion.mavlink.signing"):
+        load_signing_key(path)
+        assert not caplog.records
+        path.chmod(0o644)
+        assert load_signing_key(path) == KEY  # still used, with a warning
+    assert "chmod 600" in caplog.text and "644" in caplog.text
