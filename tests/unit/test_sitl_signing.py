@@ -135,6 +135,17 @@ def test_unkeyed_mock_still_accepts_unsigned_commands() -> None:
     assert h.ap.armed and not any(raw[2] & 0x01 for raw in h.raw)
 
 
+def test_unkeyed_mock_obeys_signed_commands_unchecked_like_px4_v1_16() -> None:
+    """PX4 v1.16 has no signing and ignores signatures (tests/px4/test_px4_signing.py); so does
+    the mock without a key."""
+    h = Harness(estimator_ready_s=0.5)
+    sign_with(h.mav, OTHER_KEY, BOOT_TICKS)
+    h.wait_ready()
+    h.arm()
+    h.run(0.1)
+    assert h.ap.armed and h.acks(400) == [0]
+
+
 @pytest.mark.parametrize(("content", "ok"), [
     (KEY.hex().encode() + b"\n", True),
     (b"  " + KEY.hex().upper().encode() + b"\r\n", True),
