@@ -1,4 +1,5 @@
-"""Tracking benchmark (issue 6): figure-8 errors of the setpoint modes on the mock vehicle.
+"""Tracking benchmark: figure-8 errors of the setpoint modes on the mock (lockstep) and, with
+`--target mock px4`, through the public API on `sitl_mock serve` and real PX4 SITL side by side.
 
 Lockstep, no MAVLink: the `sitl_mock` quadrotor model (PX4 SIH-like physics + PX4-like
 controller cascade) is stepped at its physics rate; the companion controller sees telemetry at
@@ -14,7 +15,7 @@ Modes: `position` (position-only setpoints, PX4's controller closes the loop: th
 baseline), `position_ff` (position + velocity + acceleration feed-forward), `attitude`
 (companion tracking controller, q + thrust), `rates` (companion SO(3) loop, body rates + thrust).
 
-Run: `/work/venv/bin/python bench/bench_tracking.py [--harness mavlink|direct] [--write]`
+Run: `.venv/bin/python bench/bench_tracking.py [--harness mavlink|direct] [--write]`
 (--write prints the markdown table for BENCHMARKS.md). The default harness goes through MAVLink
 with `sitl_mock.lockstep.LockstepSim` (ODOMETRY telemetry at 30 Hz, one period of extra
 latency); `direct` steps the vehicle model with setpoint objects.
