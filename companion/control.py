@@ -431,7 +431,8 @@ class TrackingGains:
     acceleration contribution [m/s^2]. The xy defaults (omega_n 4.5 rad/s, zeta 0.95) were tuned
     on real PX4 v1.16 SITL over UDP, figure-8 at 2 and 6 m/s (BENCHMARKS.md); kp_xy 30
     oscillates there in attitude mode, so they sit at about 2/3 of the stability limit. They
-    assume telemetry latency under ~50 ms; with ~100 ms use kp_xy 6, kd_xy 4.5, ki_xy 1.
+    assume telemetry latency under ~50 ms; with ~100 ms use kp_xy 6, kd_xy 4.5, ki_xy 1 and
+    attitude gains k_roll = k_pitch = 6.5.
     """
 
     kp_xy: float = 20.0
@@ -464,16 +465,19 @@ class TrackingGains:
 class AttitudeGains:
     """Companion-side SO(3) attitude loop producing body-rate commands.
 
-    k_roll/k_pitch/k_yaw: attitude gains [1/s] (PX4 MC_ROLL_P/MC_PITCH_P/MC_YAW_P defaults).
-        12 tracked 8-17 % better on real PX4 SITL over UDP, but lost the large-angle recovery
-        (170 deg: overshoot back above 10 deg) and 100 ms telemetry latency (2.6 m RMS).
+    k_roll/k_pitch/k_yaw: attitude gains [1/s]. Roll/pitch 10 (PX4's MC_ROLL_P is 6.5), tuned
+        on real PX4 v1.16 SITL with the default position gains: 6.5 forced `rates_mode_gains`
+        to soften the position loop (rates 6 m/s 0.17 m RMS vs 0.10 m), 12 lost the
+        large-angle recovery (170 deg: overshoot back above 10 deg) and oscillated on the mock
+        at 2 m/s. With ~100 ms telemetry latency use 6.5 (10 gives 0.46 m there, 6.5 < 0.1 m).
+        k_yaw is PX4's MC_YAW_P.
     max_rate_rp / max_rate_yaw: rate command limits [rad/s] (MC_*RATE_MAX).
     large_angle: scale e_R by 1/cos(angle/2) so the error grows monotonically up to 180 deg
     (Lee 2011's alternative error function; small-angle behaviour unchanged).
     """
 
-    k_roll: float = 6.5
-    k_pitch: float = 6.5
+    k_roll: float = 10.0
+    k_pitch: float = 10.0
     k_yaw: float = 2.8
     max_rate_rp: float = math.radians(220.0)
     max_rate_yaw: float = math.radians(200.0)
@@ -486,9 +490,9 @@ def rates_mode_gains(gains: TrackingGains, attitude: AttitudeGains,
     sqrt(kp_xy) [rad/s] is capped at min(k_roll, k_pitch) / `separation`, so the companion's own
     attitude loop (which `attitude` mode leaves to PX4's faster one) stays at least that much
     quicker than the position loop it serves. The damping ratio is kept (kd_xy scales with the
-    frequency) and ki_xy scales with its cube. With the defaults (kp_xy 20, k_roll 6.5) the mock
-    in lockstep flew the 2 m/s figure-8 with a limit cycle (tilt 33 deg instead of 15) before
-    the cap, and cleanly after it; vertical gains are untouched."""
+    frequency) and ki_xy scales with its cube. With kp_xy 20 and k_roll 6.5 the mock in
+    lockstep flew the 2 m/s figure-8 in a limit cycle (tilt 33 deg instead of 15) without the
+    cap, cleanly with it (the defaults, k_roll 10, need no cap); vertical gains are untouched."""
     cap = min(attitude.k_roll, attitude.k_pitch) / separation
     wn = math.sqrt(gains.kp_xy)
     if wn <= cap:
