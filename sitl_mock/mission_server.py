@@ -8,7 +8,9 @@ vehicle's navigator. Time `now` is simulated seconds; nothing here reads a clock
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -68,6 +70,18 @@ SUPPORTED_COMMANDS = frozenset(
 POSITION_COMMANDS = frozenset({16, 17, 18, 19, 21, 22, 31})
 
 EARTH_RADIUS_M = 6371000.0  # PX4 CONSTANTS_RADIUS_OF_EARTH
+
+
+def plan_id(items: list[MissionItem]) -> int:
+    """PX4 v1.16's opaque plan id: a CRC32 over the stored items (0 for none), so it changes
+    with every different upload and stays the same for an identical one. The mock hashes the
+    items' fields; PX4 its own storage layout, so the values differ, the behaviour does not."""
+    if not items:
+        return 0
+    crc = 0
+    for it in items:
+        crc = zlib.crc32(repr(dataclasses.astuple(it)).encode(), crc)
+    return crc or 1
 
 
 @dataclass(frozen=True)
@@ -364,7 +378,7 @@ class MissionServer:
 
     def _store(self, mtype: int, items: list[MissionItem]) -> None:
         self.items[mtype] = list(items)
-        self.opaque_id[mtype] = (self.opaque_id[mtype] + 1) & 0xFFFFFFFF or 1
+        self.opaque_id[mtype] = plan_id(items)
         self._on_changed(mtype)
 
     # ---------------------------------------------------------------- download
