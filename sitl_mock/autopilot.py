@@ -648,6 +648,22 @@ class Autopilot:
         for lk in self.links.values():
             self._send(lk, msg)
 
+    def _forward(self, src: Link, frame: bytes) -> None:
+        """Pass another component's frame unchanged to the other links (PX4 `mavlink start
+        -f`, on in SITL: e.g. a companion's STATUSTEXT reaches the ground station)."""
+        for lk in self.links.values():
+            if lk is src:
+                continue
+            if lk.tx_fifo is not None:
+                lk.tx_fifo.append((self._t, frame))
+                lk.tx.stats.passed += 1
+            else:
+                lk.tx.push(frame, self._t, self._t)
+
+    def _on_statustext(self, link: Link, msg: Msg) -> None:
+        if (msg.get_srcSystem(), msg.get_srcComponent()) != (SYSID, COMPID):
+            self._forward(link, bytes(msg.get_msgbuf()))
+
     def statustext(self, severity: int, text: str) -> None:
         """STATUSTEXT on every link, chunked (id / chunk_seq) when longer than 50 chars."""
         raw = text.encode("ascii", "replace")

@@ -21,6 +21,7 @@ PURE = [
     "companion/patterns.py",
     "companion/config.py",
     "companion/flight_report.py",
+    "companion/service.py",
 ]
 
 
