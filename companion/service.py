@@ -27,7 +27,7 @@ turns downloaded items into a :class:`MissionProgram`, ``on_planned`` hands it b
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -429,7 +429,7 @@ class ServeService:
         self._key = key
         if mc.total in (0, NO_MISSION_TOTAL):
             out: list[Action] = [LogEvent("mission_none", {})]
-            if self.program is not None or self.plan_error is None:
+            if self.plan_error != "no mission":  # once per change
                 out.append(Announce("ecca: no mission on the vehicle"))
             if self.state == "mission":
                 out += self.on_planned(key, "the mission was cleared", obs.now_s)[:1]
@@ -493,7 +493,7 @@ class ServeService:
         # candidates: two lead-in distances, ending on the plan's velocity and acceleration
         # or on its velocity only (an acceleration step the controller absorbs); the quickest
         # feasible one wins (each plan takes ~10-50 ms)
-        best: tuple[float, tuple[Any, float] | None] | None = None
+        best: tuple[float, tuple[Callable[[float], Reference], float] | None] | None = None
         last: Exception | None = None
         for frac in (0.5, 0.25):
             t_cand = prog.lead_in(here, t_near, frac * cfg.limits.max_acc_m_s2)
@@ -526,7 +526,8 @@ class ServeService:
         return MissionStream(source, obs.now_s, join_s, t_join)
 
     def _join_trajectory(self, here: FloatArray, vel: FloatArray, yaw_here: float | None,
-                         target: Reference, with_acc: bool) -> tuple[Any, float] | None:
+                         target: Reference, with_acc: bool
+                         ) -> tuple[Callable[[float], Reference], float] | None:
         """(reference function, duration [s]) from ``here`` moving at ``vel`` to ``target``
         (its position, velocity and acceleration), or None when already there."""
         cfg = self.config
