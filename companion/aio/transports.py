@@ -21,7 +21,6 @@ import threading
 from dataclasses import dataclass
 from typing import Any
 
-
 #: Baud rate of a serial link given without one (PX4's TELEM2 companion default, SER_TEL2_BAUD).
 DEFAULT_BAUD = 921600
 
