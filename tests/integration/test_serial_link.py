@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import re
+import signal
 import sys
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -59,3 +61,32 @@ async def test_vehicle_over_a_pty_serial_link(tmp_path: Path) -> None:
             assert v.is_armed and pos is not None and pos.pos_ned[2] < -2.0
             await bounded(v.land(), 60.0, "landing over serial")
             assert not v.is_armed
+
+
+async def test_serve_connects_over_the_pty_by_bare_path_and_stops_on_sigterm(
+        tmp_path: Path) -> None:
+    async with mock_on_pty() as device:
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "companion", "serve", "--connect", device, "--log-dir",
+            str(tmp_path), stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE)
+        try:
+            events = tmp_path / "events.jsonl"
+
+            def seen(kind: str) -> bool:
+                return events.exists() and any(
+                    json.loads(line)["event"] == kind for line in events.read_text().splitlines())
+
+            for _ in range(200):  # bounded poll of the service's own log (<= 20 s)
+                if seen("mission_none"):
+                    break
+                await asyncio.sleep(0.1)
+            # connected over the pty, and it read MISSION_CURRENT (no mission) from the mock
+            assert seen("connected") and seen("mission_none")
+            proc.send_signal(signal.SIGTERM)
+            assert await bounded(proc.wait(), 10.0, "serve to stop") == 0
+            assert seen("stop")
+            assert list(tmp_path.glob("serve-*.tlog"))
+        finally:
+            if proc.returncode is None:
+                proc.kill()
+                await proc.wait()
