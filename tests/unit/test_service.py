@@ -200,3 +200,25 @@ def test_rotating_tlog_rotates_keeps_the_newest_and_stays_readable(tmp_path: Pat
         n += 1
     m.close()
     assert n == files[-1].stat().st_size // (len(frame) + 8)
+
+
+def test_a_new_mission_in_flight_stops_the_old_one_and_holds(
+        program_and_key: tuple[object, tuple[int, int]]) -> None:
+    prog, key = program_and_key
+    svc = ServeService()
+    svc.on_planned(key, prog, 0.0)  # type: ignore[arg-type]
+    start = prog.reference(prog.t_begin).pos_ned  # type: ignore[attr-defined]
+    p0 = (float(start[0]), float(start[1]), float(start[2]))
+    svc.update(obs(0.0, pos=p0))
+    svc.update(obs(0.05, mode=FlightMode.OFFBOARD, pos=p0))
+    assert isinstance(svc.stream, MissionStream)
+    svc.update(obs(2.0, mode=FlightMode.OFFBOARD, pos=p0))
+    acts = svc.on_planned((999, 3), prog, 2.1)  # type: ignore[arg-type]
+    assert isinstance(svc.stream, HoldStream)
+    assert any(isinstance(a, Announce) and "changed in flight" in a.text for a in acts)
+    # still in OFFBOARD: it keeps holding until the pilot re-enters OFFBOARD
+    svc.update(obs(2.2, mode=FlightMode.OFFBOARD, pos=p0))
+    assert isinstance(svc.stream, HoldStream)
+    svc.update(obs(2.3, mode=FlightMode.HOLD, pos=p0))
+    svc.update(obs(2.4, mode=FlightMode.OFFBOARD, pos=p0))
+    assert isinstance(svc.stream, MissionStream)
