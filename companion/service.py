@@ -375,8 +375,8 @@ class ServeService:
         if self.state == "mission":  # never fly on with a replaced plan
             ms = self.stream
             hold = None
-            if isinstance(ms, MissionStream):
-                r = ms.source.last_reference
+            if isinstance(ms, MissionStream):  # hold where the reference is now
+                r = ms.source.reference(max(0.0, now_s - ms.t0_s))
                 if r is not None:
                     hold = PositionSetpoint(pos_ned=tuple(float(c) for c in r.pos_ned),  # type: ignore[arg-type]
                                             vel_ned=(0.0, 0.0, 0.0), yaw=_yaw_of(r))
