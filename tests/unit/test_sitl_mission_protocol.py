@@ -185,6 +185,13 @@ def test_clear_all_and_count_zero_clear_the_mission() -> None:
     assert download(h) == []
 
 
+def _ext_u32(msg: object, offset: int) -> int:
+    """A uint32 extension field at payload ``offset`` from the raw (zero-trimmed) frame."""
+    buf = bytes(msg.get_msgbuf())  # type: ignore[attr-defined]
+    payload = buf[10:10 + buf[1]] + bytes(32)
+    return int(struct.unpack_from("<I", payload, offset)[0])
+
+
 def _mission_id(msg: object) -> int:
     """MISSION_CURRENT.mission_id from the raw frame (uint32 at payload offset 6, zero-trimmed)."""
     buf = bytes(msg.get_msgbuf())  # type: ignore[attr-defined]
@@ -202,6 +209,9 @@ def test_mission_current_carries_an_id_that_changes_with_the_mission() -> None:
     h.run(1.1)
     first = _mission_id(h.last("MISSION_CURRENT"))
     assert first != 0
+    # the accepting MISSION_ACK and a download's MISSION_COUNT carry the same id (opaque_id)
+    assert _ext_u32(h.msgs("MISSION_ACK")[-1], 4) == first
+    assert download(h) and _ext_u32(h.msgs("MISSION_COUNT")[-1], 5) == first
     upload(h, SIMPLE)
     h.run(1.1)
     assert _mission_id(h.last("MISSION_CURRENT")) == first
