@@ -296,7 +296,7 @@ class TcpTransport(Transport):
 
 
 class SerialTransport(Transport):
-    """Serial port through pyserial (optional dependency)."""
+    """Serial port through pyserial (raw, non-blocking; a pty works too)."""
 
     def __init__(self, ep: Endpoint, loop: asyncio.AbstractEventLoop) -> None:
         super().__init__()

@@ -21,6 +21,8 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.mission import load_mission, mission_upload_items
 from tests.gcs import Gcs, ground_station
+from tests.integration.conftest import free_udp_port
+from tests.integration.test_serve_mock import relay
 
 from .px4_sitl import Px4Sitl
 
@@ -110,6 +112,61 @@ async def test_px4_serve_flies_pauses_resumes_and_lands(px4: Px4Sitl, tmp_path: 
             await proc.wait()
         if (logs / "events.jsonl").exists():
             print((logs / "events.jsonl").read_text()[-3000:])
+
+
+async def test_px4_serve_link_loss_and_kill_leave_it_to_px4s_failsafe(
+        px4: Px4Sitl, tmp_path: Path) -> None:
+    """Link cut (a UDP relay between PX4's onboard link and the service drops everything) ->
+    PX4's offboard-loss failsafe; link back -> the service streams hold again and OFFBOARD
+    resumes the mission; SIGKILL -> the failsafe again."""
+    logs = tmp_path / "serve"
+    svc_port = free_udp_port()
+    async with relay(px4.port, svc_port) as link, ground_station(
+            px4.gcs_port, px4.target_system) as gcs:
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "companion", "serve", "--connect",
+            f"udpin://127.0.0.1:{svc_port}", "--target-system", str(px4.target_system),
+            "--log-dir", str(logs),
+            stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.DEVNULL)
+        try:
+            await gcs.wait_for(lambda: gcs.heartbeat is not None, 15.0, "PX4's HEARTBEAT")
+            m = load_mission(MISSION)
+            await gcs.upload_mission([mavlink2.MAVLink_mission_item_int_message(
+                px4.target_system, 1, i, u.frame, u.command, int(i == 0), u.autocontinue,
+                u.param1, u.param2, u.param3, u.param4, u.x, u.y, u.z, 0)
+                for i, u in enumerate(mission_upload_items(m))])
+            await gcs.wait_for(lambda: any(e["event"] == "mission_planned"
+                                           for e in events(logs)), 20.0, "the plan")
+            await pilot_takes_off(gcs)
+            assert await gcs.set_mode("OFFBOARD") == 0
+            await gcs.wait_for(lambda: gcs.position[0] > 3.0, 20.0, "mission flight")  # type: ignore[index]
+            n = len(events(logs))
+            link.drop = True
+            await gcs.wait_for(lambda: gcs.mode != "OFFBOARD", 5.0, "PX4's failsafe")
+            print("link loss ->", gcs.mode, "system_status", gcs.heartbeat.system_status)
+            assert gcs.heartbeat.system_status == 5  # CRITICAL: a failsafe, not a mode change
+            assert await gcs.set_mode("HOLD") == 0  # the pilot stops the no-RC descent
+            await gcs.wait_for(lambda: any(e["event"] == "link" and e["ok"] is False
+                                           for e in events(logs)[n:]), 10.0, "link lost seen")
+            n = len(events(logs))
+            link.drop = False
+            await gcs.wait_for(lambda: any(e["event"] == "link" and e["ok"] is True
+                                           for e in events(logs)[n:]), 15.0, "relink seen")
+            for _ in range(10):  # the first hold setpoints may still be on their way
+                if await gcs.set_mode("OFFBOARD") == 0:
+                    break
+            await gcs.wait_for(lambda: gcs.mode == "OFFBOARD", 3.0, "OFFBOARD again")
+            await gcs.wait_for(lambda: sum(e["event"] == "state" and e["state"] == "mission"
+                                           for e in events(logs)) >= 2, 5.0, "the resume")
+            proc.kill()
+            await proc.wait()
+            await gcs.wait_for(lambda: gcs.mode != "OFFBOARD", 5.0, "failsafe after the kill")
+            print("kill ->", gcs.mode, "system_status", gcs.heartbeat.system_status)
+            assert gcs.heartbeat.system_status == 5
+        finally:
+            if proc.returncode is None:
+                proc.kill()
+                await proc.wait()
 
 
 pytestmark = pytest.mark.px4
