@@ -222,6 +222,19 @@ def _cmd_status(args: argparse.Namespace) -> int:
                                    signing_key=args.signing_key)))
 
 
+def _cmd_serve(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from companion.servecmd import ServeOptions, serve
+
+    opts = ServeOptions(
+        connect=args.connect, mode=args.mode, rate_hz=args.rate, vehicle_file=args.vehicle,
+        log_dir=args.log_dir, target_system=args.target_system,
+        tlog_max_bytes=int(args.tlog_max_mb * 1024 * 1024), tlog_keep=args.tlog_keep,
+    )
+    return _run_vehicle_command(lambda: asyncio.run(serve(opts, console)))
+
+
 def _run_vehicle_command(run: Callable[[], int]) -> int:
     """Map vehicle-side failures to exit code 1 with a pilot-readable message."""
     from companion.aio import VehicleError
@@ -316,6 +329,25 @@ def build_parser() -> argparse.ArgumentParser:
     fl.add_argument("--mock-param", type=_mock_param, action="append", default=[],
                     metavar="NAME=VALUE", help="parameter of the embedded mock (repeatable)")
     fl.set_defaults(func=_cmd_fly)
+
+    sv = sub.add_parser(
+        "serve", help="companion-computer service: stream hold setpoints, fly the pilot's "
+        "mission smoothly whenever the pilot selects OFFBOARD (never arms or takes off)")
+    sv.add_argument("--connect", metavar="URL", required=True,
+                    help="vehicle link: udpin://0.0.0.0:14540, serial:///dev/ttyAMA0:921600 or "
+                    "a serial device path (default baud 921600)")
+    _target_system_option(sv)
+    sv.add_argument("--mode", choices=("position", "attitude", "rates"), default="attitude")
+    sv.add_argument("--rate", type=float, default=50.0, help="setpoint rate [Hz] (default 50)")
+    sv.add_argument("--vehicle", metavar="FILE.toml", default=None,
+                    help="vehicle parameters and limits (see companion/config.py)")
+    sv.add_argument("--log-dir", metavar="DIR", default="ecca-logs",
+                    help="folder for rotating .tlog files and events.jsonl (default ecca-logs)")
+    sv.add_argument("--tlog-max-mb", type=float, default=64.0,
+                    help="start a new .tlog beyond this size [MiB] (default 64)")
+    sv.add_argument("--tlog-keep", type=int, default=20,
+                    help="keep the newest N .tlog files (default 20)")
+    sv.set_defaults(func=_cmd_serve)
 
     stp = sub.add_parser("status", help="connect and print the vehicle state")
     stp.add_argument("--connect", metavar="URL", required=True, help="e.g. udpin://0.0.0.0:14540")

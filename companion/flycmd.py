@@ -7,9 +7,10 @@ import asyncio
 import contextlib
 import dataclasses
 import datetime as dt
+import json
 import math
 import socket
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,15 +22,20 @@ from rich.table import Table
 
 from companion.config import VehicleFile, load_vehicle_file
 from companion.control import Reference
-from companion.mavlink import LinkConfig
-from companion.mission import geodetic_to_ned, load_mission, mission_to_flight_plan
-from companion.patterns import PATTERNS, pattern_trajectory
+from companion.flight_report import FloatArray, TrackRecorder
+from companion.mavlink import FlightMode, LinkConfig
+from companion.mission import Mission, geodetic_to_ned, load_mission, mission_to_flight_plan
+from companion.patterns import PATTERNS, pattern_trajectory, pattern_waypoints
 from companion.schedule import Schedule, build_schedule, trajectory_reference
 from companion.tracking import TrackingSource
 
 DEFAULT_HOME = (47.397742, 8.545594, 488.0)
 #: A mission's planned home must be this close to the vehicle to be flown [m].
 MAX_HOME_OFFSET_M = 5.0
+#: How long `fly` waits for the vehicle's global position before the home check [s].
+HOME_WAIT_S = 5.0
+#: A pattern's interpolation points count as reached within this distance [m].
+PATTERN_ACCEPTANCE_M = 1.0
 MAV_TYPE_GROUND_ROVER = 10
 
 
@@ -125,27 +131,149 @@ def _takeoff_end(schedule: Schedule) -> float:
     return t_off
 
 
-async def fly(opts: FlyOptions, console: Console) -> int:
-    """Run `fly`; returns the exit code (0 ok, 1 flight failure, 2 bad input)."""
-    from companion.aio import Vehicle, VehicleConfig, VehicleError, safe_exit
+@dataclass(frozen=True)
+class FlyInputs:
+    """Everything `fly` reads from files and options, checked before connecting."""
 
+    vehicle: VehicleFile
+    mission: Mission | None
+    home: tuple[float, float, float]
+    log_path: str
+
+
+def check_inputs(opts: FlyOptions) -> FlyInputs:
+    """Load and check files and options; ValueError/FileNotFoundError before any link opens."""
     vf = load_vehicle_file(opts.vehicle_file) if opts.vehicle_file else VehicleFile()
+    if opts.mode not in ("position", "attitude", "rates"):
+        raise ValueError(f"--mode must be position, attitude or rates, got {opts.mode!r}")
+    if not (math.isfinite(opts.rate_hz) and 2.0 < opts.rate_hz <= 1000.0):
+        raise ValueError(f"--rate must be above 2 Hz (PX4's minimum) and at most 1000, "
+                         f"got {opts.rate_hz:g}")
     mission = None
     home = DEFAULT_HOME
     if opts.target not in PATTERNS:
         mission = load_mission(opts.target)
         home = (mission.home.lat_deg, mission.home.lon_deg, mission.home.alt_amsl_m)
-    elif not (opts.alt_m > 0.5):
-        raise ValueError(f"--alt must be above 0.5 m, got {opts.alt_m}")
+    else:
+        if not (math.isfinite(opts.alt_m) and opts.alt_m > 0.5):
+            raise ValueError(f"--alt must be above 0.5 m, got {opts.alt_m}")
+        # the pattern's own argument checks (size, speed, laps) without planning it
+        pattern_waypoints(opts.target, np.zeros(3), opts.size_m, opts.laps)
+        if not (math.isfinite(opts.speed_m_s) and opts.speed_m_s > 0.0):
+            raise ValueError(f"--speed must be a positive number of m/s, got {opts.speed_m_s}")
     log_path = opts.log or f"flight-{dt.datetime.now(dt.UTC):%Y%m%dT%H%M%SZ}.tlog"
+    parent = Path(log_path).resolve().parent
+    if not parent.is_dir():
+        raise FileNotFoundError(f"log folder {parent} does not exist")
+    return FlyInputs(vf, mission, home, log_path)
+
+
+@dataclass(frozen=True)
+class PlannedFlight:
+    """A flight ready to go: reference relative to its start, and what to report against."""
+
+    alt_m: float  # takeoff altitude above the ground [m]
+    duration_s: float  # offboard part [s]
+    start_rel: FloatArray  # reference position at t = 0, in the plan's own frame (NED, m)
+    rel_ref: Callable[[float, FloatArray | None], Reference]  # t [s], origin -> reference
+    waypoints_rel: FloatArray  # (K, 3) in the plan's frame
+    acceptance_m: tuple[float, ...]
+    final_action: str  # "land", "rtl" or "loiter"
+
+
+def plan_flight(opts: FlyOptions, inputs: FlyInputs, rover: bool) -> PlannedFlight:
+    """Plan the mission or pattern (CPU-bound: run it off the event loop)."""
+    vf = inputs.vehicle
+    if inputs.mission is not None:
+        fp = mission_to_flight_plan(inputs.mission, vehicle="rover" if rover else "quad")
+        schedule = build_schedule(fp, None if rover else vf.params, vf.limits)
+        t_off = _takeoff_end(schedule)
+
+        def sched_ref(t: float, origin: FloatArray | None = None) -> Reference:
+            return schedule.reference(t + t_off, origin)
+
+        return PlannedFlight(fp.takeoff_alt_m, schedule.duration_s - t_off,
+                             schedule.reference(t_off).pos_ned, sched_ref,
+                             np.asarray(schedule.waypoints_ned, dtype=np.float64),
+                             tuple(schedule.acceptance_m), schedule.final_action)
+    traj = pattern_trajectory(
+        opts.target, np.zeros(3), size_m=opts.size_m, speed_m_s=opts.speed_m_s,
+        laps=opts.laps, yaw=0.0, params=vf.params, max_acc_m_s2=vf.limits.max_acc_m_s2,
+        max_tilt_rad=vf.limits.max_tilt_rad,
+    )
+    pattern_ref = trajectory_reference(traj, 0.0)
+
+    def pat_ref(t: float, origin: FloatArray | None = None) -> Reference:
+        r = pattern_ref(t)
+        if origin is None:
+            return r
+        return Reference(r.pos_ned + origin, r.vel_ned, r.acc_ned, r.jerk_ned, r.snap_ned,
+                         r.yaw, r.yaw_rate, r.yaw_acc)
+
+    wps = pattern_waypoints(opts.target, np.zeros(3), opts.size_m, opts.laps)
+    return PlannedFlight(opts.alt_m, traj.duration, np.zeros(3), pat_ref, wps,
+                         (PATTERN_ACCEPTANCE_M,) * len(wps), "land")
+
+
+async def _home_offset_m(v: Any, mission: Mission, timeout_s: float) -> float:
+    """Horizontal distance [m] from the vehicle to the mission's planned home (waits for a
+    GLOBAL_POSITION_INT); ValueError without one."""
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout_s
+    while v.telemetry.global_position is None and loop.time() < deadline:
+        await asyncio.sleep(0.05)  # poll until the first global position (bounded)
+    g = v.telemetry.global_position
+    if g is None:
+        raise ValueError(f"no global position from the vehicle within {timeout_s:g} s: cannot "
+                         "check the mission's planned home (GPS?)")
+    off = geodetic_to_ned(g.lat_deg, g.lon_deg, g.alt_amsl_m, mission.home)
+    return math.hypot(off[0], off[1])
+
+
+def write_report(log_path: str, report: dict[str, Any]) -> Path:
+    """Write `report` as `<tlog>.report.json` next to the flight log; returns its path."""
+    path = Path(f"{log_path}.report.json")
+    path.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    return path
+
+
+def summary_table(report: dict[str, Any]) -> Table:
+    """A replay-like summary of one flight."""
+    t = Table(title="flight summary", show_header=False)
+    n = len(report["waypoints"])
+    t.add_row("result", str(report["result"]))
+    t.add_row("waypoints reached", f"{report['waypoints_reached']}/{n}")
+    for key, label in (("rms_error_m", "RMS error \\[m]"), ("max_error_m", "max error \\[m]")):
+        val = report.get(key)
+        t.add_row(label, "-" if val is None else f"{val:.2f}")
+    t.add_row("duration \\[s]", f"{report['duration_s']:.1f} (planned "
+              f"{report['planned_duration_s']:.1f})")
+    return t
+
+
+async def fly(opts: FlyOptions, console: Console) -> int:
+    """Run `fly`; returns the exit code (0 ok, 1 flight failure, 2 bad input).
+
+    Safety order: files and options are checked before the link opens; the flight is planned
+    and the mission's planned home compared with the vehicle's position before anything but
+    link upkeep (HEARTBEAT, TIMESYNC, stream-rate requests) is sent, so a failed check never
+    arms the vehicle.
+    """
+    from companion.aio import Vehicle, VehicleConfig, VehicleError, safe_exit
+
+    inputs = check_inputs(opts)
+    mission = inputs.mission
+    log_path = inputs.log_path
     vconfig = VehicleConfig(rate_hz=opts.rate_hz, tlog_path=log_path,
                             stream_wait="busy" if opts.busy_wait else "sleep",
                             stream_cpu=opts.sender_cpu)
+    recorder = TrackRecorder()
+    report: dict[str, Any] | None = None
     async with contextlib.AsyncExitStack() as stack:
         url = opts.connect
         if url is None:
             url = await stack.enter_async_context(
-                embedded_mock(home, opts.mock_params, opts.signing_key))
+                embedded_mock(inputs.home, opts.mock_params, opts.signing_key))
             console.print(f"No --connect: flying the embedded mock PX4 ({url})")
         link = LinkConfig(target_sysid=opts.target_system if opts.connect else 1
                           ).with_signing_key(opts.signing_key)
@@ -158,6 +286,16 @@ async def fly(opts: FlyOptions, console: Console) -> int:
         rover = hb is not None and hb.vehicle_type == MAV_TYPE_GROUND_ROVER
         mode = "rover" if rover else opts.mode
         console.print(f"Connected: {'rover' if rover else 'multicopter'}, logging to {log_path}")
+        # every check that can fail, before the first command: plan (off the event loop,
+        # up to a second) and compare the mission's home with where the vehicle is
+        planned = await asyncio.to_thread(plan_flight, opts, inputs, rover)
+        if mission is not None:
+            horiz = await _home_offset_m(v, mission, HOME_WAIT_S)
+            if horiz > MAX_HOME_OFFSET_M:
+                raise ValueError(
+                    f"{opts.target}: planned home is {horiz:.0f} m from the vehicle "
+                    f"(limit {MAX_HOME_OFFSET_M:g} m); move the vehicle there or "
+                    "edit plannedHomePosition")
         source: TrackingSource | None = None
         started: float | None = None
         ended: float | None = None
@@ -167,88 +305,70 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                 live.update(_status_table(v, source, started, ended))
                 await asyncio.sleep(0.2)  # display refresh period
 
+        async def record() -> None:
+            async for p in v.position():
+                ref = source.last_reference if source is not None else None
+                if ref is not None and v.mode is FlightMode.OFFBOARD:
+                    recorder.add(p.t_s, p.pos_ned, ref.pos_ned)
+
         with Live(_status_table(v, None, None), console=console, refresh_per_second=5) as live:
-            ui = asyncio.get_running_loop().create_task(show(live))
+            loop = asyncio.get_running_loop()
+            ui = loop.create_task(show(live))
+            rec: asyncio.Task[None] | None = None
             try:
-                # plan before arming (off the event loop: planning takes up to a second)
-                if mission is not None:
-                    fp = mission_to_flight_plan(mission, vehicle="rover" if rover else "quad")
-                    schedule = await asyncio.to_thread(
-                        build_schedule, fp, None if rover else vf.params, vf.limits
-                    )
-                    alt = fp.takeoff_alt_m
-                    t_off = _takeoff_end(schedule)
-                    duration = schedule.duration_s - t_off
-                    start_rel = schedule.reference(t_off).pos_ned
-
-                    def rel_ref(t: float, origin: np.ndarray | None = None) -> Reference:
-                        return schedule.reference(t + t_off, origin)
-                else:
-                    alt = opts.alt_m
-                    traj = await asyncio.to_thread(
-                        lambda: pattern_trajectory(
-                            opts.target, np.zeros(3), size_m=opts.size_m,
-                            speed_m_s=opts.speed_m_s, laps=opts.laps, yaw=0.0,
-                            params=vf.params, max_acc_m_s2=vf.limits.max_acc_m_s2,
-                            max_tilt_rad=vf.limits.max_tilt_rad,
-                        )
-                    )
-                    pattern_ref = trajectory_reference(traj, 0.0)
-                    duration = traj.duration
-
-                    def rel_ref(t: float, origin: np.ndarray | None = None) -> Reference:
-                        r = pattern_ref(t)
-                        if origin is None:
-                            return r
-                        return Reference(
-                            r.pos_ned + origin, r.vel_ned, r.acc_ned, r.jerk_ned, r.snap_ned,
-                            r.yaw, r.yaw_rate, r.yaw_acc,
-                        )
-                    start_rel = np.zeros(3)
                 await v.arm()
                 if not rover:
-                    await v.takeoff(alt)
+                    await v.takeoff(planned.alt_m)
                 snap = v.telemetry
                 if snap.position is None:
                     raise VehicleError("no position telemetry after takeoff")
                 here = np.asarray(snap.position.pos_ned, dtype=float)
-                if mission is not None and snap.global_position is not None:
-                    g = snap.global_position
-                    off = geodetic_to_ned(g.lat_deg, g.lon_deg, g.alt_amsl_m, mission.home)
-                    horiz = math.hypot(off[0], off[1])
-                    if horiz > MAX_HOME_OFFSET_M:
-                        raise ValueError(
-                            f"{opts.target}: planned home is {horiz:.0f} m from the vehicle "
-                            f"(limit {MAX_HOME_OFFSET_M:g} m); move the vehicle there or "
-                            "edit plannedHomePosition"
-                        )
-                origin = here - start_rel
+                origin = here - planned.start_rel
+                rel_ref = planned.rel_ref
 
                 def ref(t: float) -> Reference:
                     return rel_ref(t, origin)
 
+                vf = inputs.vehicle
                 source = TrackingSource(
                     ref, mode, vf.params,  # type: ignore[arg-type]
                     tracking=(vf.tracking_config(math.radians(50.0))
                               if mode in ("attitude", "rates") else None))
-                started = asyncio.get_running_loop().time()
-                report = await v.fly(mode=mode, setpoint_source=source, duration_s=duration)
-                ended = asyncio.get_running_loop().time()
-                console.print(
-                    f"Trajectory flown in {mode} mode: {report.duration_s:.1f} s"
-                )
-                final = schedule.final_action if mission is not None else "land"
+                rec = loop.create_task(record())
+                started = loop.time()
+                flown = await v.fly(mode=mode, setpoint_source=source,
+                                    duration_s=planned.duration_s)
+                ended = loop.time()
+                console.print(f"Trajectory flown in {mode} mode: {flown.duration_s:.1f} s")
+                report = recorder.summary(planned.waypoints_rel + origin, planned.acceptance_m,
+                                          duration_s=flown.duration_s,
+                                          planned_duration_s=planned.duration_s)
+                report.update(result="ok", mode=mode, target=opts.target,
+                              final_action=planned.final_action)
                 if rover:
                     await v.disarm()
-                elif final in ("land", "rtl"):
+                elif planned.final_action in ("land", "rtl"):
                     await v.land()
                 else:
                     await v.hold()
+            except Exception as exc:
+                if recorder.t_s:  # what was flown before the failure, for the post-mortem
+                    report = recorder.summary(None, (), duration_s=recorder.t_s[-1]
+                                              - recorder.t_s[0],
+                                              planned_duration_s=planned.duration_s)
+                    report.update(result=f"failed: {exc}", mode=mode, target=opts.target)
+                    write_report(log_path, report)
+                raise
             finally:
-                ui.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await ui
+                for task in (ui, rec):
+                    if task is not None:
+                        task.cancel()
+                        with contextlib.suppress(asyncio.CancelledError):
+                            await task
                 live.update(_status_table(v, source, started, ended or 0.0))
+    if report is not None:
+        console.print(summary_table(report))
+        console.print(f"Report: {write_report(log_path, report)}")
     console.print(f"Done. Log: {Path(log_path).resolve()}")
     return 0
 

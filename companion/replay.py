@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 from companion.aio.tlog import TlogWriter
 from companion.control import Reference
 from companion.flatness import MultirotorParams
+from companion.flight_report import closest_approach
 from companion.mavlink.commands import CommandFinished
 from companion.mavlink.link import LinkConfig, VehicleLink
 from companion.mavlink.mission_client import MissionItem as WireItem
@@ -538,15 +539,6 @@ def tracking_error(
     return t[sel], np.linalg.norm(pos - planned, axis=1)
 
 
-def _closest(points: FloatArray, wps: FloatArray) -> FloatArray:
-    if len(points) == 0 or len(wps) == 0:
-        return np.full(len(wps), math.inf)
-    out = np.empty(len(wps))
-    for i, w in enumerate(wps):
-        out[i] = float(np.min(np.linalg.norm(points - w, axis=1)))
-    return out
-
-
 def summarize(
     log: FlightLog,
     schedule: Schedule,
@@ -565,7 +557,7 @@ def summarize(
     else:
         pos_f, vel_f = pos[:0], vel[:0]
     wps = schedule.waypoints_ned + origin
-    closest = _closest(pos_f, wps)
+    closest = closest_approach(pos_f, wps)
     waypoints = [
         {
             "item_index": schedule.item_indices[i],

@@ -85,6 +85,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--gcs-remote", type=_remote, default=("127.0.0.1", 14550), help="'none' disables"
     )
     s.add_argument("--no-gcs", action="store_true", help="run without the GCS link")
+    s.add_argument("--serial", metavar="DEVICE", default=None,
+                   help="offboard link on a serial line instead of UDP (like TELEM2): a device "
+                   "path, or 'pty' for a new pseudo-terminal whose path the ready line shows")
+    s.add_argument("--serial-baud", type=int, default=921600, help="baud rate (default 921600)")
     s.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE")
     s.add_argument("--home", type=_home, default=DEFAULT_HOME, metavar="LAT,LON,ALT")
     s.add_argument("--speed", type=float, default=1.0, help="simulated seconds per wall second")
@@ -140,7 +144,8 @@ async def _serve(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"sitl_mock: {exc}", file=sys.stderr)
         return 2
-    links = [LinkConfig("offboard", args.bind, args.remote)]
+    links = [LinkConfig("offboard", args.bind, args.remote, serial=args.serial,
+                        baud=args.serial_baud)]
     if not args.no_gcs:
         links.append(LinkConfig("gcs", args.gcs_bind, args.gcs_remote))
     link_faults = {"offboard": (faults, faults)}
@@ -176,6 +181,9 @@ async def _serve(args: argparse.Namespace) -> int:
     parts = []
     for lk in links:
         host, port = server.bound[lk.name]
+        if lk.serial is not None:
+            parts.append(f"{lk.name}=serial:{host}")
+            continue
         remote = f"{lk.remote[0]}:{lk.remote[1]}" if lk.remote else "none"
         parts.append(f"{lk.name}={host}:{port}->{remote}")
     signed = " signing=required" if args.signing_key is not None else ""

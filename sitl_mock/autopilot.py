@@ -21,7 +21,7 @@ from collections import Counter, deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from enum import Enum
-from typing import Any
+from typing import Any, ClassVar
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -179,6 +179,28 @@ def _float_bits_of_int(v: int) -> float:
 
 def _int_of_float_bits(f: float) -> int:
     return int(struct.unpack("<i", struct.pack("<f", f))[0])
+
+
+
+class MissionCurrentV2(mavlink.MAVLink_mission_current_message):  # type: ignore[misc]
+    """MISSION_CURRENT with the extensions PX4 v1.16 sends (pymavlink 2.4 lacks them):
+    ``mission_id`` is the stored mission's opaque id (0 without a mission), so a ground station
+    or companion sees a new upload; fence and rally ids stay 0 (trimmed on the wire)."""
+
+    fieldnames: ClassVar[list[str]] = [*mavlink.MAVLink_mission_current_message.fieldnames,
+                                       "mission_id", "fence_id", "rally_points_id"]
+    ordered_fieldnames: ClassVar[list[str]] = fieldnames
+    fieldtypes: ClassVar[list[str]] = [*mavlink.MAVLink_mission_current_message.fieldtypes,
+                                       "uint32_t", "uint32_t", "uint32_t"]
+    array_lengths: ClassVar[list[int]] = [0] * 7
+    unpacker = struct.Struct("<HHBBIII")
+
+    def __init__(self, seq: int, total: int = 0, mission_state: int = 0, mission_mode: int = 0,
+                 mission_id: int = 0, fence_id: int = 0, rally_points_id: int = 0) -> None:
+        super().__init__(seq, total, mission_state, mission_mode)
+        self.mission_id = mission_id
+        self.fence_id = fence_id
+        self.rally_points_id = rally_points_id
 
 
 class Autopilot:
@@ -607,8 +629,9 @@ class Autopilot:
         else:
             state = mavlink.MISSION_STATE_NOT_STARTED
         mission_mode = 1 if self.mode == Mode.AUTO_MISSION else 2
-        return mavlink.MAVLink_mission_current_message(
-            self.mission.current, len(items), state, mission_mode
+        return MissionCurrentV2(
+            self.mission.current, len(items) if items else 65535, state, mission_mode,
+            self.mission_server.opaque_id[MISSION],
         )
 
     def _send(self, link: Link, msg: Msg) -> None:
@@ -638,6 +661,22 @@ class Autopilot:
     def _broadcast(self, msg: Msg) -> None:
         for lk in self.links.values():
             self._send(lk, msg)
+
+    def _forward(self, src: Link, frame: bytes) -> None:
+        """Pass another component's frame unchanged to the other links (PX4 `mavlink start
+        -f`, on in SITL: e.g. a companion's STATUSTEXT reaches the ground station)."""
+        for lk in self.links.values():
+            if lk is src:
+                continue
+            if lk.tx_fifo is not None:
+                lk.tx_fifo.append((self._t, frame))
+                lk.tx.stats.passed += 1
+            else:
+                lk.tx.push(frame, self._t, self._t)
+
+    def _on_statustext(self, link: Link, msg: Msg) -> None:
+        if (msg.get_srcSystem(), msg.get_srcComponent()) != (SYSID, COMPID):
+            self._forward(link, bytes(msg.get_msgbuf()))
 
     def statustext(self, severity: int, text: str) -> None:
         """STATUSTEXT on every link, chunked (id / chunk_seq) when longer than 50 chars."""

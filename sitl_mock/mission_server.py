@@ -8,10 +8,13 @@ vehicle's navigator. Time `now` is simulated seconds; nothing here reads a clock
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import struct
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -68,6 +71,55 @@ SUPPORTED_COMMANDS = frozenset(
 POSITION_COMMANDS = frozenset({16, 17, 18, 19, 21, 22, 31})
 
 EARTH_RADIUS_M = 6371000.0  # PX4 CONSTANTS_RADIUS_OF_EARTH
+
+
+class MissionCountV2(mavlink.MAVLink_mission_count_message):  # type: ignore[misc]
+    """MISSION_COUNT with PX4 v1.16's ``opaque_id`` extension (the plan id, on download)."""
+
+    fieldnames: ClassVar[list[str]] = [*mavlink.MAVLink_mission_count_message.fieldnames,
+                                       "opaque_id"]
+    ordered_fieldnames: ClassVar[list[str]] = [
+        *mavlink.MAVLink_mission_count_message.ordered_fieldnames, "opaque_id"]
+    fieldtypes: ClassVar[list[str]] = [*mavlink.MAVLink_mission_count_message.fieldtypes,
+                                       "uint32_t"]
+    array_lengths: ClassVar[list[int]] = [0] * 5
+    unpacker = struct.Struct("<HBBBI")
+
+    def __init__(self, target_system: int, target_component: int, count: int,
+                 mission_type: int = 0, opaque_id: int = 0) -> None:
+        super().__init__(target_system, target_component, count, mission_type)
+        self.opaque_id = opaque_id
+
+
+class MissionAckV2(mavlink.MAVLink_mission_ack_message):  # type: ignore[misc]
+    """MISSION_ACK with PX4 v1.16's ``opaque_id`` (the new plan id when an upload is
+    accepted, 0 otherwise)."""
+
+    fieldnames: ClassVar[list[str]] = [*mavlink.MAVLink_mission_ack_message.fieldnames,
+                                       "opaque_id"]
+    ordered_fieldnames: ClassVar[list[str]] = [
+        *mavlink.MAVLink_mission_ack_message.ordered_fieldnames, "opaque_id"]
+    fieldtypes: ClassVar[list[str]] = [*mavlink.MAVLink_mission_ack_message.fieldtypes,
+                                       "uint32_t"]
+    array_lengths: ClassVar[list[int]] = [0] * 5
+    unpacker = struct.Struct("<BBBBI")
+
+    def __init__(self, target_system: int, target_component: int, type: int,
+                 mission_type: int = 0, opaque_id: int = 0) -> None:
+        super().__init__(target_system, target_component, type, mission_type)
+        self.opaque_id = opaque_id
+
+
+def plan_id(items: list[MissionItem]) -> int:
+    """PX4 v1.16's opaque plan id: a CRC32 over the stored items (0 for none), so it changes
+    with every different upload and stays the same for an identical one. The mock hashes the
+    items' fields; PX4 its own storage layout, so the values differ, the behaviour does not."""
+    if not items:
+        return 0
+    crc = 0
+    for it in items:
+        crc = zlib.crc32(repr(dataclasses.astuple(it)).encode(), crc)
+    return crc or 1
 
 
 @dataclass(frozen=True)
@@ -238,10 +290,9 @@ class MissionServer:
         self.errors = 0
 
     # ---------------------------------------------------------------- helpers
-    def _ack(self, sys_comp: tuple[int, int], result: int, mission_type: int) -> None:
-        self._send(
-            mavlink.MAVLink_mission_ack_message(sys_comp[0], sys_comp[1], result, mission_type)
-        )
+    def _ack(self, sys_comp: tuple[int, int], result: int, mission_type: int,
+             opaque_id: int = 0) -> None:
+        self._send(MissionAckV2(sys_comp[0], sys_comp[1], result, mission_type, opaque_id))
 
     def _request(self, now: float) -> None:
         cls = (
@@ -351,7 +402,7 @@ class MissionServer:
         self._expected += 1
         if self._expected >= self._count:
             self._store(mtype, self._pending)
-            self._ack(src, mavlink.MAV_MISSION_ACCEPTED, mtype)
+            self._ack(src, mavlink.MAV_MISSION_ACCEPTED, mtype, self.opaque_id[mtype])
             self._idle()
         else:
             self._request(now)
@@ -364,7 +415,7 @@ class MissionServer:
 
     def _store(self, mtype: int, items: list[MissionItem]) -> None:
         self.items[mtype] = list(items)
-        self.opaque_id[mtype] = (self.opaque_id[mtype] + 1) & 0xFFFFFFFF or 1
+        self.opaque_id[mtype] = plan_id(items)
         self._on_changed(mtype)
 
     # ---------------------------------------------------------------- download
@@ -378,7 +429,7 @@ class MissionServer:
             self._ack(src, mavlink.MAV_MISSION_DENIED, mtype)
             return
         items = self.items[mtype]
-        self._send(mavlink.MAVLink_mission_count_message(src[0], src[1], len(items), mtype))
+        self._send(MissionCountV2(src[0], src[1], len(items), mtype, self.opaque_id[mtype]))
         if items:
             self.state = "download"
             self._type = mtype

@@ -2,7 +2,8 @@
 
 URLs: ``udpin://host:port`` (listen; reply to the last peer that sent to us: PX4 sends first),
 ``udpout://host:port`` (send to host:port from an ephemeral port), ``tcp://host:port``,
-``serial:///dev/ttyACM0:921600``; pymavlink's spellings ``udpin:host:port``,
+``serial:///dev/ttyACM0:921600`` or a bare device path ``/dev/ttyAMA0`` (921600 baud) /
+``/dev/ttyAMA0:57600``; pymavlink's spellings ``udpin:host:port``,
 ``udpout:host:port``, ``udp:host:port`` (= udpin), ``tcp:host:port`` are accepted too.
 
 ``send`` is thread-safe (the fixed-rate sender thread and the asyncio side both call it) and
@@ -19,6 +20,9 @@ import sys
 import threading
 from dataclasses import dataclass
 from typing import Any
+
+#: Baud rate of a serial link given without one (PX4's TELEM2 companion default, SER_TEL2_BAUD).
+DEFAULT_BAUD = 921600
 
 
 class TransportError(ConnectionError):
@@ -39,12 +43,15 @@ def parse_url(url: str) -> Endpoint:
     """Parse a connection URL (see module doc); raises ValueError with the accepted forms."""
     u = url.strip()
     forms = ("udpin://host:port, udpout://host:port, tcp://host:port, "
-             "serial:///dev/ttyACM0:921600, udpin:host:port")
-    if u.startswith("serial://"):
-        rest = u[len("serial://"):]
-        dev, _, baud = rest.rpartition(":")
-        if not dev or not baud.isdigit():
-            raise ValueError(f"bad serial URL {url!r}: expected serial:///dev/ttyACM0:921600")
+             "serial:///dev/ttyACM0:921600, /dev/ttyACM0, udpin:host:port")
+    if u.startswith("serial://") or u.startswith("/dev/") or u.upper().startswith("COM"):
+        rest = u.removeprefix("serial://")
+        dev, colon, baud = rest.rpartition(":")
+        if not colon:  # no baud rate given
+            dev, baud = rest, str(DEFAULT_BAUD)
+        if not dev or not baud.isdigit() or int(baud) <= 0:
+            raise ValueError(f"bad serial URL {url!r}: expected serial:///dev/ttyACM0:921600, "
+                             "/dev/ttyACM0 or /dev/ttyACM0:57600")
         return Endpoint("serial", "", int(baud), dev)
     scheme, sep, rest = u.partition("://")
     if not sep:
@@ -289,7 +296,7 @@ class TcpTransport(Transport):
 
 
 class SerialTransport(Transport):
-    """Serial port through pyserial (optional dependency)."""
+    """Serial port through pyserial (raw, non-blocking; a pty works too)."""
 
     def __init__(self, ep: Endpoint, loop: asyncio.AbstractEventLoop) -> None:
         super().__init__()

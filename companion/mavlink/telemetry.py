@@ -97,6 +97,18 @@ class ExtendedState:
 
 
 @dataclass(frozen=True)
+class MissionCurrent:
+    """MISSION_CURRENT: current item ``seq``, ``total`` items (65535: no mission) and PX4's
+    ``mission_id`` (v1.16: a CRC32 of the stored mission that changes with every new upload;
+    0 when not sent). The extension is read from the raw payload (pymavlink 2.4 lacks it)."""
+
+    t_s: float
+    seq: int
+    total: int
+    mission_id: int
+
+
+@dataclass(frozen=True)
 class StatusText:
     """A complete STATUSTEXT (chunks reassembled). severity: MAV_SEVERITY (0 emergency..7 debug)."""
 
@@ -106,7 +118,7 @@ class StatusText:
 
 
 TelemetryEvent = (LocalPosition | Attitude | GlobalPosition | HomePosition | SystemStatus
-                  | ExtendedState | StatusText)
+                  | ExtendedState | MissionCurrent | StatusText)
 
 
 @dataclass(frozen=True)
@@ -171,6 +183,7 @@ class TelemetryState:
         self.home: HomePosition | None = None
         self.sys_status: SystemStatus | None = None
         self.extended: ExtendedState | None = None
+        self.mission_current: MissionCurrent | None = None
         self.statustext_timeout_s = statustext_timeout_s
         self._chunks: dict[int, _Chunks] = {}
         # message type -> handler, e.g. "LOCAL_POSITION_NED" -> self._on_local_position_ned
@@ -260,6 +273,11 @@ class TelemetryState:
         self.extended = v
         return [v]
 
+    def _on_mission_current(self, m: MavMessage, now: float) -> list[TelemetryEvent]:
+        v = MissionCurrent(now, int(m.seq), int(getattr(m, "total", 0)), mission_id_of(m))
+        self.mission_current = v
+        return [v]
+
     def _on_statustext(self, m: MavMessage, now: float) -> list[TelemetryEvent]:
         text = m.text if isinstance(m.text, str) else bytes(m.text).decode("utf-8", "replace")
         text = text.split("\x00", 1)[0]
@@ -287,3 +305,13 @@ class TelemetryState:
         """When pending STATUSTEXT chunks time out."""
         return min((c.t_first + self.statustext_timeout_s for c in self._chunks.values()),
                    default=None)
+
+
+def mission_id_of(msg: MavMessage) -> int:
+    """MISSION_CURRENT's ``mission_id`` extension (uint32 at payload offset 6; MAVLink 2 trims
+    trailing zero bytes, so a short payload is zero-extended); 0 if absent."""
+    buf = bytes(msg.get_msgbuf())
+    if len(buf) < 10 or buf[0] != 0xFD:
+        return 0
+    payload = buf[10:10 + buf[1]].ljust(10, b"\x00")
+    return int.from_bytes(payload[6:10], "little")

@@ -42,9 +42,13 @@ class MockProcess:
 
 
 @contextlib.asynccontextmanager
-async def run_mock(*extra: str, speed: float = 1.0) -> AsyncIterator[MockProcess]:
-    """Start the mock sending to a free client port; stop it (SIGTERM, then kill) on exit."""
+async def run_mock(*extra: str, speed: float = 1.0,
+                   gcs_port: int | None = None) -> AsyncIterator[MockProcess]:
+    """Start the mock sending to a free client port (and its GCS link to `gcs_port` if given);
+    stop it (SIGTERM, then kill) on exit."""
     port = free_udp_port()
+    gcs = (["--gcs-bind", "127.0.0.1:0", "--gcs-remote", f"127.0.0.1:{gcs_port}"]
+           if gcs_port is not None else ["--no-gcs"])
     proc = await asyncio.create_subprocess_exec(
         sys.executable,
         "-m",
@@ -54,7 +58,7 @@ async def run_mock(*extra: str, speed: float = 1.0) -> AsyncIterator[MockProcess
         "127.0.0.1:0",
         "--remote",
         f"127.0.0.1:{port}",
-        "--no-gcs",
+        *gcs,
         "--speed",
         str(speed),
         *extra,

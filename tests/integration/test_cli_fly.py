@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -144,6 +145,14 @@ def test_fly_figure8_attitude_mode_against_embedded_mock(tmp_path: Path) -> None
     assert {m for _, m in f.pos_masks_offboard} <= {2552}
     assert np.all(np.abs(f.pos_offboard[:, 2] + 4.0) < 0.4)  # altitude held
     print("attitude:", check_figure8(f, 4.0, 0.35))
+    # the summary written next to the tlog: every interpolation point of the pattern reached,
+    # its tracking error no larger than the tlog's distance to the analytic curve allows
+    report = json.loads((tmp_path / "f8.tlog.report.json").read_text())
+    assert report["result"] == "ok"
+    assert report["waypoints_reached"] == len(report["waypoints"]) == 17
+    assert report["samples"] > 100
+    assert 0.0 < report["rms_error_m"] <= report["max_error_m"] < 0.5
+    assert abs(report["duration_s"] - report["planned_duration_s"]) < 3.0
 
 
 async def _fly_cli(mode: str, log: Path, alt_m: float, *extra: str) -> None:

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import asyncio
-import importlib.util
+import os
 import socket
+import tty
 from collections.abc import AsyncIterator
 
 import pytest
@@ -24,13 +25,19 @@ from companion.aio import Endpoint, TransportError, open_transport, parse_url
         ("tcp://localhost:5760", Endpoint("tcp", "localhost", 5760)),
         ("tcp:localhost:5760", Endpoint("tcp", "localhost", 5760)),
         ("serial:///dev/ttyACM0:921600", Endpoint("serial", "", 921600, "/dev/ttyACM0")),
+        ("serial:///dev/ttyACM0", Endpoint("serial", "", 921600, "/dev/ttyACM0")),
+        ("/dev/ttyAMA0", Endpoint("serial", "", 921600, "/dev/ttyAMA0")),
+        ("/dev/ttyUSB0:57600", Endpoint("serial", "", 57600, "/dev/ttyUSB0")),
+        ("/dev/serial/by-id/usb-Pixhawk", Endpoint("serial", "", 921600,
+                                                   "/dev/serial/by-id/usb-Pixhawk")),
     ],
 )
 def test_parse_url(url: str, ep: Endpoint) -> None:
     assert parse_url(url) == ep
 
 
-@pytest.mark.parametrize("url", ["http://x:1", "udpin://host", "serial:///dev/ttyACM0", "14540"])
+@pytest.mark.parametrize("url", ["http://x:1", "udpin://host", "serial://", "/dev/ttyS0:fast",
+                                 "14540"])
 def test_parse_url_rejects(url: str) -> None:
     with pytest.raises(ValueError):
         parse_url(url)
@@ -109,8 +116,31 @@ async def test_tcp_connect_refused_is_transport_error() -> None:
         await open_transport(f"tcp://127.0.0.1:{port}", timeout_s=2.0)
 
 
-@pytest.mark.skipif(importlib.util.find_spec("serial") is not None,
-                    reason="pyserial installed: the missing-dependency message cannot be shown")
-async def test_serial_without_pyserial_gives_clear_error() -> None:
-    with pytest.raises(TransportError, match="pyserial"):
-        await open_transport("serial:///dev/ttyACM0:921600")
+async def test_serial_missing_device_is_a_transport_error_naming_it() -> None:
+    with pytest.raises(TransportError, match="ttyNONE-ecca"):
+        await open_transport("/dev/ttyNONE-ecca")
+
+
+async def test_serial_transport_over_a_pty_pair_both_ways() -> None:
+    """A bare device path opens the pty's slave end; bytes cross in both directions intact."""
+    master, slave = os.openpty()
+    tty.setraw(slave)  # no line discipline: binary MAVLink must pass unchanged
+    tr = await open_transport(os.ttyname(slave))
+    try:
+        data = bytes(range(256)) * 4  # every byte value, incl. CR/LF/XON/XOFF
+        os.write(master, data)
+        got = b""
+        while len(got) < len(data):
+            got += await _recv(tr)
+        assert got == data
+        assert tr.send(data[::-1])
+        back = b""
+        loop = asyncio.get_running_loop()
+        while len(back) < len(data):
+            back += await asyncio.wait_for(loop.run_in_executor(None, os.read, master, 4096),
+                                           5.0)
+        assert back == data[::-1]
+    finally:
+        tr.close()
+        os.close(master)
+        os.close(slave)

@@ -7,6 +7,7 @@ description (shared/PX4.md), independent of sitl_mock.mission_server.
 from __future__ import annotations
 
 import math
+import struct
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -176,10 +177,48 @@ def test_clear_all_and_count_zero_clear_the_mission() -> None:
     assert download(h) == []
     h.run(1.1)
     cur = h.last("MISSION_CURRENT")
-    assert cur.total == 0 and cur.mission_state == mavlink.MISSION_STATE_NO_MISSION
+    # PX4 v1.16 reports "no mission" as total 65535 (measured)
+    assert cur.total == 65535 and cur.mission_state == mavlink.MISSION_STATE_NO_MISSION
+    assert _mission_id(cur) == 0
     upload(h, SIMPLE)
     assert upload(h, []) == mavlink.MAV_MISSION_ACCEPTED
     assert download(h) == []
+
+
+def _ext_u32(msg: object, offset: int) -> int:
+    """A uint32 extension field at payload ``offset`` from the raw (zero-trimmed) frame."""
+    buf = bytes(msg.get_msgbuf())  # type: ignore[attr-defined]
+    payload = buf[10:10 + buf[1]] + bytes(32)
+    return int(struct.unpack_from("<I", payload, offset)[0])
+
+
+def _mission_id(msg: object) -> int:
+    """MISSION_CURRENT.mission_id from the raw frame (uint32 at payload offset 6, zero-trimmed)."""
+    buf = bytes(msg.get_msgbuf())  # type: ignore[attr-defined]
+    payload = buf[10:10 + buf[1]] + bytes(18)
+    return int(struct.unpack_from("<I", payload, 6)[0])
+
+
+def test_mission_current_carries_an_id_that_changes_with_the_mission() -> None:
+    """Like PX4 v1.16 (MISSION_CURRENT.mission_id = the plan's CRC32): 0 without a mission, new
+    with a different upload, unchanged by an identical re-upload."""
+    h = Harness()
+    h.run(1.1)
+    assert _mission_id(h.last("MISSION_CURRENT")) == 0
+    upload(h, SIMPLE)
+    h.run(1.1)
+    first = _mission_id(h.last("MISSION_CURRENT"))
+    assert first != 0
+    # the accepting MISSION_ACK and a download's MISSION_COUNT carry the same id (opaque_id)
+    assert _ext_u32(h.msgs("MISSION_ACK")[-1], 4) == first
+    assert download(h) and _ext_u32(h.msgs("MISSION_COUNT")[-1], 5) == first
+    upload(h, SIMPLE)
+    h.run(1.1)
+    assert _mission_id(h.last("MISSION_CURRENT")) == first
+    upload(h, SIMPLE[:2])
+    h.run(1.1)
+    second = _mission_id(h.last("MISSION_CURRENT"))
+    assert second not in (0, first)
 
 
 # ------------------------------------------------------------------------- flight

@@ -20,6 +20,8 @@ PURE = [
     "companion/tracking.py",
     "companion/patterns.py",
     "companion/config.py",
+    "companion/flight_report.py",
+    "companion/service.py",
 ]
 
 

@@ -1,0 +1,584 @@
+"""Sans-IO core of `python -m companion serve`: the companion-computer service.
+
+The service never arms, takes off or switches the vehicle into OFFBOARD: the pilot does, from
+the RC or the ground station. It:
+
+- streams a hold setpoint whenever the vehicle is armed and flying (the vehicle's own position
+  while in another mode, the position where OFFBOARD began while holding in OFFBOARD), so PX4
+  always has a fresh offboard "proof of life" and the pilot can switch to OFFBOARD at any time;
+- downloads the mission the pilot uploaded (again whenever PX4's MISSION_CURRENT reports another
+  mission: ``mission_id``, PX4 v1.16's CRC32 of the plan, or the item count), plans it and
+  announces the result by STATUSTEXT;
+- in OFFBOARD flies the planned smooth mission from where the vehicle is: a joining trajectory
+  to the nearest point of the leg towards the first waypoint not yet reached, then the plan;
+  leaving OFFBOARD stops the mission stream at once (back to hold); re-entering resumes from the
+  current position. At the end of the plan it requests the mission's final action (Land, RTL or
+  Hold) while still streaming.
+
+``ServeService.update(obs)`` takes one :class:`Observation` (all times are the caller's
+monotonic seconds; nothing here reads a clock or does I/O) and returns actions
+(:class:`DownloadMission`, :class:`RequestMode`, :class:`Announce`, :class:`LogEvent`);
+``ServeService.stream`` is what the fixed-rate sender should send right now (a
+:class:`HoldStream`, a :class:`MissionStream` or None), swapped atomically so a sender thread can
+read it. Mission planning is slow (up to a second) and done by the caller: :func:`plan_program`
+turns downloaded items into a :class:`MissionProgram`, ``on_planned`` hands it back.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from companion.control import Reference
+from companion.flatness import MultirotorParams
+from companion.mavlink.mission_client import MissionItem
+from companion.mavlink.px4_mode import FlightMode
+from companion.mavlink.setpoints import PositionSetpoint, SetpointCommand
+from companion.mavlink.telemetry import HomePosition, LocalPosition, MissionCurrent
+from companion.mission import GeoPoint, loads_mission, mission_to_flight_plan
+from companion.schedule import Schedule, VehicleLimits, build_schedule, trajectory_reference
+from companion.tracking import SetpointMode, TrackingSource
+from companion.trajectory import Limits, plan
+
+FloatArray = NDArray[np.float64]
+
+#: MISSION_CURRENT.total when the vehicle holds no mission (PX4 v1.16, measured).
+NO_MISSION_TOTAL = 65535
+#: EXTENDED_SYS_STATE landed states counted as flying: in air, takeoff, landing.
+FLYING_STATES = (2, 3, 4)
+#: Position-carrying mission frames PX4 returns as *_INT, mapped to the QGC WPL frames.
+_WPL_FRAME = {5: 0, 6: 3, 11: 10}
+_FINAL_MODE = {"land": FlightMode.LAND, "rtl": FlightMode.RTL, "loiter": FlightMode.HOLD}
+MAV_SEVERITY_WARNING = 4
+MAV_SEVERITY_INFO = 6
+
+
+@dataclass(frozen=True)
+class ServiceConfig:
+    """Behaviour of the service (SI units)."""
+
+    setpoint_mode: SetpointMode = "attitude"
+    params: MultirotorParams = field(default_factory=lambda: MultirotorParams(
+        mass=1.0, inertia=(0.025, 0.025, 0.030), hover_thrust=0.5, drag=1.0))
+    limits: VehicleLimits = field(default_factory=VehicleLimits)
+    join_speed_m_s: float = 3.0  # cruise speed of the joining trajectory
+    stale_s: float = 0.5  # position older than this is not used
+    settle_m: float = 0.5  # at the plan's end: request the final action within this distance
+    settle_s: float = 3.0  # ... or this long after the plan ended
+    mode_retry_s: float = 3.0  # re-request the final action if PX4 is still in OFFBOARD
+
+
+# -- observations and actions ------------------------------------------------------------------
+@dataclass(frozen=True)
+class Observation:
+    """What the service sees of the vehicle at ``now_s`` [s, caller's monotonic clock]."""
+
+    now_s: float
+    link_ok: bool
+    armed: bool
+    mode: FlightMode | None
+    landed_state: int | None = None  # EXTENDED_SYS_STATE (None: not reported)
+    position: LocalPosition | None = None
+    yaw: float | None = None  # [rad]
+    home: HomePosition | None = None
+    mission: MissionCurrent | None = None
+
+
+@dataclass(frozen=True)
+class DownloadMission:
+    """Download the vehicle's mission, then call ``on_downloaded`` / ``on_download_failed``."""
+
+    key: tuple[int, int]  # (mission_id, total) the download is for
+
+
+@dataclass(frozen=True)
+class RequestMode:
+    """Ask PX4 for ``mode`` (keep streaming meanwhile)."""
+
+    mode: FlightMode
+    why: str
+
+
+@dataclass(frozen=True)
+class Announce:
+    """STATUSTEXT to the ground station (``text`` starts with "ecca: ")."""
+
+    text: str
+    severity: int = MAV_SEVERITY_INFO
+
+
+@dataclass(frozen=True)
+class LogEvent:
+    """One line of the JSON event log."""
+
+    event: str
+    fields: dict[str, Any]
+
+
+Action = DownloadMission | RequestMode | Announce | LogEvent
+
+
+@dataclass(frozen=True)
+class HoldStream:
+    """Send this fixed position setpoint."""
+
+    setpoint: PositionSetpoint
+
+
+@dataclass(frozen=True)
+class MissionStream:
+    """Fly ``source`` with time ``now - t0_s``."""
+
+    source: TrackingSource
+    t0_s: float
+    join_s: float  # duration of the joining trajectory [s]
+    t_join: float  # schedule time where the join ends [s]
+
+    def schedule_time(self, now_s: float) -> float:
+        """Schedule time [s] being flown at ``now_s``."""
+        return self.t_join + max(0.0, now_s - self.t0_s - self.join_s)
+
+    def setpoint(self, now_s: float, telemetry: Any) -> SetpointCommand:
+        """The setpoint for ``now_s`` (calls the tracking source)."""
+        return self.source(now_s - self.t0_s, telemetry)
+
+
+Stream = HoldStream | MissionStream
+
+
+# -- a planned mission -------------------------------------------------------------------------
+class MissionProgram:
+    """A planned mission placed in the vehicle's local NED frame.
+
+    ``schedule`` is relative to the mission home; ``origin_ned`` [m] is where that home is in
+    PX4's local frame (HOME_POSITION x, y, z). The flown part runs from the end of the takeoff
+    climb (``t_begin``) to ``t_end``: the start of a trailing land/RTL (PX4 flies those itself,
+    as the final action) or the schedule's end.
+    """
+
+    def __init__(self, schedule: Schedule, origin_ned: Sequence[float], key: tuple[int, int],
+                 sample_dt_s: float = 0.02) -> None:
+        self.schedule = schedule
+        self.origin = np.asarray(origin_ned, dtype=np.float64).reshape(3)
+        self.key = key
+        self.final_action = schedule.final_action
+        pieces = schedule.pieces
+        t_begin = 0.0
+        for p in pieces:
+            if p.phase != "takeoff":
+                break
+            t_begin = p.t0_s + p.duration_s
+        t_end = schedule.duration_s
+        if self.final_action in ("land", "rtl"):
+            for p in reversed(pieces):
+                if p.phase not in ("land", "rtl"):
+                    break
+                t_end = p.t0_s
+        self.t_begin, self.t_end = t_begin, max(t_end, t_begin)
+        n = max(2, math.ceil(schedule.duration_s / sample_dt_s) + 1)
+        self.t_samples = np.linspace(0.0, schedule.duration_s, n)
+        self.p_samples = schedule.sample(self.t_samples) + self.origin
+        # when the plan passes each waypoint, in order; only those before t_end are flown
+        times, wps, acc = [], [], []
+        t_prev = 0.0
+        for w, a in zip(schedule.waypoints_ned, schedule.acceptance_m, strict=True):
+            sel = self.t_samples >= t_prev
+            d = np.linalg.norm(self.p_samples[sel] - (w + self.origin), axis=1)
+            t_w = float(self.t_samples[sel][int(np.argmin(d))])
+            if t_w > self.t_end + sample_dt_s:
+                break
+            times.append(t_w)
+            wps.append(w + self.origin)
+            acc.append(float(a))
+            t_prev = t_w
+        self.wp_times = np.asarray(times, dtype=np.float64)
+        self.waypoints = np.asarray(wps, dtype=np.float64).reshape(-1, 3)
+        self.acceptance = np.asarray(acc, dtype=np.float64)
+
+    @property
+    def planned_s(self) -> float:
+        """Duration of the flown part [s]."""
+        return self.t_end - self.t_begin
+
+    def reference(self, t: float) -> Reference:
+        """Reference at schedule time ``t`` in the local frame."""
+        return self.schedule.reference(t, self.origin)
+
+    def join_time(self, pos_ned: Sequence[float] | FloatArray, reached: int,
+                  t_min: float) -> float:
+        """Schedule time of the point nearest to ``pos_ned`` on the part of the plan leading to
+        the first waypoint not yet reached (index ``reached``), not before ``t_min``."""
+        k = reached
+        t_lo = self.t_begin if k == 0 else float(self.wp_times[k - 1])
+        t_hi = float(self.wp_times[k]) if k < len(self.wp_times) else self.t_end
+        t_lo = min(max(t_lo, t_min, self.t_begin), self.t_end)
+        t_hi = min(max(t_hi, t_lo), self.t_end)
+        sel = (self.t_samples >= t_lo) & (self.t_samples <= t_hi)
+        if not sel.any():
+            return t_lo
+        d = np.linalg.norm(self.p_samples[sel] - np.asarray(pos_ned, dtype=np.float64), axis=1)
+        return float(self.t_samples[sel][int(np.argmin(d))])
+
+    def lead_in(self, pos_ned: Sequence[float] | FloatArray, t_from: float,
+                acc_m_s2: float) -> float:
+        """The first schedule time >= ``t_from`` whose point is at least ``v^2 / (2 acc)``
+        (v the plan's speed there) plus 0.5 m from ``pos_ned``, so a vehicle near rest can
+        reach the plan's speed on the way (``t_end`` if none)."""
+        here = np.asarray(pos_ned, dtype=np.float64)
+        sel = (self.t_samples >= t_from) & (self.t_samples <= self.t_end)
+        ts = self.t_samples[sel]
+        if len(ts) < 2:
+            return min(max(t_from, self.t_begin), self.t_end)
+        ps = self.p_samples[sel]
+        speed = np.linalg.norm(np.gradient(ps, ts, axis=0), axis=1)
+        need = speed**2 / (2.0 * max(acc_m_s2, 0.1)) + 0.5
+        ok = np.linalg.norm(ps - here, axis=1) >= need
+        if speed[0] < 0.2 and not ok[0]:
+            return float(ts[0])  # the plan is (nearly) at rest here: join in place
+        idx = np.flatnonzero(ok)
+        return float(ts[idx[0]]) if len(idx) else self.t_end
+
+
+def mission_from_items(items: Sequence[MissionItem], home: HomePosition) -> Any:
+    """The downloaded items as a :class:`companion.mission.Mission` with ``home`` as its home
+    (through the QGC WPL parser, so every check of a mission file applies)."""
+    lines = ["QGC WPL 110",
+             f"0\t1\t0\t16\t0\t0\t0\t0\t{home.lat_deg:.8f}\t{home.lon_deg:.8f}\t"
+             f"{home.alt_amsl_m:.3f}\t1"]
+    for i, it in enumerate(items, start=1):
+        frame = _WPL_FRAME.get(it.frame, it.frame)
+        glob = frame in (0, 3, 10)
+        x = it.x * 1e-7 if glob else it.x * 1e-4
+        y = it.y * 1e-7 if glob else it.y * 1e-4
+        params = "\t".join(repr(float(p)) for p in (it.param1, it.param2, it.param3, it.param4))
+        lines.append(f"{i}\t0\t{frame}\t{it.command}\t{params}\t{x:.8f}\t{y:.8f}\t"
+                     f"{float(it.z):.3f}\t{int(it.autocontinue)}")
+    home_pt = GeoPoint(home.lat_deg, home.lon_deg, home.alt_amsl_m)
+    return loads_mission("\n".join(lines) + "\n", source="vehicle mission", home=home_pt)
+
+
+def plan_program(items: Sequence[MissionItem], home: HomePosition, key: tuple[int, int],
+                 config: ServiceConfig, vehicle: Literal["quad", "rover"] = "quad"
+                 ) -> MissionProgram:
+    """Plan downloaded mission items (CPU-bound; ValueError/MissionError with the reason)."""
+    if not items:
+        raise ValueError("the vehicle has no mission")
+    mission = mission_from_items(items, home)
+    fp = mission_to_flight_plan(mission, vehicle=vehicle)
+    schedule = build_schedule(fp, None if vehicle == "rover" else config.params, config.limits)
+    return MissionProgram(schedule, home.pos_ned, key)
+
+
+def _yaw_of(ref: Reference) -> float:
+    return float(ref.yaw)
+
+
+class ServeService:
+    """The service's state machine (see the module doc)."""
+
+    def __init__(self, config: ServiceConfig | None = None) -> None:
+        self.config = config or ServiceConfig()
+        self.state = "idle"  # idle | hold | offboard_hold | mission | finishing
+        self.stream: Stream | None = None
+        self.program: MissionProgram | None = None
+        self.plan_error: str | None = None
+        self._key: tuple[int, int] | None = None  # mission on the vehicle (id, total)
+        self._downloading: tuple[int, int] | None = None
+        self.reached = 0  # waypoints reached on this flight, in order
+        self.t_progress = 0.0  # schedule time flown so far on this flight [s]
+        self.done = False  # the final action was requested on this flight
+        self._end_since: float | None = None
+        self._final_requested_at: float | None = None
+        self._last_mode: FlightMode | None = None
+        self._link_ok = False
+
+    # -- inputs ------------------------------------------------------------------------------
+    def update(self, obs: Observation) -> list[Action]:
+        """Advance on a new observation; returns the actions to perform."""
+        out: list[Action] = []
+        if obs.link_ok != self._link_ok:
+            self._link_ok = obs.link_ok
+            out.append(LogEvent("link", {"ok": obs.link_ok}))
+        if not obs.link_ok:
+            self.stream = None  # nothing reaches the vehicle; PX4 runs its own failsafe
+            return out
+        if obs.mode is not self._last_mode:
+            out.append(LogEvent("mode", {"mode": obs.mode.name if obs.mode else None,
+                                         "armed": obs.armed}))
+            self._last_mode = obs.mode
+        out += self._watch_mission(obs)
+        pos = obs.position
+        fresh = pos is not None and obs.now_s - pos.t_s <= self.config.stale_s
+        prog = self.program
+        if fresh and prog is not None and pos is not None:
+            p = np.asarray(pos.pos_ned)
+            while (self.reached < len(prog.waypoints) and float(
+                    np.linalg.norm(p - prog.waypoints[self.reached]))
+                    <= prog.acceptance[self.reached]):
+                out.append(LogEvent("waypoint", {"index": self.reached}))
+                self.reached += 1
+        flying = obs.armed and (obs.landed_state is None or obs.landed_state in FLYING_STATES)
+        if not obs.armed and (self.reached or self.done or self.t_progress):
+            out.append(LogEvent("flight_reset", {"reached": self.reached}))
+            self._reset_progress()
+        if not flying:
+            if self.state != "idle":
+                out.append(LogEvent("state", {"state": "idle", "why": "not flying"}))
+            self.state, self.stream = "idle", None
+            return out
+        offboard = obs.mode is FlightMode.OFFBOARD
+        if not offboard:
+            if self.state == "mission":
+                out.append(Announce(f"ecca: paused at {self._progress_text()}, holding stream"))
+                out.append(LogEvent("state", {"state": "hold", "why": "left OFFBOARD",
+                                              "mode": obs.mode.name if obs.mode else None}))
+            elif self.state == "finishing":
+                out.append(LogEvent("final_action", {"mode": obs.mode.name if obs.mode
+                                                     else None}))
+            self.state = "hold"
+            sp = self._hold_here(obs)
+            self.stream = HoldStream(sp) if sp is not None else self.stream
+            return out
+        # in OFFBOARD
+        if self.state in ("idle", "hold"):
+            out += self._enter_offboard(obs, fresh)
+        elif self.state == "mission":
+            out += self._fly(obs, fresh)
+        elif self.state == "finishing":
+            t_req = self._final_requested_at
+            if t_req is None or obs.now_s - t_req >= self.config.mode_retry_s:
+                out += self._request_final(obs)
+        return out
+
+    def on_downloaded(self, key: tuple[int, int], n_items: int) -> list[Action]:
+        """The download for ``key`` finished (the caller now plans it)."""
+        return [LogEvent("mission_downloaded", {"mission_id": key[0], "items": n_items})]
+
+    def on_download_failed(self, key: tuple[int, int], why: str) -> list[Action]:
+        """The download for ``key`` failed: retried on the next update."""
+        self._downloading = None
+        self._key = None
+        return [LogEvent("mission_download_failed", {"mission_id": key[0], "why": why}),
+                Announce(f"ecca: mission download failed: {why}", MAV_SEVERITY_WARNING)]
+
+    def on_planned(self, key: tuple[int, int], result: MissionProgram | str,
+                   now_s: float) -> list[Action]:
+        """Planning of the mission ``key`` ended: a program, or why it cannot be flown."""
+        if self._downloading == key:
+            self._downloading = None
+        out: list[Action] = []
+        if self.state == "mission":  # never fly on with a replaced plan
+            ms = self.stream
+            hold = None
+            if isinstance(ms, MissionStream):  # hold where the reference is now
+                r = ms.source.reference(max(0.0, now_s - ms.t0_s))
+                if r is not None:
+                    hold = PositionSetpoint(pos_ned=tuple(float(c) for c in r.pos_ned),  # type: ignore[arg-type]
+                                            vel_ned=(0.0, 0.0, 0.0), yaw=_yaw_of(r))
+            if hold is not None:
+                self.stream = HoldStream(hold)
+            self.state = "offboard_hold"
+            out.append(Announce("ecca: mission changed in flight: holding, re-enter OFFBOARD "
+                                "to fly the new one", MAV_SEVERITY_WARNING))
+        self._reset_progress()
+        if isinstance(result, str):
+            self.program, self.plan_error = None, result
+            out += [LogEvent("mission_rejected", {"mission_id": key[0], "why": result}),
+                    Announce(f"ecca: cannot fly mission: {result}", MAV_SEVERITY_WARNING)]
+            return out
+        self.program, self.plan_error = result, None
+        n = len(result.waypoints)
+        out += [LogEvent("mission_planned", {"mission_id": key[0], "waypoints": n,
+                                             "planned_s": round(result.planned_s, 2),
+                                             "final_action": result.final_action}),
+                Announce(f"ecca: mission {n} wp, {result.planned_s:.0f} s planned")]
+        return out
+
+    def shutdown(self, obs: Observation) -> list[Action]:
+        """Stopping (SIGTERM/SIGINT): Hold first if the vehicle flies on our stream."""
+        if obs.link_ok and obs.armed and obs.mode is FlightMode.OFFBOARD:
+            return [RequestMode(FlightMode.HOLD, "service stopping"),
+                    LogEvent("shutdown", {"hold_requested": True})]
+        return [LogEvent("shutdown", {"hold_requested": False})]
+
+    # -- internals ---------------------------------------------------------------------------
+    def _reset_progress(self) -> None:
+        self.reached = 0
+        self.t_progress = 0.0
+        self.done = False
+        self._end_since = None
+        self._final_requested_at = None
+
+    def _progress_text(self) -> str:
+        prog = self.program
+        n = 0 if prog is None else len(prog.waypoints)
+        return f"wp {self.reached}/{n}"
+
+    def _watch_mission(self, obs: Observation) -> list[Action]:
+        mc = obs.mission
+        if mc is None:
+            return []
+        key = (mc.mission_id, mc.total)
+        if key == self._key or self._downloading is not None:
+            return []
+        self._key = key
+        if mc.total in (0, NO_MISSION_TOTAL):
+            out: list[Action] = [LogEvent("mission_none", {})]
+            if self.plan_error != "no mission":  # once per change
+                out.append(Announce("ecca: no mission on the vehicle"))
+            if self.state == "mission":
+                out += self.on_planned(key, "the mission was cleared", obs.now_s)[:1]
+            self.program, self.plan_error = None, "no mission"
+            return out
+        self._downloading = key
+        return [DownloadMission(key), LogEvent("mission_changed", {"mission_id": mc.mission_id,
+                                                                   "total": mc.total})]
+
+    def _hold_here(self, obs: Observation) -> PositionSetpoint | None:
+        pos = obs.position
+        if pos is None:
+            return None
+        return PositionSetpoint(pos_ned=pos.pos_ned, vel_ned=(0.0, 0.0, 0.0), yaw=obs.yaw)
+
+    def _enter_offboard(self, obs: Observation, fresh: bool) -> list[Action]:
+        prog = self.program
+        out: list[Action] = []
+        if isinstance(self.stream, HoldStream):
+            pass  # keep holding where OFFBOARD began while we decide
+        elif (sp := self._hold_here(obs)) is not None:
+            self.stream = HoldStream(sp)
+        why = None
+        if prog is None:
+            why = self.plan_error or "no mission planned yet"
+        elif self.done:
+            why = "mission already flown on this flight"
+        elif not fresh or obs.position is None:
+            why = "no fresh position"
+        if why is not None:
+            self.state = "offboard_hold"
+            return [Announce(f"ecca: holding in OFFBOARD ({why})"),
+                    LogEvent("state", {"state": "offboard_hold", "why": why})]
+        assert prog is not None and obs.position is not None
+        try:
+            stream = self._join(prog, obs)
+        except ValueError as exc:
+            self.state = "offboard_hold"
+            return [Announce(f"ecca: holding, cannot join the mission: {exc}",
+                             MAV_SEVERITY_WARNING),
+                    LogEvent("join_failed", {"why": str(exc)})]
+        self.stream = stream
+        self.state = "mission"
+        self._end_since = None
+        out += [Announce(f"ecca: flying mission from {self._progress_text()}"),
+                LogEvent("state", {"state": "mission", "t_join": round(stream.t_join, 3),
+                                   "join_s": round(stream.join_s, 3),
+                                   "reached": self.reached})]
+        return out
+
+    def _join(self, prog: MissionProgram, obs: Observation) -> MissionStream:
+        assert obs.position is not None
+        cfg = self.config
+        here = np.asarray(obs.position.pos_ned, dtype=np.float64)
+        vel = np.asarray(obs.position.vel_ned, dtype=np.float64)
+        t_near = prog.join_time(here, self.reached, max(self.t_progress, prog.t_begin))
+        yaw_here = obs.yaw
+        # join ahead of the nearest point, far enough to reach the plan's speed there without
+        # backing up (distance >= v^2 / (2 a)); farther ahead if the join cannot be planned
+        # within the limits
+        # candidates: two lead-in distances, ending on the plan's velocity and acceleration
+        # or on its velocity only (an acceleration step the controller absorbs); the quickest
+        # feasible one wins (each plan takes ~10-50 ms)
+        best: tuple[float, tuple[Callable[[float], Reference], float] | None] | None = None
+        last: Exception | None = None
+        for frac in (0.5, 0.25):
+            t_cand = prog.lead_in(here, t_near, frac * cfg.limits.max_acc_m_s2)
+            for with_acc in (True, False):
+                try:
+                    cand = self._join_trajectory(here, vel, yaw_here, prog.reference(t_cand),
+                                                 with_acc)
+                except ValueError as exc:
+                    last = exc
+                    continue
+                if best is None or (cand[1] if cand else 0.0) < (best[1][1] if best[1] else 0.0):
+                    best = (t_cand, cand)
+        if best is None:
+            assert last is not None
+            raise last
+        t_join, join = best
+        if join is None:
+            join_s = 0.0
+
+            def ref(t: float) -> Reference:
+                return prog.reference(t_join + t)
+        else:
+            join_ref, join_s = join
+
+            def ref(t: float) -> Reference:
+                if t < join_s:
+                    return join_ref(t)
+                return prog.reference(t_join + t - join_s)
+        source = TrackingSource(ref, cfg.setpoint_mode, cfg.params)
+        return MissionStream(source, obs.now_s, join_s, t_join)
+
+    def _join_trajectory(self, here: FloatArray, vel: FloatArray, yaw_here: float | None,
+                         target: Reference, with_acc: bool
+                         ) -> tuple[Callable[[float], Reference], float] | None:
+        """(reference function, duration [s]) from ``here`` moving at ``vel`` to ``target``
+        (its position, velocity and acceleration), or None when already there."""
+        cfg = self.config
+        if float(np.linalg.norm(target.pos_ned - here)) < 0.05:
+            return None
+        yaw0 = yaw_here if yaw_here is not None else target.yaw
+        yaw1 = target.yaw + 2.0 * math.pi * round((yaw0 - target.yaw) / (2.0 * math.pi))
+        # the join may end (or start) faster than its cruise speed: allow that speed
+        v_max = max(cfg.join_speed_m_s, 1.5 * float(np.linalg.norm(target.vel_ned)),
+                    1.1 * float(np.linalg.norm(vel)))
+        lim = Limits(max_speed_m_s=v_max, max_acc_m_s2=cfg.limits.max_acc_m_s2,
+                     max_tilt_rad=cfg.limits.max_tilt_rad)
+        traj = plan(np.vstack([here, target.pos_ned]), limits=lim, params=cfg.params,
+                    start={1: vel},
+                    end={1: target.vel_ned, 2: target.acc_ned} if with_acc
+                    else {1: target.vel_ned},
+                    yaw=[yaw0, yaw1])
+        return trajectory_reference(traj, yaw0), float(traj.duration)
+
+    def _fly(self, obs: Observation, fresh: bool) -> list[Action]:
+        ms = self.stream
+        prog = self.program
+        if not isinstance(ms, MissionStream) or prog is None:
+            return []
+        t = ms.schedule_time(obs.now_s)
+        self.t_progress = max(self.t_progress, min(t, prog.t_end))
+        # the plan passing a waypoint counts, whatever the tracking error
+        while self.reached < len(prog.wp_times) and prog.wp_times[self.reached] <= t \
+                and obs.now_s - ms.t0_s >= ms.join_s:
+            self.reached += 1
+        if t < prog.t_end:
+            return []
+        if self._end_since is None:
+            self._end_since = obs.now_s
+        end = prog.reference(prog.t_end).pos_ned
+        close = fresh and obs.position is not None and float(
+            np.linalg.norm(np.asarray(obs.position.pos_ned) - end)) <= self.config.settle_m
+        if not close and obs.now_s - self._end_since < self.config.settle_s:
+            return []
+        self.done = True
+        self.state = "finishing"
+        self.stream = HoldStream(PositionSetpoint(
+            pos_ned=(float(end[0]), float(end[1]), float(end[2])), vel_ned=(0.0, 0.0, 0.0),
+            yaw=_yaw_of(prog.reference(prog.t_end))))
+        return [Announce(f"ecca: mission complete, {prog.final_action}"),
+                LogEvent("mission_complete", {"reached": self.reached,
+                                              "final_action": prog.final_action}),
+                *self._request_final(obs)]
+
+    def _request_final(self, obs: Observation) -> list[Action]:
+        prog = self.program
+        action = prog.final_action if prog is not None else "loiter"
+        self._final_requested_at = obs.now_s
+        return [RequestMode(_FINAL_MODE.get(action, FlightMode.HOLD), f"mission end: {action}")]

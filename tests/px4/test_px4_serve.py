@@ -1,0 +1,172 @@
+"""`python -m companion serve` against real PX4 v1.16 SITL, the test playing QGroundControl on
+PX4's GCS link (pymavlink, tests/gcs.py): upload a mission, arm and take off in AUTO, OFFBOARD
+-> the service flies the smooth mission; Hold (AUTO.LOITER: PX4 refuses POSCTL without RC)
+mid-way -> it stops; OFFBOARD again -> it resumes from there and at the end switches PX4 to
+LAND. Oracles: PX4's HEARTBEAT and LOCAL_POSITION_NED as the GCS sees them, the service's event
+log. About 60-75 s (PX4 runs in real time).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import signal
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import common as mavlink2
+
+from companion.mission import load_mission, mission_upload_items
+from tests.gcs import Gcs, ground_station
+from tests.integration.conftest import free_udp_port
+from tests.integration.test_serve_mock import relay
+
+from .px4_sitl import Px4Sitl
+
+REPO = Path(__file__).resolve().parents[2]
+MISSION = REPO / "tests" / "data" / "missions" / "px4_short.plan"
+# px4_short.plan: takeoff to 4 m at home, (10, 0), (10, 8), land there (NED from home, m)
+WP1, WP2 = (10.0, 0.0), (10.0, 8.0)
+
+
+def dist_xy(p: tuple[float, ...] | None, q: tuple[float, float]) -> float:
+    return math.inf if p is None else math.hypot(p[0] - q[0], p[1] - q[1])
+
+
+def events(folder: Path) -> list[dict[str, object]]:
+    path = folder / "events.jsonl"
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+async def pilot_takes_off(gcs: Gcs) -> None:
+    for _ in range(40):  # EKF2 needs a few seconds after boot (bounded retries)
+        if await gcs.command(400, 1.0) == 0:
+            break
+        await asyncio.sleep(0.5)
+    await gcs.wait_for(lambda: gcs.armed, 5.0, "armed")
+    assert await gcs.command(22, 0, 0, 0, math.nan, math.nan, math.nan, math.nan) == 0
+    await gcs.wait_for(lambda: gcs.position is not None and gcs.position[2] < -2.0
+                       and gcs.mode == "HOLD", 30.0, "the takeoff to end in Hold")
+
+
+async def test_px4_serve_flies_pauses_resumes_and_lands(px4: Px4Sitl, tmp_path: Path) -> None:
+    logs = tmp_path / "serve"
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "companion", "serve", "--connect", px4.url,
+        "--target-system", str(px4.target_system), "--log-dir", str(logs),
+        stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.DEVNULL)
+    try:
+        async with ground_station(px4.gcs_port, px4.target_system) as gcs:
+            await gcs.wait_for(lambda: gcs.heartbeat is not None, 15.0, "PX4's HEARTBEAT")
+            m = load_mission(MISSION)
+            items = [mavlink2.MAVLink_mission_item_int_message(
+                px4.target_system, 1, i, u.frame, u.command, int(i == 0), u.autocontinue,
+                u.param1, u.param2, u.param3, u.param4, u.x, u.y, u.z, 0)
+                for i, u in enumerate(mission_upload_items(m))]
+            await gcs.upload_mission(items)
+            await gcs.wait_for(lambda: any(e["event"] == "mission_planned"
+                                           for e in events(logs)), 20.0, "the plan")
+            # the announcement reaches the ground station through PX4's forwarding
+            await gcs.wait_for(lambda: gcs.text_seen("ecca: mission"), 5.0,
+                               "the STATUSTEXT announcement at the GCS")
+            await pilot_takes_off(gcs)
+            assert await gcs.set_mode("OFFBOARD") == 0
+            await gcs.wait_for(lambda: gcs.mode == "OFFBOARD", 3.0, "OFFBOARD")
+            await gcs.wait_for(lambda: dist_xy(gcs.position, WP1) < 1.5, 30.0, "wp 1")
+            await gcs.wait_for(lambda: gcs.position[1] > 1.5, 15.0, "leaving wp 1")  # type: ignore[index]
+            assert await gcs.set_mode("HOLD") == 0
+            await gcs.wait_for(lambda: gcs.mode == "HOLD", 3.0, "Hold")
+            i_hold = len(gcs.track)
+            t_hold = gcs.track[-1].t
+            await gcs.wait_for(lambda: gcs.track[-1].t > t_hold + 3.0, 8.0, "3 s in Hold")
+            held = [s.pos_ned for s in gcs.track[i_hold:]]
+            assert min(dist_xy(p, WP2) for p in held) > 2.0  # braked short of wp 2
+            i_resume = len(gcs.track)
+            for _ in range(5):  # the pilot retries if PX4 is still settling into Hold
+                if await gcs.set_mode("OFFBOARD") == 0:
+                    break
+            await gcs.wait_for(lambda: gcs.mode == "LAND", 30.0, "the service's LAND")
+            after = [s.pos_ned for s in gcs.track[i_resume:]]
+            closest = min(dist_xy(p, WP2) for p in after)
+            back = min(dist_xy(p, WP1) for p in after)
+            print(f"resume: closest to wp 2 {closest:.2f} m, to wp 1 {back:.2f} m")
+            assert closest < 1.5 and back > 1.0
+            await gcs.wait_for(lambda: not gcs.armed, 40.0, "landing and disarm")
+            assert dist_xy(gcs.track[-1].pos_ned, WP2) < 2.0
+            ev = events(logs)
+            flights = [e for e in ev if e["event"] == "state" and e["state"] == "mission"]
+            assert len(flights) == 2
+            assert any(e["event"] == "mode_request" and e["mode"] == "LAND" for e in ev)
+            err = np.array([dist_xy(s.pos_ned, WP2) for s in gcs.track[-20:]])
+            print("landed within", float(err.max()), "m of the land point")
+        proc.send_signal(signal.SIGTERM)
+        assert await asyncio.wait_for(proc.wait(), 15.0) == 0
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
+        if (logs / "events.jsonl").exists():
+            print((logs / "events.jsonl").read_text()[-3000:])
+
+
+async def test_px4_serve_link_loss_and_kill_leave_it_to_px4s_failsafe(
+        px4: Px4Sitl, tmp_path: Path) -> None:
+    """Link cut (a UDP relay between PX4's onboard link and the service drops everything) ->
+    PX4's offboard-loss failsafe; link back -> the service streams hold again and OFFBOARD
+    resumes the mission; SIGKILL -> the failsafe again."""
+    logs = tmp_path / "serve"
+    svc_port = free_udp_port()
+    async with relay(px4.port, svc_port) as link, ground_station(
+            px4.gcs_port, px4.target_system) as gcs:
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "companion", "serve", "--connect",
+            f"udpin://127.0.0.1:{svc_port}", "--target-system", str(px4.target_system),
+            "--log-dir", str(logs),
+            stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.DEVNULL)
+        try:
+            await gcs.wait_for(lambda: gcs.heartbeat is not None, 15.0, "PX4's HEARTBEAT")
+            m = load_mission(MISSION)
+            await gcs.upload_mission([mavlink2.MAVLink_mission_item_int_message(
+                px4.target_system, 1, i, u.frame, u.command, int(i == 0), u.autocontinue,
+                u.param1, u.param2, u.param3, u.param4, u.x, u.y, u.z, 0)
+                for i, u in enumerate(mission_upload_items(m))])
+            await gcs.wait_for(lambda: any(e["event"] == "mission_planned"
+                                           for e in events(logs)), 20.0, "the plan")
+            await pilot_takes_off(gcs)
+            assert await gcs.set_mode("OFFBOARD") == 0
+            await gcs.wait_for(lambda: gcs.position[0] > 3.0, 20.0, "mission flight")  # type: ignore[index]
+            n = len(events(logs))
+            link.drop = True
+            await gcs.wait_for(lambda: gcs.mode != "OFFBOARD", 5.0, "PX4's failsafe")
+            print("link loss ->", gcs.mode, "system_status", gcs.heartbeat.system_status)
+            assert gcs.heartbeat.system_status == 5  # CRITICAL: a failsafe, not a mode change
+            assert await gcs.set_mode("HOLD") == 0  # the pilot stops the no-RC descent
+            await gcs.wait_for(lambda: any(e["event"] == "link" and e["ok"] is False
+                                           for e in events(logs)[n:]), 10.0, "link lost seen")
+            n = len(events(logs))
+            link.drop = False
+            await gcs.wait_for(lambda: any(e["event"] == "link" and e["ok"] is True
+                                           for e in events(logs)[n:]), 15.0, "relink seen")
+            for _ in range(10):  # the first hold setpoints may still be on their way
+                if await gcs.set_mode("OFFBOARD") == 0:
+                    break
+            await gcs.wait_for(lambda: gcs.mode == "OFFBOARD", 3.0, "OFFBOARD again")
+            await gcs.wait_for(lambda: sum(e["event"] == "state" and e["state"] == "mission"
+                                           for e in events(logs)) >= 2, 5.0, "the resume")
+            proc.kill()
+            await proc.wait()
+            await gcs.wait_for(lambda: gcs.mode != "OFFBOARD", 5.0, "failsafe after the kill")
+            print("kill ->", gcs.mode, "system_status", gcs.heartbeat.system_status)
+            assert gcs.heartbeat.system_status == 5
+        finally:
+            if proc.returncode is None:
+                proc.kill()
+                await proc.wait()
+
+
+pytestmark = pytest.mark.px4
