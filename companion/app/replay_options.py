@@ -38,7 +38,8 @@ def add_perturbation_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--loss", type=float, default=0.0, metavar="PCT",
                    help="datagram loss in both directions [%%] (default 0)")
     p.add_argument("--start-offset", type=north_east, default=(0.0, 0.0), metavar="N,E",
-                   help="vehicle placed N,E metres from the planned home (default 0,0)")
+                   help="vehicle placed N,E metres from the planned home (default 0,0; write "
+                        "--start-offset=-1,2 for a negative north)")
     p.add_argument("--mock-param", type=mock_param, action="append", default=[],
                    metavar="NAME=VALUE",
                    help="true vehicle/sensor parameter of the mock, e.g. SIH_MASS=1.2 "

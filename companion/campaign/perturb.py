@@ -126,7 +126,8 @@ class Perturbation:
         if self.loss_pct:
             args += ["--loss", repr(self.loss_pct)]
         if self.start_offset_n_m or self.start_offset_e_m:
-            args += ["--start-offset", f"{self.start_offset_n_m!r},{self.start_offset_e_m!r}"]
+            # '=' form: a negative north value would otherwise look like an option
+            args += [f"--start-offset={self.start_offset_n_m!r},{self.start_offset_e_m!r}"]
         for name, value in self.mock_params():
             args += ["--mock-param", f"{name}={value!r}"]
         return args

@@ -199,6 +199,16 @@ class ResultStore:
         self.out_dir = out_dir
         self.path = out_dir / RESULTS_FILE
         out_dir.mkdir(parents=True, exist_ok=True)
+        self._repair()
+
+    def _repair(self) -> None:
+        """Cut a line left incomplete by a crash mid-append, so the next row starts a line."""
+        if not self.path.exists():
+            return
+        data = self.path.read_bytes()
+        if data and not data.endswith(b"\n"):
+            with open(self.path, "r+b") as f:
+                f.truncate(data.rfind(b"\n") + 1)
 
     def load(self) -> list[dict[str, Any]]:
         """Every complete row on disk (a line cut short by a crash is ignored)."""
