@@ -5,6 +5,7 @@ a run's printed `replay` command re-creates its result."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shlex
@@ -32,7 +33,7 @@ START_TIMEOUT_S = 60.0
 
 
 def _quiet() -> Console:
-    return Console(file=open(os.devnull, "w"), width=120)  # noqa: SIM115 (closed with the test)
+    return Console(quiet=True)
 
 
 def _rows(out: Path) -> list[dict[str, Any]]:
@@ -55,10 +56,8 @@ def _stop(proc: subprocess.Popen[bytes]) -> None:
         except (ProcessLookupError, subprocess.TimeoutExpired):
             pass
     if proc.poll() is None:
-        try:
+        with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
         proc.wait(timeout=15)
 
 
