@@ -12,10 +12,10 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import asdict, dataclass, fields
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from companion.replay import ReplayConfig
+if TYPE_CHECKING:  # (kept out of `python -m companion` start-up: the replay stack is heavy)
+    from companion.replay import ReplayConfig
 
 #: Quantisation of sampled values (decimals), so commands stay readable and exact.
 DECIMALS = 4
@@ -169,6 +169,8 @@ def sample(ranges: PerturbationRanges, campaign_seed: int, run_index: int) -> Pe
 
     Every draw is made whether or not its range is zero, so turning one perturbation off does
     not change the others."""
+    import numpy as np
+
     if campaign_seed < 0 or run_index < 0:
         raise ValueError("campaign seed and run index must be >= 0")
     rng = np.random.default_rng([campaign_seed, run_index])
