@@ -110,7 +110,12 @@ def options_from_args(args: argparse.Namespace) -> CampaignOptions:
 
 def cmd_campaign(args: argparse.Namespace) -> int:
     """`campaign` from parsed arguments."""
-    return run_campaign(options_from_args(args), Console())
+    console = Console()
+    try:
+        return run_campaign(options_from_args(args), console)
+    except (OSError, TimeoutError) as exc:  # scheduler unreachable, cluster start failed
+        console.print(f"[red]campaign failed:[/red] {type(exc).__name__}: {exc}")
+        return EXIT_FAILURE
 
 
 def run_campaign(
