@@ -91,3 +91,29 @@ def test_bad_ranges_are_refused_with_the_field_name() -> None:
         PerturbationRanges(mass_error=-0.1)
     with pytest.raises(ValueError, match="drag_error"):
         PerturbationRanges(drag_error=1.5)
+
+
+def test_keep_decides_which_tlogs_come_back_and_never_changes_the_result(
+        tmp_path: Path) -> None:
+    """--keep failed flies without a tlog and flies a failed run again with one: the row is
+    the same as without any tlog, and the tlog is a readable flight log."""
+    from pymavlink import mavutil
+
+    from companion.campaign.runner import WALL_CLOCK_COLUMNS, execute_run
+
+    def flight(row: dict[str, object]) -> dict[str, object]:
+        return {k: v for k, v in row.items() if k not in WALL_CLOCK_COLUMNS}
+
+    t = make_tasks([MISSION], ["position"], 1, 2, PerturbationRanges())[0]
+    storm = dataclasses.replace(t.perturbation, wind_m_s=11.0, wind_from_deg=90.0)
+    t = dataclasses.replace(t, perturbation=storm)
+    out = {k: execute_run(dataclasses.replace(t, keep=k))
+           for k in ("none", "failed", "all")}
+    assert out["none"].row["ok"] is False, "an 11 m/s wind should make this run fail"
+    assert flight(out["none"].row) == flight(out["failed"].row) == flight(out["all"].row)
+    assert out["none"].tlog is None
+    assert out["failed"].tlog is not None and out["failed"].tlog == out["all"].tlog
+    path = tmp_path / "run.tlog"
+    path.write_bytes(out["failed"].tlog)
+    mlog = mavutil.mavlink_connection(str(path))
+    assert mlog.recv_match(type="HEARTBEAT") is not None
