@@ -16,6 +16,8 @@ from rich.console import Console
 from rich.table import Table
 
 from companion.link_options import add_signing_option
+from companion.app.campaign import add_campaign_parser
+from companion.app.replay_options import add_perturbation_options, mock_param
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -80,17 +82,12 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from companion.app.replay_options import replay_config_kwargs
     from companion.mission import load_mission, mission_to_flight_plan
-
-    config_kw: dict[str, object] = {
-        "vehicle": args.vehicle,
-        "mode": args.mode,
-        "rate_hz": args.rate,
-        "wind_m_s": args.wind,
-        "seed": args.seed,
-        "compare_px4_mission": args.compare_px4_mission,
-    }
     from companion.replay import ReplayConfig
+
+    config_kw: dict[str, object] = replay_config_kwargs(args)
+    config_kw["compare_px4_mission"] = args.compare_px4_mission
 
     ReplayConfig(**config_kw)  # type: ignore[arg-type]  # validate options before any work
     # size the progress bars with the nominal mission durations (bad files fail later, cleanly)
@@ -264,14 +261,6 @@ def _system_id(text: str) -> int:
     return v
 
 
-def _mock_param(text: str) -> tuple[str, float]:
-    name, _, value = text.partition("=")
-    try:
-        return name.strip(), float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}") from None
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `python -m companion`."""
     parser = argparse.ArgumentParser(
@@ -303,7 +292,10 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     rp.add_argument("--jobs", type=int, default=1, help="files replayed in parallel (default 1)")
     rp.add_argument("--out", default="replay_out", help="output folder (default ./replay_out)")
+    add_perturbation_options(rp)
     rp.set_defaults(func=_cmd_replay)
+
+    add_campaign_parser(sub)
 
     fl = sub.add_parser("fly", help="take off, fly a mission file or pattern in offboard, land")
     fl.add_argument("target", metavar="TARGET",
@@ -326,7 +318,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="sender thread busy-waits each deadline (tightest timing, costs a core)")
     fl.add_argument("--sender-cpu", type=int, default=None, metavar="N",
                     help="pin the setpoint sender thread to core N")
-    fl.add_argument("--mock-param", type=_mock_param, action="append", default=[],
+    fl.add_argument("--mock-param", type=mock_param, action="append", default=[],
                     metavar="NAME=VALUE", help="parameter of the embedded mock (repeatable)")
     fl.set_defaults(func=_cmd_fly)
 

@@ -76,8 +76,15 @@ TLOG_EPOCH_S = 1_767_225_600.0
 @dataclass(frozen=True)
 class ReplayConfig:
     """How to replay: vehicle kind, setpoint mode and rate [Hz], mock physics rate [Hz],
-    constant wind speed [m/s] (from the north-west), RNG seed, and whether to also fly the
-    mission in the mock's own AUTO.MISSION for comparison."""
+    constant wind speed [m/s] blowing from `wind_from_deg` (compass, default 135: from the
+    south-east, air moving toward the north-west), RNG seed, and whether to also fly the
+    mission in the mock's own AUTO.MISSION for comparison.
+
+    Perturbations (Monte-Carlo campaigns): `params` is the companion's belief about the vehicle
+    (e.g. a wrong hover thrust), `mock_params` the mock's truth (SIH_MASS, SIH_KDV, SIM_*...);
+    `latency_s`/`jitter_s` delay the telemetry (mock -> companion), `loss_pct` drops datagrams
+    in both directions; `start_offset_ne_m` puts the vehicle that far (north, east) [m] from
+    the mission's planned home (the companion plans from where it stands, like `fly`)."""
 
     vehicle: Literal["quad", "rover"] = "quad"
     mode: Mode = "attitude"
@@ -90,6 +97,11 @@ class ReplayConfig:
     limits: VehicleLimits = field(default_factory=VehicleLimits)
     mock_params: tuple[tuple[str, float], ...] = ()
     timeout_margin_s: float = 120.0
+    wind_from_deg: float = 135.0
+    latency_s: float = 0.0
+    jitter_s: float = 0.0
+    loss_pct: float = 0.0
+    start_offset_ne_m: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         if self.vehicle not in ("quad", "rover"):
@@ -100,6 +112,31 @@ class ReplayConfig:
             raise ValueError(f"setpoint rate must be 20..500 Hz, got {self.rate_hz}")
         if not (math.isfinite(self.wind_m_s) and self.wind_m_s >= 0.0):
             raise ValueError(f"wind speed must be >= 0 m/s, got {self.wind_m_s}")
+        if not math.isfinite(self.wind_from_deg):
+            raise ValueError(f"wind direction must be finite, got {self.wind_from_deg}")
+        for name in ("latency_s", "jitter_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and 0.0 <= v <= 5.0):
+                raise ValueError(f"{name} must be 0..5 s, got {v}")
+        if not (math.isfinite(self.loss_pct) and 0.0 <= self.loss_pct <= 100.0):
+            raise ValueError(f"packet loss must be 0..100 %, got {self.loss_pct}")
+        if not all(math.isfinite(v) and abs(v) <= 1000.0 for v in self.start_offset_ne_m):
+            raise ValueError(f"start offset must be within 1 km, got {self.start_offset_ne_m}")
+        from sitl_mock.params import PARAMS
+
+        for name, value in self.mock_params:
+            if name not in PARAMS:
+                raise ValueError(f"unknown mock parameter {name!r}")
+            if not math.isfinite(value):
+                raise ValueError(f"mock parameter {name} must be finite, got {value}")
+
+    def wind_ned(self) -> tuple[float, float, float]:
+        """Steady wind velocity [m/s NED] (air moves toward wind_from_deg + 180)."""
+        if self.wind_from_deg == 135.0:  # the replay's historical default, bit for bit
+            w = self.wind_m_s / math.sqrt(2.0)
+            return (w, -w, 0.0)
+        to = math.radians(self.wind_from_deg + 180.0)
+        return (self.wind_m_s * math.cos(to), self.wind_m_s * math.sin(to), 0.0)
 
 
 class Phase(enum.Enum):
@@ -233,8 +270,21 @@ def planning_limits(config: ReplayConfig) -> VehicleLimits:
 
 def _make_autopilot(config: ReplayConfig, home: tuple[float, float, float]) -> Any:
     from sitl_mock.autopilot import Autopilot
+    from sitl_mock.faults import LinkFaults
     from sitl_mock.params import ParamStore
 
+    if config.start_offset_ne_m != (0.0, 0.0):
+        from sitl_mock.vehicle import ned_to_geodetic
+
+        n, e = config.start_offset_ne_m
+        home = ned_to_geodetic((n, e, 0.0), home)  # the vehicle boots (and PX4's home is) here
+    faults = None
+    if config.latency_s or config.jitter_s or config.loss_pct:
+        # Autopilot's view: rx = companion -> vehicle (setpoints, commands), tx = telemetry
+        f_in = LinkFaults(loss_pct=config.loss_pct)
+        f_out = LinkFaults(loss_pct=config.loss_pct, latency_s=config.latency_s,
+                           jitter_s=config.jitter_s)
+        faults = {"offboard": (f_in, f_out)}
     ap = Autopilot(
         config.vehicle,
         ParamStore(dict(config.mock_params)),
@@ -243,10 +293,10 @@ def _make_autopilot(config: ReplayConfig, home: tuple[float, float, float]) -> A
         physics_hz=config.physics_hz,
         now=0.0,
         remotes={"offboard": "companion"},
+        link_faults=faults,
     )
     if config.wind_m_s > 0.0:
-        w = config.wind_m_s / math.sqrt(2.0)
-        ap.vehicle.set_wind((w, -w, 0.0))  # blowing from the north-west... towards south-east
+        ap.vehicle.set_wind(config.wind_ned())
     return ap
 
 
@@ -645,6 +695,81 @@ def plot_flight(
     draw_flight_png(path, plot_data(title, log, schedule, origin, px4_log))
 
 
+@dataclass(frozen=True)
+class PreparedMission:
+    """A mission file loaded and planned for one `ReplayConfig`'s vehicle, params and limits."""
+
+    path: Path
+    mission: Mission
+    warnings: tuple[str, ...]
+    schedule: Schedule
+    home: tuple[float, float, float]
+
+
+def prepare_mission(path: str | os.PathLike[str], config: ReplayConfig) -> PreparedMission:
+    """Load and plan `path` as `config` would fly it. Raises MissionError on a bad file."""
+    src = Path(path)
+    mission = load_mission(src)
+    flight_plan = mission_to_flight_plan(mission, vehicle=config.vehicle)
+    params = None if config.vehicle == "rover" else config.params
+    schedule = build_schedule(flight_plan, params, planning_limits(config))
+    home = (mission.home.lat_deg, mission.home.lon_deg, mission.home.alt_amsl_m)
+    return PreparedMission(src, mission, tuple(flight_plan.warnings), schedule, home)
+
+
+@dataclass(frozen=True)
+class ReplayRun:
+    """One flight of a prepared mission: the flight, its log and its report (see summarize)."""
+
+    flight: Flight
+    log: FlightLog
+    report: dict[str, Any]
+
+    @property
+    def ok(self) -> bool:
+        """Completed and reached every waypoint."""
+        r = self.report
+        return bool(r["result"] == "ok" and r["waypoints_reached"] == len(r["waypoints"]))
+
+
+def run_prepared(
+    prep: PreparedMission,
+    config: ReplayConfig,
+    tlog: TlogWriter | None,
+    progress: Callable[[float, float], None] | None = None,
+) -> ReplayRun:
+    """Fly a prepared mission in lockstep and summarise it (no files except `tlog`)."""
+    schedule = prep.schedule
+    wall0 = time.perf_counter()
+    flight, log = fly_schedule(config, schedule, prep.home, tlog, progress)
+    wall = time.perf_counter() - wall0
+    report = summarize(log, schedule, prep.mission, flight.origin)
+    sim_s = flight.lk.now
+    report.update(
+        {
+            "file": str(prep.path),
+            "vehicle": config.vehicle,
+            "mode": config.mode,
+            "setpoint_rate_hz": config.rate_hz,
+            "setpoints_sent": flight.setpoints_sent,
+            "tlog_frames": tlog.frames if tlog is not None else None,
+            "result": "ok" if flight.phase == Phase.DONE else f"aborted: {flight.reason}",
+            "simulated_s": round(sim_s, 3),
+            "wall_s": round(wall, 3),
+            "real_time_factor": round(sim_s / wall, 1) if wall > 0 else None,
+            "warnings": list(prep.warnings),
+        }
+    )
+    if config.start_offset_ne_m != (0.0, 0.0):
+        # the companion flew relative to where it stood; the mission's geodetic waypoints sit
+        # at -offset in the vehicle's frame, this is how far the flight passed from them
+        n, e = config.start_offset_ne_m
+        pos = np.asarray(log.pos, dtype=np.float64).reshape(-1, 3)
+        wps = schedule.waypoints_ned + flight.origin - np.array([n, e, 0.0])
+        report["max_waypoint_miss_geo_m"] = float(np.max(_closest(pos, wps))) if len(wps) else 0.0
+    return ReplayRun(flight, log, report)
+
+
 def replay_file(
     path: str | os.PathLike[str],
     out_root: str | os.PathLike[str],
@@ -657,38 +782,17 @@ def replay_file(
 
     `plotter` draws flight.png in its helper process (started before the flight, it has
     imported matplotlib by the time the figure is needed); None draws it here."""
-    src = Path(path)
-    mission = load_mission(src)
-    flight_plan = mission_to_flight_plan(mission, vehicle=config.vehicle)
-    params = None if config.vehicle == "rover" else config.params
-    schedule = build_schedule(flight_plan, params, planning_limits(config))
-    home = (mission.home.lat_deg, mission.home.lon_deg, mission.home.alt_amsl_m)
+    prep = prepare_mission(path, config)
+    src, mission, schedule, home = prep.path, prep.mission, prep.schedule, prep.home
     name = src.stem
     out_root = Path(out_root)
     out_root.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=out_root))
-    wall0 = time.perf_counter()
     try:
         with TlogWriter(tmp / "flight.tlog", buffer_bytes=1 << 20) as tlog:
-            flight, log = fly_schedule(config, schedule, home, tlog, progress)
-        wall = time.perf_counter() - wall0
-        report = summarize(log, schedule, mission, flight.origin)
-        sim_s = flight.lk.now
-        report.update(
-            {
-                "file": str(src),
-                "vehicle": config.vehicle,
-                "mode": config.mode,
-                "setpoint_rate_hz": config.rate_hz,
-                "setpoints_sent": flight.setpoints_sent,
-                "tlog_frames": tlog.frames,
-                "result": "ok" if flight.phase == Phase.DONE else f"aborted: {flight.reason}",
-                "simulated_s": round(sim_s, 3),
-                "wall_s": round(wall, 3),
-                "real_time_factor": round(sim_s / wall, 1) if wall > 0 else None,
-                "warnings": list(flight_plan.warnings),
-            }
-        )
+            run = run_prepared(prep, config, tlog, progress)
+        flight, log, report = run.flight, run.log, run.report
+        report["tlog_frames"] = tlog.frames
         px4_log = None
         if config.compare_px4_mission:
             res, px4_log = fly_px4_mission(config, mission, home, schedule.duration_s)
@@ -722,8 +826,7 @@ def replay_file(
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    ok = report["result"] == "ok" and report["waypoints_reached"] == len(report["waypoints"])
-    return ReplayResult(name=name, out_dir=final, report=report, ok=ok)
+    return ReplayResult(name=name, out_dir=final, report=report, ok=run.ok)
 
 
 def _json_default(o: object) -> object:
@@ -738,10 +841,14 @@ __all__ = [
     "FlightLog",
     "LockstepLink",
     "MissionError",
+    "PreparedMission",
     "ReplayConfig",
     "ReplayResult",
+    "ReplayRun",
     "fly_px4_mission",
     "fly_schedule",
+    "prepare_mission",
     "replay_file",
+    "run_prepared",
     "summarize",
 ]

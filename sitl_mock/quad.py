@@ -46,6 +46,7 @@ _TAKEOFF_STATE_NAMES = ("disarmed", "spoolup", "ready_for_takeoff", "rampup", "f
 
 POS_LOOP_PERIOD_S = 0.01
 PARAM_REFRESH_S = 0.1
+GUST_PERIOD_S = 0.02  # the gust process is updated at 50 Hz (held in between)
 MAX_STEP_S = 1.0 / 250.0  # longer steps are split (integration always at >= 250 Hz)
 ATT_LOOP_PERIOD_S = 0.004
 RATE_LOOP_PERIOD_S = 0.002  # rate loop at <= 500 Hz (every physics step below 500 Hz)
@@ -79,6 +80,11 @@ class Quadrotor:
         "_bat_min",
         "_battery",
         "_gains",
+        "_gust",
+        "_gust_acc",
+        "_gust_rng",
+        "_gust_std",
+        "_gust_tau",
         "_hdt",
         "_hdt2",
         "_home",
@@ -137,6 +143,7 @@ class Quadrotor:
         "_vy",
         "_vz",
         "_wind",
+        "_wind_base",
         "_wx",
         "_wy",
         "_wz",
@@ -168,7 +175,12 @@ class Quadrotor:
         self._wx = self._wy = self._wz = 0.0
         self._u: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # rotor thrust 0..1
         self._on_ground = True
-        self._wind: Vec3 = (0.0, 0.0, 0.0)
+        self._wind: Vec3 = (0.0, 0.0, 0.0)  # steady wind + gust, what the physics sees
+        self._wind_base: Vec3 = (0.0, 0.0, 0.0)
+        self._gust: Vec3 = (0.0, 0.0, 0.0)
+        self._gust_acc = 0.0
+        # gusts draw from their own stream, so turning them on leaves the noise sequence alone
+        self._gust_rng = random.Random(seed * 7919 + 104729)
         # derived
         self._battery = 1.0
         self._local_pos_valid = True
@@ -208,7 +220,26 @@ class Quadrotor:
         """Steady wind [m/s NED]."""
         if not all(_isfinite(c) for c in vel_ned):
             raise ValueError("wind velocity must be finite")
-        self._wind = (float(vel_ned[0]), float(vel_ned[1]), float(vel_ned[2]))
+        self._wind_base = (float(vel_ned[0]), float(vel_ned[1]), float(vel_ned[2]))
+        self._apply_gust()
+
+    def _apply_gust(self) -> None:
+        b, g = self._wind_base, self._gust
+        self._wind = (b[0] + g[0], b[1] + g[1], b[2] + g[2])
+
+    @property
+    def wind(self) -> Vec3:
+        """Wind the airframe sees now, steady part plus gust [m/s NED]."""
+        return self._wind
+
+    def _step_gust(self, dt: float) -> None:
+        """Advance the gust process by `dt` [s] (exact Gauss-Markov discretisation)."""
+        e = math.exp(-dt / max(self._gust_tau, 1e-3))
+        s = self._gust_std * math.sqrt(1.0 - e * e)
+        gauss = self._gust_rng.gauss
+        gx, gy, gz = self._gust
+        self._gust = (gx * e + s * gauss(), gy * e + s * gauss(), gz * e + 0.5 * s * gauss())
+        self._apply_gust()
 
     def set_local_position_valid(self, valid: bool) -> None:
         """Fault injection flag only: the controller keeps using the true state."""
@@ -346,6 +377,8 @@ class Quadrotor:
             self._tau = tau
             self._alpha_dt = -1.0
         self._noise = (p["SIM_POS_NOISE"], p["SIM_VEL_NOISE"], p["SIM_GYRO_NOISE"])
+        self._gust_std = max(p["SIM_WIND_GUST"], 0.0)
+        self._gust_tau = p["SIM_WIND_GUST_T"]
         self._bat_drain = max(p["SIM_BAT_DRAIN"], 1.0)
         self._bat_min = min(max(p["SIM_BAT_MIN_PCT"] / 100.0, 0.0), 1.0)
 
@@ -376,6 +409,12 @@ class Quadrotor:
                 self._gains = McGains.from_params(self._params)
                 self._read_physical_params()
         self._param_acc = param_acc
+        if self._gust_std > 0.0:
+            gust_acc = self._gust_acc + dt
+            if gust_acc >= GUST_PERIOD_S:
+                self._step_gust(gust_acc)
+                gust_acc = 0.0
+            self._gust_acc = gust_acc
         # arming transitions
         if armed and not self._armed_prev:
             self._arm_t = t
