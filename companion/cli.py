@@ -15,9 +15,9 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
-from companion.link_options import add_signing_option
 from companion.app.campaign import add_campaign_parser
 from companion.app.replay_options import add_perturbation_options, mock_param
+from companion.link_options import add_signing_option
 
 EXIT_OK = 0
 EXIT_FAILURE = 1

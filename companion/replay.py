@@ -766,7 +766,8 @@ def run_prepared(
         n, e = config.start_offset_ne_m
         pos = np.asarray(log.pos, dtype=np.float64).reshape(-1, 3)
         wps = schedule.waypoints_ned + flight.origin - np.array([n, e, 0.0])
-        report["max_waypoint_miss_geo_m"] = float(np.max(_closest(pos, wps))) if len(wps) else 0.0
+        report["max_waypoint_miss_geo_m"] = (
+            float(np.max(closest_approach(pos, wps))) if len(wps) else 0.0)
     return ReplayRun(flight, log, report)
 
 
