@@ -485,14 +485,16 @@ class AttitudeGains:
 
 
 def rates_mode_gains(gains: TrackingGains, attitude: AttitudeGains,
-                     separation: float = 2.0) -> TrackingGains:
+                     separation: float = 2.5) -> TrackingGains:
     """Position gains used in `rates` mode: the horizontal loop's natural frequency
     sqrt(kp_xy) [rad/s] is capped at min(k_roll, k_pitch) / `separation`, so the companion's own
-    attitude loop (which `attitude` mode leaves to PX4's faster one) stays at least that much
-    quicker than the position loop it serves. The damping ratio is kept (kd_xy scales with the
-    frequency) and ki_xy scales with its cube. With kp_xy 20 and k_roll 6.5 the mock in
-    lockstep flew the 2 m/s figure-8 in a limit cycle (tilt 33 deg instead of 15) without the
-    cap, cleanly with it (the defaults, k_roll 10, need no cap); vertical gains are untouched."""
+    attitude loop (which `attitude` mode leaves to PX4's faster one) stays that much quicker
+    than the position loop it serves (cascade separation). The damping ratio is kept (kd_xy
+    scales with the frequency) and ki_xy scales with its cube; vertical gains are untouched.
+    Why 2.5: with kp_xy 20 and k_roll 6.5 the mock in lockstep flew the 2 m/s figure-8 in a
+    limit cycle (tilt 33 deg instead of 15); with k_roll 10 and kp_xy 20 (separation 2.2) two
+    of four real-time mock flights at 6 m/s oscillated (0.45 m); capped to kp_xy 16, none of
+    three did."""
     cap = min(attitude.k_roll, attitude.k_pitch) / separation
     wn = math.sqrt(gains.kp_xy)
     if wn <= cap:

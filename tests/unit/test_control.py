@@ -377,16 +377,18 @@ def test_rates_diagnostics_report_lee_errors() -> None:
 
 @pytest.mark.parametrize("kp", [1.0, 6.0, 10.0, 20.0, 80.0])
 @pytest.mark.parametrize("k_att", [4.0, 6.5, 12.0])
-def test_rates_mode_gains_keep_the_attitude_loop_twice_as_fast(kp: float, k_att: float) -> None:
+@pytest.mark.parametrize("sep", [2.0, 2.5])
+def test_rates_mode_gains_keep_the_attitude_loop_faster(kp: float, k_att: float,
+                                                        sep: float) -> None:
     g = TrackingGains(kp_xy=kp, kd_xy=0.9 * 2.0 * math.sqrt(kp), ki_xy=0.1 * kp ** 1.5)
     att = AttitudeGains(k_roll=k_att, k_pitch=k_att + 1.0)
-    r = rates_mode_gains(g, att)
+    r = rates_mode_gains(g, att, separation=sep)
     wn, wn_r = math.sqrt(g.kp_xy), math.sqrt(r.kp_xy)
-    assert wn_r <= k_att / 2.0 + 1e-12  # the slower of roll/pitch sets the cap
-    if wn <= k_att / 2.0:
+    assert wn_r <= k_att / sep + 1e-12  # the slower of roll/pitch sets the cap
+    if wn <= k_att / sep:
         assert r == g  # nothing to do
     else:
-        assert wn_r == pytest.approx(k_att / 2.0)
+        assert wn_r == pytest.approx(k_att / sep)
         # same damping ratio zeta = kd / (2 wn), integral time scale kept (ki / wn^3)
         assert r.kd_xy / (2.0 * wn_r) == pytest.approx(g.kd_xy / (2.0 * wn))
         assert r.ki_xy / wn_r**3 == pytest.approx(g.ki_xy / wn**3)
