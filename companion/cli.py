@@ -228,6 +228,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         connect=args.connect, mode=args.mode, rate_hz=args.rate, vehicle_file=args.vehicle,
         log_dir=args.log_dir, target_system=args.target_system,
         tlog_max_bytes=int(args.tlog_max_mb * 1024 * 1024), tlog_keep=args.tlog_keep,
+        signing_key=args.signing_key,
     )
     return _run_vehicle_command(lambda: asyncio.run(serve(opts, console)))
 
@@ -339,6 +340,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="start a new .tlog beyond this size [MiB] (default 64)")
     sv.add_argument("--tlog-keep", type=int, default=20,
                     help="keep the newest N .tlog files (default 20)")
+    add_signing_option(sv)
     sv.set_defaults(func=_cmd_serve)
 
     stp = sub.add_parser("status", help="connect and print the vehicle state")

@@ -18,6 +18,7 @@ import dataclasses
 import datetime as dt
 import json
 import logging
+import math
 import signal
 import threading
 import time
@@ -62,6 +63,7 @@ class ServeOptions:
     tlog_max_bytes: int = 64 * 1024 * 1024
     tlog_keep: int = 20
     connect_timeout_s: float = 10.0
+    signing_key: bytes | None = None  # MAVLink 2 signing (32-byte key) when set
 
 
 class RotatingTlog:
@@ -327,7 +329,7 @@ async def serve(opts: ServeOptions, console: Console) -> int:
     folder = Path(opts.log_dir)
     folder.mkdir(parents=True, exist_ok=True)
     config = ServiceConfig(setpoint_mode=opts.mode, params=vf.params,  # type: ignore[arg-type]
-                           limits=vf.limits)
+                           limits=vf.limits, tracking=vf.tracking_config(math.radians(50.0)))
     service = ServeService(config)
     events = EventLog(folder / "events.jsonl", console)
     tlog = RotatingTlog(folder, opts.tlog_max_bytes, opts.tlog_keep)
@@ -345,7 +347,8 @@ async def serve(opts: ServeOptions, console: Console) -> int:
             vconfig = VehicleConfig(rate_hz=opts.rate_hz, connect_timeout_s=opts.connect_timeout_s)
             try:
                 v = await Vehicle.connect(opts.connect, config=vconfig,
-                                          link_config=LinkConfig(target_sysid=opts.target_system))
+                                          link_config=LinkConfig(target_sysid=opts.target_system
+                                                                 ).with_signing_key(opts.signing_key))
             except (ConnectTimeoutError, TransportError, OSError) as exc:
                 events.write("connect_failed", why=str(exc))
                 with contextlib.suppress(TimeoutError):

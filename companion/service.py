@@ -34,7 +34,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.control import Reference
+from companion.control import Reference, TrackingConfig
 from companion.flatness import MultirotorParams
 from companion.mavlink.mission_client import MissionItem
 from companion.mavlink.px4_mode import FlightMode
@@ -66,6 +66,7 @@ class ServiceConfig:
     params: MultirotorParams = field(default_factory=lambda: MultirotorParams(
         mass=1.0, inertia=(0.025, 0.025, 0.030), hover_thrust=0.5, drag=1.0))
     limits: VehicleLimits = field(default_factory=VehicleLimits)
+    tracking: TrackingConfig | None = None  # attitude/rates controller (None: from params)
     join_speed_m_s: float = 3.0  # cruise speed of the joining trajectory
     stale_s: float = 0.5  # position older than this is not used
     settle_m: float = 0.5  # at the plan's end: request the final action within this distance
@@ -522,7 +523,9 @@ class ServeService:
                 if t < join_s:
                     return join_ref(t)
                 return prog.reference(t_join + t - join_s)
-        source = TrackingSource(ref, cfg.setpoint_mode, cfg.params)
+        source = TrackingSource(ref, cfg.setpoint_mode, cfg.params,
+                                tracking=cfg.tracking if cfg.setpoint_mode in ("attitude", "rates")
+                                else None)
         return MissionStream(source, obs.now_s, join_s, t_join)
 
     def _join_trajectory(self, here: FloatArray, vel: FloatArray, yaw_here: float | None,
