@@ -151,7 +151,8 @@ def main() -> None:
         f"| throughput ratio 2 workers / one process | **{ratio:.2f}x** | >= 1.8x |",
         f"| cores free for this bench (two pure-Python spinners vs one, same minute) | "
         f"{med['free']:.2f} | 2 on an idle machine |",
-        f"| one run (task time on a worker, plan + replay + tlog) | {per_run:.2f} s | |",
+        f"| one run (task time on a worker: plan + replay; no tlog when it succeeds) | "
+        f"{per_run:.2f} s | |",
         f"| scheduler overhead per run (1-worker cluster wall - task times) / runs | "
         f"{overhead * 1000:.0f} ms = **{100 * overhead / per_run:.1f} %** of a run | < 5 % |",
         f"| cluster start-up (2 / 1 workers, paid once) | {med['start2']:.1f} / "
