@@ -155,3 +155,14 @@ PARAMS.update(
         ),
     }
 )
+
+# Appended by the vehicle model (estimator error like EKF2 on SIH's GPS; mock-only names: PX4 has
+# no parameter for it, the error emerges from its GPS simulation and EKF2).
+PARAMS.update(
+    {
+        "SIM_EST_XY_STD": ParamSpec(
+            0.0, False, "std of the slowly varying horizontal estimator error [m] (0 = off)"
+        ),
+        "SIM_EST_XY_TAU": ParamSpec(2.0, False, "time constant of the estimator error [s]"),
+    }
+)

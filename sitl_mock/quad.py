@@ -78,6 +78,9 @@ class Quadrotor:
         "_bat_drain",
         "_bat_min",
         "_battery",
+        "_est",
+        "_est_acc",
+        "_est_cfg",
         "_gains",
         "_hdt",
         "_hdt2",
@@ -202,6 +205,10 @@ class Quadrotor:
         # measurement noise (sampled at the position-loop rate)
         self._npos: Vec3 = (0.0, 0.0, 0.0)
         self._nvel: Vec3 = (0.0, 0.0, 0.0)
+        # estimator error (SIM_EST_XY_*): per horizontal axis (driving GM state, position error,
+        # velocity error), advanced at the position-loop rate
+        self._est: list[float] = [0.0] * 6
+        self._est_acc = 0.0
 
     # ------------------------------------------------------------------ interface
     def set_wind(self, vel_ned: Vec3) -> None:
@@ -289,6 +296,16 @@ class Quadrotor:
         )
         return st
 
+    @property
+    def true_pos_ned(self) -> Vec3:
+        """True position [m NED], without the estimator error and noise that `state` carries."""
+        return (self._px, self._py, self._pz)
+
+    @property
+    def true_vel_ned(self) -> Vec3:
+        """True velocity [m/s NED]."""
+        return (self._vx, self._vy, self._vz)
+
     # ------------------------------------------------------------------ test helpers
     def set_state(
         self,
@@ -346,6 +363,7 @@ class Quadrotor:
             self._tau = tau
             self._alpha_dt = -1.0
         self._noise = (p["SIM_POS_NOISE"], p["SIM_VEL_NOISE"], p["SIM_GYRO_NOISE"])
+        self._est_cfg = (max(p["SIM_EST_XY_STD"], 0.0), max(p["SIM_EST_XY_TAU"], 0.05))
         self._bat_drain = max(p["SIM_BAT_DRAIN"], 1.0)
         self._bat_min = min(max(p["SIM_BAT_MIN_PCT"] / 100.0, 0.0), 1.0)
 
@@ -387,6 +405,13 @@ class Quadrotor:
         if armed:
             bat = self._battery - dt / self._bat_drain
             self._battery = bat if bat > self._bat_min else self._bat_min
+
+        if self._est_cfg[0] > 0.0:
+            est_acc = self._est_acc + dt
+            if est_acc >= POS_LOOP_PERIOD_S - 1e-9:
+                self._advance_estimator_error(est_acc)
+                est_acc = 0.0
+            self._est_acc = est_acc
 
         # ---------------------------------------------------------------- control
         if armed and isinstance(target, PositionTarget):
@@ -436,6 +461,22 @@ class Quadrotor:
         self._motor_cmd = (0.0, 0.0, 0.0, 0.0)
         self._idle = True
 
+    def _advance_estimator_error(self, dt: float) -> None:
+        """Horizontal estimator error, like EKF2's on SIH's GPS: white noise through two
+        first-order lags of time constant SIM_EST_XY_TAU (a second-order Gauss-Markov process,
+        stationary std SIM_EST_XY_STD), the velocity error its derivative (std STD / TAU), so
+        the estimate is consistent and slowly varying, as measured on PX4 SITL."""
+        std, tau = self._est_cfg
+        a = math.exp(-dt / tau)
+        drive = math.sqrt(2.0) * std * math.sqrt(1.0 - a * a)  # var(e) = var(s) / 2
+        e = self._est
+        gauss = self._rng.gauss
+        for i in (0, 3):
+            s = a * e[i] + drive * gauss(0.0, 1.0)
+            pos = a * e[i + 1] + (1.0 - a) * s
+            e[i], e[i + 2] = s, (pos - e[i + 1]) / dt
+            e[i + 1] = pos
+
     def _refresh(self) -> None:
         if self._noise[0] > 0.0 or self._noise[1] > 0.0:
             gauss = self._rng.gauss
@@ -445,6 +486,11 @@ class Quadrotor:
         else:
             self._npos = (0.0, 0.0, 0.0)
             self._nvel = (0.0, 0.0, 0.0)
+        if self._est_cfg[0] > 0.0:
+            e = self._est
+            n, v = self._npos, self._nvel
+            self._npos = (n[0] + e[1], n[1] + e[4], n[2])
+            self._nvel = (v[0] + e[2], v[1] + e[5], v[2])
 
     def _want_takeoff(self, tgt: PositionTarget) -> bool:
         pz, vz, az = tgt.pos_ned[2], tgt.vel_ned[2], tgt.acc_ned[2]

@@ -440,3 +440,42 @@ def test_fast_state_constructor_equals_dataclass_init() -> None:
     with pytest.raises(AttributeError):
         fast.t_s = 2.0  # type: ignore[misc]
     assert fast.alt_amsl_m == pytest.approx(403.0)
+
+
+def test_estimator_error_is_slow_consistent_and_off_by_default() -> None:
+    """SIM_EST_XY_STD / _TAU: the reported (and controlled) horizontal position is off the true
+    one by a slowly varying error of the configured std whose derivative is the velocity error
+    (an estimate consistent with itself, as EKF2's); altitude and the default are exact."""
+    def hover(overrides: dict[str, float], seconds: float) -> tuple[np.ndarray, ...]:
+        v = Quadrotor(ParamStore(overrides), seed=4)
+        v.set_state(pos_ned=(0.0, 0.0, -5.0), motors=0.49)
+        v.mark_airborne(0.49)
+        tgt = PositionTarget(pos_ned=(0.0, 0.0, -5.0), yaw=0.0)
+        est, tru, vest, vtru = [], [], [], []
+        for k in range(round(seconds / 0.004)):
+            v.step(0.004, tgt, True)
+            if k % 5 == 4:  # every 20 ms (after a position-loop tick)
+                s = v.state
+                est.append(s.pos_ned)
+                tru.append(v.true_pos_ned)
+                vest.append(s.vel_ned)
+                vtru.append(v.true_vel_ned)
+        return np.array(est), np.array(tru), np.array(vest), np.array(vtru)
+
+    est, tru, _, _ = hover({}, 5.0)
+    assert np.array_equal(est, tru)
+    std, tau = 0.3, 1.0
+    est, tru, vest, vtru = hover({"SIM_EST_XY_STD": std, "SIM_EST_XY_TAU": tau}, 300.0)
+    err = est - tru
+    assert np.all(err[:, 2] == 0.0)
+    for axis in (0, 1):
+        e = err[:, axis]
+        assert float(np.std(e)) == pytest.approx(std, rel=0.3)
+        lag = round(0.1 / 0.02)  # slowly varying: strongly correlated over 0.1 s
+        assert float(np.corrcoef(e[:-lag], e[lag:])[0, 1]) > 0.9
+        # velocity error = d/dt position error: its integral over 1 s matches the change
+        verr = vest[:, axis] - vtru[:, axis]
+        n = round(1.0 / 0.02)
+        integral = np.convolve(verr, np.ones(n), "valid")[1:] * 0.02
+        change = e[n:] - e[:-n]
+        assert float(np.sqrt(np.mean((integral - change) ** 2))) < 0.1 * std
