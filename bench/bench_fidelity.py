@@ -431,17 +431,16 @@ def table(results: dict[str, dict[str, list[float]]], missions: dict[str, dict[s
 SECTION = "Mock fidelity against real PX4 SITL"
 
 
-def _write(text: str, argv: str, wall_s: float, repeat: int, reused: str) -> None:
+def _write(text: str, argv: str, wall_s: float, repeat: int, reused: list[str]) -> None:
     from benchmarks_md import write_section
 
     body = (
         f"## {SECTION}\n\n"
         f"Command: `flock /tmp/ecca-px4-flights.lock .venv/bin/python bench/bench_fidelity.py "
         f"{argv}` ({wall_s / 60:.0f} min wall; both targets in real time).\n\n"
-        + (f"Real PX4's figures are reused from the run of {reused}: PX4 did not change, "
-           "the mock was flown again.\n\n" if reused else "")
-        +
-        "The same stimuli on `sitl_mock serve` and on real PX4 v1.16.0 SITL (SIH quadrotor, "
+        + ("Figures taken from earlier runs of the same script (same stimuli, same "
+           "analysis): " + "; ".join(reused) + ".\n\n" if reused else "")
+        + "The same stimuli on `sitl_mock serve` and on real PX4 v1.16.0 SITL (SIH quadrotor, "
         "default parameters), each flight on a fresh autopilot, flown through the companion's "
         "`Vehicle` and measured from the autopilot's own telemetry in the .tlog (ATTITUDE "
         "100 Hz, LOCAL_POSITION_NED 30 Hz; see the docstring of bench/bench_fidelity.py for "
@@ -466,9 +465,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="bench_out/fidelity", help="folder for tlogs and logs")
     ap.add_argument("--json", default=None,
                     help="also save the raw figures as JSON (default: OUT/fidelity.json)")
-    ap.add_argument("--reuse-px4", default=None, metavar="JSON",
-                    help="take real PX4's figures from an earlier run's JSON instead of flying "
-                         "PX4 again (for iterating on the mock; the section says so)")
+    ap.add_argument("--reuse", action="append", default=[], metavar="TARGET=JSON",
+                    help="take TARGET's figures (mock or px4) from an earlier run's JSON "
+                         "instead of flying it again (the BENCHMARKS.md section says so)")
     ap.add_argument("--write", action="store_true",
                     help="put the table into BENCHMARKS.md (needs both targets)")
     args = ap.parse_args(argv)
@@ -476,14 +475,19 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     results: dict[str, dict[str, list[float]]] = {t: {} for t in args.target}
     missions: dict[str, dict[str, float]] = {t: {} for t in args.target}
-    reused = ""
-    if args.reuse_px4:
-        old = json.loads(Path(args.reuse_px4).read_text())
-        results["px4"], missions["px4"] = old["steps"]["px4"], old["missions"]["px4"]
-        reused = f"{old.get('date', '?')} ({old.get('command', '?')})"
-        args.target = [t for t in args.target if t != "px4"]
+    reused = []
+    for item in args.reuse:
+        tgt, _, path = item.partition("=")
+        if tgt not in H.TARGETS or not path:
+            ap.error(f"--reuse wants mock=JSON or px4=JSON, got {item!r}")
+        old = json.loads(Path(path).read_text())
+        results[tgt], missions[tgt] = old["steps"][tgt], old["missions"][tgt]
+        reused.append(f"{'real PX4' if tgt == 'px4' else 'the mock'}: run of {old['date']} "
+                      f"(`{old['command']}`, {old['wall_s'] / 60:.0f} min)")
+        args.target = [t for t in args.target if t != tgt]
+    flown = list(args.target)
     for i in range(args.repeat):
-        for target in args.target:
+        for target in flown:
             try:
                 m = run_steps(target, out, i, fig8=(i == 0 and not args.no_figure8))
             except Exception as exc:  # one failed flight must not lose the whole run
@@ -495,7 +499,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{target:5s} steps #{i}: " + " ".join(f"{k} {v:.3f}" for k, v in m.items()),
                   flush=True)
     for name in args.missions:
-        for target in args.target:
+        for target in flown:
             try:
                 secs = run_mission(target, out, name, args.mission_timeout)
             except Exception as exc:
@@ -508,7 +512,8 @@ def main(argv: list[str] | None = None) -> int:
     argv_s = " ".join(sys.argv[1:] if argv is None else argv)
     Path(args.json or out / "fidelity.json").write_text(json.dumps({
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "command": argv_s,
-        "wall_s": wall, "steps": results, "missions": missions}, indent=1, default=float))
+        "wall_s": wall, "steps": {t: results[t] for t in flown},
+        "missions": {t: missions[t] for t in flown}}, indent=1, default=float))
     text, within, judged = table(results, missions)
     print(text)
     print(f"within bound: {within} of {judged}; wall time {wall:.0f} s")
