@@ -205,9 +205,9 @@ class Quadrotor:
         # measurement noise (sampled at the position-loop rate)
         self._npos: Vec3 = (0.0, 0.0, 0.0)
         self._nvel: Vec3 = (0.0, 0.0, 0.0)
-        # estimator error (SIM_EST_XY_*): per horizontal axis (driving GM state, position error,
-        # velocity error), advanced at the position-loop rate
-        self._est: list[float] = [0.0] * 6
+        # estimator errors (SIM_EST_*): (driving state, error) for position x, y, velocity x, y,
+        # advanced at the position-loop rate
+        self._est: list[float] = [0.0] * 8
         self._est_acc = 0.0
 
     # ------------------------------------------------------------------ interface
@@ -363,7 +363,8 @@ class Quadrotor:
             self._tau = tau
             self._alpha_dt = -1.0
         self._noise = (p["SIM_POS_NOISE"], p["SIM_VEL_NOISE"], p["SIM_GYRO_NOISE"])
-        self._est_cfg = (max(p["SIM_EST_XY_STD"], 0.0), max(p["SIM_EST_XY_TAU"], 0.05))
+        self._est_cfg = (max(p["SIM_EST_XY_STD"], 0.0), max(p["SIM_EST_VXY_STD"], 0.0),
+                         max(p["SIM_EST_XY_TAU"], 0.05))
         self._bat_drain = max(p["SIM_BAT_DRAIN"], 1.0)
         self._bat_min = min(max(p["SIM_BAT_MIN_PCT"] / 100.0, 0.0), 1.0)
 
@@ -406,7 +407,7 @@ class Quadrotor:
             bat = self._battery - dt / self._bat_drain
             self._battery = bat if bat > self._bat_min else self._bat_min
 
-        if self._est_cfg[0] > 0.0:
+        if self._est_cfg[0] > 0.0 or self._est_cfg[1] > 0.0:
             est_acc = self._est_acc + dt
             if est_acc >= POS_LOOP_PERIOD_S - 1e-9:
                 self._advance_estimator_error(est_acc)
@@ -462,20 +463,20 @@ class Quadrotor:
         self._idle = True
 
     def _advance_estimator_error(self, dt: float) -> None:
-        """Horizontal estimator error, like EKF2's on SIH's GPS: white noise through two
-        first-order lags of time constant SIM_EST_XY_TAU (a second-order Gauss-Markov process,
-        stationary std SIM_EST_XY_STD), the velocity error its derivative (std STD / TAU), so
-        the estimate is consistent and slowly varying, as measured on PX4 SITL."""
-        std, tau = self._est_cfg
+        """Horizontal estimator errors like EKF2's on SIH (measured on PX4 v1.16 SITL: position
+        ~0.16 m, velocity ~0.2 m/s per axis, both slowly varying, ~1.7 s): per axis, white noise
+        through two first-order lags of time constant SIM_EST_XY_TAU (a second-order
+        Gauss-Markov process) scaled to the stationary std SIM_EST_XY_STD (position) and
+        SIM_EST_VXY_STD (velocity), independent of each other as measured."""
+        std_p, std_v, tau = self._est_cfg
         a = math.exp(-dt / tau)
-        drive = math.sqrt(2.0) * std * math.sqrt(1.0 - a * a)  # var(e) = var(s) / 2
+        k = math.sqrt(2.0) * math.sqrt(1.0 - a * a)  # var(lagged) = var(driving) / 2
         e = self._est
         gauss = self._rng.gauss
-        for i in (0, 3):
-            s = a * e[i] + drive * gauss(0.0, 1.0)
-            pos = a * e[i + 1] + (1.0 - a) * s
-            e[i], e[i + 2] = s, (pos - e[i + 1]) / dt
-            e[i + 1] = pos
+        for i, std in ((0, std_p), (2, std_p), (4, std_v), (6, std_v)):
+            s = a * e[i] + k * std * gauss(0.0, 1.0)
+            e[i] = s
+            e[i + 1] = a * e[i + 1] + (1.0 - a) * s
 
     def _refresh(self) -> None:
         if self._noise[0] > 0.0 or self._noise[1] > 0.0:
@@ -486,11 +487,11 @@ class Quadrotor:
         else:
             self._npos = (0.0, 0.0, 0.0)
             self._nvel = (0.0, 0.0, 0.0)
-        if self._est_cfg[0] > 0.0:
+        if self._est_cfg[0] > 0.0 or self._est_cfg[1] > 0.0:
             e = self._est
             n, v = self._npos, self._nvel
-            self._npos = (n[0] + e[1], n[1] + e[4], n[2])
-            self._nvel = (v[0] + e[2], v[1] + e[5], v[2])
+            self._npos = (n[0] + e[1], n[1] + e[3], n[2])
+            self._nvel = (v[0] + e[5], v[1] + e[7], v[2])
 
     def _want_takeoff(self, tgt: PositionTarget) -> bool:
         pz, vz, az = tgt.pos_ned[2], tgt.vel_ned[2], tgt.acc_ned[2]
