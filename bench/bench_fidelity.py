@@ -511,16 +511,22 @@ def table(results: dict[str, dict[str, list[float]]], missions: dict[str, dict[s
 SECTION = "Mock fidelity against real PX4 SITL"
 
 
-def _write(text: str, argv: str, wall_s: float, repeat: int, reused: list[str]) -> None:
+def _write(text: str, argv: str, wall_s: float, repeat: int, reused: list[str],
+           mock_args: str) -> None:
     from benchmarks_md import write_section
 
     body = (
         f"## {SECTION}\n\n"
         f"Command: `flock /tmp/ecca-px4-flights.lock .venv/bin/python bench/bench_fidelity.py "
-        f"{argv}` ({wall_s / 60:.0f} min wall; both targets in real time).\n\n"
-        + ("Figures taken from earlier runs of the same script (same stimuli, same "
-           "analysis): " + "; ".join(reused) + ".\n\n" if reused else "")
-        + "The same stimuli on `sitl_mock serve` and on real PX4 v1.16.0 SITL (SIH quadrotor, "
+        f"{argv}` ("
+        + (f"{wall_s / 60:.0f} min wall; both targets in real time" if wall_s >= 60.0
+           else "no flights of its own: it reads the runs below")
+        + ").\n\n"
+        + ("Figures taken from runs of the same script (same stimuli; step figures "
+           "recomputed from their tlogs by the current analysis, `--reanalyse`): "
+           + "; ".join(reused) + ".\n\n" if reused else "")
+        + f"The same stimuli on `sitl_mock serve {mock_args}` and on real PX4 v1.16.0 SITL (SIH "
+        "quadrotor, "
         "default parameters), each flight on a fresh autopilot, flown through the companion's "
         "`Vehicle` and measured from the autopilot's own telemetry in the .tlog (ATTITUDE "
         "100 Hz, LOCAL_POSITION_NED 30 Hz; see the docstring of bench/bench_fidelity.py for "
@@ -592,14 +598,19 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, dict[str, list[float]]] = {t: {} for t in args.target}
     missions: dict[str, dict[str, float]] = {t: {} for t in args.target}
     reused = []
+    mock_desc = " ".join(MOCK_ARGS)
     for item in args.reuse:
         tgt, _, path = item.partition("=")
         if tgt not in H.TARGETS or not path:
             ap.error(f"--reuse wants mock=JSON or px4=JSON, got {item!r}")
         old = json.loads(Path(path).read_text())
         results[tgt], missions[tgt] = old["steps"][tgt], old["missions"][tgt]
+        how = ""
+        if tgt == "mock":
+            mock_desc = " ".join(old.get("mock_args", []))
+            how = f", mock `serve {mock_desc}`"
         reused.append(f"{'real PX4' if tgt == 'px4' else 'the mock'}: run of {old['date']} "
-                      f"(`{old['command']}`, {old['wall_s'] / 60:.0f} min)")
+                      f"(`{old['command']}`, {old['wall_s'] / 60:.0f} min{how})")
         args.target = [t for t in args.target if t != tgt]
     flown = list(args.target)
     for i in range(args.repeat):
@@ -628,7 +639,7 @@ def main(argv: list[str] | None = None) -> int:
     argv_s = " ".join(sys.argv[1:] if argv is None else argv)
     Path(args.json or out / "fidelity.json").write_text(json.dumps({
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "command": argv_s,
-        "wall_s": wall, "steps": {t: results[t] for t in flown},
+        "wall_s": wall, "mock_args": list(MOCK_ARGS), "steps": {t: results[t] for t in flown},
         "missions": {t: missions[t] for t in flown}}, indent=1, default=float))
     text, within, judged = table(results, missions)
     print(text)
@@ -636,7 +647,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.write:
         if set(results) != set(H.TARGETS):
             ap.error("--write needs both targets (--target mock px4, or --reuse-px4)")
-        _write(text, argv_s, wall, args.repeat, reused)
+        _write(text, argv_s, wall, args.repeat, reused, mock_desc)
     return 0
 
 
