@@ -207,7 +207,10 @@ class Navigator:
             a_line = min(a_line, a_v * dist / abs(dz))
             vz_lim = self._up_limit if dz < 0.0 else p["MPC_Z_VEL_MAX_DN"]
             s = min(s, max(vz_lim, 0.1) * dist / abs(dz))
-        jerk = p["MPC_JERK_AUTO"]
+        # jerk-limited on the legs (goto, RTL return); takeoff, RTL climb and Hold as before
+        # (measured on PX4 SITL: the mock's takeoff to 10 m already took PX4's time, 12.4 s,
+        # and a Hold's stopping point assumes the acceleration limit alone)
+        jerk = p["MPC_JERK_AUTO"] if self.phase in ("goto", "rtl_return") else 0.0
         if jerk > 0.0:
             # PX4's jerk-limited braking law; the last part at a tenth of the acceleration so
             # the reference reaches the goal in finite time (the law alone tends to v ~ d)
