@@ -511,26 +511,33 @@ def table(results: dict[str, dict[str, list[float]]], missions: dict[str, dict[s
 SECTION = "Mock fidelity against real PX4 SITL"
 
 
-def _write(text: str, argv: str, wall_s: float, repeat: int, reused: list[str],
+def _write(text: str, argv: str, wall_s: float, repeat: int, reused: list[dict[str, Any]],
            mock_args: str) -> None:
     from benchmarks_md import write_section
 
+    runs = {(r["date"], r["command"]) for r in reused}
+    if reused and len(runs) == 1 and len(reused) == len(H.TARGETS):  # one earlier run
+        r = reused[0]
+        head = (f"Command: `flock /tmp/ecca-px4-flights.lock .venv/bin/python "
+                f"bench/bench_fidelity.py {r['command']}` ({r['wall_s'] / 60:.0f} min wall, "
+                f"{r['date']}; both targets in one run, real time); table written from its "
+                f"JSON: `bench/bench_fidelity.py {argv}`.\n\n")
+    else:
+        head = (f"Command: `flock /tmp/ecca-px4-flights.lock .venv/bin/python "
+                f"bench/bench_fidelity.py {argv}` ("
+                + (f"{wall_s / 60:.0f} min wall; both targets in real time" if wall_s >= 60.0
+                   else "no flights of its own: it reads the runs below") + ").\n\n")
+        if reused:
+            head += ("Figures taken from runs of the same script: " + "; ".join(
+                f"{'real PX4' if r['target'] == 'px4' else 'the mock'}: run of {r['date']} "
+                f"(`{r['command']}`, {r['wall_s'] / 60:.0f} min)" for r in reused) + ".\n\n")
     body = (
-        f"## {SECTION}\n\n"
-        f"Command: `flock /tmp/ecca-px4-flights.lock .venv/bin/python bench/bench_fidelity.py "
-        f"{argv}` ("
-        + (f"{wall_s / 60:.0f} min wall; both targets in real time" if wall_s >= 60.0
-           else "no flights of its own: it reads the runs below")
-        + ").\n\n"
-        + ("Figures taken from runs of the same script (same stimuli; step figures "
-           "recomputed from their tlogs by the current analysis, `--reanalyse`): "
-           + "; ".join(reused) + ".\n\n" if reused else "")
+        f"## {SECTION}\n\n" + head
         + f"The same stimuli on `sitl_mock serve {mock_args}` and on real PX4 v1.16.0 SITL (SIH "
-        "quadrotor, "
-        "default parameters), each flight on a fresh autopilot, flown through the companion's "
-        "`Vehicle` and measured from the autopilot's own telemetry in the .tlog (ATTITUDE "
-        "100 Hz, LOCAL_POSITION_NED 30 Hz; see the docstring of bench/bench_fidelity.py for "
-        "the exact stimuli). Step rows: median of "
+        "quadrotor, default parameters), each flight on a fresh autopilot, flown through the "
+        "companion's `Vehicle` and measured from the autopilot's own telemetry in the .tlog "
+        "(ATTITUDE 100 Hz, LOCAL_POSITION_NED 30 Hz; see the docstring of "
+        "bench/bench_fidelity.py for the exact stimuli). Step rows: median of "
         f"{repeat} flights per target (range in brackets); figure-8 and missions: one flight "
         "each. Bound: the issue's 25 % (figure-8 35 %) on mock / PX4 - 1.\n\n"
         f"{text}\n"
@@ -597,7 +604,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     results: dict[str, dict[str, list[float]]] = {t: {} for t in args.target}
     missions: dict[str, dict[str, float]] = {t: {} for t in args.target}
-    reused = []
+    reused: list[dict[str, Any]] = []
     mock_desc = " ".join(MOCK_ARGS)
     for item in args.reuse:
         tgt, _, path = item.partition("=")
@@ -605,12 +612,10 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"--reuse wants mock=JSON or px4=JSON, got {item!r}")
         old = json.loads(Path(path).read_text())
         results[tgt], missions[tgt] = old["steps"][tgt], old["missions"][tgt]
-        how = ""
+        reused.append({"target": tgt, "date": old["date"], "command": old["command"],
+                       "wall_s": old["wall_s"]})
         if tgt == "mock":
             mock_desc = " ".join(old.get("mock_args", []))
-            how = f", mock `serve {mock_desc}`"
-        reused.append(f"{'real PX4' if tgt == 'px4' else 'the mock'}: run of {old['date']} "
-                      f"(`{old['command']}`, {old['wall_s'] / 60:.0f} min{how})")
         args.target = [t for t in args.target if t != tgt]
     flown = list(args.target)
     for i in range(args.repeat):
