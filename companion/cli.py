@@ -15,6 +15,8 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
+from companion.link_options import add_signing_option
+
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_BAD_INPUT = 2
@@ -205,6 +207,7 @@ def _cmd_fly(args: argparse.Namespace) -> int:
         vehicle_file=args.vehicle, log=args.log, size_m=args.size, speed_m_s=args.speed,
         alt_m=args.alt, laps=args.laps, mock_params=tuple(args.mock_param),
         busy_wait=args.busy_wait, sender_cpu=args.sender_cpu, target_system=args.target_system,
+        signing_key=args.signing_key,
     )
     return _run_vehicle_command(lambda: asyncio.run(fly(opts, console)))
 
@@ -215,7 +218,8 @@ def _cmd_status(args: argparse.Namespace) -> int:
     from companion.flycmd import status
 
     return _run_vehicle_command(
-        lambda: asyncio.run(status(args.connect, console, target_system=args.target_system)))
+        lambda: asyncio.run(status(args.connect, console, target_system=args.target_system,
+                                   signing_key=args.signing_key)))
 
 
 def _run_vehicle_command(run: Callable[[], int]) -> int:
@@ -294,6 +298,7 @@ def build_parser() -> argparse.ArgumentParser:
     fl.add_argument("--connect", metavar="URL", default=None,
                     help="vehicle link, e.g. udpin://0.0.0.0:14540 (default: an embedded mock)")
     _target_system_option(fl)
+    add_signing_option(fl)
     fl.add_argument("--mode", choices=("position", "attitude", "rates"), default="attitude")
     fl.add_argument("--rate", type=float, default=100.0, help="setpoint rate [Hz] (default 100)")
     fl.add_argument("--vehicle", metavar="FILE.toml", default=None,
@@ -315,6 +320,7 @@ def build_parser() -> argparse.ArgumentParser:
     stp = sub.add_parser("status", help="connect and print the vehicle state")
     stp.add_argument("--connect", metavar="URL", required=True, help="e.g. udpin://0.0.0.0:14540")
     _target_system_option(stp)
+    add_signing_option(stp)
     stp.set_defaults(func=_cmd_status)
     return parser
 

@@ -17,8 +17,8 @@ Example `vehicle.toml` (every key optional; defaults are PX4's SIH quadrotor)::
     [tracking]                              # attitude/rates-mode controller (TrackingGains)
     kp_xy = 20.0                            # defaults suit a wired or UDP link (< 50 ms);
     kd_xy = 8.5                             # over a link with ~100 ms latency use
-    ki_xy = 3.0                             # kp_xy 6, kd_xy 4.5, ki_xy 1
-    k_roll = 6.5                            # attitude gains of rates mode [1/s]
+    ki_xy = 3.0                             # kp_xy 6, kd_xy 4.5, ki_xy 1, k_roll 6.5
+    k_roll = 10.0                           # attitude gains of rates mode [1/s]
 """
 
 from __future__ import annotations

@@ -431,7 +431,8 @@ class TrackingGains:
     acceleration contribution [m/s^2]. The xy defaults (omega_n 4.5 rad/s, zeta 0.95) were tuned
     on real PX4 v1.16 SITL over UDP, figure-8 at 2 and 6 m/s (BENCHMARKS.md); kp_xy 30
     oscillates there in attitude mode, so they sit at about 2/3 of the stability limit. They
-    assume telemetry latency under ~50 ms; with ~100 ms use kp_xy 6, kd_xy 4.5, ki_xy 1.
+    assume telemetry latency under ~50 ms; with ~100 ms use kp_xy 6, kd_xy 4.5, ki_xy 1 and
+    attitude gains k_roll = k_pitch = 6.5.
     """
 
     kp_xy: float = 20.0
@@ -464,20 +465,43 @@ class TrackingGains:
 class AttitudeGains:
     """Companion-side SO(3) attitude loop producing body-rate commands.
 
-    k_roll/k_pitch/k_yaw: attitude gains [1/s] (PX4 MC_ROLL_P/MC_PITCH_P/MC_YAW_P defaults).
-        12 tracked 8-17 % better on real PX4 SITL over UDP, but lost the large-angle recovery
-        (170 deg: overshoot back above 10 deg) and 100 ms telemetry latency (2.6 m RMS).
+    k_roll/k_pitch/k_yaw: attitude gains [1/s]. Roll/pitch 10 (PX4's MC_ROLL_P is 6.5), tuned
+        on real PX4 v1.16 SITL with the default position gains: 6.5 forced `rates_mode_gains`
+        to soften the position loop (rates 6 m/s 0.17 m RMS vs 0.10 m), 12 lost the
+        large-angle recovery (170 deg: overshoot back above 10 deg) and oscillated on the mock
+        at 2 m/s. With ~100 ms telemetry latency use 6.5 (10 gives 0.46 m there, 6.5 < 0.1 m).
+        k_yaw is PX4's MC_YAW_P.
     max_rate_rp / max_rate_yaw: rate command limits [rad/s] (MC_*RATE_MAX).
     large_angle: scale e_R by 1/cos(angle/2) so the error grows monotonically up to 180 deg
     (Lee 2011's alternative error function; small-angle behaviour unchanged).
     """
 
-    k_roll: float = 6.5
-    k_pitch: float = 6.5
+    k_roll: float = 10.0
+    k_pitch: float = 10.0
     k_yaw: float = 2.8
     max_rate_rp: float = math.radians(220.0)
     max_rate_yaw: float = math.radians(200.0)
     large_angle: bool = True
+
+
+def rates_mode_gains(gains: TrackingGains, attitude: AttitudeGains,
+                     separation: float = 2.5) -> TrackingGains:
+    """Position gains used in `rates` mode: the horizontal loop's natural frequency
+    sqrt(kp_xy) [rad/s] is capped at min(k_roll, k_pitch) / `separation`, so the companion's own
+    attitude loop (which `attitude` mode leaves to PX4's faster one) stays that much quicker
+    than the position loop it serves (cascade separation). The damping ratio is kept (kd_xy
+    scales with the frequency) and ki_xy scales with its cube; vertical gains are untouched.
+    Why 2.5: with kp_xy 20 and k_roll 6.5 the mock in lockstep flew the 2 m/s figure-8 in a
+    limit cycle (tilt 33 deg instead of 15); with k_roll 10 and kp_xy 20 (separation 2.2) two
+    of four real-time mock flights at 6 m/s oscillated (0.45 m); capped to kp_xy 16, none of
+    three did."""
+    cap = min(attitude.k_roll, attitude.k_pitch) / separation
+    wn = math.sqrt(gains.kp_xy)
+    if wn <= cap:
+        return gains
+    s = cap / wn
+    return replace(gains, kp_xy=gains.kp_xy * s * s, kd_xy=gains.kd_xy * s,
+                   ki_xy=gains.ki_xy * s ** 3)
 
 
 @dataclass(frozen=True)
@@ -614,11 +638,12 @@ class TrackingController:
         self.hover_estimator = HoverThrustEstimator(htc)
         dc = config.drag_config or DragConfig(initial_drag_over_mass=p.drag / p.mass, g=p.g)
         self.drag_estimator = DragEstimator(dc)
-        gains = config.gains
-        self._kp_l = gains.kp().tolist()
-        self._kd_l = gains.kd().tolist()
-        self._ki_l = gains.ki().tolist()
-        self._imax_l = gains.i_max().tolist()
+        self._gain_lists = {
+            rates: (g.kp().tolist(), g.kd().tolist(), g.ki().tolist(), g.i_max().tolist())
+            for rates, g in ((False, config.gains),
+                             (True, rates_mode_gains(config.gains, config.attitude_gains)))
+        }
+        self._kp_l, self._kd_l, self._ki_l, self._imax_l = self._gain_lists[False]
         self._integ_l = [0.0, 0.0, 0.0]
         self._cos_tilt = math.cos(config.max_tilt_rad)
         self._tan_tilt = math.tan(config.max_tilt_rad)
@@ -708,7 +733,7 @@ class TrackingController:
 
     def rates(self, now: float, est: StateEstimate, ref: Reference) -> RateCommand:
         """`rates` mode setpoint at `now`: body rates from the SO(3) loop + thrust."""
-        out = self._core(now, est, ref, 0.0)
+        out = self._core(now, est, ref, 0.0, rates=True)
         if out is None:
             return self._fallback_rates(now, est)
         q_des_t, thrust, omega_ff_t, sat = out
@@ -794,9 +819,11 @@ class TrackingController:
             )
 
     def _core(
-        self, now: float, est: StateEstimate, ref: Reference, lead_s: float
+        self, now: float, est: StateEstimate, ref: Reference, lead_s: float, rates: bool = False
     ) -> tuple[tuple[float, float, float, float], float, tuple[float, float, float], bool] | None:
-        """q_des, thrust_norm, omega_ff_frd, saturated; None -> fallback (see _fallback_reason)."""
+        """q_des, thrust_norm, omega_ff_frd, saturated; None -> fallback (see _fallback_reason).
+        `rates`: use the `rates_mode_gains` position gains."""
+        self._kp_l, self._kd_l, self._ki_l, self._imax_l = self._gain_lists[rates]
         c = self.config
         p = c.params
         self._fallback_reason = ""

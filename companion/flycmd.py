@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import datetime as dt
 import math
 import socket
@@ -50,6 +51,7 @@ class FlyOptions:
     busy_wait: bool = False
     sender_cpu: int | None = None
     target_system: int = 1  # the autopilot's MAVLink system id (PX4 MAV_SYS_ID)
+    signing_key: bytes | None = dataclasses.field(default=None, repr=False)  # MAVLink 2 signing
 
 
 def _free_udp_port() -> int:
@@ -60,9 +62,13 @@ def _free_udp_port() -> int:
 
 @contextlib.asynccontextmanager
 async def embedded_mock(
-    home: tuple[float, float, float], mock_params: tuple[tuple[str, float], ...] = ()
+    home: tuple[float, float, float], mock_params: tuple[tuple[str, float], ...] = (),
+    signing_key: bytes | None = None,
 ) -> AsyncIterator[str]:
-    """Run `sitl_mock` in this process on loopback; yields the URL the companion connects to."""
+    """Run `sitl_mock` in this process on loopback; yields the URL the companion connects to.
+    With a signing key the mock signs everything and refuses unsigned frames."""
+    import time
+
     from sitl_mock.autopilot import Autopilot
     from sitl_mock.params import ParamStore
     from sitl_mock.server import LinkConfig, MockServer, ServerConfig
@@ -71,7 +77,8 @@ async def embedded_mock(
     config = ServerConfig(links=[LinkConfig("offboard", ("127.0.0.1", 0), ("127.0.0.1", port))])
     server = MockServer(
         lambda remotes, now: Autopilot(
-            "quad", ParamStore(dict(mock_params)), home, 0, remotes=remotes, now=now
+            "quad", ParamStore(dict(mock_params)), home, 0, remotes=remotes, now=now,
+            signing_key=signing_key, unix_boot_s=time.time(),
         ),
         config,
     )
@@ -137,9 +144,13 @@ async def fly(opts: FlyOptions, console: Console) -> int:
     async with contextlib.AsyncExitStack() as stack:
         url = opts.connect
         if url is None:
-            url = await stack.enter_async_context(embedded_mock(home, opts.mock_params))
+            url = await stack.enter_async_context(
+                embedded_mock(home, opts.mock_params, opts.signing_key))
             console.print(f"No --connect: flying the embedded mock PX4 ({url})")
-        link = LinkConfig(target_sysid=opts.target_system if opts.connect else 1)
+        link = LinkConfig(target_sysid=opts.target_system if opts.connect else 1
+                          ).with_signing_key(opts.signing_key)
+        if link.signing is not None:
+            console.print("MAVLink 2 signing on: frames not signed with the key are dropped")
         v = await stack.enter_async_context(Vehicle.connect(url, config=vconfig,
                                                             link_config=link))
         await stack.enter_async_context(safe_exit(v))
@@ -243,12 +254,13 @@ async def fly(opts: FlyOptions, console: Console) -> int:
 
 
 async def status(url: str, console: Console, timeout_s: float = 10.0,
-                 target_system: int = 1) -> int:
-    """Connect, wait for telemetry, print the vehicle state once."""
+                 target_system: int = 1, signing_key: bytes | None = None) -> int:
+    """Connect, wait for telemetry, print the vehicle state once (signed with ``signing_key``)."""
     from companion.aio import Vehicle, VehicleConfig
 
+    link = LinkConfig(target_sysid=target_system).with_signing_key(signing_key)
     async with Vehicle.connect(url, config=VehicleConfig(connect_timeout_s=timeout_s),
-                               link_config=LinkConfig(target_sysid=target_system)) as v:
+                               link_config=link) as v:
         deadline = asyncio.get_running_loop().time() + 3.0
         while v.telemetry.position is None and asyncio.get_running_loop().time() < deadline:
             await asyncio.sleep(0.05)  # poll until the first position arrives (bounded)

@@ -10,12 +10,14 @@ import asyncio
 import contextlib
 import signal
 import sys
+import time
 from collections.abc import Sequence
 
 from sitl_mock.autopilot import Autopilot
 from sitl_mock.faults import LinkFaults, ScenarioFaults, parse_blackouts
 from sitl_mock.params import PARAMS, ParamStore
 from sitl_mock.server import Addr, LinkConfig, MockServer, ServerConfig
+from sitl_mock.signing import read_key_file
 from sitl_mock.vehicle import DEFAULT_HOME
 
 
@@ -71,6 +73,13 @@ ESTIMATOR_PRESETS: dict[str, dict[str, float]] = {
 }
 
 
+def _signing_key(path: str) -> bytes:
+    try:
+        return read_key_file(path)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m sitl_mock", description=__doc__)
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -97,6 +106,14 @@ def build_parser() -> argparse.ArgumentParser:
         default="ideal",
         help="ideal: the controller and telemetry see the true state; ekf2: horizontal "
         "position/velocity errors as measured on PX4 v1.16 SITL (SIH + EKF2), --param wins",
+    )
+    s.add_argument(
+        "--signing-key",
+        type=_signing_key,
+        default=None,
+        metavar="FILE",
+        help="MAVLink 2 signing key (64 hex digits or 32 raw bytes): sign everything sent, "
+        "refuse unsigned and wrongly signed frames (like PX4 with MAV_SIGN_CFG 2)",
     )
     f = s.add_argument_group("fault injection (offboard link unless --fault-gcs)")
     f.add_argument("--loss", type=float, default=0.0, help="packet loss [%%] both directions")
@@ -158,6 +175,8 @@ async def _serve(args: argparse.Namespace) -> int:
             link_faults=link_faults,
             scenario=scenario,
             estimator_ready_s=args.estimator_ready,
+            signing_key=args.signing_key,
+            unix_boot_s=time.time(),
         )
 
     try:
@@ -175,7 +194,8 @@ async def _serve(args: argparse.Namespace) -> int:
         host, port = server.bound[lk.name]
         remote = f"{lk.remote[0]}:{lk.remote[1]}" if lk.remote else "none"
         parts.append(f"{lk.name}={host}:{port}->{remote}")
-    print(f"sitl_mock ready {args.vehicle} " + " ".join(parts), flush=True)
+    signed = " signing=required" if args.signing_key is not None else ""
+    print(f"sitl_mock ready {args.vehicle} " + " ".join(parts) + signed, flush=True)
     await server.run()
     print("sitl_mock stopped", flush=True)
     return 0

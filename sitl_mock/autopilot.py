@@ -39,6 +39,7 @@ from sitl_mock.setpoints import (
     Vec3,
     make_attitude_target,
 )
+from sitl_mock.signing import LinkSigning, boot_ticks_of
 from sitl_mock.vehicle import DEFAULT_HOME, Vehicle, VehicleState, make_vehicle
 
 log = logging.getLogger(__name__)
@@ -159,6 +160,8 @@ class Link:
     tx_fifo: deque[tuple[float, bytes]] | None = None
     # inbound without faults: datagrams are processed on arrival (rx never queues anything)
     rx_direct: bool = False
+    # MAVLink 2 signing (None: off): signs everything sent, refuses unsigned/bad frames
+    signing: LinkSigning | None = None
 
     @property
     def destination(self) -> Addr | None:
@@ -186,7 +189,9 @@ class Autopilot:
     physics_hz: fixed physics/control rate (>= 250 Hz); now: the boot time on the caller's
     clock; remotes: link name -> default destination (PX4 sends there until a peer talks);
     link_faults: link name -> (inbound, outbound) LinkFaults; scenario: vehicle-level faults;
-    estimator_ready_s: time after boot before the estimator is ready and arming is possible.
+    estimator_ready_s: time after boot before the estimator is ready and arming is possible;
+    signing_key: 32-byte MAVLink 2 signing key (None: no signing; see sitl_mock/signing.py),
+    then unix_boot_s, the wall clock at boot [UNIX s], starts the signing timestamps.
     """
 
     def __init__(
@@ -203,11 +208,15 @@ class Autopilot:
         scenario: ScenarioFaults | None = None,
         estimator_ready_s: float = 3.0,
         vehicle: Vehicle | None = None,
+        signing_key: bytes | None = None,
+        unix_boot_s: float | None = None,
     ) -> None:
         if not (math.isfinite(physics_hz) and physics_hz >= 250.0):
             raise ValueError(f"physics rate must be >= 250 Hz, got {physics_hz!r}")
         if vehicle_kind not in ("quad", "rover"):
             raise ValueError(f"unknown vehicle kind {vehicle_kind!r}: use 'quad' or 'rover'")
+        if signing_key is not None and unix_boot_s is None:
+            raise ValueError("signing needs unix_boot_s (the wall clock at boot) for timestamps")
         self.params = params if isinstance(params, ParamStore) else ParamStore(params or {})
         self.kind = vehicle_kind
         self.home = (float(home[0]), float(home[1]), float(home[2]))
@@ -240,6 +249,9 @@ class Autopilot:
                 streams=telemetry.StreamScheduler(rates, 0.0),
                 tx_fifo=None if f_out is not None and f_out.active else deque(),
                 rx_direct=not (f_in is not None and f_in.active),
+                signing=None
+                if signing_key is None
+                else LinkSigning(signing_key, i, boot_ticks_of(float(unix_boot_s or 0.0))),
             )
         # inbound channels that can hold datagrams back (faults configured); a pass-through
         # channel delivers at once in receive_datagram and never queues anything
@@ -611,6 +623,8 @@ class Autopilot:
             # a value outside float32 range (e.g. echoing an absurd setpoint): drop, count
             self.stats["tx_encode_errors"] += 1
             return
+        if link.signing is not None:
+            data = link.signing.sign(data, self._t)
         mav = link.mav
         mav.seq = (mav.seq + 1) & 0xFF
         fifo = link.tx_fifo
@@ -656,6 +670,9 @@ class Autopilot:
     def _process_datagram(self, link: Link, data: bytes, addr: Addr) -> None:
         stats = self.stats
         stats["rx_datagrams"] += 1
+        if link.signing is not None:
+            self._parse_robust(link, data)
+            return
         # hot path: a datagram that is exactly one clean SET_ATTITUDE_TARGET frame (what the
         # companion streams at 50-250 Hz), handled from its unpacked fields: the same counters
         # and effects as the general path below, without a pymavlink object
@@ -670,13 +687,23 @@ class Autopilot:
             return
         msgs = decode_datagram(data)  # fast path: clean unsigned MAVLink 2 frames
         if msgs is None:  # anything unusual: pymavlink's robust parser, counted as always
-            parser = mavlink.MAVLink(None)
-            parser.robust_parsing = True
-            try:
-                msgs = parser.parse_buffer(data) or []
-            except Exception:  # pymavlink raises on some malformed input even when robust
-                self.stats["rx_bad_data"] += 1
-                return
+            self._parse_robust(link, data)
+            return
+        self._handle_messages(link, msgs)
+
+    def _parse_robust(self, link: Link, data: bytes) -> None:
+        """A datagram through pymavlink's robust parser (no key given to pymavlink: the link's
+        own signing check judges each frame in `_handle_messages`)."""
+        parser = mavlink.MAVLink(None)
+        parser.robust_parsing = True
+        try:
+            msgs = parser.parse_buffer(data) or []
+        except Exception:  # pymavlink raises on some malformed input even when robust
+            self.stats["rx_bad_data"] += 1
+            return
+        self._handle_messages(link, msgs)
+
+    def _handle_messages(self, link: Link, msgs: list[Any]) -> None:
         for msg in msgs:
             kind = msg.get_type()
             if kind == "BAD_DATA":
@@ -684,6 +711,9 @@ class Autopilot:
                 continue
             if msg.get_msgbuf()[:1] != b"\xfd":
                 self.stats["rx_mavlink1"] += 1  # PX4 in MAVLink 2 mode ignores v1 frames
+                continue
+            if link.signing is not None and not link.signing.accept(bytes(msg.get_msgbuf())):
+                self.stats["rx_signing_refused"] += 1  # reasons: link.signing.refused
                 continue
             self.stats["rx_messages"] += 1
             name = _HANDLER_NAMES.get(kind)

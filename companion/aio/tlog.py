@@ -1,6 +1,8 @@
 """MAVLink ``.tlog`` writer: every frame received and sent, each prefixed by its 8-byte
 big-endian UNIX timestamp in microseconds (the format pymavlink, MAVExplorer and QGroundControl
-read). Thread-safe: the sender thread and the asyncio side both write."""
+read). Thread-safe: the sender thread and the asyncio side both write. Signed frames are logged
+unsigned (signature block removed, flag cleared, CRC recomputed), as the MAVLink signing spec
+asks of log files: a log then gives no material for attacks on the key."""
 
 from __future__ import annotations
 
@@ -9,6 +11,8 @@ import threading
 import time
 from pathlib import Path
 from typing import BinaryIO
+
+from companion.mavlink.signing import strip_signature
 
 _TS = struct.Struct(">Q")
 
@@ -25,8 +29,11 @@ class TlogWriter:
         self.frames = 0
 
     def write(self, frame: bytes, unix_time_s: float | None = None) -> None:
-        """Record one complete MAVLink frame (timestamp defaults to now)."""
+        """Record one complete MAVLink frame (timestamp defaults to now; signed frames are
+        logged unsigned)."""
         t = time.time() if unix_time_s is None else unix_time_s
+        if len(frame) > 2 and frame[2] & 0x01 and frame[0] == 0xFD:
+            frame = strip_signature(frame)
         rec = _TS.pack(int(t * 1e6)) + frame
         with self._lock:
             if self._f is None:
@@ -35,7 +42,8 @@ class TlogWriter:
             self.frames += 1
 
     def write_many(self, frames: list[bytes], unix_time_s: float) -> None:
-        """Record several complete frames that share one timestamp (a bulk writer's batch)."""
+        """Record several complete frames that share one timestamp (a bulk writer's batch),
+        as given (the lockstep replay, which does not sign)."""
         if not frames:
             return
         ts = _TS.pack(int(unix_time_s * 1e6))

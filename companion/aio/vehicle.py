@@ -274,6 +274,7 @@ class Vehicle:
         return _Connect(cls(url, config, link_config))
 
     async def _open(self) -> None:
+        self.link.advance_signing_clock(time.time())
         self.transport = await open_transport(self.url)
         if self.config.tlog_path:
             self.tlog = TlogWriter(self.config.tlog_path)
@@ -286,7 +287,22 @@ class Vehicle:
             await self.close()
             raise ConnectTimeoutError(
                 f"no PX4 heartbeat on {self.url} within {self.config.connect_timeout_s:g} s "
-                "(is the autopilot running and sending to this address?)") from None
+                f"({self._silence_hint()})") from None
+
+    def _silence_hint(self) -> str:
+        """Why no HEARTBEAT got through, as far as the signer saw (for the connect error)."""
+        signer = self.link.codec.signer
+        refused = {} if signer is None else {
+            k: n for k, n in signer.stats.items() if k not in ("accepted", "unsigned_allowed")}
+        if refused.get("unsigned"):
+            return (f"{refused['unsigned']} unsigned frames dropped: the autopilot does not sign; "
+                    "enable signing there with the same key, or connect without --signing-key")
+        if refused.get("bad_signature"):
+            return (f"{refused['bad_signature']} frames with a wrong signature dropped: "
+                    "the signing keys differ")
+        if refused:
+            return "frames dropped by signing: " + ", ".join(f"{k} {n}" for k, n in refused.items())
+        return "is the autopilot running and sending to this address?"
 
     async def close(self) -> None:
         """Stop tasks, close the transport and the .tlog (idempotent)."""
@@ -387,6 +403,7 @@ class Vehicle:
     async def _timer_loop(self) -> None:
         while True:
             now = time.monotonic()
+            self.link.advance_signing_clock(time.time())
             self._dispatch(self.link.handle_timer(now))
             self._flush()
             deadline = self.link.get_timer()
@@ -629,9 +646,11 @@ class Vehicle:
                         raise
             return link.encode_setpoint(hold, now)
 
-        def on_sent(frame: bytes, _t: float) -> None:
-            if self.tlog is not None:
-                self.tlog.write(frame)
+        wall_minus_mono = time.time() - time.monotonic()
+
+        def on_sent(frame: bytes, t_send: float) -> None:
+            if self.tlog is not None:  # stamped with the send time, not the (later) log time
+                self.tlog.write(frame, t_send + wall_minus_mono)
 
         assert self.transport is not None
 

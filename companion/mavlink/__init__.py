@@ -59,6 +59,14 @@ from .setpoints import (
     build_rover_velocity_target,
     build_setpoint,
 )
+from .signing import (
+    Signer,
+    SigningConfig,
+    SigningKeyError,
+    Verdict,
+    load_signing_key,
+    parse_signing_key,
+)
 from .telemetry import (
     Attitude,
     ExtendedState,
@@ -81,9 +89,11 @@ __all__ = [
     "MissionResult", "MissionTransferDone", "ModeChanged", "OffboardMachine",
     "OffboardNotPrimedError", "OffboardState", "OffboardStateChanged", "OffboardTrigger",
     "PositionSetpoint", "Px4AutoSubMode", "Px4MainMode", "RatesSetpoint",
-    "RoverVelocitySetpoint", "SetpointCommand", "SetpointError", "StatusText", "SystemStatus",
-    "TelemetrySnapshot", "TelemetryState", "TimeSync", "TimesyncUpdate", "VehicleHeartbeat",
-    "VehicleLink", "build_attitude_target", "build_position_target", "build_rates_target",
+    "RoverVelocitySetpoint", "SetpointCommand", "SetpointError", "Signer", "SigningConfig",
+    "SigningKeyError", "StatusText", "SystemStatus", "TelemetrySnapshot", "TelemetryState",
+    "TimeSync", "TimesyncUpdate", "VehicleHeartbeat", "VehicleLink", "Verdict",
+    "build_attitude_target", "build_position_target", "build_rates_target",
     "build_rover_velocity_target", "build_setpoint", "custom_mode_of", "decode_custom_mode",
-    "encode_custom_mode", "flight_mode_from_custom_mode", "raw_frame", "result_name",
+    "encode_custom_mode", "flight_mode_from_custom_mode", "load_signing_key",
+    "parse_signing_key", "raw_frame", "result_name",
 ]

@@ -11,10 +11,15 @@ as pymavlink does it (a run of bytes that are neither 0xFD nor 0xFE is one bad-d
 byte the frame length is taken from the header whatever the frame holds), the CRC-16/MCRF4XX with
 CRC_EXTRA is checked in C (``fastcrc``, pymavlink's own dependency; stdlib ``binascii`` otherwise),
 and the payload is zero-extended and unpacked with the message class's ``struct`` in wire order.
-Signed frames, unknown message ids and a configured signing key go through pymavlink's
-``MAVLink.decode`` unchanged. Encoding likewise packs the payload with the class's ``struct`` in
-the generated ``pack``'s order and gives the same bytes as ``msg.pack(mav)``; every frame gets the
-next sequence number. ``tests/unit/test_mavlink_codec_fast.py`` checks both against pymavlink.
+Signed frames and unknown message ids go through pymavlink's ``MAVLink.decode`` (pymavlink's
+own signing, ``mav.signing``, is not used). Encoding likewise packs the payload with the class's
+``struct`` in the generated ``pack``'s order and gives the same bytes as ``msg.pack(mav)``; every
+frame gets the next sequence number. ``tests/unit/test_mavlink_codec_fast.py`` checks both
+against pymavlink.
+
+Signing (``signer``, see :mod:`companion.mavlink.signing`): every encoded frame is signed, every
+decoded frame is verified after its CRC (signature first, then the replay rules) and dropped
+unless the signer accepts it (counted in ``rejected_frames``, reasons in ``signer.stats``).
 """
 
 from __future__ import annotations
@@ -27,6 +32,8 @@ from collections.abc import Callable
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
+
+from .signing import IFLAG_SIGNED, Signer
 
 MAVLINK2_MAGIC = 0xFD
 MAVLINK1_MAGIC = 0xFE
@@ -42,7 +49,7 @@ MavMessage = Any  # pymavlink.dialects.v20.common.MAVLink_message (pymavlink shi
 _V2_HEADER_LEN = 10
 _V1_HEADER_LEN = 6
 _SIGNATURE_LEN = 13
-_IFLAG_SIGNED = 0x01
+_IFLAG_SIGNED = IFLAG_SIGNED
 _REV8 = bytes(int(f"{i:08b}"[::-1], 2) for i in range(256))
 
 
@@ -136,14 +143,18 @@ class Codec:
     """Encode/decode MAVLink 2 frames with our system/component id.
 
     ``encode`` is guarded by a lock so that the fixed-rate sender thread and the asyncio side can
-    share one sequence counter. ``decode`` must be called from one thread only.
+    share one sequence counter. ``decode`` must be called from one thread only. With a
+    ``signer`` every frame out is signed and every frame in must pass ``signer.verify``.
     """
 
-    def __init__(self, sysid: int = DEFAULT_SYSID, compid: int = DEFAULT_COMPID) -> None:
+    def __init__(self, sysid: int = DEFAULT_SYSID, compid: int = DEFAULT_COMPID,
+                 signer: Signer | None = None) -> None:
         if not (1 <= sysid <= 255 and 0 <= compid <= 255):
             raise ValueError(f"invalid MAVLink ids sysid={sysid} compid={compid}")
         self.sysid = sysid
         self.compid = compid
+        self.signer = signer
+        self.rejected_frames = 0
         self.mav: Any = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=compid)
         self.mav.robust_parsing = True
         self._lock = threading.Lock()
@@ -152,42 +163,45 @@ class Codec:
         self._layouts: dict[int, _Layout | None] = {}
         self._packers: dict[type, _Packer | None] = {}
 
-    def encode(self, msg: MavMessage) -> bytes:
+    def encode(self, msg: MavMessage, link_id: int | None = None) -> bytes:
         """Serialise ``msg`` as one MAVLink 2 frame and advance the sequence number (0..255).
 
-        Same bytes as pymavlink's ``msg.pack(mav)``, built with the class's ``struct`` and a C CRC
-        (pymavlink's own ``pack`` is used for signed output); unlike ``msg.pack`` it does not store
-        the frame on ``msg``.
+        Unsigned: the same bytes as pymavlink's ``msg.pack(mav)``, built with the class's
+        ``struct`` and a C CRC; unlike ``msg.pack`` it does not store the frame on ``msg``.
+        With a signer the frame is signed on stream ``link_id`` (default: the signer's).
         """
         cls = type(msg)
         packer = self._packers.get(cls, _MISSING)
         if packer is _MISSING:
             packer = self._packers[cls] = _payload_packer(cls)
-        if packer is None or self.mav.signing.sign_outgoing:
+        if packer is None:  # a class outside pymavlink's map: its own pack gives the payload
             with self._lock:
-                mav = self.mav
-                frame = bytes(msg.pack(mav))
-                mav.seq = (mav.seq + 1) & 0xFF
-            return frame
+                unsigned = bytes(msg.pack(self.mav))
+            return self.encode_payload(int(msg.get_msgId()), bytes((int(msg.crc_extra),)),
+                                       unsigned[_V2_HEADER_LEN:-2], link_id)
         msg_id, extra, pack = packer
-        return self.encode_payload(msg_id, extra, pack(msg))
+        return self.encode_payload(msg_id, extra, pack(msg), link_id)
 
-    def encode_payload(self, msg_id: int, crc_extra: bytes, payload: bytes) -> bytes:
+    def encode_payload(self, msg_id: int, crc_extra: bytes, payload: bytes,
+                       link_id: int | None = None) -> bytes:
         """One MAVLink 2 frame around a full-length ``payload`` already packed in wire order
         (the message class's ``struct``), trailing zeros truncated as MAVLink 2 does; advances
-        the sequence number. ``crc_extra`` is the class's CRC_EXTRA as one byte. Signed output
-        needs the message object: use ``encode``."""
+        the sequence number. ``crc_extra`` is the class's CRC_EXTRA as one byte. With a signer
+        the frame is signed on stream ``link_id`` (default: the signer's)."""
         payload = payload.rstrip(b"\x00") or b"\x00"
+        signer = self.signer
+        flags = 0 if signer is None else _IFLAG_SIGNED
         with self._lock:
             mav = self.mav
-            if mav.signing.sign_outgoing:
-                raise ValueError("encode_payload cannot sign; use encode(msg)")
             seq = mav.seq
-            header = _V2_HEADER.pack(MAVLINK2_MAGIC, len(payload), 0, 0, seq, mav.srcSystem,
+            header = _V2_HEADER.pack(MAVLINK2_MAGIC, len(payload), flags, 0, seq, mav.srcSystem,
                                      mav.srcComponent, msg_id & 0xFFFF, msg_id >> 16)
             mav.seq = (seq + 1) & 0xFF
-        crc = _crc_mcrf4xx(crc_extra, _crc_mcrf4xx(header[1:] + payload, 0xFFFF))
-        return header + payload + _CRC.pack(crc)
+            crc = _crc_mcrf4xx(crc_extra, _crc_mcrf4xx(header[1:] + payload, 0xFFFF))
+            frame = header + payload + _CRC.pack(crc)
+            if signer is not None:  # in the lock: sequence and timestamp orders agree
+                frame = signer.sign(frame, link_id)
+        return frame
 
     def decode(self, data: bytes | bytearray) -> list[MavMessage]:
         """Parse bytes (any fragmentation) into complete, CRC-valid MAVLink 2 messages.
@@ -201,7 +215,7 @@ class Codec:
         layouts = self._layouts
         crc16 = _crc_mcrf4xx
         header = mavlink2.MAVLink_header
-        slow = self.mav.signing.secret_key is not None
+        signer = self.signer
         i = 0
         while i < n:
             magic = buf[i]
@@ -236,18 +250,28 @@ class Codec:
             layout = layouts.get(msg_id, _MISSING)
             if layout is _MISSING:
                 layout = self._layout(msg_id)
-            if layout is None or flags or slow:  # unknown id, signed, or a signing key set
+            if layout is None or flags:  # unknown id or signed: pymavlink's decode
                 msg = self._slow_decode(buf[start:i])
                 if msg is None:
                     self.dropped_frames += 1
-                else:
+                elif signer is None:
                     out.append(msg)
+                elif signer.verify(buf[start:i]).ok:
+                    if flags:  # verified here, not by pymavlink: mark it as pymavlink would
+                        msg._signed = True
+                        msg._link_id = buf[i - _SIGNATURE_LEN]
+                    out.append(msg)
+                else:
+                    self.rejected_frames += 1
                 continue
             cls, extra, unpacker, size, build = layout
             crc = buf[pend] | (buf[pend + 1] << 8)
             if crc != crc16(extra, crc16(buf[start + 1:pend], 0xFFFF)) and not (
                     mavlink2.MAVLINK_IGNORE_CRC):
                 self.dropped_frames += 1
+                continue
+            if signer is not None and not signer.verify(buf[start:i]).ok:
+                self.rejected_frames += 1  # unsigned (and not on the allowed list)
                 continue
             if mlen >= size:
                 values = unpacker.unpack_from(buf, start + _V2_HEADER_LEN)
@@ -278,7 +302,8 @@ class Codec:
         return layout
 
     def _slow_decode(self, frame: bytes) -> MavMessage | None:
-        """pymavlink's own decode of one frame (signed, unknown id, signing key configured)."""
+        """pymavlink's own decode of one frame (signed or unknown id); pymavlink checks no
+        signature here (no key on ``mav.signing``): the signer does."""
         try:
             msg = self.mav.decode(bytearray(frame))
         except mavlink2.MAVError:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from pymavlink.dialects.v20 import common as mavlink2
 
@@ -30,6 +30,7 @@ from .heartbeat import HeartbeatEvent, HeartbeatTracker
 from .mission_client import MissionClient, MissionTransferDone
 from .px4_mode import FlightMode, custom_mode_of, set_mode_params
 from .setpoints import SetpointCommand, build_setpoint, pack_setpoint
+from .signing import Signer, SigningConfig
 from .telemetry import TelemetryEvent, TelemetryState
 from .timesync import TimeSync, TimesyncUpdate
 
@@ -43,7 +44,7 @@ LinkEvent = (HeartbeatEvent | CommandEvent | MissionTransferDone | TelemetryEven
 
 @dataclass(frozen=True)
 class LinkConfig:
-    """Ids and timing of the companion link (seconds)."""
+    """Ids, timing (seconds) and MAVLink 2 signing (None: off) of the companion link."""
 
     sysid: int = DEFAULT_SYSID
     compid: int = DEFAULT_COMPID
@@ -58,6 +59,11 @@ class LinkConfig:
     mission_timeout_s: float = 0.25
     mission_retries: int = 20
     timesync_interval_s: float = 1.0
+    signing: SigningConfig | None = None
+
+    def with_signing_key(self, key: bytes | None) -> LinkConfig:
+        """This configuration signing with ``key`` (32 bytes, default link ids; None: as is)."""
+        return self if key is None else replace(self, signing=SigningConfig(key))
 
 
 class VehicleLink:
@@ -65,7 +71,8 @@ class VehicleLink:
 
     def __init__(self, config: LinkConfig | None = None, codec: Codec | None = None) -> None:
         self.config = cfg = config or LinkConfig()
-        self.codec = codec or Codec(cfg.sysid, cfg.compid)
+        signer = None if cfg.signing is None else Signer(cfg.signing)
+        self.codec = codec or Codec(cfg.sysid, cfg.compid, signer)
         self._out: list[bytes] = []
         self.heartbeat = HeartbeatTracker(cfg.target_sysid, cfg.target_compid,
                                           cfg.heartbeat_timeout_s)
@@ -95,6 +102,12 @@ class VehicleLink:
         """Queue an arbitrary message (encoded with our ids)."""
         self._queue(msg)
 
+    def advance_signing_clock(self, unix_time_s: float) -> None:
+        """Give the signer the wall clock (UNIX seconds): outgoing signing timestamps never fall
+        behind it. Call before the first send and periodically; a no-op without signing."""
+        if self.codec.signer is not None:
+            self.codec.signer.advance_clock(unix_time_s)
+
     def frames_to_send(self) -> list[bytes]:
         """Encoded frames queued since the last call (one MAVLink frame each)."""
         out, self._out = self._out, []
@@ -107,12 +120,15 @@ class VehicleLink:
         return int((now - self._t0) * 1000.0)
 
     def encode_setpoint(self, sp: SetpointCommand, now: float) -> bytes:
-        """Validate and encode one setpoint frame (thread-safe; raises SetpointError)."""
+        """Validate and encode one setpoint frame (thread-safe; raises SetpointError). Signed
+        on the setpoint stream (``SigningConfig.setpoint_link_id``) when signing is on."""
         ts, tc, tbm = self.config.target_sysid, self.config.target_compid, self.time_boot_ms(now)
+        sc = self.config.signing
+        lid = None if sc is None else sc.setpoint_link_id
         packed = pack_setpoint(sp, ts, tc, tbm)
-        if packed is not None and not self.codec.mav.signing.sign_outgoing:
-            return self.codec.encode_payload(*packed)
-        return self.codec.encode(build_setpoint(sp, ts, tc, tbm))
+        if packed is not None:
+            return self.codec.encode_payload(*packed, link_id=lid)
+        return self.codec.encode(build_setpoint(sp, ts, tc, tbm), lid)
 
     # -- input ------------------------------------------------------------------------------
     def receive_bytes(self, data: bytes, now: float) -> list[LinkEvent]:

@@ -302,12 +302,13 @@ def test_default_gains_hold_with_50ms_telemetry_latency() -> None:
 
 def test_latency_compensation_pays_off_in_closed_loop() -> None:
     """100 ms telemetry latency: with the slow-link gains README gives (kp_xy 6, kd_xy 4.5,
-    ki_xy 1), extrapolating the estimate keeps rates mode accurate."""
+    ki_xy 1, k_roll = k_pitch = 6.5), extrapolating the estimate keeps rates mode accurate."""
     out = {}
     slow = TrackingGains(kp_xy=6.0, kd_xy=4.5, ki_xy=1.0)
+    slow_att = AttitudeGains(k_roll=6.5, k_pitch=6.5)
     for comp in (True, False):
-        ctl = TrackingController(bt.default_controller_config(latency_compensation=comp,
-                                                              gains=slow))
+        ctl = TrackingController(bt.default_controller_config(
+            latency_compensation=comp, gains=slow, attitude_gains=slow_att))
         res = bt.run_lockstep("rates", lambda t: bt.figure8_reference(t, 6.0),
                               bt.figure8_seconds(6.0), controller=ctl, latency_s=0.1)
         out[comp] = res.lap_errors(2)[0]

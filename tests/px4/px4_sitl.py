@@ -24,6 +24,7 @@ console is copied to `log` (if given) first.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import fcntl
 import os
 import shutil
@@ -90,6 +91,13 @@ def _udp_port_free(port: int) -> bool:
             except OSError:
                 return False
     return True
+
+
+def _die_with_parent() -> None:
+    """In the child before exec: SIGKILL it when the process that started it dies (a killed
+    test or bench must not leave PX4 running; the setting survives unshare's and sh's exec)."""
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
 
 
 def _can_unshare() -> bool:
@@ -217,7 +225,7 @@ class Px4Sitl:
         self._console = open(self.console_path, "wb")  # noqa: SIM115
         self._proc = subprocess.Popen(argv, cwd=rootfs, env=env, stdin=subprocess.DEVNULL,
                                       stdout=self._console, stderr=subprocess.STDOUT,
-                                      start_new_session=True)
+                                      start_new_session=True, preexec_fn=_die_with_parent)
         deadline = time.monotonic() + self.startup_timeout_s
         try:
             while True:

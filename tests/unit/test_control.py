@@ -21,6 +21,7 @@ from companion.control import (
     TrackingGains,
     attitude_error,
     position_command,
+    rates_mode_gains,
     so3_rate_command,
 )
 from companion.flatness import MultirotorParams
@@ -372,3 +373,23 @@ def test_rates_diagnostics_report_lee_errors() -> None:
     assert not out.fallback and ctl.last is not None
     np.testing.assert_allclose(ctl.last.attitude_err_frd, 0.0, atol=1e-12)
     np.testing.assert_allclose(ctl.last.rate_err_frd, w, atol=1e-12)
+
+
+@pytest.mark.parametrize("kp", [1.0, 6.0, 10.0, 20.0, 80.0])
+@pytest.mark.parametrize("k_att", [4.0, 6.5, 12.0])
+@pytest.mark.parametrize("sep", [2.0, 2.5])
+def test_rates_mode_gains_keep_the_attitude_loop_faster(kp: float, k_att: float,
+                                                        sep: float) -> None:
+    g = TrackingGains(kp_xy=kp, kd_xy=0.9 * 2.0 * math.sqrt(kp), ki_xy=0.1 * kp ** 1.5)
+    att = AttitudeGains(k_roll=k_att, k_pitch=k_att + 1.0)
+    r = rates_mode_gains(g, att, separation=sep)
+    wn, wn_r = math.sqrt(g.kp_xy), math.sqrt(r.kp_xy)
+    assert wn_r <= k_att / sep + 1e-12  # the slower of roll/pitch sets the cap
+    if wn <= k_att / sep:
+        assert r == g  # nothing to do
+    else:
+        assert wn_r == pytest.approx(k_att / sep)
+        # same damping ratio zeta = kd / (2 wn), integral time scale kept (ki / wn^3)
+        assert r.kd_xy / (2.0 * wn_r) == pytest.approx(g.kd_xy / (2.0 * wn))
+        assert r.ki_xy / wn_r**3 == pytest.approx(g.ki_xy / wn**3)
+    assert (r.kp_z, r.kd_z, r.ki_z) == (g.kp_z, g.kd_z, g.ki_z)

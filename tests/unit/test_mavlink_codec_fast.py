@@ -314,22 +314,25 @@ def test_several_frames_in_one_datagram(no_slow_path: None) -> None:
     assert [x.get_seq() for x in out] == list(range(len(NAMED)))
 
 
-def test_signing_key_configured_uses_pymavlink_rules() -> None:
-    """With a key on the codec, unsigned frames are refused and good signatures accepted."""
+def test_codec_with_a_signer_refuses_unsigned_and_accepts_pymavlink_signed_frames() -> None:
+    """With a signer on the codec, a frame pymavlink signed with the key is decoded as pymavlink
+    (holding the key) decodes it; the unsigned frame after it is refused."""
+    from companion.mavlink import Signer, SigningConfig
+
     key = bytes(range(32))
     tx = m.MAVLink(None, srcSystem=1, srcComponent=1)
     tx.signing.secret_key = key
     tx.signing.sign_outgoing = True
+    tx.signing.timestamp = 10**12
     signed = bytes(m.MAVLink_timesync_message(1, 2).pack(tx))
     unsigned = pack(m.MAVLink_timesync_message(3, 4))
-    c, o = Codec(), Oracle()
-    c.mav.signing.secret_key = key
+    c, o = Codec(signer=Signer(SigningConfig(key))), Oracle()
     o.mav.signing.secret_key = key
     fast = c.decode(signed + unsigned)
     ref = o.decode(signed + unsigned)
     assert [x.tc1 for x in fast] == [1] and fast[0].get_signed() is True
     assert_same(fast, ref)
-    assert c.dropped_frames == o.dropped_frames == 1
+    assert c.rejected_frames == o.dropped_frames == 1 and c.dropped_frames == 0
 
 
 # -- encode ---------------------------------------------------------------------------------------
@@ -372,14 +375,19 @@ def test_encode_sequence_increments_wraps_and_is_thread_safe() -> None:
     assert [c.encode(hb)[4] for _ in range(3)] == [600 % 256, 601 % 256, 602 % 256]
 
 
-def test_signed_encode_falls_back_to_pymavlink() -> None:
+def test_signed_encode_matches_pymavlink_signing_byte_for_byte() -> None:
+    """Same key, ids, sequence number and timestamp: our signed frame is pymavlink's."""
+    from companion.mavlink import Signer, SigningConfig
+
     key = bytes(range(32))
-    c = Codec(1, 191)
+    signer = Signer(SigningConfig(key, link_id=7))
+    signer.advance_clock(1_420_070_400 + 1.23456)  # 123456 ticks: ours signs with the next one
+    c = Codec(1, 191, signer)
     ref = m.MAVLink(None, srcSystem=1, srcComponent=191)
-    for mav in (c.mav, ref):
-        mav.signing.secret_key = key
-        mav.signing.sign_outgoing = True
-        mav.signing.timestamp = 123456
+    ref.signing.secret_key = key
+    ref.signing.sign_outgoing = True
+    ref.signing.link_id = 7
+    ref.signing.timestamp = 123457
     msg = m.MAVLink_set_attitude_target_message(5, 1, 1, 3, [1, 0, 0, 0], 0, 0, 0.2, 0.5)
     assert c.encode(msg) == bytes(msg.pack(ref))
     rx = Oracle()

@@ -191,30 +191,19 @@ def test_pack_setpoint_leaves_position_types_to_build() -> None:
     assert pack_setpoint(RoverVelocitySetpoint(vel_ne=(1.0, 0.0), yaw_rate=0.0), 1, 1, 0) is None
 
 
-def test_encode_payload_refuses_signing() -> None:
-    from companion.mavlink import Codec
-
-    c = Codec(1, 191)
-    c.mav.signing.secret_key = bytes(32)
-    c.mav.signing.sign_outgoing = True
-    with pytest.raises(ValueError, match="sign"):
-        c.encode_payload(82, b"\x31", bytes(39))
-
-
 def test_link_signs_setpoints_when_signing_is_on() -> None:
     """With outgoing signing configured, the link's per-cycle setpoint is a signed frame that a
     receiver holding the key accepts (the unsigned struct path must not be taken)."""
     from pymavlink.dialects.v20 import common as m
 
-    from companion.mavlink import LinkConfig, VehicleLink
+    from companion.mavlink import LinkConfig, SigningConfig, VehicleLink
 
     key = bytes(range(32))
-    link = VehicleLink(LinkConfig())
-    link.codec.mav.signing.secret_key = key
-    link.codec.mav.signing.sign_outgoing = True
+    link = VehicleLink(LinkConfig(signing=SigningConfig(key, link_id=4)))
     frame = link.encode_setpoint(AttitudeSetpoint(q_wxyz=(1.0, 0.0, 0.0, 0.0), thrust_norm=0.5),
                                  1.0)
     assert frame[2] & 0x01  # MAVLINK_IFLAG_SIGNED
+    assert frame[-13] == 5  # the setpoint stream: link id + 1
     rx = m.MAVLink(None)
     rx.signing.secret_key = key
     (msg,) = rx.parse_buffer(frame)
