@@ -20,7 +20,7 @@ import math
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -141,19 +141,15 @@ def shifted(reference: Callable[[float], Reference], dx: float, dy: float
     return ref
 
 
-async def fly_reference(
-    ep: Endpoint, mode: str, reference: Callable[[float], Reference], duration_s: float, *,
-    tlog: Path, alt_m: float = 5.0, source_factory: Callable[..., Any] | None = None,
-    truth_hz: float = 50.0, before: Callable[[Vehicle], Any] | None = None,
-    telemetry_hz: float | None = None,
-) -> Flight:
-    """Connect, stream ground truth, arm, take off to `alt_m`, fly `reference` (shifted to start
-    where the takeoff ended) in `mode` for `duration_s`, then hold. The vehicle is left in the
-    air: the caller stops the autopilot."""
-    from companion.config import VehicleFile
-
-    params = VehicleFile().params
-    config = VehicleConfig(tlog_path=str(tlog), connect_timeout_s=20.0, armable_timeout_s=40.0)
+@contextlib.asynccontextmanager
+async def airborne(ep: Endpoint, *, tlog: Path, alt_m: float = 5.0, truth_hz: float = 50.0,
+                   telemetry_hz: float | None = None) -> AsyncIterator[Vehicle]:
+    """Connect (recording `tlog`), stream ground truth, arm and take off to `alt_m`; yields the
+    hovering vehicle. It is left in the air: the caller stops the autopilot."""
+    # stale telemetry after 1 s (default 0.5 s): on the shared 2-core bench host a loaded moment
+    # must not end a flight that measures the autopilot
+    config = VehicleConfig(tlog_path=str(tlog), connect_timeout_s=20.0, armable_timeout_s=40.0,
+                           stale_telemetry_s=1.0)
     async with Vehicle.connect(ep.url, config=config,
                                link_config=LinkConfig(target_sysid=ep.target_system)) as v:
         with contextlib.suppress(CommandError):  # the mock has no separate ground truth
@@ -164,18 +160,59 @@ async def fly_reference(
         await v.arm()
         await v.takeoff(alt_m)
         await asyncio.sleep(1.0)  # let the takeoff transient settle (not synchronisation)
+        yield v
+
+
+async def fresh_position(v: Vehicle, timeout_s: float = 5.0, max_age_s: float = 0.2) -> None:
+    """Wait (bounded) until the latest LOCAL_POSITION_NED is at most `max_age_s` old: `fly`
+    refuses to start on stale telemetry, which a loaded machine can delay for a moment."""
+    t_end = time.monotonic() + timeout_s
+    while time.monotonic() < t_end:
         pos = v.telemetry.position
-        assert pos is not None
-        r0 = reference(0.0).pos_ned
-        ref = shifted(reference, pos.pos_ned[0] - r0[0], pos.pos_ned[1] - r0[1])
+        if pos is not None and time.monotonic() - pos.t_s <= max_age_s:
+            return
+        await asyncio.sleep(0.02)
+
+
+async def fly_on(v: Vehicle, mode: str, reference: Callable[[float], Reference],
+                 duration_s: float, *, source_factory: Callable[..., Any] | None = None
+                 ) -> Flight:
+    """Fly `reference` (shifted horizontally to start where the vehicle is) in `mode` for
+    `duration_s` with a `TrackingSource` (or `source_factory(reference, mode)`), then Hold."""
+    from companion.config import VehicleFile
+
+    await fresh_position(v)
+    pos = v.telemetry.position
+    assert pos is not None
+    r0 = reference(0.0).pos_ned
+    ref = shifted(reference, pos.pos_ned[0] - r0[0], pos.pos_ned[1] - r0[1])
+    if source_factory is None:
+        params = VehicleFile().params
+
+        def source_factory(r: Callable[[float], Reference], m: str) -> Any:
+            return TrackingSource(r, m, params)
+
+    rec = ReferenceRecorder(source_factory(ref, mode))
+    await v.fly(mode=mode, setpoint_source=rec, duration_s=duration_s)
+    assert rec.t0_unix is not None
+    return Flight(Path(v.config.tlog_path or ""), rec.t0_unix, duration_s, ref,
+                  np.array(ref(0.0).pos_ned))
+
+
+async def fly_reference(
+    ep: Endpoint, mode: str, reference: Callable[[float], Reference], duration_s: float, *,
+    tlog: Path, alt_m: float = 5.0, source_factory: Callable[..., Any] | None = None,
+    truth_hz: float = 50.0, before: Callable[[Vehicle], Any] | None = None,
+    telemetry_hz: float | None = None,
+) -> Flight:
+    """Connect, stream ground truth, arm, take off to `alt_m`, fly `reference` (shifted to start
+    where the takeoff ended) in `mode` for `duration_s`, then hold. The vehicle is left in the
+    air: the caller stops the autopilot."""
+    async with airborne(ep, tlog=tlog, alt_m=alt_m, truth_hz=truth_hz,
+                        telemetry_hz=telemetry_hz) as v:
         if before is not None:
             await before(v)
-        factory = source_factory or (lambda r, m: TrackingSource(r, m, params))
-        rec = ReferenceRecorder(factory(ref, mode))
-        await v.fly(mode=mode, setpoint_source=rec, duration_s=duration_s)
-        assert rec.t0_unix is not None
-        r00 = ref(0.0).pos_ned
-        return Flight(tlog, rec.t0_unix, duration_s, ref, np.array(r00))
+        return await fly_on(v, mode, reference, duration_s, source_factory=source_factory)
 
 
 # ----------------------------------------------------------------------------- tlog analysis

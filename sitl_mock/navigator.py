@@ -24,6 +24,16 @@ _NAN = math.nan
 FACE_WAYPOINT_MIN_DIST_M = 1.0  # below this horizontal distance the heading is held
 
 
+def speed_from_distance(jerk: float, accel: float, distance: float, final_speed: float = 0.0
+                        ) -> float:
+    """Highest speed [m/s] from which a jerk- (`jerk` m/s^3) and acceleration-limited (`accel`
+    m/s^2) braking reaches `final_speed` within `distance` [m] (the braking law of PX4's AUTO
+    trajectories: v^2 / (2 a) + v a / j ~ distance)."""
+    b = 4.0 * accel * accel / jerk
+    c = -2.0 * accel * distance - final_speed * final_speed
+    return 0.5 * (-b + math.sqrt(b * b - 4.0 * c))
+
+
 class Navigator:
     """Target generator for AUTO modes; see the module docstring.
 
@@ -197,15 +207,28 @@ class Navigator:
             a_line = min(a_line, a_v * dist / abs(dz))
             vz_lim = self._up_limit if dz < 0.0 else p["MPC_Z_VEL_MAX_DN"]
             s = min(s, max(vz_lim, 0.1) * dist / abs(dz))
-        s = min(s, math.sqrt(2.0 * 0.9 * a_line * dist))
+        # jerk-limited on the legs (goto, RTL return); takeoff, RTL climb and Hold as before
+        # (measured on PX4 SITL: the mock's takeoff to 10 m already took PX4's time, 12.4 s,
+        # and a Hold's stopping point assumes the acceleration limit alone)
+        jerk = p["MPC_JERK_AUTO"] if self.phase in ("goto", "rtl_return") else 0.0
+        if jerk > 0.0:
+            # PX4's jerk-limited braking law; the last part at a tenth of the acceleration so
+            # the reference reaches the goal in finite time (the law alone tends to v ~ d)
+            s = min(s, max(speed_from_distance(jerk, a_line, dist),
+                           math.sqrt(0.2 * a_line * dist)))
+        else:
+            s = min(s, math.sqrt(2.0 * 0.9 * a_line * dist))
         k = s / dist if dist > 1e-9 else 0.0
         ex, ey, ez = dx * k - rv[0], dy * k - rv[1], dz * k - rv[2]
-        exy = math.hypot(ex, ey)
-        if exy > a_h * dt:
-            f = a_h * dt / exy
-            ex, ey = ex * f, ey * f
-        a_vz = self._vertical_acc(ez < 0.0) * dt
-        ez = max(-a_vz, min(a_vz, ez))
+        if jerk > 0.0:
+            ex, ey, ez = self._jerk_limited(ex, ey, ez, a_h, dt, jerk)
+        else:
+            exy = math.hypot(ex, ey)
+            if exy > a_h * dt:
+                f = a_h * dt / exy
+                ex, ey = ex * f, ey * f
+            a_vz = self._vertical_acc(ez < 0.0) * dt
+            ez = max(-a_vz, min(a_vz, ez))
         nv = [rv[0] + ex, rv[1] + ey, rv[2] + ez]
         step = [0.5 * (rv[i] + nv[i]) * dt for i in range(3)]
         # never step past the goal
@@ -218,6 +241,39 @@ class Navigator:
                 ref[i] += step[i]
             self._ref_acc = [ex / dt, ey / dt, ez / dt]
         self._ref_vel = nv
+
+    def _jerk_limited(self, ex: float, ey: float, ez: float, a_h: float, dt: float, jerk: float
+                      ) -> tuple[float, float, float]:
+        """Velocity change over `dt` toward the velocity error (ex, ey, ez) [m/s] with the
+        acceleration limits and the jerk limit MPC_JERK_AUTO (PX4's AUTO trajectories are
+        jerk-limited): the acceleration aims at min(a_max, sqrt(2 jerk |error|)), the most that
+        can still be ramped to zero without overshooting, and changes by at most jerk * dt."""
+        a0 = self._ref_acc
+        jdt = jerk * dt
+        h = 0.5 * jdt  # discrete ramp: a / (j dt) steps of dt change v by a^2 / (2 j) + a dt / 2
+
+        def most(err: float) -> float:
+            return -h + math.sqrt(h * h + 2.0 * jerk * err)
+
+        exy = math.hypot(ex, ey)
+        axy = min(a_h, most(exy))
+        tx, ty = (ex / exy * axy, ey / exy * axy) if exy > 1e-9 else (0.0, 0.0)
+        a_v = self._vertical_acc(ez < 0.0)
+        tz = math.copysign(min(a_v, most(abs(ez))), ez)
+        cx, cy = tx - a0[0], ty - a0[1]
+        cxy = math.hypot(cx, cy)
+        if cxy > jdt:
+            cx, cy = cx * jdt / cxy, cy * jdt / cxy
+        cz = max(-jdt, min(jdt, tz - a0[2]))
+        ax, ay, az = a0[0] + cx, a0[1] + cy, a0[2] + cz
+        # never beyond the velocity error itself (no overshoot at the end of a ramp)
+        if abs(ax * dt) > abs(ex):
+            ax = ex / dt
+        if abs(ay * dt) > abs(ey):
+            ay = ey / dt
+        if abs(az * dt) > abs(ez):
+            az = ez / dt
+        return ax * dt, ay * dt, az * dt
 
     def _yaw_target(self, state: VehicleState) -> float:
         if _isfinite(self._yaw_goal):

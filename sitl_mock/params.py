@@ -159,3 +159,19 @@ PARAMS.update(
         ),
     }
 )
+
+# Appended by the vehicle model (estimator error like EKF2 on SIH's GPS; mock-only names: PX4 has
+# no parameter for it, the error emerges from its GPS simulation and EKF2).
+PARAMS.update(
+    {
+        "SIM_EST_XY_STD": ParamSpec(
+            0.0, False, "std of the slowly varying horizontal estimator error [m] (0 = off)"
+        ),
+        "SIM_EST_XY_TAU": ParamSpec(1.7, False, "time constant of the estimator errors [s]"),
+        # AUTO trajectory jerk limit (PX4 default 4; 0 = the mock's earlier unlimited ramps)
+        "MPC_JERK_AUTO": ParamSpec(4.0, False, "jerk limit of AUTO trajectories [m/s^3]"),
+        "SIM_EST_VXY_STD": ParamSpec(
+            0.0, False, "std of the slowly varying horizontal velocity estimate error [m/s]"
+        ),
+    }
+)

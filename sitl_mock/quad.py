@@ -79,6 +79,9 @@ class Quadrotor:
         "_bat_drain",
         "_bat_min",
         "_battery",
+        "_est",
+        "_est_acc",
+        "_est_cfg",
         "_gains",
         "_gust",
         "_gust_acc",
@@ -214,6 +217,10 @@ class Quadrotor:
         # measurement noise (sampled at the position-loop rate)
         self._npos: Vec3 = (0.0, 0.0, 0.0)
         self._nvel: Vec3 = (0.0, 0.0, 0.0)
+        # estimator errors (SIM_EST_*): (driving state, error) for position x, y, velocity x, y,
+        # advanced at the position-loop rate
+        self._est: list[float] = [0.0] * 8
+        self._est_acc = 0.0
 
     # ------------------------------------------------------------------ interface
     def set_wind(self, vel_ned: Vec3) -> None:
@@ -320,6 +327,16 @@ class Quadrotor:
         )
         return st
 
+    @property
+    def true_pos_ned(self) -> Vec3:
+        """True position [m NED], without the estimator error and noise that `state` carries."""
+        return (self._px, self._py, self._pz)
+
+    @property
+    def true_vel_ned(self) -> Vec3:
+        """True velocity [m/s NED]."""
+        return (self._vx, self._vy, self._vz)
+
     # ------------------------------------------------------------------ test helpers
     def set_state(
         self,
@@ -379,6 +396,8 @@ class Quadrotor:
         self._noise = (p["SIM_POS_NOISE"], p["SIM_VEL_NOISE"], p["SIM_GYRO_NOISE"])
         self._gust_std = max(p["SIM_WIND_GUST"], 0.0)
         self._gust_tau = p["SIM_WIND_GUST_T"]
+        self._est_cfg = (max(p["SIM_EST_XY_STD"], 0.0), max(p["SIM_EST_VXY_STD"], 0.0),
+                         max(p["SIM_EST_XY_TAU"], 0.05))
         self._bat_drain = max(p["SIM_BAT_DRAIN"], 1.0)
         self._bat_min = min(max(p["SIM_BAT_MIN_PCT"] / 100.0, 0.0), 1.0)
 
@@ -426,6 +445,13 @@ class Quadrotor:
         if armed:
             bat = self._battery - dt / self._bat_drain
             self._battery = bat if bat > self._bat_min else self._bat_min
+
+        if self._est_cfg[0] > 0.0 or self._est_cfg[1] > 0.0:
+            est_acc = self._est_acc + dt
+            if est_acc >= POS_LOOP_PERIOD_S - 1e-9:
+                self._advance_estimator_error(est_acc)
+                est_acc = 0.0
+            self._est_acc = est_acc
 
         # ---------------------------------------------------------------- control
         if armed and isinstance(target, PositionTarget):
@@ -475,6 +501,22 @@ class Quadrotor:
         self._motor_cmd = (0.0, 0.0, 0.0, 0.0)
         self._idle = True
 
+    def _advance_estimator_error(self, dt: float) -> None:
+        """Horizontal estimator errors like EKF2's on SIH (measured on PX4 v1.16 SITL: position
+        ~0.16 m, velocity ~0.2 m/s per axis, both slowly varying, ~1.7 s): per axis, white noise
+        through two first-order lags of time constant SIM_EST_XY_TAU (a second-order
+        Gauss-Markov process) scaled to the stationary std SIM_EST_XY_STD (position) and
+        SIM_EST_VXY_STD (velocity), independent of each other as measured."""
+        std_p, std_v, tau = self._est_cfg
+        a = math.exp(-dt / tau)
+        k = math.sqrt(2.0) * math.sqrt(1.0 - a * a)  # var(lagged) = var(driving) / 2
+        e = self._est
+        gauss = self._rng.gauss
+        for i, std in ((0, std_p), (2, std_p), (4, std_v), (6, std_v)):
+            s = a * e[i] + k * std * gauss(0.0, 1.0)
+            e[i] = s
+            e[i + 1] = a * e[i + 1] + (1.0 - a) * s
+
     def _refresh(self) -> None:
         if self._noise[0] > 0.0 or self._noise[1] > 0.0:
             gauss = self._rng.gauss
@@ -484,6 +526,11 @@ class Quadrotor:
         else:
             self._npos = (0.0, 0.0, 0.0)
             self._nvel = (0.0, 0.0, 0.0)
+        if self._est_cfg[0] > 0.0 or self._est_cfg[1] > 0.0:
+            e = self._est
+            n, v = self._npos, self._nvel
+            self._npos = (n[0] + e[1], n[1] + e[3], n[2])
+            self._nvel = (v[0] + e[5], v[1] + e[7], v[2])
 
     def _want_takeoff(self, tgt: PositionTarget) -> bool:
         pz, vz, az = tgt.pos_ned[2], tgt.vel_ned[2], tgt.acc_ned[2]

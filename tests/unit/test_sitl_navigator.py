@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
 
-from sitl_mock.navigator import Navigator
+from sitl_mock.navigator import Navigator, speed_from_distance
 from sitl_mock.params import ParamStore
 from sitl_mock.quad import Quadrotor
 from sitl_mock.setpoints import PositionTarget
@@ -248,3 +249,35 @@ def test_ground_vehicle_navigation_with_the_rover() -> None:
     assert math.hypot(*rv.state.pos_ned[:2]) < 1.0
     nav.land(rv.state)
     assert nav.reached and nav.phase == "landed"
+
+
+def test_auto_reference_is_jerk_limited_and_brakes_in_time() -> None:
+    """MPC_JERK_AUTO: the reference acceleration of a goto changes by at most jerk * dt per
+    update and never exceeds MPC_ACC_HOR; the braking law leaves room to stop on the goal."""
+    f = Flight(z=-10.0)
+    jerk, a_max = f.p["MPC_JERK_AUTO"], f.p["MPC_ACC_HOR"]
+    assert jerk == 4.0  # PX4's default
+    f.nav.goto((40.0, 0.0, -10.0), math.nan, 2.0, f.v.state)
+    f.run(25.0, until_reached=False)
+    acc = [t.acc_ned for t in f.targets]
+    for a0, a1 in itertools.pairwise(acc):
+        if a1 == (0.0, 0.0, 0.0):  # the reference snapped onto the goal
+            continue
+        assert math.dist(a0, a1) <= jerk * DT * 1.1  # (a ramp ends within one step)
+        assert math.hypot(a1[0], a1[1]) <= a_max * 1.001
+    assert max(t.vel_ned[0] for t in f.targets) == pytest.approx(f.p["MPC_XY_CRUISE"], rel=0.01)
+    assert f.targets[-1].pos_ned[0] == 40.0  # the reference ends on the goal
+    # the braking law: from speed_from_distance(d), a jerk-limited stop needs at most d
+    for d in (0.5, 2.0, 10.0, 30.0):
+        v = speed_from_distance(jerk, a_max, d)
+        t_ramp = a_max / jerk
+        if v <= a_max * t_ramp:  # triangular deceleration profile: a peak sqrt(v j)
+            t_half = math.sqrt(v / jerk)
+            need = v * 2 * t_half - jerk * t_half**3  # exact distance of the symmetric ramp
+        else:
+            dv_ramp = 0.5 * jerk * t_ramp**2
+            t_const = (v - 2 * dv_ramp) / a_max
+            need = (v * t_ramp - jerk * t_ramp**3 / 6
+                    + (v - dv_ramp) * t_const - 0.5 * a_max * t_const**2
+                    + dv_ramp * t_ramp - jerk * t_ramp**3 / 6)
+        assert 0.0 < need <= d

@@ -440,3 +440,40 @@ def test_fast_state_constructor_equals_dataclass_init() -> None:
     with pytest.raises(AttributeError):
         fast.t_s = 2.0  # type: ignore[misc]
     assert fast.alt_amsl_m == pytest.approx(403.0)
+
+
+def test_estimator_errors_are_slow_of_the_configured_std_and_off_by_default() -> None:
+    """SIM_EST_XY_STD / SIM_EST_VXY_STD / SIM_EST_XY_TAU: the reported (and controlled)
+    horizontal position and velocity are off the true ones by slowly varying errors of the
+    configured std (as EKF2's on PX4 SITL); altitude and the default are exact."""
+    def hover(overrides: dict[str, float], seconds: float) -> tuple[np.ndarray, ...]:
+        v = Quadrotor(ParamStore(overrides), seed=4)
+        v.set_state(pos_ned=(0.0, 0.0, -5.0), motors=0.49)
+        v.mark_airborne(0.49)
+        tgt = PositionTarget(pos_ned=(0.0, 0.0, -5.0), yaw=0.0)
+        est, tru, vest, vtru = [], [], [], []
+        for k in range(round(seconds / 0.004)):
+            v.step(0.004, tgt, True)
+            if k % 5 == 4:  # every 20 ms (after a position-loop tick)
+                s = v.state
+                est.append(s.pos_ned)
+                tru.append(v.true_pos_ned)
+                vest.append(s.vel_ned)
+                vtru.append(v.true_vel_ned)
+        return np.array(est), np.array(tru), np.array(vest), np.array(vtru)
+
+    est, tru, vest, vtru = hover({}, 5.0)
+    assert np.array_equal(est, tru) and np.array_equal(vest, vtru)
+    std_p, std_v, tau = 0.3, 0.2, 1.0
+    est, tru, vest, vtru = hover(
+        {"SIM_EST_XY_STD": std_p, "SIM_EST_VXY_STD": std_v, "SIM_EST_XY_TAU": tau}, 300.0)
+    err, verr = est - tru, vest - vtru
+    assert np.all(err[:, 2] == 0.0) and np.all(verr[:, 2] == 0.0)
+    lag = round(0.1 / 0.02)
+    for axis in (0, 1):
+        for e, std in ((err[:, axis], std_p), (verr[:, axis], std_v)):
+            assert float(np.std(e)) == pytest.approx(std, rel=0.3)
+            # slowly varying: (1 + t/tau) exp(-t/tau) = 0.995 after 0.1 s
+            assert float(np.corrcoef(e[:-lag], e[lag:])[0, 1]) > 0.95
+    # independent errors (as measured on PX4): no correlation between position and velocity
+    assert abs(float(np.corrcoef(err[:, 0], verr[:, 0])[0, 1])) < 0.3
