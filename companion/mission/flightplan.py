@@ -496,8 +496,13 @@ def mission_to_flight_plan(
     return replace(plan, warnings=tuple(warnings))
 
 
+_FENCE_SAMPLES = 200_000
+"""Sample budget of the geofence check of the legs (1 m apart up to a 200 km flight)."""
+
+
 def _fence_messages(plan: FlightPlan) -> list[str]:
-    """Waypoints and straight legs (sampled every <= 1 m) that breach the geofence."""
+    """Waypoints and straight legs (sampled every max(1 m, flight length / 200 000)) that
+    breach the geofence."""
     fence = plan.geofence
     if fence.empty:
         return []
@@ -510,9 +515,12 @@ def _fence_messages(plan: FlightPlan) -> list[str]:
         what = "outside every inclusion zone" if v.zone == "inclusion" else f"inside {v.zone}"
         msgs.append(f"geofence: waypoint {v.point_index} ({label}) is {what}")
     allp = plan.points_ned_m()
+    lengths = np.linalg.norm(np.diff(allp, axis=0), axis=1) if len(allp) > 1 else np.zeros(0)
+    # every metre, coarser on very long flights: at most ~_FENCE_SAMPLES samples in all
+    spacing = max(1.0, float(np.sum(lengths)) / _FENCE_SAMPLES)
     for i in range(len(allp) - 1):
         a, b = allp[i], allp[i + 1]
-        n = max(2, math.ceil(float(np.linalg.norm(b - a))) + 1)
+        n = max(2, math.ceil(float(lengths[i]) / spacing) + 1)
         s = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)
         zones = sorted({v.zone for v in fence.violations(s[1:-1])}) if n > 2 else []
         for z in zones:
