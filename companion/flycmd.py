@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from rich.console import Console
 from rich.live import Live
+from rich.markup import escape
 from rich.table import Table
 
 from companion.config import VehicleFile, load_vehicle_file
@@ -104,7 +105,7 @@ def _status_table(
         if elapsed > 0:
             t.add_row("mean setpoint rate [Hz]", f"{source.calls / elapsed:.0f}")
     if v.last_status_text is not None:
-        t.add_row("vehicle says", v.last_status_text.text)
+        t.add_row("vehicle says", escape(v.last_status_text.text))
     return t
 
 
@@ -118,18 +119,37 @@ def _takeoff_end(schedule: Schedule) -> float:
     return t_off
 
 
+def check_fly_options(opts: FlyOptions) -> None:
+    """ValueError for options that cannot be flown, before anything starts (mock, link): the
+    target is neither a pattern nor an existing file, or a pattern's size/speed/altitude/laps
+    is out of range."""
+    if opts.target not in PATTERNS:
+        if not Path(opts.target).is_file():
+            raise ValueError(
+                f"{opts.target}: no such mission file, and not a pattern "
+                f"(patterns: {', '.join(PATTERNS)})"
+            )
+        return
+    for name, value in (("--size", opts.size_m), ("--speed", opts.speed_m_s)):
+        if not (0.0 < value < math.inf):
+            raise ValueError(f"{name} must be a number > 0, got {value}")
+    if not (0.5 < opts.alt_m < math.inf):
+        raise ValueError(f"--alt must be above 0.5 m, got {opts.alt_m}")
+    if opts.laps < 1:
+        raise ValueError(f"--laps must be >= 1, got {opts.laps}")
+
+
 async def fly(opts: FlyOptions, console: Console) -> int:
     """Run `fly`; returns the exit code (0 ok, 1 flight failure, 2 bad input)."""
     from companion.aio import Vehicle, VehicleConfig, VehicleError, safe_exit
 
+    check_fly_options(opts)
     vf = load_vehicle_file(opts.vehicle_file) if opts.vehicle_file else VehicleFile()
     mission = None
     home = DEFAULT_HOME
     if opts.target not in PATTERNS:
         mission = load_mission(opts.target)
         home = (mission.home.lat_deg, mission.home.lon_deg, mission.home.alt_amsl_m)
-    elif not (opts.alt_m > 0.5):
-        raise ValueError(f"--alt must be above 0.5 m, got {opts.alt_m}")
     log_path = opts.log or f"flight-{dt.datetime.now(dt.UTC):%Y%m%dT%H%M%SZ}.tlog"
     vconfig = VehicleConfig(rate_hz=opts.rate_hz, tlog_path=log_path,
                             stream_wait="busy" if opts.busy_wait else "sleep",
@@ -138,7 +158,7 @@ async def fly(opts: FlyOptions, console: Console) -> int:
         url = opts.connect
         if url is None:
             url = await stack.enter_async_context(embedded_mock(home, opts.mock_params))
-            console.print(f"No --connect: flying the embedded mock PX4 ({url})")
+            console.print(f"No --connect: flying the embedded mock PX4 ({escape(url)})")
         link = LinkConfig(target_sysid=opts.target_system if opts.connect else 1)
         v = await stack.enter_async_context(Vehicle.connect(url, config=vconfig,
                                                             link_config=link))
@@ -146,7 +166,8 @@ async def fly(opts: FlyOptions, console: Console) -> int:
         hb = v.link.heartbeat.last
         rover = hb is not None and hb.vehicle_type == MAV_TYPE_GROUND_ROVER
         mode = "rover" if rover else opts.mode
-        console.print(f"Connected: {'rover' if rover else 'multicopter'}, logging to {log_path}")
+        console.print(
+            f"Connected: {'rover' if rover else 'multicopter'}, logging to {escape(log_path)}")
         source: TrackingSource | None = None
         started: float | None = None
         ended: float | None = None
@@ -235,7 +256,7 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                 with contextlib.suppress(asyncio.CancelledError):
                     await ui
                 live.update(_status_table(v, source, started, ended or 0.0))
-    console.print(f"Done. Log: {Path(log_path).resolve()}")
+    console.print(f"Done. Log: {escape(str(Path(log_path).resolve()))}")
     return 0
 
 

@@ -213,6 +213,16 @@ def _wrap_deg(a: float) -> float:
     return (a + 180.0) % 360.0 - 180.0
 
 
+MAV_TYPE_GROUND_ROVER = 10
+_MULTICOPTER_TYPES = frozenset({2, 3, 4, 13, 14, 15})
+"""MAV_TYPE quadrotor, coaxial, helicopter, hexarotor, octorotor, tricopter."""
+_MAV_TYPE_NAMES = {
+    1: "fixed-wing aircraft", 2: "quadrotor", 3: "coaxial helicopter", 4: "helicopter",
+    10: "ground rover", 11: "surface boat", 12: "submarine", 13: "hexarotor", 14: "octorotor",
+    15: "tricopter", 19: "VTOL", 20: "VTOL", 21: "VTOL", 22: "VTOL", 23: "VTOL", 24: "VTOL",
+}
+
+
 def mission_to_flight_plan(
     mission: Mission,
     *,
@@ -256,6 +266,18 @@ def mission_to_flight_plan(
         text = f"{src}: item {item.index}: {msg}" if item is not None else f"{src}: {msg}"
         warnings.append(text)
         _log.warning(text)
+
+    vtype = mission.vehicle_type
+    if vtype is not None and vtype != 0:
+        written_for = _MAV_TYPE_NAMES.get(vtype, f"MAV_TYPE {vtype}")
+        if rover and vtype != MAV_TYPE_GROUND_ROVER:
+            warn(f"the file was written for a {written_for} (vehicleType {vtype}); "
+                 "flying it as a ground rover")
+        elif not rover and vtype not in _MULTICOPTER_TYPES:
+            hint = ("; fly it as a rover (replay --vehicle rover)"
+                    if vtype == MAV_TYPE_GROUND_ROVER else "")
+            warn(f"the file was written for a {written_for} (vehicleType {vtype}); "
+                 f"flying it as a multicopter{hint}")
 
     executed = expand_jumps(mission, max_items=max_items)
     wps: list[FlightWaypoint] = []
@@ -377,9 +399,10 @@ def mission_to_flight_plan(
         d = -alt_rel if math.isfinite(alt_rel) else cur[2]
         if not rover and cmd in _FLY_THROUGH_COMMANDS and -d < min_height_m:
             hint = (
-                "the file was written for a ground rover (vehicleType 10)"
-                if mission.vehicle_type == 10
-                else "is this a ground-vehicle mission?"
+                "the file was written for a ground rover (vehicleType 10): fly it as a rover "
+                "(replay --vehicle rover)"
+                if mission.vehicle_type == MAV_TYPE_GROUND_ROVER
+                else "is this a ground-vehicle mission? (replay --vehicle rover)"
             )
             raise MissionError(
                 src,
