@@ -51,6 +51,8 @@ __all__ = [
 
 _log = logging.getLogger("companion.mission")
 
+FLOAT32_MAX = 3.4028234663852886e38
+"""Largest float32: mission item parameters travel as float32 (MISSION_ITEM_INT)."""
 MAX_RANGE_M = 100_000.0
 """Positions farther than this from home are rejected (usually swapped lat/lon or a wrong home);
 PX4's MIS_DIST_1WP allows at most 100 km too."""
@@ -269,6 +271,9 @@ def _validate_item(it: MissionItem, home: GeoPoint, src: Path, where: str = "") 
             )
         if rep > _MAX_REPEAT:
             raise fail(f"DO_JUMP: repeat count {int(rep)} exceeds {_MAX_REPEAT}")
+    for k in (0, 1, 2, 3, 6):  # float32 on the wire (MISSION_ITEM_INT param1-4, z)
+        if abs(it.params[k]) > FLOAT32_MAX:
+            raise fail(f"{name}: param{k + 1} {it.params[k]:g} does not fit MAVLink's float32")
     return False
 
 

@@ -1,9 +1,9 @@
 """Fuzz targets: each takes raw bytes (what hypothesis, atheris or the campaign runner feed) and
 raises only `Finding` for a broken property; the documented errors are part of normal operation.
 
-- `mission_target`: mission text -> loader -> flight plan (quad and rover) -> schedule; only
-  `MissionError` (or the schedule's own ValueError naming the file) may come out, and whatever
-  is accepted gives finite references.
+- `mission_target`: mission text -> loader -> upload frames -> flight plan (quad and rover) ->
+  schedule; only `MissionError` (or the schedule's own ValueError naming the file) may come
+  out, and whatever is accepted encodes as MISSION_ITEM_INT and gives finite references.
 - `LinkTarget`: datagrams into the companion's `VehicleLink` (parsed as UDP datagrams) on a
   fake clock; afterwards the link still recognises a valid HEARTBEAT and answers a TIMESYNC.
 - `MockTarget`: datagrams into one long-lived `sitl_mock` Autopilot (as a mock exposed to a
@@ -41,13 +41,17 @@ class Finding(AssertionError):
 # --------------------------------------------------------------------------------- mission
 def mission_target(data: bytes) -> str:
     """Load, plan and schedule; returns "rejected", "not flyable" or "flown"."""
-    from companion.replay import DEFAULT_QUAD
+    from companion.replay import DEFAULT_QUAD, mission_frames
 
     try:
         mission = loads_mission(data, source="fuzz")
     except MissionError as exc:
         _named(exc, "fuzz")
         return "rejected"
+    try:  # what the companion uploads (and writes at the head of a replay tlog) must encode
+        mission_frames(mission)
+    except MissionError as exc:
+        _named(exc, "fuzz")
     outcome = "not flyable"
     for vehicle in ("quad", "rover"):
         try:

@@ -201,3 +201,18 @@ def test_readme_links_stay_inside_the_repository() -> None:
         assert resolved.is_relative_to(ROOT), f"README links outside the repository: {target}"
         assert resolved.exists(), f"README links a missing file: {target}"
     assert "shared/MATH.md" not in readme and "shared/PX4.md" not in readme
+
+
+@pytest.mark.parametrize(("param", "value"), [(6, 1e300), (0, 1e300), (6, 1e15)])
+def test_replay_of_out_of_range_values_exits_2_with_the_item(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, param: int, value: float
+) -> None:
+    """Was an OverflowError/MemoryError traceback (exit 1) or a replay that never finished."""
+    doc = json.loads((EXAMPLES / "survey.plan").read_text())  # has a geofence
+    doc["mission"]["items"][0]["params"][param] = value
+    p = tmp_path / "edited.plan"
+    p.write_text(json.dumps(doc))
+    code, out, err = _run(capsys, ["replay", str(p), "--out", str(tmp_path / "out")])
+    assert code == EXIT_BAD_INPUT
+    assert "edited.plan: item 1:" in _one_line(err)
+    assert "Traceback" not in out + err

@@ -51,6 +51,7 @@ def _speed_item(v: float) -> Callable[[dict[str, Any]], None]:
         (_set(1, 6, 1e15), "PX4 allows at most 10000 m"),
         (_set(1, 6, -1e8), "PX4 allows at most 10000 m"),
         (_set(1, 0, 1e300), "hold time 1e+300 s exceeds 3600 s"),
+        (_set(0, 0, 1e300), "param1 1e+300 does not fit MAVLink's float32"),  # takeoff pitch
         (_set(1, 1, 1e6), "exceeds PX4's largest NAV_ACC_RAD"),
         (_speed_item(1e300), "DO_CHANGE_SPEED: 1e+300 m/s exceeds"),
         (_speed_item(40.5), "DO_CHANGE_SPEED: 40.5 m/s exceeds"),
