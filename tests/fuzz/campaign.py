@@ -137,7 +137,7 @@ def run(target: str, inputs: int, seconds: float, seed: int, out: Path, slow_s: 
             stats[key] += 1
             h = hashlib.sha1(data).hexdigest()[:12]
             (folder / f"{kind}-{h}.bin").write_bytes(data)
-            note = result if isinstance(result, str) else f"{dt:.2f} s"
+            note = result if kind == "crash" else f"{dt:.2f} s, outcome {result!r}"
             (folder / f"{kind}-{h}.txt").write_text(note)
         elif isinstance(result, str):
             stats["outcomes"][result] = stats["outcomes"].get(result, 0) + 1
