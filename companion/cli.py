@@ -7,12 +7,14 @@ Exit codes: 0 success, 1 flight/runtime failure (vehicle refused, link lost, lim
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from companion.app.campaign import add_campaign_parser
@@ -26,6 +28,24 @@ EXIT_INTERRUPTED = 130
 
 console = Console(stderr=False, width=None if sys.stdout.isatty() else 110)
 err_console = Console(stderr=True)
+
+
+def print_error(label: str, message: object, style: str = "red") -> None:
+    """`label: message` on stderr; the message is shown as written (square brackets included,
+    not read as console markup)."""
+    err_console.print(f"[{style}]{label}:[/{style}] {escape(str(message))}", soft_wrap=True)
+
+
+@contextlib.contextmanager
+def _quiet_mission_log() -> Iterator[None]:
+    """Silence the mission loader/planner warnings (for a second pass over the same file)."""
+    logger = logging.getLogger("companion.mission")
+    old = logger.disabled
+    logger.disabled = True
+    try:
+        yield
+    finally:
+        logger.disabled = old
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -54,7 +74,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     console.print(table)
     out = Path(args.out)
     save_plot(result, out / "demo.png")
-    console.print(f"Plot written to [bold]{out / 'demo.png'}[/bold]")
+    console.print(f"Plot written to [bold]{escape(str(out / 'demo.png'))}[/bold]")
     return EXIT_OK if result.limits_ok else EXIT_FAILURE
 
 
@@ -90,11 +110,13 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     config_kw["compare_px4_mission"] = args.compare_px4_mission
 
     ReplayConfig(**config_kw)  # type: ignore[arg-type]  # validate options before any work
-    # size the progress bars with the nominal mission durations (bad files fail later, cleanly)
+    # size the progress bars with the nominal mission durations (bad files fail later, cleanly,
+    # and warnings are shown then: this pass is silent)
     totals: dict[str, float] = {}
     for f in args.files:
         try:
-            fp = mission_to_flight_plan(load_mission(f), vehicle=args.vehicle)
+            with _quiet_mission_log():
+                fp = mission_to_flight_plan(load_mission(f), vehicle=args.vehicle)
             totals[f] = fp.nominal_duration_s() + 30.0
         except Exception:
             totals[f] = 1.0
@@ -104,7 +126,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         TimeElapsedColumn(), console=console, transient=False,
     ) as progress:
         tasks = {
-            f: progress.add_task(Path(f).name, total=totals[f], sim="") for f in args.files
+            f: progress.add_task(escape(Path(f).name), total=totals[f], sim="")
+            for f in args.files
         }
         if args.jobs <= 1:
             from companion.mission import MissionError
@@ -152,46 +175,67 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
                         time.sleep(0.1)  # UI refresh period, not synchronisation
     mode_label = "velocity + yaw-rate" if args.vehicle == "rover" else f"{args.mode} mode"
-    table = Table(title=f"Replay summary ({args.vehicle}, {mode_label}); outputs in {args.out}")
-    for col in ("file", "result", "duration s", "RMS err m", "max err m", "waypoints",
-                "max tilt deg", "x real time"):
+    table = Table(title=escape(f"Replay summary ({args.vehicle}, {mode_label}); outputs in "
+                               f"{args.out}"))
+    # file names are never cut: they wrap (fold) in their own column
+    widest = max([len(Path(f).name) for f in args.files] + [len(_PX4_ROW)])
+    table.add_column("file", overflow="fold", min_width=min(40, widest))
+    # two-line headers keep the table within 80-110 columns: wider tables get cut off
+    for col in ("result", "duration\ns", "RMS err\nm", "max err\nm", "waypoints",
+                "max tilt\ndeg", "x real\ntime"):
         table.add_column(col)
     exit_code = EXIT_OK
+    errors: list[str] = []
     for f in args.files:
         rep, err = results[f]
         if rep is None:
-            table.add_row(Path(f).name, f"[red]error: {err}[/red]", "", "", "", "", "", "")
-            err_console.print(f"[red]error:[/red] {err}")
+            table.add_row(escape(Path(f).name), "[red]error (below)[/red]", "", "", "", "", "",
+                          "")
+            errors.append(str(err))
             exit_code = EXIT_BAD_INPUT
             continue
-        wps = rep["waypoints"]
-        assert isinstance(wps, list)
-        missed = len(wps) - int(rep["waypoints_reached"])  # type: ignore[call-overload]
-        ok = rep["result"] == "ok" and missed == 0
+        ok, verdict = _verdict(rep)
         if not ok and exit_code == EXIT_OK:
             exit_code = EXIT_FAILURE
-        verdict = str(rep["result"]) if rep["result"] != "ok" else f"missed {missed} waypoint(s)"
         rms = rep["rms_error_m"]
         mx = rep["max_error_m"]
         table.add_row(
-            Path(f).name,
-            "[green]ok[/green]" if ok else f"[yellow]{verdict}[/yellow]",
+            escape(Path(f).name),
+            "[green]ok[/green]" if ok else f"[yellow]{escape(verdict)}[/yellow]",
             f"{rep['duration_s']:.1f}",
             "-" if rms is None else f"{rms:.2f}",
             "-" if mx is None else f"{mx:.2f}",
-            f"{rep['waypoints_reached']}/{len(wps)}",
+            f"{rep['waypoints_reached']}/{len(rep['waypoints'])}",  # type: ignore[arg-type]
             f"{rep['max_tilt_deg']:.1f}",
             f"{rep['real_time_factor']}",
         )
         px4 = rep.get("px4_mission")
         if isinstance(px4, dict):
+            px4_ok, px4_verdict = _verdict(px4)
             table.add_row(
-                "  (PX4 AUTO.MISSION)", str(px4["result"]), f"{px4['duration_s']:.1f}", "-", "-",
+                _PX4_ROW,
+                "ok" if px4_ok else f"[yellow]{escape(px4_verdict)}[/yellow]",
+                f"{px4['duration_s']:.1f}", "-", "-",
                 f"{px4['waypoints_reached']}/{len(px4['waypoints'])}",
                 f"{px4['max_tilt_deg']:.1f}", "",
             )
     console.print(table)
+    for err in errors:
+        print_error("error", err)
     return exit_code
+
+
+_PX4_ROW = "  (PX4 AUTO.MISSION)"
+
+
+def _verdict(rep: dict[str, object]) -> tuple[bool, str]:
+    """(flown completely, what went wrong) of a replay report (or its PX4 mission part)."""
+    wps = rep["waypoints"]
+    assert isinstance(wps, list)
+    missed = len(wps) - int(rep["waypoints_reached"])  # type: ignore[call-overload]
+    if rep["result"] != "ok":
+        return False, str(rep["result"])
+    return missed == 0, f"missed {missed} waypoint(s)"
 
 
 def _cmd_fly(args: argparse.Namespace) -> int:
@@ -201,7 +245,7 @@ def _cmd_fly(args: argparse.Namespace) -> int:
 
     opts = FlyOptions(
         target=args.target, connect=args.connect, mode=args.mode, rate_hz=args.rate,
-        vehicle_file=args.vehicle, log=args.log, size_m=args.size, speed_m_s=args.speed,
+        vehicle_file=args.vehicle_file, log=args.log, size_m=args.size, speed_m_s=args.speed,
         alt_m=args.alt, laps=args.laps, mock_params=tuple(args.mock_param),
         busy_wait=args.busy_wait, sender_cpu=args.sender_cpu, target_system=args.target_system,
         signing_key=args.signing_key,
@@ -225,7 +269,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     from companion.servecmd import ServeOptions, serve
 
     opts = ServeOptions(
-        connect=args.connect, mode=args.mode, rate_hz=args.rate, vehicle_file=args.vehicle,
+        connect=args.connect, mode=args.mode, rate_hz=args.rate, vehicle_file=args.vehicle_file,
         log_dir=args.log_dir, target_system=args.target_system,
         tlog_max_bytes=int(args.tlog_max_mb * 1024 * 1024), tlog_keep=args.tlog_keep,
         signing_key=args.signing_key,
@@ -243,7 +287,7 @@ def _run_vehicle_command(run: Callable[[], int]) -> int:
     except (VehicleError, TransportError, TimeoutError) as exc:
         result = getattr(exc, "result", None)
         extra = f" (MAVLink result {result})" if result is not None else ""
-        err_console.print(f"[red]flight failed:[/red] {exc}{extra}")
+        print_error("flight failed", f"{exc}{extra}")
         return EXIT_FAILURE
 
 
@@ -260,6 +304,43 @@ def _system_id(text: str) -> int:
     if not 1 <= v <= 255:
         raise argparse.ArgumentTypeError(f"a MAVLink system id is 1-255, got {text!r}")
     return v
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        v = 0
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
+    return v
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not (v > 0 and v < float("inf")):
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+    return v
+
+
+def _altitude(text: str) -> float:
+    v = _positive_float(text)
+    if not v > 0.5:
+        raise argparse.ArgumentTypeError(f"the altitude must be above 0.5 m, got {text!r}")
+    return v
+
+
+def _connect_url(text: str) -> str:
+    from companion.aio.transports import parse_url
+
+    try:
+        parse_url(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -291,7 +372,8 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--wind", type=float, default=0.0, metavar="SPEED",
                     help="steady wind speed [m/s] (default 0)")
     rp.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    rp.add_argument("--jobs", type=int, default=1, help="files replayed in parallel (default 1)")
+    rp.add_argument("--jobs", type=_positive_int, default=1,
+                    help="files replayed in parallel (default 1)")
     rp.add_argument("--out", default="replay_out", help="output folder (default ./replay_out)")
     add_perturbation_options(rp)
     rp.set_defaults(func=_cmd_replay)
@@ -301,20 +383,26 @@ def build_parser() -> argparse.ArgumentParser:
     fl = sub.add_parser("fly", help="take off, fly a mission file or pattern in offboard, land")
     fl.add_argument("target", metavar="TARGET",
                     help="a .plan / QGC WPL file, or a pattern: figure8, circle, square")
-    fl.add_argument("--connect", metavar="URL", default=None,
+    fl.add_argument("--connect", metavar="URL", default=None, type=_connect_url,
                     help="vehicle link, e.g. udpin://0.0.0.0:14540 (default: an embedded mock)")
     _target_system_option(fl)
     add_signing_option(fl)
     fl.add_argument("--mode", choices=("position", "attitude", "rates"), default="attitude")
     fl.add_argument("--rate", type=float, default=100.0, help="setpoint rate [Hz] (default 100)")
-    fl.add_argument("--vehicle", metavar="FILE.toml", default=None,
+    fl.add_argument("--vehicle-file", metavar="FILE.toml", default=None,
                     help="vehicle parameters and limits (see companion/config.py)")
+    # the former spelling; `--vehicle` is the vehicle kind (quad | rover) in `replay`
+    fl.add_argument("--vehicle", dest="vehicle_file", metavar="FILE.toml",
+                    help=argparse.SUPPRESS)
     fl.add_argument("--log", metavar="FILE.tlog", default=None,
                     help="flight log (default flight-<UTC time>.tlog here)")
-    fl.add_argument("--size", type=float, default=10.0, help="pattern size [m] (default 10)")
-    fl.add_argument("--speed", type=float, default=3.0, help="pattern speed [m/s] (default 3)")
-    fl.add_argument("--alt", type=float, default=5.0, help="pattern altitude [m] (default 5)")
-    fl.add_argument("--laps", type=int, default=1, help="pattern laps (default 1)")
+    fl.add_argument("--size", type=_positive_float, default=10.0,
+                    help="pattern size [m] (default 10)")
+    fl.add_argument("--speed", type=_positive_float, default=3.0,
+                    help="pattern speed [m/s] (default 3)")
+    fl.add_argument("--alt", type=_altitude, default=5.0,
+                    help="pattern altitude above the start [m] (> 0.5, default 5)")
+    fl.add_argument("--laps", type=_positive_int, default=1, help="pattern laps (default 1)")
     fl.add_argument("--busy-wait", action="store_true",
                     help="sender thread busy-waits each deadline (tightest timing, costs a core)")
     fl.add_argument("--sender-cpu", type=int, default=None, metavar="N",
@@ -332,8 +420,10 @@ def build_parser() -> argparse.ArgumentParser:
     _target_system_option(sv)
     sv.add_argument("--mode", choices=("position", "attitude", "rates"), default="attitude")
     sv.add_argument("--rate", type=float, default=50.0, help="setpoint rate [Hz] (default 50)")
-    sv.add_argument("--vehicle", metavar="FILE.toml", default=None,
-                    help="vehicle parameters and limits (see companion/config.py)")
+    sv.add_argument("--vehicle-file", metavar="FILE.toml", default=None,
+                    help="vehicle parameters, limits and gains (see companion/config.py)")
+    sv.add_argument("--vehicle", dest="vehicle_file", metavar="FILE.toml",
+                    help=argparse.SUPPRESS)
     sv.add_argument("--log-dir", metavar="DIR", default="ecca-logs",
                     help="folder for rotating .tlog files and events.jsonl (default ecca-logs)")
     sv.add_argument("--tlog-max-mb", type=float, default=64.0,
@@ -344,7 +434,8 @@ def build_parser() -> argparse.ArgumentParser:
     sv.set_defaults(func=_cmd_serve)
 
     stp = sub.add_parser("status", help="connect and print the vehicle state")
-    stp.add_argument("--connect", metavar="URL", required=True, help="e.g. udpin://0.0.0.0:14540")
+    stp.add_argument("--connect", metavar="URL", required=True, type=_connect_url,
+                     help="e.g. udpin://0.0.0.0:14540")
     _target_system_option(stp)
     add_signing_option(stp)
     stp.set_defaults(func=_cmd_status)
@@ -369,7 +460,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         err_console.print("[yellow]interrupted[/yellow]")
         return EXIT_INTERRUPTED
     except (ValueError, FileNotFoundError) as exc:
-        err_console.print(f"[red]error:[/red] {exc}")
+        print_error("error", exc)
         return EXIT_BAD_INPUT
 
 

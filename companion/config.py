@@ -92,13 +92,11 @@ def load_vehicle_file(path: str | Path) -> VehicleFile:
             raise ValueError(f"{p}: [{name}] unknown key(s) {sorted(extra)}; known: {sorted(keys)}")
     where = f"{p} [vehicle]"
     inertia = veh.get("inertia_kg_m2", [0.025, 0.025, 0.030])
+    mass = _number(veh, "mass_kg", where, 1.0)  # these name the file themselves
+    hover = _number(veh, "hover_thrust", where, 0.5)
+    drag = _number(veh, "drag_n_per_m_s", where, 1.0)
     try:
-        params = MultirotorParams(
-            mass=_number(veh, "mass_kg", where, 1.0),
-            inertia=inertia,
-            hover_thrust=_number(veh, "hover_thrust", where, 0.5),
-            drag=_number(veh, "drag_n_per_m_s", where, 1.0),
-        )
+        params = MultirotorParams(mass=mass, inertia=inertia, hover_thrust=hover, drag=drag)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{where}: {exc}") from None
     where = f"{p} [limits]"

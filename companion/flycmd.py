@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from rich.console import Console
 from rich.live import Live
+from rich.markup import escape
 from rich.table import Table
 
 from companion.config import VehicleFile, load_vehicle_file
@@ -117,7 +118,7 @@ def _status_table(
         if elapsed > 0:
             t.add_row("mean setpoint rate [Hz]", f"{source.calls / elapsed:.0f}")
     if v.last_status_text is not None:
-        t.add_row("vehicle says", v.last_status_text.text)
+        t.add_row("vehicle says", escape(v.last_status_text.text))
     return t
 
 
@@ -152,6 +153,11 @@ def check_inputs(opts: FlyOptions) -> FlyInputs:
     mission = None
     home = DEFAULT_HOME
     if opts.target not in PATTERNS:
+        if not Path(opts.target).is_file():
+            raise ValueError(
+                f"{opts.target}: no such mission file, and not a pattern "
+                f"(patterns: {', '.join(PATTERNS)})"
+            )
         mission = load_mission(opts.target)
         home = (mission.home.lat_deg, mission.home.lon_deg, mission.home.alt_amsl_m)
     else:
@@ -274,7 +280,7 @@ async def fly(opts: FlyOptions, console: Console) -> int:
         if url is None:
             url = await stack.enter_async_context(
                 embedded_mock(inputs.home, opts.mock_params, opts.signing_key))
-            console.print(f"No --connect: flying the embedded mock PX4 ({url})")
+            console.print(f"No --connect: flying the embedded mock PX4 ({escape(url)})")
         link = LinkConfig(target_sysid=opts.target_system if opts.connect else 1
                           ).with_signing_key(opts.signing_key)
         if link.signing is not None:
@@ -285,7 +291,8 @@ async def fly(opts: FlyOptions, console: Console) -> int:
         hb = v.link.heartbeat.last
         rover = hb is not None and hb.vehicle_type == MAV_TYPE_GROUND_ROVER
         mode = "rover" if rover else opts.mode
-        console.print(f"Connected: {'rover' if rover else 'multicopter'}, logging to {log_path}")
+        console.print(
+            f"Connected: {'rover' if rover else 'multicopter'}, logging to {escape(log_path)}")
         # every check that can fail, before the first command: plan (off the event loop,
         # up to a second) and compare the mission's home with where the vehicle is
         planned = await asyncio.to_thread(plan_flight, opts, inputs, rover)
@@ -368,8 +375,8 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                 live.update(_status_table(v, source, started, ended or 0.0))
     if report is not None:
         console.print(summary_table(report))
-        console.print(f"Report: {write_report(log_path, report)}")
-    console.print(f"Done. Log: {Path(log_path).resolve()}")
+        console.print(f"Report: {escape(str(write_report(log_path, report)))}")
+    console.print(f"Done. Log: {escape(str(Path(log_path).resolve()))}")
     return 0
 
 

@@ -241,8 +241,11 @@ def quat_log(q: ArrayLike) -> FloatArray:
     angle = 2.0 * np.arctan2(s, w)  # in [0, pi]
     small = s < _SMALL_ANGLE
     # angle / s = 2 atan2(s, w) / s -> 2 / w (1 - s^2/(3 w^2)) for small s (w ~ 1 there)
+    # both branches are evaluated: keep each one's divisor away from 0 where it is not used
     safe_s = np.where(small, 1.0, s)
-    ratio = np.where(small, 2.0 / w * (1.0 - s * s / (3.0 * w * w)), angle / safe_s)
+    safe_w = np.where(small, w, 1.0)  # w = 0 at a half turn (s = 1, not small)
+    ratio = np.where(small, 2.0 / safe_w * (1.0 - s * s / (3.0 * safe_w * safe_w)),
+                     angle / safe_s)
     return _as_float(ratio * u)
 
 

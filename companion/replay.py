@@ -502,6 +502,26 @@ def fly_schedule(
     return flight, log
 
 
+def mission_frames(mission: Mission, config: LinkConfig | None = None) -> list[bytes]:
+    """The mission as the companion would upload it to PX4 (MISSION_COUNT, then one
+    MISSION_ITEM_INT per item, from the companion's ids to the autopilot's), for the head of a
+    replay's tlog: QGroundControl and MAVExplorer show the mission of a log from these."""
+    from pymavlink.dialects.v20 import common as mavlink2
+
+    from companion.mavlink.codec import Codec
+
+    cfg = config or LinkConfig()
+    codec = Codec(cfg.sysid, cfg.compid)
+    ts, tc = cfg.target_sysid, cfg.target_compid
+    items = mission_upload_items(mission)
+    frames = [codec.encode(mavlink2.MAVLink_mission_count_message(ts, tc, len(items), 0))]
+    for u in items:
+        frames.append(codec.encode(mavlink2.MAVLink_mission_item_int_message(
+            ts, tc, u.seq, u.frame, u.command, u.current, u.autocontinue, u.param1, u.param2,
+            u.param3, u.param4, u.x, u.y, u.z, 0)))
+    return frames
+
+
 def _wire_items(mission: Mission) -> list[WireItem]:
     """The mission as MISSION_ITEM_INT fields for the mock's AUTO.MISSION."""
     return [
@@ -741,6 +761,8 @@ def run_prepared(
     """Fly a prepared mission in lockstep and summarise it (no files except `tlog`)."""
     schedule = prep.schedule
     wall0 = time.perf_counter()
+    if tlog is not None:  # the mission first, so QGroundControl/MAVExplorer show it
+        tlog.write_many(mission_frames(prep.mission), TLOG_EPOCH_S)
     flight, log = fly_schedule(config, schedule, prep.home, tlog, progress)
     wall = time.perf_counter() - wall0
     report = summarize(log, schedule, prep.mission, flight.origin)
@@ -848,6 +870,7 @@ __all__ = [
     "ReplayRun",
     "fly_px4_mission",
     "fly_schedule",
+    "mission_frames",
     "prepare_mission",
     "replay_file",
     "run_prepared",

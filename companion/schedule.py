@@ -11,8 +11,10 @@ above the touchdown point, where PX4's own landing (NAV_LAND) takes over.
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import functools
 import itertools
+import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -25,6 +27,8 @@ from companion.flatness import MultirotorParams
 from companion.mission import FlightChunk, FlightPlan, split_flight_plan
 from companion.trajectory import Limits, PiecewiseBezier, RoverLimits, hermite, plan
 from companion.trajectory.bezier import ScalarEvaluator
+
+_log = logging.getLogger("companion.schedule")
 
 FloatArray = NDArray[np.float64]
 
@@ -240,7 +244,10 @@ def build_schedule(
     wps: list[FloatArray] = []
     acc: list[float] = []
     items: list[int | None] = []
-    for ci, chunk in enumerate(chunks):
+    ci = -1
+    while ci + 1 < len(chunks):
+        ci += 1
+        chunk = chunks[ci]
         pts = np.array(chunk.points_ned_m, dtype=np.float64)
         if not rover and ci == len(chunks) - 1 and chunk.phase == "land" and (
             flight.final_action in ("land", "rtl")
@@ -252,7 +259,19 @@ def build_schedule(
         if len(pts) < 2:
             continue
         yaw_spec, y_start, y_end = _chunk_yaw(chunk, yaw, flight.vehicle)
-        traj = _plan_chunk(chunk, pts, params, limits, rover, yaw_spec)
+        try:
+            traj = _plan_chunk(chunk, pts, params, limits, rover, yaw_spec)
+        except ValueError as exc:
+            if len(chunk.points_ned_m) <= 2:
+                leg = f"{np.round(pts[0], 1)} to {np.round(pts[-1], 1)} m"
+                raise ValueError(f"{flight.source}: cannot plan the leg {leg}: {exc}") from exc
+            # numerically out of reach as a whole (e.g. a 40 km leg next to a 50 m one: the
+            # snap cost spans beyond double precision): fly it as rest-to-rest legs instead
+            _log.warning("%s: %s; flying that part leg by leg, stopping at each point",
+                         flight.source, exc)
+            chunks[ci:ci + 1] = _legs(chunk)
+            ci -= 1
+            continue
         yaw_ch = traj.yaw
         if yaw_ch is not None:
             # the planner unwraps on its own: shift its channel to start within pi of `yaw`
@@ -291,6 +310,24 @@ def build_schedule(
         final_action=flight.final_action,
         vehicle=flight.vehicle,
     )
+
+
+def _legs(chunk: FlightChunk) -> list[FlightChunk]:
+    """`chunk` split into rest-to-rest legs (one per pair of consecutive points); the hold
+    stays at the end."""
+    n = len(chunk.points_ned_m)
+    return [
+        dataclasses.replace(
+            chunk,
+            points_ned_m=chunk.points_ned_m[k:k + 2],
+            yaw_deg=chunk.yaw_deg[k:k + 2],
+            acceptance_radius_m=chunk.acceptance_radius_m[k:k + 2],
+            item_indices=chunk.item_indices[k:k + 2],
+            leg_speed_m_s=chunk.leg_speed_m_s[k:k + 1],
+            hold_after_s=chunk.hold_after_s if k == n - 2 else 0.0,
+        )
+        for k in range(n - 1)
+    ]
 
 
 def _plan_chunk(

@@ -832,19 +832,25 @@ class Autopilot:
             self.stats["param_unknown"] += 1
             return
         value = float(msg.param_value)
-        if spec.is_int:
-            if msg.param_type in (mavlink.MAV_PARAM_TYPE_REAL32, mavlink.MAV_PARAM_TYPE_REAL64):
-                if not math.isfinite(value):
-                    return
-                new = float(round(value))
-            else:
-                new = float(_int_of_float_bits(value))
-        else:
-            new = value
-        try:
-            self.params.set(name, new)
-        except ValueError:
+        real = (mavlink.MAV_PARAM_TYPE_REAL32, mavlink.MAV_PARAM_TYPE_REAL64)
+        problem: str | None = None
+        new = value
+        if spec.is_int and msg.param_type == mavlink.MAV_PARAM_TYPE_INT32:
+            new = float(_int_of_float_bits(value))
+        elif spec.is_int and msg.param_type in real:
+            pass  # lenient (PX4 refuses): an integral float value is taken, checked below
+        elif spec.is_int or msg.param_type not in real:
+            problem = "param types mismatch"  # PX4's words ("[pm] param types mismatch ...")
+        if problem is None:
+            try:
+                self.params.set(name, new)
+            except ValueError as exc:
+                problem = str(exc)
+        if problem is not None:
+            # PX4 takes any in-type value; the mock refuses what would break its simulation or
+            # lies outside PX4's metadata range, says why, and echoes the unchanged value
             self.stats["param_rejected"] += 1
+            self.statustext(mavlink.MAV_SEVERITY_ERROR, f"[pm] {name}: {problem}")
         self._broadcast(self._param_value(name))
 
     # ---------------------------------------------------------------- mission protocol
@@ -1439,7 +1445,7 @@ class Autopilot:
             if landed and self._taken_off:
                 if self._landed_since is None:
                     self._landed_since = t
-                elif t - self._landed_since >= float(p["COM_DISARM_LAND"]):
+                elif 0.0 <= float(p["COM_DISARM_LAND"]) <= t - self._landed_since:
                     self._disarm("auto disarm on land")
                     return
             else:

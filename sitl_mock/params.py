@@ -7,17 +7,39 @@ Append new parameters here; never rename one (clients address them by name).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 
 @dataclass(frozen=True)
 class ParamSpec:
-    """One parameter: default value, whether it is an INT32 on the wire, and a short description."""
+    """One parameter: default value, whether it is an INT32 on the wire, a short description, and
+    the accepted values: ``lo..hi`` (inclusive) and, for enumerations, the listed ``values``.
+    ``mock_range`` is True where the range is the mock's own (PX4 has none, or PX4's would break
+    the simulation, e.g. a mass of 0 kg); False where it is PX4's parameter metadata."""
 
     default: float
     is_int: bool
     doc: str
+    lo: float = -math.inf
+    hi: float = math.inf
+    values: tuple[int, ...] = ()
+    mock_range: bool = False
+
+    def check(self, name: str, value: float) -> float:
+        """The value as stored (integers rounded), or ValueError naming the accepted range."""
+        v = float(value)
+        if not math.isfinite(v):
+            raise ValueError(f"parameter {name} must be finite, got {value!r}")
+        if self.is_int and not v.is_integer():
+            raise ValueError(f"parameter {name} is an integer, got {value!r}")
+        if self.values and v not in self.values:
+            allowed = ", ".join(str(x) for x in self.values)
+            raise ValueError(f"parameter {name}: {v:g} is not one of {allowed}")
+        if not self.lo <= v <= self.hi:
+            raise ValueError(f"parameter {name}: {v:g} out of range {self.lo:g}..{self.hi:g}")
+        return v
 
 
 PARAMS: dict[str, ParamSpec] = {
@@ -133,14 +155,12 @@ class ParamStore(Mapping[str, float]):
         return len(self._values)
 
     def set(self, name: str, value: float) -> None:
-        """Set a known parameter; integer parameters are rounded."""
+        """Set a known parameter; ValueError (value unchanged) if the value is not finite, not an
+        integer for an integer parameter, or outside the parameter's range (`ParamSpec`)."""
         spec = PARAMS.get(name)
         if spec is None:
             raise KeyError(f"unknown parameter {name!r}")
-        v = float(value)
-        if v != v or v in (float("inf"), float("-inf")):
-            raise ValueError(f"parameter {name} must be finite, got {value!r}")
-        self._values[name] = float(round(v)) if spec.is_int else v
+        self._values[name] = spec.check(name, value)
         self.version += 1
 
     def index(self, name: str) -> int:
@@ -168,10 +188,144 @@ PARAMS.update(
             0.0, False, "std of the slowly varying horizontal estimator error [m] (0 = off)"
         ),
         "SIM_EST_XY_TAU": ParamSpec(1.7, False, "time constant of the estimator errors [s]"),
-        # AUTO trajectory jerk limit (PX4 default 4; 0 = the mock's earlier unlimited ramps)
+        # AUTO trajectory jerk limit (PX4 default 4, range 1-80)
         "MPC_JERK_AUTO": ParamSpec(4.0, False, "jerk limit of AUTO trajectories [m/s^3]"),
         "SIM_EST_VXY_STD": ParamSpec(
             0.0, False, "std of the slowly varying horizontal velocity estimate error [m/s]"
         ),
     }
 )
+
+# Accepted values: PX4 v1.16 parameter metadata (min, max, enumerated values; the build's
+# etc/extras/parameters.json, checked by tests/unit/test_sitl_param_ranges.py) for every parameter
+# PX4 has. `_MOCK_RANGES` below replaces or completes a range where PX4 gives none or PX4's would
+# break the simulation (PX4 itself does not enforce ranges on PARAM_SET; the mock does).
+PX4_RANGES: dict[str, tuple[float | None, float | None, tuple[int, ...]]] = {
+    "MAV_SYS_ID": (1, 250, ()),
+    "COM_OF_LOSS_T": (0.0, 60.0, ()),
+    "COM_OBL_RC_ACT": (None, None, (0, 1, 2, 3, 4, 5, 6, 7)),
+    "COM_DISARM_PRFLT": (None, None, ()),
+    "COM_DISARM_LAND": (None, None, ()),
+    "COM_ARM_WO_GPS": (None, None, (0, 1, 2)),
+    "MIS_TAKEOFF_ALT": (0.0, None, ()),
+    "NAV_ACC_RAD": (0.05, 200.0, ()),
+    "RTL_RETURN_ALT": (0.0, None, ()),
+    "MPC_THR_HOVER": (0.1, 0.8, ()),
+    "MPC_THR_MIN": (0.05, 0.5, ()),
+    "MPC_THR_MAX": (0.0, 1.0, ()),
+    "MPC_XY_CRUISE": (3.0, 20.0, ()),
+    "MPC_XY_VEL_MAX": (0.0, 20.0, ()),
+    "MPC_Z_VEL_MAX_UP": (0.5, 8.0, ()),
+    "MPC_Z_VEL_MAX_DN": (0.5, 4.0, ()),
+    "MPC_TKO_SPEED": (1.0, 5.0, ()),
+    "MPC_LAND_SPEED": (0.6, None, ()),
+    "MPC_TILTMAX_AIR": (20.0, 89.0, ()),
+    "MPC_ACC_HOR": (2.0, 15.0, ()),
+    "MPC_XY_P": (0.0, 2.0, ()),
+    "MPC_Z_P": (0.1, 1.5, ()),
+    "MPC_XY_VEL_P_ACC": (1.2, 5.0, ()),
+    "MPC_XY_VEL_I_ACC": (0.0, 60.0, ()),
+    "MPC_XY_VEL_D_ACC": (0.1, 2.0, ()),
+    "MPC_Z_VEL_P_ACC": (2.0, 15.0, ()),
+    "MPC_Z_VEL_I_ACC": (0.2, 3.0, ()),
+    "MPC_Z_VEL_D_ACC": (0.0, 2.0, ()),
+    "MPC_JERK_AUTO": (1.0, 80.0, ()),
+    "MC_ROLL_P": (0.0, 12.0, ()),
+    "MC_PITCH_P": (0.0, 12.0, ()),
+    "MC_YAW_P": (0.0, 5.0, ()),
+    "MC_ROLLRATE_MAX": (0.0, 1800.0, ()),
+    "MC_PITCHRATE_MAX": (0.0, 1800.0, ()),
+    "MC_YAWRATE_MAX": (0.0, 1800.0, ()),
+    "SIH_MASS": (0.0, None, ()),
+    "SIH_IXX": (0.0, None, ()),
+    "SIH_IYY": (0.0, None, ()),
+    "SIH_IZZ": (0.0, None, ()),
+    "SIH_T_MAX": (0.0, None, ()),
+    "SIH_Q_MAX": (0.0, None, ()),
+    "SIH_L_ROLL": (0.0, None, ()),
+    "SIH_L_PITCH": (0.0, None, ()),
+    "SIH_KDV": (0.0, None, ()),
+    "SIH_KDW": (0.0, None, ()),
+    "SIH_T_TAU": (None, None, ()),
+    "SIM_BAT_DRAIN": (1.0, 86400.0, ()),
+    "SIM_BAT_MIN_PCT": (0.0, 100.0, ()),
+    "MC_ROLLRATE_P": (0.01, 0.5, ()),
+    "MC_ROLLRATE_I": (0.0, None, ()),
+    "MC_ROLLRATE_D": (0.0, 0.01, ()),
+    "MC_PITCHRATE_P": (0.01, 0.6, ()),
+    "MC_PITCHRATE_I": (0.0, None, ()),
+    "MC_PITCHRATE_D": (0.0, None, ()),
+    "MC_YAWRATE_P": (0.0, 0.6, ()),
+    "MC_YAWRATE_I": (0.0, None, ()),
+    "MC_YAWRATE_D": (0.0, None, ()),
+    "MC_YAW_WEIGHT": (0.0, 1.0, ()),
+    "MPC_THR_XY_MARG": (0.0, 0.5, ()),
+    "MPC_TKO_RAMP_T": (0.0, 5.0, ()),
+    "COM_SPOOLUP_TIME": (0.0, 30.0, ()),
+    "MPC_LAND_ALT1": (0.0, 122.0, ()),
+    "MPC_LAND_ALT2": (0.0, 122.0, ()),
+    "MPC_ACC_UP_MAX": (2.0, 15.0, ()),
+    "MPC_ACC_DOWN_MAX": (2.0, 15.0, ()),
+    "NAV_MC_ALT_RAD": (0.05, 200.0, ()),
+    "MPC_TILTMAX_LND": (5.0, 89.0, ()),
+    "BAT_LOW_THR": (0.12, 0.5, ()),
+    "BAT_CRIT_THR": (0.05, 0.5, ()),
+    "BAT_EMERGEN_THR": (0.03, 0.5, ()),
+    "COM_LOW_BAT_ACT": (None, None, (0, 2, 3)),
+}
+
+_MOCK_RANGES: dict[str, tuple[float, float]] = {
+    # PX4 has no range: the mock's (disarm timeouts: -1 disables, as in PX4)
+    "COM_DISARM_PRFLT": (-1.0, 3600.0),
+    "COM_DISARM_LAND": (-1.0, 3600.0),
+    "MIS_TAKEOFF_ALT": (0.0, 10_000.0),  # GF_MAX_VER_DIST's maximum
+    "RTL_RETURN_ALT": (0.0, 10_000.0),
+    "MPC_LAND_SPEED": (0.6, 4.0),  # MPC_Z_VEL_MAX_DN's maximum
+    "MC_ROLLRATE_I": (0.0, 10.0),
+    "MC_PITCHRATE_I": (0.0, 10.0),
+    "MC_YAWRATE_I": (0.0, 10.0),
+    "MC_PITCHRATE_D": (0.0, 0.1),
+    "MC_YAWRATE_D": (0.0, 0.1),
+    # SIH: PX4 allows 0 (a division by zero in SIH too) and has no maximum; small vehicles only
+    "SIH_MASS": (0.05, 100.0),
+    "SIH_IXX": (1e-4, 10.0),
+    "SIH_IYY": (1e-4, 10.0),
+    "SIH_IZZ": (1e-4, 10.0),
+    "SIH_T_MAX": (0.1, 1000.0),
+    "SIH_Q_MAX": (1e-3, 100.0),
+    "SIH_L_ROLL": (0.01, 5.0),
+    "SIH_L_PITCH": (0.01, 5.0),
+    "SIH_KDV": (0.0, 100.0),
+    "SIH_KDW": (0.0, 10.0),
+    "SIH_T_TAU": (1e-3, 10.0),
+    # mock-only parameters
+    "RO_MAX_SPEED": (0.1, 100.0),
+    "RO_MAX_YAW_RATE": (1.0, 1800.0),
+    "RO_MAX_ACCEL": (0.1, 100.0),
+    "SIM_POS_NOISE": (0.0, 10.0),
+    "SIM_VEL_NOISE": (0.0, 10.0),
+    "SIM_GYRO_NOISE": (0.0, 1.0),
+    "SIM_WIND_GUST": (0.0, 30.0),
+    "SIM_WIND_GUST_T": (0.05, 600.0),
+    "SIM_EST_XY_STD": (0.0, 10.0),
+    "SIM_EST_VXY_STD": (0.0, 10.0),
+    "SIM_EST_XY_TAU": (0.05, 600.0),
+}
+
+
+def _with_ranges() -> None:
+    for name, spec in PARAMS.items():
+        lo, hi, values = PX4_RANGES.get(name, (None, None, ()))
+        mock = name in _MOCK_RANGES
+        if mock:
+            lo, hi = _MOCK_RANGES[name]
+        PARAMS[name] = replace(
+            spec,
+            lo=-math.inf if lo is None else float(lo),
+            hi=math.inf if hi is None else float(hi),
+            values=values,
+            mock_range=mock,
+        )
+
+
+_with_ranges()

@@ -59,6 +59,21 @@ _SPLIT_ABOVE_S = MAX_STEP_S + 1e-12
 _RATE_TICK_S = RATE_LOOP_PERIOD_S - 1e-9
 
 
+
+# Guards of the explicit integrator: parameter combinations at the ends of their ranges (a
+# 0.05 kg vehicle with 100 N/(m/s) drag, 1e-4 kg m^2 inertia against 10 kg m^2) make it
+# unstable; the state is held to these bounds (NaN -> 0) so the simulation goes on instead of
+# overflowing. Never reached with physical parameters.
+_W_LIMIT = 200.0  # body rate [rad/s]
+_V_LIMIT = 1_000.0  # velocity [m/s]
+_P_LIMIT = 1.0e7  # position [m]
+
+
+def _bounded(xs: tuple[float, ...], limit: float) -> tuple[float, ...]:
+    """Each value clamped to [-limit, limit]; NaN becomes 0."""
+    return tuple(0.0 if x != x else max(-limit, min(limit, x)) for x in xs)
+
+
 class Quadrotor:
     """PX4 SIH-like quadrotor with a PX4-like controller; see the module docstring."""
 
@@ -780,6 +795,12 @@ class Quadrotor:
         dwy = (my - kdw * hy - d_zx * hz * hx) / iyy
         dwz = (mz - kdw * hz - d_xy * hx * hy) / izz
         nwx, nwy, nwz = wx + dt * dwx, wy + dt * dwy, wz + dt * dwz
+        if not (abs(nwx) < _W_LIMIT and abs(nwy) < _W_LIMIT and abs(nwz) < _W_LIMIT
+                and abs(hx) < _W_LIMIT and abs(hy) < _W_LIMIT and abs(hz) < _W_LIMIT
+                and abs(nvx) < _V_LIMIT and abs(nvy) < _V_LIMIT and abs(nvz) < _V_LIMIT):
+            hx, hy, hz, nwx, nwy, nwz = _bounded((hx, hy, hz, nwx, nwy, nwz), _W_LIMIT)
+            nvx, nvy, nvz = _bounded((nvx, nvy, nvz), _V_LIMIT)
+            px, py, pz = _bounded((px, py, pz), _P_LIMIT)
         # attitude: q <- q * exp(omega_mid dt / 2)
         ang = math.sqrt(hx * hx + hy * hy + hz * hz) * dt
         if ang > 1e-12:

@@ -49,7 +49,7 @@ def parse_url(url: str) -> Endpoint:
         dev, colon, baud = rest.rpartition(":")
         if not colon:  # no baud rate given
             dev, baud = rest, str(DEFAULT_BAUD)
-        if not dev or not baud.isdigit() or int(baud) <= 0:
+        if not dev or not baud.isdigit() or not 1 <= int(baud) <= 100_000_000:
             raise ValueError(f"bad serial URL {url!r}: expected serial:///dev/ttyACM0:921600, "
                              "/dev/ttyACM0 or /dev/ttyACM0:57600")
         return Endpoint("serial", "", int(baud), dev)
@@ -62,6 +62,9 @@ def parse_url(url: str) -> Endpoint:
     host, _, port = rest.rpartition(":")
     if not port.isdigit():
         raise ValueError(f"connection URL {url!r} needs a numeric port")
+    lowest = 0 if scheme == "udpin" else 1  # udpin port 0: any free port
+    if not lowest <= int(port) <= 65535:
+        raise ValueError(f"connection URL {url!r}: port {int(port)} out of range {lowest}..65535")
     host = host.strip("[]") or ("0.0.0.0" if scheme == "udpin" else "127.0.0.1")
     return Endpoint(scheme, host, int(port))
 
@@ -83,6 +86,10 @@ def sockaddr_bytes(family: int, address: tuple[object, ...]) -> bytes:
 
 class Transport:
     """Base class: thread-safe ``send``, asyncio ``recv``, ``close``."""
+
+    #: True where each ``recv()`` chunk is one whole datagram (UDP): parse it on its own, a
+    #: partial frame never carries over to the next one. False for byte streams (TCP, serial).
+    datagrams: bool = False
 
     def __init__(self) -> None:
         self._queue: asyncio.Queue[bytes] = asyncio.Queue(maxsize=4096)
@@ -166,6 +173,8 @@ class Transport:
 
 class UdpTransport(Transport):
     """UDP, either listening (udpin: the peer is whoever sent last) or sending (udpout)."""
+
+    datagrams = True
 
     def __init__(self, ep: Endpoint, loop: asyncio.AbstractEventLoop) -> None:
         super().__init__()

@@ -379,7 +379,7 @@ class Vehicle:
                 continue
             now = time.monotonic()
             events: list[Any] = []
-            for msg in codec.decode(data):
+            for msg in codec.decode(data, datagram=self.transport.datagrams):
                 if self.tlog is not None:
                     self.tlog.write(raw_frame(msg))
                 events += self.link.handle_message(msg, now)

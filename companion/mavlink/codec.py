@@ -203,13 +203,26 @@ class Codec:
                 frame = signer.sign(frame, link_id)
         return frame
 
-    def decode(self, data: bytes | bytearray) -> list[MavMessage]:
+    def decode(self, data: bytes | bytearray, *, datagram: bool = False) -> list[MavMessage]:
         """Parse bytes (any fragmentation) into complete, CRC-valid MAVLink 2 messages.
 
-        Same messages, order and drop count as pymavlink's ``parse_buffer`` filtered to valid
-        MAVLink 2 frames; an incomplete trailing frame is kept for the next call.
+        Byte streams (TCP, serial; ``datagram=False``): same messages, order and drop count as
+        pymavlink's ``parse_buffer`` filtered to valid MAVLink 2 frames; an incomplete trailing
+        frame is kept for the next call. Datagram links (UDP; ``datagram=True``): ``data`` is one
+        datagram, parsed on its own: nothing carries over to the next datagram (a frame never
+        spans two), and a header whose length runs past the datagram's end is dropped and the
+        parser resynchronises at the next magic byte of the same datagram.
         """
-        buf = self._pending + bytes(data) if self._pending else bytes(data)
+        if datagram:
+            saved, self._pending = self._pending, b""
+            try:
+                return self._decode(bytes(data), datagram=True)
+            finally:
+                self._pending = saved
+        return self._decode(self._pending + bytes(data) if self._pending else bytes(data),
+                            datagram=False)
+
+    def _decode(self, buf: bytes, *, datagram: bool) -> list[MavMessage]:
         n = len(buf)
         out: list[MavMessage] = []
         layouts = self._layouts
@@ -227,12 +240,19 @@ class Codec:
                 self.dropped_frames += 1
                 continue
             if n - i < 3:
+                if datagram:  # a truncated header at the end of a datagram
+                    self.dropped_frames += 1
+                    i = n
                 break
             start = i
             mlen = buf[i + 1]
             if magic != MAVLINK2_MAGIC:  # MAVLink 1: pymavlink frames it by length; we drop it
                 i += _V1_HEADER_LEN + 2 + mlen
                 if i > n:
+                    if datagram:  # runs past the datagram: not a frame, look further on
+                        self.dropped_frames += 1
+                        i = start + 1
+                        continue
                     i = start
                     break
                 self.dropped_frames += 1
@@ -241,10 +261,16 @@ class Codec:
             pend = i + _V2_HEADER_LEN + mlen
             i = pend + 2 + (_SIGNATURE_LEN if flags & _IFLAG_SIGNED else 0)
             if i > n:
+                if datagram:
+                    self.dropped_frames += 1
+                    i = start + 1
+                    continue
                 i = start
                 break
             if flags & ~_IFLAG_SIGNED:
                 self.dropped_frames += 1  # incompat flags pymavlink rejects
+                if datagram:  # a rejected frame may hide a real one: resynchronise
+                    i = start + 1
                 continue
             msg_id = buf[start + 7] | (buf[start + 8] << 8) | (buf[start + 9] << 16)
             layout = layouts.get(msg_id, _MISSING)
@@ -254,6 +280,8 @@ class Codec:
                 msg = self._slow_decode(buf[start:i])
                 if msg is None:
                     self.dropped_frames += 1
+                    if datagram:
+                        i = start + 1
                 elif signer is None:
                     out.append(msg)
                 elif signer.verify(buf[start:i]).ok:
@@ -269,6 +297,8 @@ class Codec:
             if crc != crc16(extra, crc16(buf[start + 1:pend], 0xFFFF)) and not (
                     mavlink2.MAVLINK_IGNORE_CRC):
                 self.dropped_frames += 1
+                if datagram:
+                    i = start + 1
                 continue
             if signer is not None and not signer.verify(buf[start:i]).ok:
                 self.rejected_frames += 1  # unsigned (and not on the allowed list)

@@ -131,10 +131,11 @@ class VehicleLink:
         return self.codec.encode(build_setpoint(sp, ts, tc, tbm), lid)
 
     # -- input ------------------------------------------------------------------------------
-    def receive_bytes(self, data: bytes, now: float) -> list[LinkEvent]:
-        """Decode bytes from the transport and handle every complete message."""
+    def receive_bytes(self, data: bytes, now: float, *, datagram: bool = False) -> list[LinkEvent]:
+        """Decode bytes from the transport and handle every complete message; ``datagram``:
+        ``data`` is one whole datagram (UDP), parsed on its own (see ``Codec.decode``)."""
         events: list[LinkEvent] = []
-        for msg in self.codec.decode(data):
+        for msg in self.codec.decode(data, datagram=datagram):
             events += self.handle_message(msg, now)
         return events
 

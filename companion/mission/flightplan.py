@@ -213,6 +213,16 @@ def _wrap_deg(a: float) -> float:
     return (a + 180.0) % 360.0 - 180.0
 
 
+MAV_TYPE_GROUND_ROVER = 10
+_MULTICOPTER_TYPES = frozenset({2, 3, 4, 13, 14, 15})
+"""MAV_TYPE quadrotor, coaxial, helicopter, hexarotor, octorotor, tricopter."""
+_MAV_TYPE_NAMES = {
+    1: "fixed-wing aircraft", 2: "quadrotor", 3: "coaxial helicopter", 4: "helicopter",
+    10: "ground rover", 11: "surface boat", 12: "submarine", 13: "hexarotor", 14: "octorotor",
+    15: "tricopter", 19: "VTOL", 20: "VTOL", 21: "VTOL", 22: "VTOL", 23: "VTOL", 24: "VTOL",
+}
+
+
 def mission_to_flight_plan(
     mission: Mission,
     *,
@@ -256,6 +266,18 @@ def mission_to_flight_plan(
         text = f"{src}: item {item.index}: {msg}" if item is not None else f"{src}: {msg}"
         warnings.append(text)
         _log.warning(text)
+
+    vtype = mission.vehicle_type
+    if vtype is not None and vtype != 0:
+        written_for = _MAV_TYPE_NAMES.get(vtype, f"MAV_TYPE {vtype}")
+        if rover and vtype != MAV_TYPE_GROUND_ROVER:
+            warn(f"the file was written for a {written_for} (vehicleType {vtype}); "
+                 "flying it as a ground rover")
+        elif not rover and vtype not in _MULTICOPTER_TYPES:
+            hint = ("; fly it as a rover (replay --vehicle rover)"
+                    if vtype == MAV_TYPE_GROUND_ROVER else "")
+            warn(f"the file was written for a {written_for} (vehicleType {vtype}); "
+                 f"flying it as a multicopter{hint}")
 
     executed = expand_jumps(mission, max_items=max_items)
     wps: list[FlightWaypoint] = []
@@ -377,9 +399,10 @@ def mission_to_flight_plan(
         d = -alt_rel if math.isfinite(alt_rel) else cur[2]
         if not rover and cmd in _FLY_THROUGH_COMMANDS and -d < min_height_m:
             hint = (
-                "the file was written for a ground rover (vehicleType 10)"
-                if mission.vehicle_type == 10
-                else "is this a ground-vehicle mission?"
+                "the file was written for a ground rover (vehicleType 10): fly it as a rover "
+                "(replay --vehicle rover)"
+                if mission.vehicle_type == MAV_TYPE_GROUND_ROVER
+                else "is this a ground-vehicle mission? (replay --vehicle rover)"
             )
             raise MissionError(
                 src,
@@ -496,8 +519,13 @@ def mission_to_flight_plan(
     return replace(plan, warnings=tuple(warnings))
 
 
+_FENCE_SAMPLES = 200_000
+"""Sample budget of the geofence check of the legs (1 m apart up to a 200 km flight)."""
+
+
 def _fence_messages(plan: FlightPlan) -> list[str]:
-    """Waypoints and straight legs (sampled every <= 1 m) that breach the geofence."""
+    """Waypoints and straight legs (sampled every max(1 m, flight length / 200 000)) that
+    breach the geofence."""
     fence = plan.geofence
     if fence.empty:
         return []
@@ -510,9 +538,12 @@ def _fence_messages(plan: FlightPlan) -> list[str]:
         what = "outside every inclusion zone" if v.zone == "inclusion" else f"inside {v.zone}"
         msgs.append(f"geofence: waypoint {v.point_index} ({label}) is {what}")
     allp = plan.points_ned_m()
+    lengths = np.linalg.norm(np.diff(allp, axis=0), axis=1) if len(allp) > 1 else np.zeros(0)
+    # every metre, coarser on very long flights: at most ~_FENCE_SAMPLES samples in all
+    spacing = max(1.0, float(np.sum(lengths)) / _FENCE_SAMPLES)
     for i in range(len(allp) - 1):
         a, b = allp[i], allp[i + 1]
-        n = max(2, math.ceil(float(np.linalg.norm(b - a))) + 1)
+        n = max(2, math.ceil(float(lengths[i]) / spacing) + 1)
         s = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)
         zones = sorted({v.zone for v in fence.violations(s[1:-1])}) if n > 2 else []
         for z in zones:

@@ -41,12 +41,33 @@ from companion.mission.model import (
     frame_name,
 )
 
-__all__ = ["MAX_RANGE_M", "load_mission", "loads_mission", "parse_plan", "parse_wpl"]
+__all__ = [
+    "MAX_ACCEPT_RADIUS_M",
+    "MAX_HEIGHT_M",
+    "MAX_HOLD_S",
+    "MAX_RANGE_M",
+    "MAX_SPEED_M_S",
+    "load_mission", "loads_mission", "parse_plan", "parse_wpl"]
 
 _log = logging.getLogger("companion.mission")
 
+FLOAT32_MAX = 3.4028234663852886e38
+"""Largest float32: mission item parameters travel as float32 (MISSION_ITEM_INT)."""
 MAX_RANGE_M = 100_000.0
-"""Positions farther than this from home are rejected (usually swapped lat/lon or a wrong home)."""
+"""Positions farther than this from home are rejected (usually swapped lat/lon or a wrong home);
+PX4's MIS_DIST_1WP allows at most 100 km too."""
+MAX_HEIGHT_M = 10_000.0
+"""Largest altitude above or below home [m]: the maximum of PX4's GF_MAX_VER_DIST."""
+HOME_ALT_RANGE_M = (-1_000.0, 10_000.0)
+"""Accepted home altitudes AMSL [m] (below the Dead Sea shore to above Everest)."""
+MAX_SPEED_M_S = 40.0
+"""Largest DO_CHANGE_SPEED [m/s]: the maximum of PX4's GND_SPEED_MAX (rover); a multicopter's
+MPC_XY_VEL_MAX tops out at 20 m/s and the planner caps the speed at the vehicle's limit."""
+MAX_ACCEPT_RADIUS_M = 200.0
+"""Largest waypoint acceptance radius [m]: the maximum of PX4's NAV_ACC_RAD."""
+MAX_HOLD_S = 3_600.0
+"""Longest hold / loiter time of one item [s]. PX4 has no limit of its own (a float32); an hour
+is beyond any multicopter's endurance, and a longer hold would stall a replay."""
 
 POSITION_COMMANDS = frozenset(
     {
@@ -210,11 +231,35 @@ def _validate_item(it: MissionItem, home: GeoPoint, src: Path, where: str = "") 
             _latlon_check(it.lat_deg, it.lon_deg, home, name, fail)
         if cmd == CMD_WAYPOINT and not math.isfinite(it.alt_m):
             raise fail("NAV_WAYPOINT needs an altitude")
+        height = it.alt_rel_home_m(home)
+        if math.isfinite(height) and abs(height) > MAX_HEIGHT_M:
+            raise fail(
+                f"{name}: altitude {it.alt_m:g} m is {height:g} m from home's altitude; PX4 "
+                f"allows at most {MAX_HEIGHT_M:g} m (GF_MAX_VER_DIST); check the frame "
+                "(0 AMSL, 3 relative)"
+            )
         hold = it.params[0]
-        if cmd in (CMD_WAYPOINT, CMD_LOITER_TIME) and math.isfinite(hold) and hold < 0:
-            raise fail(f"{name}: hold time {it.params[0]} s must not be negative")
-        if cmd == CMD_WAYPOINT and math.isfinite(it.params[1]) and it.params[1] < 0:
-            raise fail(f"NAV_WAYPOINT: acceptance radius {it.params[1]} m must not be negative")
+        if cmd in (CMD_WAYPOINT, CMD_LOITER_TIME) and math.isfinite(hold):
+            if hold < 0:
+                raise fail(f"{name}: hold time {it.params[0]} s must not be negative")
+            if hold > MAX_HOLD_S:
+                raise fail(f"{name}: hold time {hold:g} s exceeds {MAX_HOLD_S:g} s")
+        radius = it.params[1]
+        if cmd == CMD_WAYPOINT and math.isfinite(radius):
+            if radius < 0:
+                raise fail(f"NAV_WAYPOINT: acceptance radius {radius} m must not be negative")
+            if radius > MAX_ACCEPT_RADIUS_M:
+                raise fail(
+                    f"NAV_WAYPOINT: acceptance radius {radius:g} m exceeds PX4's largest "
+                    f"NAV_ACC_RAD, {MAX_ACCEPT_RADIUS_M:g} m"
+                )
+    elif cmd == CMD_DO_CHANGE_SPEED:
+        speed = it.params[1]
+        if math.isfinite(speed) and speed > MAX_SPEED_M_S:
+            raise fail(
+                f"DO_CHANGE_SPEED: {speed:g} m/s exceeds PX4's largest speed limit, "
+                f"{MAX_SPEED_M_S:g} m/s (GND_SPEED_MAX; multicopters MPC_XY_VEL_MAX <= 20 m/s)"
+            )
     elif cmd == CMD_DO_JUMP:
         rep = it.params[1]
         if not math.isfinite(rep) or not float(rep).is_integer():
@@ -226,6 +271,9 @@ def _validate_item(it: MissionItem, home: GeoPoint, src: Path, where: str = "") 
             )
         if rep > _MAX_REPEAT:
             raise fail(f"DO_JUMP: repeat count {int(rep)} exceeds {_MAX_REPEAT}")
+    for k in (0, 1, 2, 3, 6):  # float32 on the wire (MISSION_ITEM_INT param1-4, z)
+        if abs(it.params[k]) > FLOAT32_MAX:
+            raise fail(f"{name}: param{k + 1} {it.params[k]:g} does not fit MAVLink's float32")
     return False
 
 
@@ -319,6 +367,9 @@ def _home_check(home: GeoPoint, src: Path, what: str) -> GeoPoint:
         raise fail(f"{what}: latitude {home.lat_deg} / longitude {home.lon_deg} out of range")
     if not math.isfinite(home.alt_amsl_m):
         raise fail(f"{what}: altitude must be a finite number")
+    lo, hi = HOME_ALT_RANGE_M
+    if not lo <= home.alt_amsl_m <= hi:
+        raise fail(f"{what}: altitude {home.alt_amsl_m:g} m AMSL out of range {lo:g}..{hi:g} m")
     return home
 
 
@@ -540,8 +591,11 @@ def _plan_geofence(raw: Any, home: GeoPoint, fail: Callable[..., MissionError]) 
             return fail(f"{what}: {msg}")
 
         radius = _as_float(circ.get("radius"), "radius", f, nullable=False)
-        if not (math.isfinite(radius) and radius > 0.0):
-            raise fail(f"{what}: radius must be a positive number of metres, got {radius}")
+        if not (math.isfinite(radius) and 0.0 < radius <= 2 * MAX_RANGE_M):
+            raise fail(
+                f"{what}: radius must be a positive number of metres up to "
+                f"{2 * MAX_RANGE_M:g}, got {radius}"
+            )
         circles.append(FenceCircle(inclusion, lat, lon, _ne(lat, lon, home), radius))
     return Geofence(tuple(polygons), tuple(circles))
 
@@ -567,8 +621,8 @@ def _plan_rally(
             return fail(f"{what}: {msg}")
 
         alt = _as_float(rp[2], "altitude", f, nullable=False)
-        if not math.isfinite(alt):
-            raise fail(f"{what}: altitude must be finite")
+        if not (math.isfinite(alt) and abs(alt) <= MAX_HEIGHT_M):
+            raise fail(f"{what}: altitude must be finite and within {MAX_HEIGHT_M:g} m of home")
         n, e = _ne(lat, lon, home)
         out.append(RallyPoint(lat, lon, alt, (n, e, -alt)))
     return tuple(out)

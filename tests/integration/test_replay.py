@@ -59,6 +59,36 @@ def test_every_waypoint_reached_from_tlog_positions(replayed: Path) -> None:
         assert closest <= radius, f"waypoint {i + 1}: closest approach {closest:.2f} m > {radius} m"
 
 
+def test_tlog_carries_the_mission_items_at_the_file_coordinates(replayed: Path) -> None:
+    """QGroundControl and MAVExplorer show a log's mission from its MISSION_ITEM_INT frames."""
+    from pymavlink import mavwp
+
+    plan = json.loads(MISSION.read_text())
+    in_file = [it for it in plan["mission"]["items"] if it["command"] in (16, 22, 21)]
+    mlog = mavutil.mavlink_connection(str(replayed / "flight.tlog"))
+    # one type set per connection: pymavlink's indexed tlog reader keeps the first one
+    kinds = ["MISSION_COUNT", "MISSION_ITEM_INT"]
+    count = mlog.recv_match(type=kinds)
+    assert count is not None and count.get_type() == "MISSION_COUNT"
+    assert count.count == len(plan["mission"]["items"])
+    loader = mavwp.MAVWPLoader()
+    items = []
+    while len(items) < count.count:
+        m = mlog.recv_match(type=kinds)
+        assert m is not None and m.get_type() == "MISSION_ITEM_INT"
+        items.append(m)
+        loader.set(m, m.seq)
+    assert loader.count() == count.count
+    assert [m.seq for m in items] == list(range(count.count))
+    positional = [m for m in items if m.command in (16, 22, 21)]
+    assert len(positional) == len(in_file)
+    for m, it in zip(positional, in_file, strict=True):
+        lat, lon, rel = it["params"][4:7]
+        assert m.command == it["command"]
+        assert abs(m.x * 1e-7 - lat) < 1e-7 and abs(m.y * 1e-7 - lon) < 1e-7
+        assert m.z == pytest.approx(rel, abs=1e-3) and m.frame == 3
+
+
 def test_tlog_reads_back_with_expected_message_counts(replayed: Path) -> None:
     report = json.loads((replayed / "report.json").read_text())
     mlog = mavutil.mavlink_connection(str(replayed / "flight.tlog"))

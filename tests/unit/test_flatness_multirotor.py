@@ -134,7 +134,7 @@ def inverted_trajectory() -> FlatTrajectory:
 
 
 def figure8(peak_speed: float = 6.0) -> FlatTrajectory:
-    """Issue 6: x = 5 sin(phi), y = 2.5 sin(2 phi), z = -5 (NED), yaw 0, phi = w t."""
+    """Benchmark figure-8: x = 5 sin(phi), y = 2.5 sin(2 phi), z = -5 (NED), yaw 0, phi = w t."""
     w = peak_speed / (5.0 * np.sqrt(2.0))  # |v| = 5 w sqrt(cos^2 phi + cos^2 2phi), max at 0
     return FlatTrajectory(
         A=np.array([[5.0, 2.5, 0.0]]),
@@ -310,7 +310,7 @@ def test_f_moments_reproduce_rates_through_euler_equations(name: str, drag: floa
 
 
 def test_g_figure8_yaw_rate_shortcut_is_wrong() -> None:
-    """Issue 6 figure-8 at 6 m/s peak, 1 kg, drag 1 N/(m/s), yaw 0 (psi' = 0, shortcut r = 0)."""
+    """Benchmark figure-8, 6 m/s peak, 1 kg, drag 1 N/(m/s), yaw 0 (psi' = 0, shortcut r = 0)."""
     tr = figure8(6.0)
     t = np.linspace(0.0, 2 * np.pi / (6.0 / (5.0 * np.sqrt(2.0))), 400)
     speed = np.linalg.norm(tr.pos_deriv(t, 1), axis=1)

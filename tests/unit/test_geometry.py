@@ -228,3 +228,17 @@ def test_se2_and_wrap() -> None:
     assert np.all((w >= -np.pi) & (w < np.pi))
     np.testing.assert_allclose(np.cos(w), np.cos(np.linspace(-20, 20, 101)), atol=1e-12)
     np.testing.assert_allclose(geo.rot2(0.3) @ [1.0, 0.0], [np.cos(0.3), np.sin(0.3)])
+
+
+def test_log_of_a_half_turn_is_pi_about_the_axis_without_a_warning() -> None:
+    """w = 0 (a rotation by pi): the small-angle branch must not divide by w (pytest turns the
+    project's warnings into errors)."""
+    import warnings
+
+    from companion.geometry import quat_log
+
+    axis = np.array([0.6, 0.0, 0.8])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        v = quat_log(np.array([0.0, *axis]))
+    np.testing.assert_allclose(np.abs(v), np.pi * axis, atol=1e-12)

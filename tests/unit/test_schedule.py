@@ -92,3 +92,24 @@ def test_turns_respect_the_turn_rate() -> None:
         rates = [abs(s.reference(p.t0_s + x).yaw_rate) for x in np.linspace(0, p.duration_s, 50)]
         assert max(rates) <= math.radians(60.0) + 1e-9
         assert np.allclose(s.reference(p.t0_s + 0.5 * p.duration_s).vel_ned, 0.0)
+
+
+def test_a_chunk_out_of_numerical_reach_is_flown_leg_by_leg(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Home 44 km from a 50 m hop: solved whole, the snap cost spans beyond double precision
+    (the planner's factorisation fails: found by the fuzz campaign). The schedule falls back to
+    rest-to-rest legs: every waypoint is the end of a piece, at rest."""
+    fp = mission_to_flight_plan(load_mission(ROOT / "tests" / "data" / "missions"
+                                             / "long_and_short_legs.plan"))
+    s = build_schedule(fp, PARAMS)
+    assert any("leg by leg" in r.getMessage() for r in caplog.records)
+    ends = [p.t0_s + p.duration_s for p in s.pieces if p.kind == "traj"]
+    end_pos = np.array([s.reference(t).pos_ned for t in ends])
+    for w in fp.waypoints:
+        if w.item_index is None or w.phase != "mission":
+            continue
+        d = np.min(np.linalg.norm(end_pos - np.asarray(w.pos_ned_m), axis=1))
+        assert d < 1e-6, f"item {w.item_index}: no leg ends there ({d:.3g} m)"
+    for t in ends:
+        assert np.linalg.norm(s.reference(t).vel_ned) < 1e-6

@@ -1,4 +1,4 @@
-"""Issue 6: killing the companion mid-flight triggers the mock PX4's offboard-loss failsafe.
+"""Killing the companion mid-flight triggers the mock PX4's offboard-loss failsafe.
 
 `python -m companion fly figure8` runs as a subprocess against a `sitl_mock serve` subprocess
 over loopback UDP. The test watches the mock through its GCS link (a second UDP port, decoded

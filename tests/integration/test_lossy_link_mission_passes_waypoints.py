@@ -1,4 +1,4 @@
-"""Issue 6: with 10 % packet loss and 50 ms latency a square mission still passes every waypoint.
+"""With 10 % packet loss and 50 ms latency a square mission still passes every waypoint.
 
 `python -m companion fly tests/data/missions/square_15m.plan --connect udpin://...` (default
 attitude mode) flies against `sitl_mock serve --loss 10 --latency 0.05` (both directions, so

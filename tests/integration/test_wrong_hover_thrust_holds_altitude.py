@@ -1,4 +1,4 @@
-"""Issue 6: a wrong MPC_THR_HOVER must not cause an altitude error in attitude mode.
+"""A wrong MPC_THR_HOVER must not cause an altitude error in attitude mode.
 
 The mock PX4 (`sitl_mock serve` subprocess, loopback UDP) is made heavier with SIH_MASS so its
 true hover throttle m g / (4 x SIH_T_MAX) is 0.6, while the companion is configured with
