@@ -116,4 +116,7 @@ def test_keep_decides_which_tlogs_come_back_and_never_changes_the_result(
     path = tmp_path / "run.tlog"
     path.write_bytes(out["failed"].tlog)
     mlog = mavutil.mavlink_connection(str(path))
-    assert mlog.recv_match(type="HEARTBEAT") is not None
+    try:
+        assert mlog.recv_match(type="HEARTBEAT") is not None
+    finally:
+        mlog.close()

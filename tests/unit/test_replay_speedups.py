@@ -216,7 +216,10 @@ def test_tlog_buffer_writes_the_tlog_writer_bytes(tmp_path: Path) -> None:
     assert data == (tmp_path / "ref.tlog").read_bytes()
     log = mavutil.mavlink_connection(str(tmp_path / "fast.tlog"))
     n = 0
-    while (m := log.recv_match()) is not None:
-        assert m.get_type() in ("HEARTBEAT", "ATTITUDE", "STATUSTEXT")
-        n += 1
+    try:
+        while (m := log.recv_match()) is not None:
+            assert m.get_type() in ("HEARTBEAT", "ATTITUDE", "STATUSTEXT")
+            n += 1
+    finally:
+        log.close()
     assert n == len(frames)
