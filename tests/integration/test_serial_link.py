@@ -18,7 +18,7 @@ from pathlib import Path
 
 from companion.aio import Vehicle, VehicleConfig
 from companion.mission import load_mission, mission_upload_items
-from tests.integration.conftest import bounded
+from tests.integration.conftest import bounded, stop_process
 
 MISSION = Path(__file__).resolve().parents[1] / "data" / "missions" / "px4_short.plan"
 
@@ -35,13 +35,7 @@ async def mock_on_pty() -> AsyncIterator[str]:
         assert m, line
         yield m.group(1)
     finally:
-        if proc.returncode is None:
-            proc.terminate()
-            try:
-                await asyncio.wait_for(proc.wait(), 5.0)
-            except TimeoutError:
-                proc.kill()
-                await proc.wait()
+        await stop_process(proc)
 
 
 async def test_vehicle_over_a_pty_serial_link(tmp_path: Path) -> None:

@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import asyncio
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 from tests.integration.conftest import run_mock
-from tests.integration.test_serve_mock import run_service
+from tests.integration.test_serve_mock import Service, run_service
 
 
 def _key(path: Path, seed: int) -> Path:
@@ -20,15 +21,17 @@ def _key(path: Path, seed: int) -> Path:
     return path
 
 
-async def _wait_event(svc: object, pred: object, timeout_s: float) -> list[dict[str, object]]:
+async def _wait_event(svc: Service, pred: Callable[[dict[str, object]], bool],
+                      timeout_s: float) -> list[dict[str, object]]:
+    """The service's events once one satisfies `pred`, or all of them after `timeout_s`."""
     loop = asyncio.get_running_loop()
     deadline = loop.time() + timeout_s
     while loop.time() < deadline:
-        evs = svc.events()  # type: ignore[attr-defined]
-        if any(pred(e) for e in evs):  # type: ignore[operator]
-            return evs  # type: ignore[no-any-return]
+        evs = svc.events()
+        if any(pred(e) for e in evs):
+            return evs
         await asyncio.sleep(0.1)  # poll the service's log file (bounded)
-    return svc.events()  # type: ignore[attr-defined,no-any-return]
+    return svc.events()
 
 
 @pytest.mark.parametrize("same_key", [True, False])
