@@ -50,6 +50,7 @@ from companion.mission.model import (
     MissionItem,
     command_name,
 )
+from companion.px4_params import Px4PlanningParams
 
 __all__ = [
     "FinalAction",
@@ -116,6 +117,8 @@ class FlightPlan:
     takeoff_speed_m_s: float = 1.5
     land_speed_m_s: float = 0.7
     warnings: tuple[str, ...] = ()
+    px4: Px4PlanningParams = field(default_factory=Px4PlanningParams)
+    """The vehicle's PX4 parameters the plan was made with (limits, vertical profiles)."""
 
     def points_ned_m(self) -> npt.NDArray[np.float64]:
         """All path points (start, waypoints, touchdown), shape (N, 3) [m]."""
@@ -236,6 +239,7 @@ def mission_to_flight_plan(
     max_items: int = 10_000,
     strict_geofence: bool = False,
     min_height_m: float = 1.0,
+    px4: Px4PlanningParams | None = None,
 ) -> FlightPlan:
     """Expand ``mission`` into the :class:`FlightPlan` the companion flies (see module doc).
 
@@ -245,8 +249,19 @@ def mission_to_flight_plan(
     mission feasibility check). A multicopter waypoint (WAYPOINT, LOITER, TAKEOFF as a waypoint)
     less than ``min_height_m`` above home is a :class:`MissionError`: the vehicle would fly at
     ground level (typically a ground-vehicle mission flown with ``vehicle="quad"``).
+
+    ``px4``: the vehicle's parameters (read at connect); when given they replace the defaults
+    above (MIS_TAKEOFF_ALT, NAV_ACC_RAD, MPC_XY_CRUISE, RTL_RETURN_ALT, MPC_TKO_SPEED,
+    MPC_LAND_SPEED) and travel with the plan to the planner (``FlightPlan.px4``).
     """
     src = mission.source
+    if px4 is not None:
+        takeoff_alt_default = max(px4.MIS_TAKEOFF_ALT, 0.1)
+        acceptance_default = px4.NAV_ACC_RAD
+        cruise_speed_default = min(px4.MPC_XY_CRUISE, px4.MPC_XY_VEL_MAX)
+        rtl_return_alt_m = px4.RTL_RETURN_ALT
+        takeoff_speed_m_s = px4.MPC_TKO_SPEED
+        land_speed_m_s = px4.MPC_LAND_SPEED
     for name, v in (
         ("takeoff_alt_default", takeoff_alt_default),
         ("acceptance_default", acceptance_default),
@@ -258,6 +273,16 @@ def mission_to_flight_plan(
             raise ValueError(f"{name} must be a positive number, got {v}")
     if not math.isfinite(rtl_return_alt_m):
         raise ValueError(f"rtl_return_alt_m must be finite, got {rtl_return_alt_m}")
+    if px4 is None:
+        px4 = Px4PlanningParams(
+            MIS_TAKEOFF_ALT=takeoff_alt_default,
+            NAV_ACC_RAD=acceptance_default,
+            MPC_XY_CRUISE=cruise_speed_default,
+            MPC_XY_VEL_MAX=max(cruise_speed_default, Px4PlanningParams.MPC_XY_VEL_MAX),
+            RTL_RETURN_ALT=max(rtl_return_alt_m, 0.0),
+            MPC_TKO_SPEED=takeoff_speed_m_s,
+            MPC_LAND_SPEED=land_speed_m_s,
+        )
     home = mission.home
     rover = vehicle == "rover"
     warnings: list[str] = list(mission.warnings)
@@ -510,6 +535,7 @@ def mission_to_flight_plan(
         takeoff_speed_m_s=takeoff_speed_m_s,
         land_speed_m_s=land_speed_m_s,
         warnings=(),
+        px4=px4,
     )
     fence_msgs = _fence_messages(plan)
     if fence_msgs and strict_geofence:

@@ -1,0 +1,93 @@
+"""The PX4 parameters the mission planner plans with (pure: no I/O).
+
+At connect the companion reads these from the vehicle (``fly``, ``serve``) or from the mock
+(``replay``); a vehicle TOML overrides them. Names and units are PX4's (v1.16 parameter
+metadata); the defaults are PX4 v1.16's, except NAV_ACC_RAD, which PX4's multicopter SITL
+airframes set to 2 m (the generic default, 10 m, is for fixed-wing).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+__all__ = ["PLANNING_PARAM_NAMES", "Px4PlanningParams"]
+
+
+@dataclass(frozen=True)
+class Px4PlanningParams:
+    """PX4 parameters the planner uses, under their PX4 names and units (m, m/s, m/s^2, deg)."""
+
+    MPC_XY_CRUISE: float = 5.0
+    """Horizontal speed of mission legs without DO_CHANGE_SPEED [m/s]."""
+    MPC_XY_VEL_MAX: float = 12.0
+    """Cap on any planned horizontal speed [m/s]."""
+    MPC_Z_VEL_MAX_UP: float = 3.0
+    """Cap on the planned climb rate [m/s]."""
+    MPC_Z_VEL_MAX_DN: float = 1.5
+    """Cap on the planned descent rate [m/s]."""
+    MPC_ACC_HOR_MAX: float = 5.0
+    """Horizontal acceleration limit [m/s^2]."""
+    MPC_ACC_UP_MAX: float = 4.0
+    """Upward acceleration limit [m/s^2]."""
+    MPC_ACC_DOWN_MAX: float = 3.0
+    """Downward acceleration limit [m/s^2]."""
+    MPC_TILTMAX_AIR: float = 45.0
+    """Tilt limit in flight [deg]."""
+    MPC_TKO_SPEED: float = 1.5
+    """Takeoff climb rate [m/s]."""
+    MPC_LAND_SPEED: float = 0.7
+    """Descent rate below MPC_LAND_ALT2 when landing [m/s]."""
+    MPC_LAND_ALT1: float = 10.0
+    """Height above home below which a landing descent starts slowing down [m]."""
+    MPC_LAND_ALT2: float = 5.0
+    """Height above home below which a landing descends at MPC_LAND_SPEED [m]."""
+    NAV_ACC_RAD: float = 2.0
+    """Default waypoint acceptance radius [m]."""
+    RTL_RETURN_ALT: float = 60.0
+    """Return altitude above home of RTL [m]."""
+    MIS_TAKEOFF_ALT: float = 2.5
+    """Default (and minimum) takeoff height above home [m]."""
+    MPC_THR_HOVER: float = 0.5
+    """Hover thrust, normalised 0..1."""
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if not isinstance(v, int | float) or isinstance(v, bool) or not math.isfinite(v):
+                raise ValueError(f"{f.name} must be a finite number, got {v!r}")
+            if f.name in ("RTL_RETURN_ALT", "MIS_TAKEOFF_ALT", "MPC_LAND_ALT1", "MPC_LAND_ALT2"):
+                if v < 0.0:
+                    raise ValueError(f"{f.name} must be >= 0, got {v}")
+            elif v <= 0.0:
+                raise ValueError(f"{f.name} must be > 0, got {v}")
+        if not 0.0 < self.MPC_TILTMAX_AIR < 90.0:
+            raise ValueError(f"MPC_TILTMAX_AIR must be in (0, 90) deg, got {self.MPC_TILTMAX_AIR}")
+        if not 0.0 < self.MPC_THR_HOVER < 1.0:
+            raise ValueError(f"MPC_THR_HOVER must be in (0, 1), got {self.MPC_THR_HOVER}")
+
+    @classmethod
+    def from_values(cls, values: Mapping[str, float]) -> Px4PlanningParams:
+        """The defaults with every known name in `values` applied (other names are ignored)."""
+        known = {k: float(v) for k, v in values.items() if k in PLANNING_PARAM_NAMES}
+        return cls(**known)
+
+    def replace(self, **changes: float) -> Px4PlanningParams:
+        """A copy with `changes` applied (PX4 names)."""
+        unknown = sorted(set(changes) - set(PLANNING_PARAM_NAMES))
+        if unknown:
+            raise ValueError(
+                f"unknown planning parameter(s) {', '.join(unknown)}; known: "
+                f"{', '.join(PLANNING_PARAM_NAMES)}"
+            )
+        return dataclasses.replace(self, **changes)
+
+    def as_dict(self) -> dict[str, float]:
+        """``{PX4 name: value}`` in declaration order."""
+        return {n: float(getattr(self, n)) for n in PLANNING_PARAM_NAMES}
+
+
+PLANNING_PARAM_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(Px4PlanningParams))
+"""The PX4 parameter names the planner reads, in a stable order."""
