@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from companion.control import Reference, reference_of_arrays
 from companion.flatness import MultirotorParams
 from companion.mission import FlightChunk, FlightPlan, split_flight_plan
+from companion.px4_params import Px4PlanningParams
 from companion.trajectory import Limits, PiecewiseBezier, RoverLimits, hermite, plan
 from companion.trajectory.bezier import ScalarEvaluator
 
@@ -40,11 +41,16 @@ TURN_RATE_RAD_S = math.radians(60.0)
 class VehicleLimits:
     """Planning limits of the vehicle (SI units). Cruise speed comes from the mission legs."""
 
-    max_acc_m_s2: float = 3.0
+    max_acc_m_s2: float = 5.0
+    """Cap on the planned acceleration [m/s^2]; the vehicle's PX4 limits (MPC_ACC_HOR_MAX,
+    MPC_ACC_UP_MAX, MPC_ACC_DOWN_MAX, ``FlightPlan.px4``) apply as well."""
     max_tilt_rad: float = math.radians(35.0)
     max_body_rate_rad_s: float = 3.0
     max_thrust_ratio: float = 1.8
     """Peak collective thrust allowed in planning, as a multiple of the hover thrust m g."""
+    corridor_m: float | None = 1.0
+    """Multirotor: the planned path stays within this distance of the straight mission legs
+    [m], except inside a waypoint's acceptance radius; None: no corridor."""
     rover_max_yaw_rate_rad_s: float = math.radians(60.0)
     rover_max_lat_acc_m_s2: float = 1.5
     rover_max_speed_m_s: float | None = None
@@ -259,8 +265,11 @@ def build_schedule(
         if len(pts) < 2:
             continue
         yaw_spec, y_start, y_end = _chunk_yaw(chunk, yaw, flight.vehicle)
+        caps = _leg_speed_caps(chunk, pts, flight.px4, rover)
+        if chunk.phase == "land" and not rover:
+            pts, caps = _land_profile(pts, caps, flight.px4, float(flight.start_ned_m[2]))
         try:
-            traj = _plan_chunk(chunk, pts, params, limits, rover, yaw_spec)
+            traj = _plan_chunk(chunk, pts, params, limits, rover, yaw_spec, caps, flight.px4)
         except ValueError as exc:
             if len(chunk.points_ned_m) <= 2:
                 leg = f"{np.round(pts[0], 1)} to {np.round(pts[-1], 1)} m"
@@ -330,6 +339,95 @@ def _legs(chunk: FlightChunk) -> list[FlightChunk]:
     ]
 
 
+#: Climb/descent speed steps between MPC_LAND_ALT1 and MPC_LAND_ALT2 (PX4 interpolates the
+#: descent rate linearly in height there; each step flies the lower end's rate).
+LAND_PROFILE_STEPS = 3
+
+
+def _leg_speed_caps(
+    chunk: FlightChunk, pts: FloatArray, px4: Px4PlanningParams, rover: bool
+) -> FloatArray:
+    """Speed cap along each leg of `pts` [m/s]: the leg's horizontal speed (its mission speed,
+    at most MPC_XY_VEL_MAX) on the horizontal part and the climb (MPC_Z_VEL_MAX_UP, or
+    MPC_TKO_SPEED in the takeoff) or descent rate (MPC_Z_VEL_MAX_DN) on the vertical part."""
+    legs = np.diff(pts, axis=0)
+    lengths = np.linalg.norm(legs, axis=1)
+    speeds = list(chunk.leg_speed_m_s)
+    caps = np.empty(len(legs))
+    for i, (d, n) in enumerate(zip(legs, lengths, strict=True)):
+        v_h = min(speeds[min(i, len(speeds) - 1)], px4.MPC_XY_VEL_MAX)
+        if rover or n <= 0.0:
+            caps[i] = max(v_h, 0.1)
+            continue
+        u_h = math.hypot(float(d[0]), float(d[1])) / n
+        u_z = float(d[2]) / n
+        if chunk.phase == "takeoff" and u_z < 0.0:
+            v_z = px4.MPC_TKO_SPEED
+        else:
+            v_z = px4.MPC_Z_VEL_MAX_UP if u_z < 0.0 else px4.MPC_Z_VEL_MAX_DN
+        cap = math.inf
+        if u_h > 1e-6:
+            cap = v_h / u_h
+        if abs(u_z) > 1e-6:
+            cap = min(cap, v_z / abs(u_z))
+        caps[i] = max(cap, 0.1)
+    return caps
+
+
+def land_descent_rate(height_m: float, px4: Px4PlanningParams) -> float:
+    """PX4's landing descent rate at `height_m` above home [m/s]: MPC_Z_VEL_MAX_DN above
+    MPC_LAND_ALT1, MPC_LAND_SPEED below MPC_LAND_ALT2, linear in height between."""
+    fast, slow = px4.MPC_Z_VEL_MAX_DN, min(px4.MPC_LAND_SPEED, px4.MPC_Z_VEL_MAX_DN)
+    hi, lo = max(px4.MPC_LAND_ALT1, px4.MPC_LAND_ALT2), px4.MPC_LAND_ALT2
+    if height_m >= hi:
+        return fast
+    if height_m <= lo or hi <= lo:
+        return slow
+    return slow + (fast - slow) * (height_m - lo) / (hi - lo)
+
+
+def _land_profile(
+    pts: FloatArray, caps: FloatArray, px4: Px4PlanningParams, ground_z: float
+) -> tuple[FloatArray, FloatArray]:
+    """The final descent (`pts`, NED) with joints added at PX4's landing heights
+    (MPC_LAND_ALT1, steps to MPC_LAND_ALT2) and each piece capped at the descent rate of its
+    lower end (:func:`land_descent_rate`): never faster than PX4's own landing."""
+    hi, lo = max(px4.MPC_LAND_ALT1, px4.MPC_LAND_ALT2), px4.MPC_LAND_ALT2
+    marks = sorted({hi, lo, *(lo + (hi - lo) * j / LAND_PROFILE_STEPS
+                              for j in range(1, LAND_PROFILE_STEPS))}, reverse=True)
+    out_p: list[FloatArray] = [pts[0]]
+    out_c: list[float] = []
+    for a, b, cap in zip(pts[:-1], pts[1:], caps, strict=True):
+        ha, hb = ground_z - float(a[2]), ground_z - float(b[2])
+        cuts = [h for h in marks if min(ha, hb) + 0.05 < h < max(ha, hb) - 0.05]
+        # descending: the cut heights in decreasing order
+        stops = [*cuts, hb] if hb < ha else [*sorted(cuts), hb]
+        for h in stops:
+            f = (ha - h) / (ha - hb) if ha != hb else 1.0
+            p = a + f * (b - a)
+            low = min(h, ground_z - float(out_p[-1][2]))
+            rate = land_descent_rate(low, px4)
+            dz = abs(float(p[2] - out_p[-1][2]))
+            n = float(np.linalg.norm(p - out_p[-1]))
+            limit = cap if dz <= 1e-9 or n <= 0.0 else min(cap, rate * n / dz)
+            out_p.append(p)
+            out_c.append(max(limit, 0.1))
+    return np.array(out_p), np.array(out_c)
+
+
+def _chunk_accel(pts: FloatArray, limits: VehicleLimits, px4: Px4PlanningParams) -> float:
+    """One acceleration limit for a chunk [m/s^2] that keeps each axis within PX4's
+    (MPC_ACC_HOR_MAX horizontally, min(MPC_ACC_UP_MAX, MPC_ACC_DOWN_MAX) vertically) for
+    acceleration along any of its legs, and within `limits.max_acc_m_s2`."""
+    a_h, a_z = px4.MPC_ACC_HOR_MAX, min(px4.MPC_ACC_UP_MAX, px4.MPC_ACC_DOWN_MAX)
+    acc = min(limits.max_acc_m_s2, a_h)
+    for d in np.diff(pts, axis=0):
+        n = float(np.linalg.norm(d))
+        if n > 0.0 and abs(float(d[2])) > 1e-6 * n:
+            acc = min(acc, a_z * n / abs(float(d[2])))
+    return acc
+
+
 def _plan_chunk(
     chunk: FlightChunk,
     pts: FloatArray,
@@ -337,31 +435,49 @@ def _plan_chunk(
     limits: VehicleLimits,
     rover: bool,
     yaw_spec: object,
+    caps: FloatArray,
+    px4: Px4PlanningParams,
 ) -> PiecewiseBezier:
-    speed = max(min(chunk.leg_speed_m_s), 0.1)
+    speed = max(float(np.max(caps)), 0.1)
     lim: Limits | RoverLimits
     if rover:
         if limits.rover_max_speed_m_s is not None:
+            caps = np.minimum(caps, limits.rover_max_speed_m_s)
             speed = min(speed, limits.rover_max_speed_m_s)
         lim = RoverLimits(
             max_speed_m_s=speed,
             max_yaw_rate_rad_s=limits.rover_max_yaw_rate_rad_s,
             max_lat_acc_m_s2=limits.rover_max_lat_acc_m_s2,
         )
-        return plan(pts[:, :2], limits=lim, yaw="velocity")
+        return plan(pts[:, :2], limits=lim, yaw="velocity", speed_caps=caps)
     vertical = chunk.phase in ("takeoff", "land")
     hover_n = params.mass * params.g if params is not None else None
+    acc = _chunk_accel(pts, limits, px4)
     lim = Limits(
         max_speed_m_s=speed,
-        max_acc_m_s2=min(limits.max_acc_m_s2, 1.5) if vertical else limits.max_acc_m_s2,
-        max_tilt_rad=limits.max_tilt_rad if params is not None else None,
+        max_acc_m_s2=min(acc, 1.5) if vertical else acc,
+        max_tilt_rad=(
+            min(limits.max_tilt_rad, math.radians(px4.MPC_TILTMAX_AIR))
+            if params is not None else None
+        ),
         max_thrust_n=limits.max_thrust_ratio * hover_n if hover_n is not None else None,
         max_body_rate_rad_s=limits.max_body_rate_rad_s if params is not None else None,
     )
     yaw: object = yaw_spec
     if isinstance(yaw_spec, Sequence) and not isinstance(yaw_spec, str):
         yaw = [float(v) for v in yaw_spec]
-    return plan(pts, limits=lim, params=params, yaw=yaw)  # type: ignore[arg-type]
+    with_corridor = (
+        limits.corridor_m is not None and not vertical and len(pts) == len(chunk.points_ned_m)
+    )
+    return plan(
+        pts,
+        limits=lim,
+        params=params,
+        yaw=yaw,  # type: ignore[arg-type]
+        speed_caps=caps,
+        corridor_m=limits.corridor_m if with_corridor else None,
+        acceptance_m=chunk.acceptance_radius_m if with_corridor else None,
+    )
 
 
 def trajectory_reference(traj: PiecewiseBezier, yaw: float = 0.0) -> Callable[[float], Reference]:

@@ -403,13 +403,22 @@ class TimeScaledRatio:
     body-rate limit. Multirotor :class:`Limits` only.
     """
 
-    def __init__(self, smp: _Samples, limits: Limits, params: Any, margin: float) -> None:
+    def __init__(
+        self,
+        smp: _Samples,
+        limits: Limits,
+        params: Any,
+        margin: float,
+        speed_scale: FloatArray | None = None,
+    ) -> None:
+        """``speed_scale`` (N,): per-sample speed cap as a fraction of ``max_speed_m_s``."""
         self.smp = smp
         self.limits = limits
         self.params = params
         self.margin = margin
+        speed = _norm(smp.vel) if speed_scale is None else _norm(smp.vel) / speed_scale
         self.kin: list[tuple[int, float]] = [
-            (1, float(np.max(_norm(smp.vel))) / (limits.max_speed_m_s * margin)),
+            (1, float(np.max(speed)) / (limits.max_speed_m_s * margin)),
             (2, float(np.max(_norm(smp.acc))) / (limits.max_acc_m_s2 * margin)),
         ]
         if limits.max_jerk_m_s3 is not None:

@@ -46,6 +46,7 @@ body rate goes through the flatness map only at samples where a cheap attitude-f
 
 from __future__ import annotations
 
+import itertools
 import math
 import warnings
 from collections.abc import Callable, Mapping, Sequence
@@ -364,22 +365,29 @@ def _check_waypoints(waypoints: ArrayLike) -> FloatArray:
 
 # =========================================================================== time allocation
 def _polyline_profile_durations(
-    joints: FloatArray, is_waypoint: NDArray[np.bool_], vmax: float, amax: float
+    joints: FloatArray,
+    is_waypoint: NDArray[np.bool_],
+    vmax: float,
+    amax: float,
+    seg_vmax: FloatArray | None = None,
 ) -> FloatArray:
     """Initial durations (s) from a trapezoidal speed profile along the polyline: rest at both
     ends, a corner speed ``vmax cos^2(turn / 2)`` at each waypoint, at most ``vmax`` on the legs
     and acceleration ``amax / 2`` between (forward-backward pass, as in classic velocity
-    planning). A single leg reduces to the rest-to-rest trapezoid."""
+    planning). A single leg reduces to the rest-to-rest trapezoid. ``seg_vmax`` (M,) caps the
+    speed per segment (a joint takes the lower cap of its two segments)."""
     seg = np.diff(joints, axis=0)
     lengths = np.linalg.norm(seg, axis=1)
     n_j = joints.shape[0]
-    cap = np.full(n_j, vmax)
+    vseg = np.full(n_j - 1, vmax) if seg_vmax is None else np.minimum(seg_vmax, vmax)
+    cap = np.empty(n_j)
+    cap[1:-1] = np.minimum(vseg[1:], vseg[:-1])
     cap[0] = cap[-1] = 0.0
     wp_idx = np.flatnonzero(is_waypoint)
     legs = np.diff(joints[wp_idx], axis=0)
     unit = legs / np.maximum(np.linalg.norm(legs, axis=1), 1e-12)[:, None]
     cos_turn = np.clip(np.sum(unit[1:] * unit[:-1], axis=1), -1.0, 1.0)
-    cap[wp_idx[1:-1]] = vmax * 0.5 * (1.0 + cos_turn)
+    cap[wp_idx[1:-1]] = cap[wp_idx[1:-1]] * 0.5 * (1.0 + cos_turn)
     a = 0.5 * amax
     v = cap.tolist()
     ls = lengths.tolist()
@@ -391,10 +399,10 @@ def _polyline_profile_durations(
     v1 = np.array(v[1:])
     # accelerate from v0 and decelerate to v1, with a cruise at vmax in between if needed
     peak = np.sqrt(np.maximum((2.0 * a * lengths + v0 * v0 + v1 * v1) / 2.0, 0.0))
-    d_acc = (vmax * vmax - v0 * v0) / (2.0 * a)
-    d_dec = (vmax * vmax - v1 * v1) / (2.0 * a)
-    cruise = (vmax - v0) / a + (vmax - v1) / a + (lengths - d_acc - d_dec) / vmax
-    h = np.where(peak <= vmax, (2.0 * peak - v0 - v1) / a, cruise)
+    d_acc = (vseg * vseg - v0 * v0) / (2.0 * a)
+    d_dec = (vseg * vseg - v1 * v1) / (2.0 * a)
+    cruise = (vseg - v0) / a + (vseg - v1) / a + (lengths - d_acc - d_dec) / vseg
+    h = np.where(peak <= vseg, (2.0 * peak - v0 - v1) / a, cruise)
     return np.asarray(np.maximum(h, 1e-3), dtype=np.float64)
 
 
@@ -510,7 +518,12 @@ class _Penalty:
     the banded system). Used only to steer the time allocation; limits are enforced after."""
 
     def __init__(
-        self, system: _System, limits: Limits | RoverLimits, params: Any, n_samples: int = 8
+        self,
+        system: _System,
+        limits: Limits | RoverLimits,
+        params: Any,
+        n_samples: int = 8,
+        speed_scale: FloatArray | None = None,
     ) -> None:
         self.system = system
         self.n = n_samples
@@ -547,10 +560,14 @@ class _Penalty:
         self.W_all_r = np.vstack([r * self.W[r] for r in self.orders])
         self.order_pow = np.array(self.orders, dtype=np.float64)[:, None]
         kin_order = {"speed": 1, "acc": 2, "jerk": 3}
-        self.kin_inv_lim2 = np.zeros(len(self.orders))
+        # (R, 1, M): 1 / limit^2 per derivative order and segment (per-segment speed caps)
+        self.kin_inv_lim2 = np.zeros((len(self.orders), 1, system.m))
         for name, lim2 in self.terms:
             if name in kin_order:
-                self.kin_inv_lim2[self.orders.index(kin_order[name])] = 1.0 / lim2
+                row = np.full(system.m, 1.0 / lim2)
+                if name == "speed" and speed_scale is not None:
+                    row = row / (speed_scale * speed_scale)
+                self.kin_inv_lim2[self.orders.index(kin_order[name]), 0, :] = row
         self.dyn_terms = [(nm, lim2) for nm, lim2 in self.terms if nm not in kin_order]
         self.W_all_T = np.ascontiguousarray(self.W_all.T)
         self.W_all_rT = np.ascontiguousarray(self.W_all_r.T)
@@ -563,7 +580,7 @@ class _Penalty:
         n, m = d_all.shape[1], d_all.shape[2]
         # speed, acceleration, jerk: all orders at once (rows without a limit never active)
         g_kin = np.einsum("rnmd,rnmd->rnm", d_all, d_all)
-        g_kin *= self.kin_inv_lim2[:, None, None]
+        g_kin *= self.kin_inv_lim2
         g_kin -= 1.0
         active = bool(g_kin.max() > 0.0)
         g_all: FloatArray | None = None
@@ -572,7 +589,7 @@ class _Penalty:
             w = pos * pos
             phi = np.einsum("rnm,rnm->nm", w, pos)
             if grad:
-                w *= 6.0 * self.kin_inv_lim2[:, None, None]
+                w *= 6.0 * self.kin_inv_lim2
                 g_all = d_all * w[:, :, :, None]
         else:
             phi = np.zeros((n, m))
@@ -727,8 +744,11 @@ class _Planner:
         interior: dict[int, dict[int, FloatArray | None]],
         yaw: YawSpec,
         yaw_wp: FloatArray | None,
+        speed_scale: FloatArray | None = None,
     ) -> None:
         self.joints = joints
+        #: per-segment speed cap as a fraction of the limits' max_speed_m_s (None: all 1)
+        self.speed_scale = speed_scale
         self.is_waypoint = is_waypoint
         self.s = s
         n_j, d = joints.shape
@@ -774,7 +794,8 @@ class _Planner:
         joints = self.joints
         vmax = limits.max_speed_m_s
         amax = limits.max_lat_acc_m_s2 if isinstance(limits, RoverLimits) else limits.max_acc_m_s2
-        h0 = _polyline_profile_durations(joints, self.is_waypoint, vmax, amax)
+        seg_vmax = None if self.speed_scale is None else vmax * self.speed_scale
+        h0 = _polyline_profile_durations(joints, self.is_waypoint, vmax, amax, seg_vmax)
         if isinstance(limits, RoverLimits):
             return self._allocate_rover(h0, limits)
         h = self._refine(h0, limits, params)
@@ -843,7 +864,7 @@ class _Planner:
         return np.asarray(
             np.maximum(
                 np.maximum(
-                    ex["speed"][0] / (limits.max_speed_m_s * m),
+                    ex["speed"][0] / (limits.max_speed_m_s * m * self._scale()),
                     ex["yaw_rate"][0] / (limits.max_yaw_rate_rad_s * m),
                 ),
                 np.sqrt(ex["lat_acc"][0] / (limits.max_lat_acc_m_s2 * m)),
@@ -863,7 +884,9 @@ class _Planner:
         t0 = float(h0.sum())
         rho = REFINE_RHO * t0 / ((2 * self.s - 1) * j0)
         rover = isinstance(limits, RoverLimits)
-        penalty = None if rover else _Penalty(self.system, limits, params)
+        penalty = (
+            None if rover else _Penalty(self.system, limits, params, speed_scale=self.speed_scale)
+        )
         lz = np.log(h0)
         weight = REFINE_PENALTY_WEIGHT
         maxiter = ROVER_REFINE_MAXITER if rover else REFINE_MAXITER
@@ -895,13 +918,18 @@ class _Planner:
         smp = segment_samples(traj, limits)
         return self._ratio_of(smp, h.shape[0], limits, params)
 
-    @staticmethod
+    def _scale(self) -> FloatArray | float:
+        """Per-segment speed scale (M,), or 1.0 without per-segment caps."""
+        return 1.0 if self.speed_scale is None else self.speed_scale
+
     def _ratio_of(
-        smp: Any, m: int, limits: Limits | RoverLimits, params: Any
+        self, smp: Any, m: int, limits: Limits | RoverLimits, params: Any
     ) -> tuple[float, FloatArray]:
         ratios = _ratios(
             segment_worst(smp, m, limits, params, screen=ALLOCATION_MARGIN), limits, params
         )
+        if self.speed_scale is not None:
+            ratios["speed"] = ratios["speed"] / self.speed_scale
         per_seg = np.max(np.stack(list(ratios.values())), axis=0)
         return float(np.max(per_seg)), per_seg
 
@@ -945,8 +973,13 @@ class _Planner:
             traj, _ = self.build(h)
             base = segment_samples(traj, limits, BISECTION_SAMPLES_PER_SEGMENT)
             if isinstance(limits, Limits):
+                per_sample = (
+                    None
+                    if self.speed_scale is None
+                    else np.repeat(self.speed_scale, BISECTION_SAMPLES_PER_SEGMENT)
+                )
                 ratio: Callable[[float], float] = TimeScaledRatio(
-                    base, limits, params, ALLOCATION_MARGIN
+                    base, limits, params, ALLOCATION_MARGIN, speed_scale=per_sample
                 )
             else:
 
@@ -1081,6 +1114,107 @@ def _yaw_channel(
 
 
 # =========================================================================== public API
+#: Passes of the corridor refinement (each splits the segments that leave the corridor).
+CORRIDOR_PASSES = 6
+#: Samples per segment of the corridor check.
+CORRIDOR_SAMPLES_PER_SEGMENT = 24
+
+
+def _plan_joints(
+    wp: FloatArray,
+    fracs: list[list[float]],
+    s: int,
+    start_spec: dict[int, FloatArray | None],
+    end_spec: dict[int, FloatArray | None],
+    interior: dict[int, dict[int, FloatArray | None]],
+    yaw: YawSpec,
+    yaw_wp: FloatArray | None,
+    caps: FloatArray | None,
+    limits: Limits | RoverLimits | None,
+    params: Any,
+    h_in: FloatArray | None,
+) -> tuple[_Planner, PiecewiseBezier, float, NDArray[np.intp], NDArray[np.bool_]]:
+    """Plan through `wp` with extra joints on each straight leg at the fractions `fracs[leg]`
+    (each list starts with 0): (planner, trajectory, cost, leg of each segment, which joints
+    are waypoints)."""
+    d = wp.shape[1]
+    pts: list[FloatArray] = []
+    seg_leg: list[int] = []
+    for leg, f in enumerate(fracs):
+        fa = np.asarray(f, dtype=np.float64)
+        pts.append(wp[leg][None, :] + fa[:, None] * (wp[leg + 1] - wp[leg])[None, :])
+        seg_leg += [leg] * len(f)
+    joints = np.concatenate([*pts, wp[-1:]]).reshape(-1, d)
+    is_waypoint = np.zeros(joints.shape[0], dtype=bool)
+    starts = np.concatenate([[0], np.cumsum([len(f) for f in fracs])]).astype(np.intp)
+    is_waypoint[starts] = True
+    interior_j = {int(starts[idx]): spec for idx, spec in interior.items()}
+    seg_leg_a = np.asarray(seg_leg, dtype=np.intp)
+    scale: FloatArray | None = None
+    if caps is not None and limits is not None and caps.shape[0] == len(fracs):
+        scale = np.minimum(caps / limits.max_speed_m_s, 1.0)[seg_leg_a]
+    planner = _Planner(
+        joints, is_waypoint, s, start_spec, end_spec, interior_j, yaw, yaw_wp, speed_scale=scale
+    )
+    if h_in is None:
+        assert limits is not None
+        h = planner.allocate(limits, params)
+    else:
+        h = h_in
+    traj, cost = planner.build(h)
+    return planner, traj, cost, seg_leg_a, is_waypoint
+
+
+def _point_segment_distance(p: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
+    """Distance (N,) of the points p (N, d) to the segment a-b [m]."""
+    ab = b - a
+    den = float(ab @ ab)
+    t = np.zeros(p.shape[0]) if den <= 0.0 else np.clip((p - a) @ ab / den, 0.0, 1.0)
+    return np.asarray(np.linalg.norm(p - (a + t[:, None] * ab), axis=1), dtype=np.float64)
+
+
+def corridor_deviation(
+    points: FloatArray, waypoints: FloatArray, legs: NDArray[np.intp], acceptance_m: FloatArray
+) -> FloatArray:
+    """Corridor deviation (N,) [m] of `points` (N, d) flown on the waypoint legs `legs` (N,):
+    distance to the nearest of that leg and its neighbours, or 0 inside a waypoint's
+    acceptance radius (corners may be cut or overshot there)."""
+    n_legs = waypoints.shape[0] - 1
+    dev = np.full(points.shape[0], np.inf)
+    for leg in np.unique(legs):
+        sel = legs == leg
+        p = points[sel]
+        best = np.full(p.shape[0], np.inf)
+        for other in (leg - 1, leg, leg + 1):
+            if 0 <= other < n_legs:
+                best = np.minimum(
+                    best, _point_segment_distance(p, waypoints[other], waypoints[other + 1])
+                )
+        for w in (leg, leg + 1):
+            near = np.linalg.norm(p - waypoints[w], axis=1) <= acceptance_m[w]
+            best[near] = 0.0
+        dev[sel] = best
+    return dev
+
+
+def _corridor_breaches(
+    traj: PiecewiseBezier,
+    wp: FloatArray,
+    seg_leg: NDArray[np.intp],
+    corridor_m: float,
+    acceptance_m: FloatArray,
+) -> NDArray[np.bool_]:
+    """Which segments (M,) leave the corridor (sampled ``CORRIDOR_SAMPLES_PER_SEGMENT`` per
+    segment)."""
+    n = CORRIDOR_SAMPLES_PER_SEGMENT
+    tau = (np.arange(n) + 0.5) / n
+    t = (traj.breaks[:-1, None] + tau[None, :] * traj.durations[:, None]).reshape(-1)
+    p = traj.evaluate(t, 0)
+    legs = np.repeat(seg_leg, n)
+    dev = corridor_deviation(p, wp, legs, acceptance_m)
+    return np.asarray((dev > corridor_m).reshape(-1, n).any(axis=1), dtype=np.bool_)
+
+
 def plan(
     waypoints: ArrayLike,
     *,
@@ -1093,6 +1227,9 @@ def plan(
     params: Any = None,
     yaw: YawSpec = None,
     pieces: int | None = None,
+    speed_caps: ArrayLike | None = None,
+    corridor_m: float | None = None,
+    acceptance_m: ArrayLike | None = None,
 ) -> PiecewiseBezier:
     """Plan a minimum-snap (``order="snap"``, degree 7, C4+) or minimum-jerk (``"jerk"``,
     degree 5, C3+) piecewise Bezier trajectory through ``waypoints`` (M, d), d = 2 or 3, metres
@@ -1110,6 +1247,13 @@ def plan(
       unwrapped the short way round), or ``"velocity"`` (follow the horizontal velocity
       heading: speed-weighted least-squares fit with snap smoothing, see ``_heading_fit``).
 
+    - ``speed_caps``: (M-1,) speed cap per waypoint leg [m/s] (e.g. per-leg mission speeds,
+      or a climb-rate limit turned into a speed along a climbing leg), each at most
+      ``limits.max_speed_m_s``; used by the time allocation.
+    - ``corridor_m`` (time allocation only): keep the path within this distance [m] of the
+      straight legs, except inside a waypoint's ``acceptance_m`` (M,) radius [m] (default 0):
+      segments that leave it are split at a joint on their leg and the plan is redone (at
+      most ``CORRIDOR_PASSES`` times; a UserWarning if it still leaves it).
     - ``pieces``: segments per waypoint leg. Default 1 with ``durations``; with time
       allocation ``ALLOCATION_PIECES`` (3) under :class:`Limits`: the extra joints lie on the
       straight leg between the waypoints (at 1/3 and 2/3), which keeps the path close to the
@@ -1132,6 +1276,9 @@ def plan(
         params=params,
         yaw=yaw,
         pieces=pieces,
+        speed_caps=speed_caps,
+        corridor_m=corridor_m,
+        acceptance_m=acceptance_m,
     ).trajectory
 
 
@@ -1147,6 +1294,9 @@ def plan_with_info(
     params: Any = None,
     yaw: YawSpec = None,
     pieces: int | None = None,
+    speed_caps: ArrayLike | None = None,
+    corridor_m: float | None = None,
+    acceptance_m: ArrayLike | None = None,
 ) -> PlanResult:
     """:func:`plan` returning a :class:`PlanResult` (trajectory, cost, number of solves)."""
     wp = _check_waypoints(waypoints)
@@ -1212,6 +1362,18 @@ def plan_with_info(
                         f"{label}: {what} {float(np.linalg.norm(vec)):.3g} exceeds "
                         f"{field} = {cap:g}"
                     )
+    caps_in: FloatArray | None = None
+    if speed_caps is not None:
+        caps_in = np.asarray(speed_caps, dtype=np.float64).reshape(-1)
+        if caps_in.shape[0] != max(n_in - 1, 0):
+            raise ValueError(f"{n_in} waypoints need {n_in - 1} speed caps, got {caps_in.shape[0]}")
+        bad = ~np.isfinite(caps_in) | (caps_in <= 0.0)
+        if np.any(bad):
+            i = int(np.flatnonzero(bad)[0])
+            raise ValueError(
+                f"speed cap {caps_in[i]} of the leg from waypoint {i} to {i + 1} must be a "
+                f"finite positive speed in m/s"
+            )
     # yaw spec
     yaw_wp: FloatArray | None = None
     if isinstance(yaw, str):
@@ -1283,6 +1445,11 @@ def plan_with_info(
         remap = {old: new for new, old in enumerate(keep)}
         interior = {remap[k]: v for k, v in interior_in.items() if k in remap}
         interior = {k: v for k, v in interior.items() if 0 < k < len(keep) - 1}
+        if caps_in is not None:
+            # a kept leg keeps the lowest cap of the input legs it spans
+            caps_in = np.array(
+                [float(np.min(caps_in[a:b])) for a, b in itertools.pairwise(keep)]
+            )
         wp = wp[keep]
         if yaw_wp is not None and yaw_wp.shape[0] == n_in:
             yaw_wp = yaw_wp[keep]
@@ -1330,24 +1497,67 @@ def plan_with_info(
         raise ValueError(f"pieces must be >= 1, got {pieces}")
     if h_in is not None and k != 1:
         raise ValueError("pieces > 1 is only used by the time allocation (durations=None)")
-    if k > 1:
-        frac = np.arange(k, dtype=np.float64) / k
-        legs = wp[:-1, None, :] + frac[None, :, None] * (wp[1:] - wp[:-1])[:, None, :]
-        joints = np.concatenate([legs.reshape(-1, d), wp[-1:]])
-        interior = {idx * k: spec for idx, spec in interior.items()}
-    else:
-        joints = wp
-    is_waypoint = np.zeros(joints.shape[0], dtype=bool)
-    is_waypoint[::k] = True
-    planner = _Planner(joints, is_waypoint, s, start_spec, end_spec, interior, yaw, yaw_wp)
-    if h_in is None:
-        assert limits is not None
-        h = planner.allocate(limits, params)
-    else:
-        h = h_in
-    traj, cost = planner.build(h)
+    # joints per waypoint leg, as fractions of the leg (0 = the leg's first waypoint)
+    fracs = [list(np.arange(k, dtype=np.float64) / k) for _ in range(n_j - 1)]
+    if corridor_m is not None and h_in is not None:
+        raise ValueError("corridor_m is used by the time allocation (durations=None)")
+    acc_j: FloatArray | None = None
+    if corridor_m is not None:
+        if not (math.isfinite(corridor_m) and corridor_m > 0.0):
+            raise ValueError(f"corridor_m must be a positive distance in m, got {corridor_m}")
+        acc_j = np.zeros(n_j)
+        if acceptance_m is not None:
+            acc_in = np.asarray(acceptance_m, dtype=np.float64).reshape(-1)
+            if acc_in.shape[0] != n_in or np.any(~np.isfinite(acc_in) | (acc_in < 0.0)):
+                raise ValueError(f"acceptance_m needs {n_in} finite distances >= 0 in m")
+            acc_j = acc_in[keep]
+        # joints one acceptance radius from each corner, on both legs: the path turns inside
+        # the waypoint's acceptance sphere instead of swinging wide across the legs
+        lengths = np.linalg.norm(np.diff(wp, axis=0), axis=1)
+        for leg in range(n_j - 1):
+            extra = []
+            if leg > 0 and acc_j[leg] > 0.0:
+                extra.append(acc_j[leg] / lengths[leg])
+            if leg < n_j - 2 and acc_j[leg + 1] > 0.0:
+                extra.append(1.0 - acc_j[leg + 1] / lengths[leg])
+            f = fracs[leg]
+            for e in extra:
+                if 0.0 < e < 1.0 and min(abs(e - x) for x in [*f, 1.0]) * lengths[leg] > 0.5:
+                    f.append(float(e))
+            fracs[leg] = sorted(f)
+    planner, traj, cost, seg_leg, is_waypoint = _plan_joints(
+        wp, fracs, s, start_spec, end_spec, interior, yaw, yaw_wp, caps_in, limits, params, h_in
+    )
+    solves = planner.solves
+    if acc_j is not None:
+        assert corridor_m is not None
+        for _ in range(CORRIDOR_PASSES):
+            bad = _corridor_breaches(traj, wp, seg_leg, float(corridor_m), acc_j)
+            if not bad.any():
+                break
+            for sg in np.flatnonzero(bad).tolist():
+                leg = int(seg_leg[sg])
+                i_f = sg - int(np.flatnonzero(seg_leg == leg)[0])
+                f = fracs[leg]
+                lo = f[i_f]
+                hi = f[i_f + 1] if i_f + 1 < len(f) else 1.0
+                f.append(0.5 * (lo + hi))
+            fracs = [sorted(f) for f in fracs]
+            planner, traj, cost, seg_leg, is_waypoint = _plan_joints(
+                wp, fracs, s, start_spec, end_spec, interior, yaw, yaw_wp, caps_in, limits,
+                params, h_in
+            )
+            solves += planner.solves
+        else:
+            if _corridor_breaches(traj, wp, seg_leg, float(corridor_m), acc_j).any():
+                warnings.warn(
+                    f"the planned path leaves the {corridor_m:g} m corridor around the legs "
+                    f"after {CORRIDOR_PASSES} refinements",
+                    UserWarning,
+                    stacklevel=3,
+                )
     if limits is not None:
         _validate(traj, limits, params)
-    kept_times = traj.breaks[::k]
+    kept_times = traj.breaks[np.flatnonzero(is_waypoint)]
     kept_index = np.cumsum(np.isin(np.arange(n_in), keep)) - 1
-    return PlanResult(traj, cost, kept_times[kept_index[owner]], planner.solves)
+    return PlanResult(traj, cost, kept_times[kept_index[owner]], solves)
