@@ -28,6 +28,7 @@ from companion.mission import FlightChunk, FlightPlan, split_flight_plan
 from companion.px4_params import Px4PlanningParams
 from companion.trajectory import Limits, PiecewiseBezier, RoverLimits, hermite, plan
 from companion.trajectory.bezier import ScalarEvaluator
+from companion.trajectory.bound import KinematicLimits, time_optimal_duration
 
 _log = logging.getLogger("companion.schedule")
 
@@ -75,6 +76,8 @@ class Piece:
     yaw1: float
     traj: PiecewiseBezier | None = None
     turn: PiecewiseBezier | None = None
+    speed_caps: FloatArray | None = None
+    """Planner's speed limit along the path per segment of `traj` [m/s] (for the bound)."""
 
     @functools.cached_property
     def _eval(self) -> ScalarEvaluator | None:
@@ -101,6 +104,33 @@ class Schedule:
     item_indices: tuple[int | None, ...]
     final_action: str
     vehicle: str
+    px4: Px4PlanningParams = dataclasses.field(default_factory=Px4PlanningParams)
+
+    def piece_bounds_s(self) -> list[float]:
+        """Per piece, the time-optimal bound [s]: for a multirotor trajectory piece the
+        shortest time along the same path under the same speed caps and PX4's speed and
+        acceleration limits (``companion.trajectory.bound``); turns, holds and rover pieces
+        count at their planned duration."""
+        px4 = self.px4
+        lim = KinematicLimits(
+            max_speed_xy_m_s=px4.MPC_XY_VEL_MAX,
+            max_climb_m_s=px4.MPC_Z_VEL_MAX_UP,
+            max_descent_m_s=px4.MPC_Z_VEL_MAX_DN,
+            max_acc_xy_m_s2=px4.MPC_ACC_HOR_MAX,
+            max_acc_up_m_s2=px4.MPC_ACC_UP_MAX,
+            max_acc_down_m_s2=px4.MPC_ACC_DOWN_MAX,
+        )
+        out: list[float] = []
+        for p in self.pieces:
+            if p.kind == "traj" and p.traj is not None and p.traj.dim == 3:
+                out.append(time_optimal_duration(p.traj, lim, p.speed_caps))
+            else:
+                out.append(p.duration_s)
+        return out
+
+    def time_optimal_bound_s(self) -> float:
+        """Lower bound on the schedule's duration [s] (sum of :meth:`piece_bounds_s`)."""
+        return float(sum(self.piece_bounds_s()))
 
     def reference(self, t: float, origin: FloatArray | None = None) -> Reference:
         """Flat-output reference at schedule time `t` [s] (clamped to the schedule), with the
@@ -297,7 +327,10 @@ def build_schedule(
             pieces.append(Piece("turn", t, dur, chunk.phase, pts[0], yaw, y_start, turn=turn))
             t += dur
         yaw = y_start
-        pieces.append(Piece("traj", t, traj.duration, chunk.phase, pts[0], yaw, y_end, traj=traj))
+        pieces.append(
+            Piece("traj", t, traj.duration, chunk.phase, pts[0], yaw, y_end, traj=traj,
+                  speed_caps=_segment_caps(traj, pts, caps))
+        )
         t += traj.duration
         yaw = y_end
         if chunk.hold_after_s > 0.0:
@@ -318,7 +351,26 @@ def build_schedule(
         item_indices=tuple(items),
         final_action=flight.final_action,
         vehicle=flight.vehicle,
+        px4=flight.px4,
     )
+
+
+def _segment_caps(traj: PiecewiseBezier, pts: FloatArray, caps: FloatArray) -> FloatArray:
+    """The leg speed cap of each segment of `traj` (the leg nearest its midpoint) [m/s]."""
+    mid = traj.evaluate(traj.breaks[:-1] + 0.5 * traj.durations, 0)
+    d = pts.shape[1] if mid.shape[1] >= pts.shape[1] else mid.shape[1]
+    mid, legs = mid[:, :d], pts[:, :d]
+    best = np.full(mid.shape[0], np.inf)
+    out = np.full(mid.shape[0], float(np.max(caps)))
+    for a, b, c in zip(legs[:-1], legs[1:], caps, strict=True):
+        ab = b - a
+        den = float(ab @ ab)
+        f = np.zeros(mid.shape[0]) if den <= 0.0 else np.clip((mid - a) @ ab / den, 0.0, 1.0)
+        dist = np.linalg.norm(mid - (a + f[:, None] * ab), axis=1)
+        closer = dist < best
+        best[closer] = dist[closer]
+        out[closer] = c
+    return out
 
 
 def _legs(chunk: FlightChunk) -> list[FlightChunk]:
