@@ -9,10 +9,11 @@ Example `vehicle.toml` (every key optional; defaults are PX4's SIH quadrotor)::
     drag_n_per_m_s = 1.0                    # linear drag, world frame
 
     [limits]
-    max_acc_m_s2 = 3.0
+    max_acc_m_s2 = 5.0
     max_tilt_deg = 35.0
     max_body_rate_rad_s = 3.0
     rover_max_speed_m_s = 2.7               # rover: plan below the vehicle's top speed
+    corridor_m = 1.0                        # path within 1 m of the legs (0: no corridor)
 
     [tracking]                              # attitude/rates-mode controller (TrackingGains)
     kp_xy = 20.0                            # defaults suit a wired or UDP link (< 50 ms);
@@ -34,7 +35,9 @@ from companion.flatness import MultirotorParams
 from companion.schedule import VehicleLimits
 
 _VEHICLE_KEYS = {"mass_kg", "inertia_kg_m2", "hover_thrust", "drag_n_per_m_s"}
-_LIMIT_KEYS = {"max_acc_m_s2", "max_tilt_deg", "max_body_rate_rad_s", "rover_max_speed_m_s"}
+_LIMIT_KEYS = {
+    "max_acc_m_s2", "max_tilt_deg", "max_body_rate_rad_s", "rover_max_speed_m_s", "corridor_m",
+}
 _GAIN_KEYS = {f.name for f in fields(TrackingGains)}
 _ATT_KEYS = {"k_roll", "k_pitch", "k_yaw"}
 _SECTIONS = {"vehicle": _VEHICLE_KEYS, "limits": _LIMIT_KEYS, "tracking": _GAIN_KEYS | _ATT_KEYS}
@@ -100,10 +103,14 @@ def load_vehicle_file(path: str | Path) -> VehicleFile:
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{where}: {exc}") from None
     where = f"{p} [limits]"
+    dflt = VehicleLimits()
     limits = VehicleLimits(
-        max_acc_m_s2=_number(lim, "max_acc_m_s2", where, 3.0),
-        max_tilt_rad=math.radians(_number(lim, "max_tilt_deg", where, 35.0)),
-        max_body_rate_rad_s=_number(lim, "max_body_rate_rad_s", where, 3.0),
+        max_acc_m_s2=_number(lim, "max_acc_m_s2", where, dflt.max_acc_m_s2),
+        max_tilt_rad=math.radians(
+            _number(lim, "max_tilt_deg", where, math.degrees(dflt.max_tilt_rad))
+        ),
+        max_body_rate_rad_s=_number(lim, "max_body_rate_rad_s", where, dflt.max_body_rate_rad_s),
+        corridor_m=_number(lim, "corridor_m", where, dflt.corridor_m or 0.0) or None,
         rover_max_speed_m_s=(
             None if "rover_max_speed_m_s" not in lim
             else _number(lim, "rover_max_speed_m_s", where, 0.0)

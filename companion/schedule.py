@@ -29,6 +29,7 @@ from companion.px4_params import Px4PlanningParams
 from companion.trajectory import Limits, PiecewiseBezier, RoverLimits, hermite, plan
 from companion.trajectory.bezier import ScalarEvaluator
 from companion.trajectory.bound import KinematicLimits, time_optimal_duration
+from companion.trajectory.planner import velocity_heading
 
 _log = logging.getLogger("companion.schedule")
 
@@ -242,7 +243,9 @@ def _chunk_yaw(chunk: FlightChunk, yaw_in: float, vehicle: str) -> tuple[object,
     """Yaw spec for `plan` and the (start, end) yaw of the chunk [rad]."""
     pts = chunk.points_ned_m
     given = [None if y is None else math.radians(y) for y in chunk.yaw_deg]
-    if chunk.phase in ("takeoff", "land") or len(pts) < 2:
+    horizontal = float(np.max(np.ptp(np.asarray(pts)[:, :2], axis=0))) if len(pts) else 0.0
+    if chunk.phase in ("takeoff", "land") or len(pts) < 2 or horizontal < 0.5:
+        # a vertical climb or descent: no heading to follow, hold (or turn to) the given yaw
         yaw = yaw_in if given[-1] is None else _unwrap_to(given[-1], yaw_in)
         return yaw, yaw, yaw
     if vehicle == "rover" or all(g is None for g in given[1:]):
@@ -521,15 +524,19 @@ def _plan_chunk(
     with_corridor = (
         limits.corridor_m is not None and not vertical and len(pts) == len(chunk.points_ned_m)
     )
-    return plan(
+    # a heading that follows the velocity is fitted after the position: the body-rate limit
+    # then bounds the translation, and tight corners are not slowed down for the yaw
+    follow = isinstance(yaw, str) and yaw == "velocity"
+    traj = plan(
         pts,
         limits=lim,
         params=params,
-        yaw=yaw,  # type: ignore[arg-type]
+        yaw=None if follow else yaw,  # type: ignore[arg-type]
         speed_caps=caps,
         corridor_m=limits.corridor_m if with_corridor else None,
         acceptance_m=chunk.acceptance_radius_m if with_corridor else None,
     )
+    return traj.with_yaw(velocity_heading(traj)) if follow else traj
 
 
 def trajectory_reference(traj: PiecewiseBezier, yaw: float = 0.0) -> Callable[[float], Reference]:

@@ -71,7 +71,7 @@ from companion.trajectory.limits import (
     thin_matmul,
 )
 
-__all__ = ["PlanResult", "plan", "plan_with_info"]
+__all__ = ["PlanResult", "plan", "plan_with_info", "velocity_heading"]
 
 YawSpec = float | Sequence[float] | NDArray[np.float64] | str | None
 DerivSpec = Mapping[int, ArrayLike | None]
@@ -109,6 +109,15 @@ BISECTION_SAMPLES_PER_SEGMENT = 16
 #: limit ratio stays below this multiple of the best seen; beyond it the local stretch is
 #: distorting the path and the pass falls back to uniform scaling.
 LOCAL_STRETCH_GIVE_UP = 1.25
+#: Jerk penalised in the allocation per rad/s of the body-rate limit, in units of g.
+BODY_RATE_JERK_PROXY = 0.8
+#: Passes of the multirotor local stretch tried before the uniform time scaling.
+LOCAL_STRETCH_PASSES = 25
+#: Slack passes after the saturation (multirotor): segments whose worst limit ratio is below
+#: SHRINK_SLACK are shortened by max(ratio, SHRINK_MIN_FACTOR) per pass.
+SHRINK_PASSES = 6
+SHRINK_SLACK = 0.95
+SHRINK_MIN_FACTOR = 0.6
 #: Duration of the hover trajectory returned for a single waypoint (s), unless given.
 HOVER_DURATION_S = 1.0
 _MERGE_TOL_M = 1e-9
@@ -545,6 +554,12 @@ class _Penalty:
             self.terms.append(("acc", (limits.max_acc_m_s2 * m) ** 2))
             if limits.max_jerk_m_s3 is not None:
                 self.terms.append(("jerk", (limits.max_jerk_m_s3 * m) ** 2))
+            elif limits.max_body_rate_rad_s is not None and params is not None:
+                # the body rate is not in the penalty (it needs the flatness map): its jerk
+                # proxy |omega| ~ |j_perp| / (T / m) at hover thrust steers the allocation
+                # away from corners that only a uniform slow-down could make feasible
+                proxy = BODY_RATE_JERK_PROXY * limits.max_body_rate_rad_s * float(params.g)
+                self.terms.append(("jerk", (proxy * m) ** 2))
             if limits.max_tilt_rad is not None:
                 self.terms.append(("tilt", math.tan(limits.max_tilt_rad * m) ** 2))
             if limits.max_thrust_n is not None:
@@ -936,14 +951,19 @@ class _Planner:
     def _saturate(self, h: FloatArray, limits: Limits | RoverLimits, params: Any) -> FloatArray:
         """Scale all durations by the smallest common factor that satisfies every limit
         (bisection; a uniform time scaling keeps the path shape), then stretch locally where a
-        limit is still exceeded (feasibility pass)."""
+        limit is still exceeded (feasibility pass). Multirotor: first try stretching only
+        the segments over a limit (a tight corner then slows only its own neighbourhood); kept
+        when it ends feasible and shorter than the uniform scaling."""
+        local = self._local_stretch(h, limits, params) if isinstance(limits, Limits) else None
         h_uniform = h = h * self._uniform_scale(h, limits, params)
+        if local is not None and float(local.sum()) < float(h.sum()):
+            return local
         # feasibility pass on the real trajectory (re-solved, not scaled)
         best = math.inf  # the smallest worst ratio seen
         for _ in range(30):
             worst, per_seg = self._max_ratio(h, limits, params)
             if worst <= 1.0:
-                return h
+                return self._shrink(h, per_seg, limits, params)
             best = min(best, worst)
             if worst > LOCAL_STRETCH_GIVE_UP * best:
                 # stretching single segments of a minimum-snap path can make it balloon
@@ -959,9 +979,58 @@ class _Planner:
         h = h_uniform
         for _ in range(60):
             h = h * 1.02
-            if self._max_ratio(h, limits, params)[0] <= 1.0:
-                return h
+            worst, per_seg = self._max_ratio(h, limits, params)
+            if worst <= 1.0:
+                return self._shrink(h, per_seg, limits, params)
         raise ValueError("time allocation could not satisfy the limits (check their values)")
+
+    def _local_stretch(
+        self, h: FloatArray, limits: Limits | RoverLimits, params: Any
+    ) -> FloatArray | None:
+        """Stretch only the segments over a limit (and their neighbours a little) until the
+        plan is feasible; None if that does not converge within ``LOCAL_STRETCH_PASSES``."""
+        for _ in range(LOCAL_STRETCH_PASSES):
+            worst, per_seg = self._max_ratio(h, limits, params)
+            if worst <= 1.0:
+                return h
+            bad = per_seg > 1.0
+            grow = np.where(bad, np.sqrt(np.minimum(per_seg, 2.25)) * 1.002, 1.0)
+            spread = np.where(bad, np.sqrt(grow), 1.0)
+            grow[1:] = np.maximum(grow[1:], spread[:-1])
+            grow[:-1] = np.maximum(grow[:-1], spread[1:])
+            h = h * grow
+        return None
+
+    def _shrink(
+        self, h: FloatArray, per_seg: FloatArray, limits: Limits | RoverLimits, params: Any
+    ) -> FloatArray:
+        """Shorten the segments that a uniform time scaling left with slack (a tight corner
+        slows the whole plan down): each pass shrinks every segment whose worst limit ratio
+        is below ``SHRINK_SLACK`` by ``max(ratio, SHRINK_MIN_FACTOR)``, stretches back the
+        segments (and neighbours) the re-solved plan pushes over a limit, and is kept only if
+        the plan is feasible and shorter. `h` must be feasible (`per_seg` its ratios)."""
+        best_h, best_t = h, float(h.sum())
+        for _ in range(SHRINK_PASSES):
+            slack = per_seg < SHRINK_SLACK
+            if not slack.any():
+                break
+            cand = best_h * np.where(slack, np.maximum(per_seg, SHRINK_MIN_FACTOR), 1.0)
+            for _ in range(8):
+                worst, per_seg_c = self._max_ratio(cand, limits, params)
+                if worst <= 1.0:
+                    break
+                bad = per_seg_c > 1.0
+                grow = np.where(bad, np.minimum(per_seg_c, 1.5) * 1.002, 1.0)
+                grow[1:] = np.maximum(grow[1:], np.where(bad[:-1], 1.002, 1.0))
+                grow[:-1] = np.maximum(grow[:-1], np.where(bad[1:], 1.002, 1.0))
+                cand = cand * grow
+            else:
+                break
+            total = float(cand.sum())
+            if total >= best_t * (1.0 - 1e-3):
+                break
+            best_h, best_t, per_seg = cand, total, per_seg_c
+        return best_h
 
     def _uniform_scale(self, h: FloatArray, limits: Limits | RoverLimits, params: Any) -> float:
         """Smallest common factor of the durations at which every limit holds on the sampled
@@ -1054,6 +1123,14 @@ def _solve_1d(
     sys_ = _System(mask, vals, s)
     x, _ = sys_.solve(h)
     return PiecewiseBezier.from_control_points(sys_.control_points(x, h), h)
+
+
+def velocity_heading(traj: PiecewiseBezier) -> PiecewiseBezier:
+    """A yaw channel [rad] for `traj` (same durations) that follows its horizontal velocity
+    heading, as ``plan(..., yaw="velocity")`` makes, but fitted after the position is planned:
+    the time allocation then bounds the body rate of the translation only, and the heading
+    turns as fast as the smoothing lets it (see ``_heading_fit``)."""
+    return _heading_fit(traj, 4)
 
 
 def _heading_fit(traj: PiecewiseBezier, s: int) -> PiecewiseBezier:
@@ -1213,6 +1290,67 @@ def _corridor_breaches(
     legs = np.repeat(seg_leg, n)
     dev = corridor_deviation(p, wp, legs, acceptance_m)
     return np.asarray((dev > corridor_m).reshape(-1, n).any(axis=1), dtype=np.bool_)
+
+
+#: Joints placed on a leg with a cruise part, at these multiples of the distance the
+#: trapezoidal profile needs to accelerate (and, mirrored, to brake): short pieces where the
+#: speed changes and one long piece where it cruises.
+RAMP_JOINTS = (0.6, 1.4)
+
+
+def _ramp_fractions(
+    wp: FloatArray, limits: Limits, params: Any, caps: FloatArray | None
+) -> list[list[float]]:
+    """Joint fractions per leg for the time allocation: where the leg has a cruise part (the
+    trapezoidal speed profile of the polyline, at the real acceleration limit, reaches the
+    leg's speed), joints at ``RAMP_JOINTS`` times the acceleration and braking distances from
+    its ends; otherwise ``ALLOCATION_PIECES`` equal pieces. The cruise speed also respects the
+    steady tilt limit of a vehicle with drag (``g tan(tilt) m / D``)."""
+    n_legs = wp.shape[0] - 1
+    vmax = np.full(n_legs, limits.max_speed_m_s) if caps is None else np.minimum(
+        caps, limits.max_speed_m_s
+    )
+    amax = limits.max_acc_m_s2
+    if limits.max_tilt_rad is not None and params is not None:
+        drag = float(getattr(params, "drag", 0.0))
+        if drag > 0.0:
+            v_tilt = float(params.g) * math.tan(limits.max_tilt_rad) * float(params.mass) / drag
+            vmax = np.minimum(vmax, v_tilt)
+        amax = min(amax, float(params.g) * math.tan(limits.max_tilt_rad))
+    legs = np.diff(wp, axis=0)
+    lengths = np.linalg.norm(legs, axis=1)
+    unit = legs / np.maximum(lengths, 1e-12)[:, None]
+    # speed at each waypoint: rest at the ends, a corner speed from the turn angle, then the
+    # forward-backward acceleration passes
+    v = np.zeros(n_legs + 1)
+    if n_legs > 1:
+        cos_turn = np.clip(np.sum(unit[1:] * unit[:-1], axis=1), -1.0, 1.0)
+        v[1:-1] = np.minimum(vmax[1:], vmax[:-1]) * 0.5 * (1.0 + cos_turn)
+    for i in range(1, n_legs + 1):
+        v[i] = min(v[i], math.sqrt(v[i - 1] ** 2 + 2.0 * amax * lengths[i - 1]))
+    for i in range(n_legs - 1, -1, -1):
+        v[i] = min(v[i], math.sqrt(v[i + 1] ** 2 + 2.0 * amax * lengths[i]))
+    out: list[list[float]] = []
+    lo_f, hi_f = RAMP_JOINTS
+    for i in range(n_legs):
+        length, vc = float(lengths[i]), float(vmax[i])
+        base = list(np.arange(ALLOCATION_PIECES, dtype=np.float64) / ALLOCATION_PIECES)
+        # ramp joints only where the leg starts or ends at rest (corners keep the equal
+        # pieces: short pieces round a corner force a tight turn that slows the whole plan)
+        d_acc = vc * vc / (2.0 * amax) if v[i] == 0.0 else 0.0
+        d_dec = vc * vc / (2.0 * amax) if v[i + 1] == 0.0 else 0.0
+        if length <= 0.0 or hi_f * (d_acc + d_dec) >= 0.9 * length or d_acc + d_dec == 0.0:
+            out.append(base)
+            continue
+        lo_cut = hi_f * d_acc / length
+        hi_cut = 1.0 - hi_f * d_dec / length
+        f = [x for x in base if x == 0.0 or lo_cut + 0.05 < x < hi_cut - 0.05]
+        if d_acc > 0.0:
+            f += [lo_f * d_acc / length, lo_cut]
+        if d_dec > 0.0:
+            f += [hi_cut, 1.0 - lo_f * d_dec / length]
+        out.append(sorted(f))
+    return out
 
 
 def plan(
@@ -1498,7 +1636,10 @@ def plan_with_info(
     if h_in is not None and k != 1:
         raise ValueError("pieces > 1 is only used by the time allocation (durations=None)")
     # joints per waypoint leg, as fractions of the leg (0 = the leg's first waypoint)
-    fracs = [list(np.arange(k, dtype=np.float64) / k) for _ in range(n_j - 1)]
+    if pieces is None and h_in is None and isinstance(limits, Limits):
+        fracs = _ramp_fractions(wp, limits, params, caps_in)
+    else:
+        fracs = [list(np.arange(k, dtype=np.float64) / k) for _ in range(n_j - 1)]
     if corridor_m is not None and h_in is not None:
         raise ValueError("corridor_m is used by the time allocation (durations=None)")
     acc_j: FloatArray | None = None
