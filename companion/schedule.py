@@ -298,6 +298,16 @@ def build_schedule(
         if len(pts) < 2:
             continue
         yaw_spec, y_start, y_end = _chunk_yaw(chunk, yaw, flight.vehicle)
+        if not rover and isinstance(yaw_spec, float) and ci + 1 < len(chunks):
+            # a vertical climb turns to the next leg's heading on the way (as PX4 does) instead
+            # of turning in place before or after it
+            nxt = chunks[ci + 1]
+            nxt_spec, nxt_start, _ = _chunk_yaw(nxt, yaw, flight.vehicle)
+            if not isinstance(nxt_spec, float) and chunk.phase != "land":
+                target = _unwrap_to(nxt_start, yaw)
+                if abs(target - yaw) > math.radians(1.0):
+                    yaw_spec = [float(v) for v in np.linspace(yaw, target, len(pts))]
+                    y_start, y_end = yaw, target
         caps = _leg_speed_caps(chunk, pts, flight.px4, rover)
         if chunk.phase == "land" and not rover:
             pts, caps = _land_profile(pts, caps, flight.px4, float(flight.start_ned_m[2]))
@@ -319,6 +329,8 @@ def build_schedule(
             # the planner unwraps on its own: shift its channel to start within pi of `yaw`
             y0 = float(yaw_ch.evaluate(0.0, 0)[0])
             y_start = _unwrap_to(y0, yaw)
+            if abs(y_start - yaw) <= math.radians(1.0):
+                y_start = yaw  # too small for a turn: shift the channel to join continuously
             if y_start != y0:
                 yaw_ch = PiecewiseBezier.from_control_points(
                     yaw_ch.control_points + (y_start - y0), yaw_ch.durations

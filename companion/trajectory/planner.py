@@ -1391,7 +1391,7 @@ def plan(
     - ``corridor_m`` (time allocation only): keep the path within this distance [m] of the
       straight legs, except inside a waypoint's ``acceptance_m`` (M,) radius [m] (default 0):
       segments that leave it are split at a joint on their leg and the plan is redone (at
-      most ``CORRIDOR_PASSES`` times; a UserWarning if it still leaves it).
+      most ``CORRIDOR_PASSES`` times; ValueError if it still leaves it).
     - ``pieces``: segments per waypoint leg. Default 1 with ``durations``; with time
       allocation ``ALLOCATION_PIECES`` (3) under :class:`Limits`: the extra joints lie on the
       straight leg between the waypoints (at 1/3 and 2/3), which keeps the path close to the
@@ -1691,11 +1691,10 @@ def plan_with_info(
             solves += planner.solves
         else:
             if _corridor_breaches(traj, wp, seg_leg, float(corridor_m), acc_j).any():
-                warnings.warn(
+                raise ValueError(
                     f"the planned path leaves the {corridor_m:g} m corridor around the legs "
-                    f"after {CORRIDOR_PASSES} refinements",
-                    UserWarning,
-                    stacklevel=3,
+                    f"after {CORRIDOR_PASSES} refinements (fly the legs rest to rest, or widen "
+                    f"the corridor)"
                 )
     if limits is not None:
         _validate(traj, limits, params)
