@@ -539,16 +539,56 @@ def _plan_chunk(
     # a heading that follows the velocity is fitted after the position: the body-rate limit
     # then bounds the translation, and tight corners are not slowed down for the yaw
     follow = isinstance(yaw, str) and yaw == "velocity"
-    traj = plan(
-        pts,
-        limits=lim,
-        params=params,
-        yaw=None if follow else yaw,  # type: ignore[arg-type]
-        speed_caps=caps,
-        corridor_m=limits.corridor_m if with_corridor else None,
-        acceptance_m=chunk.acceptance_radius_m if with_corridor else None,
-    )
+    for _ in range(AXIS_PASSES):
+        traj = plan(
+            pts,
+            limits=lim,
+            params=params,
+            yaw=None if follow else yaw,  # type: ignore[arg-type]
+            speed_caps=caps,
+            corridor_m=limits.corridor_m if with_corridor else None,
+            acceptance_m=chunk.acceptance_radius_m if with_corridor else None,
+        )
+        # the planner bounds the norms; PX4's limits are per axis (horizontal, up, down):
+        # lower the acceleration or the speed caps until each axis is within its own
+        r_vel, r_acc = axis_ratios(traj, px4, climb_m_s=(
+            px4.MPC_TKO_SPEED if chunk.phase == "takeoff" else px4.MPC_Z_VEL_MAX_UP))
+        if r_vel <= 1.0 + 1e-3 and r_acc <= 1.0 + 1e-3:
+            break
+        if r_acc > 1.0 + 1e-3:
+            lim = dataclasses.replace(lim, max_acc_m_s2=lim.max_acc_m_s2 / r_acc)
+        if r_vel > 1.0 + 1e-3:
+            caps = caps / r_vel
+            lim = dataclasses.replace(lim, max_speed_m_s=lim.max_speed_m_s / r_vel)
     return traj.with_yaw(velocity_heading(traj)) if follow else traj
+
+
+#: Re-plans of a chunk that exceeds one of PX4's per-axis limits.
+AXIS_PASSES = 4
+
+
+def axis_ratios(
+    traj: PiecewiseBezier, px4: Px4PlanningParams, climb_m_s: float | None = None
+) -> tuple[float, float]:
+    """Worst ratio to PX4's per-axis limits of a planned multirotor trajectory (NED), sampled
+    densely: (speed: horizontal / MPC_XY_VEL_MAX, climb / `climb_m_s` (default
+    MPC_Z_VEL_MAX_UP), descent / MPC_Z_VEL_MAX_DN; acceleration: horizontal /
+    MPC_ACC_HOR_MAX, up / MPC_ACC_UP_MAX, down / MPC_ACC_DOWN_MAX)."""
+    t = np.linspace(0.0, traj.duration, max(64, 32 * traj.num_segments))
+    v = traj.evaluate(t, 1)
+    a = traj.evaluate(t, 2)
+    up = px4.MPC_Z_VEL_MAX_UP if climb_m_s is None else climb_m_s
+    r_vel = max(
+        float(np.max(np.hypot(v[:, 0], v[:, 1]))) / px4.MPC_XY_VEL_MAX,
+        float(np.max(-v[:, 2])) / up,
+        float(np.max(v[:, 2])) / px4.MPC_Z_VEL_MAX_DN,
+    )
+    r_acc = max(
+        float(np.max(np.hypot(a[:, 0], a[:, 1]))) / px4.MPC_ACC_HOR_MAX,
+        float(np.max(-a[:, 2])) / px4.MPC_ACC_UP_MAX,
+        float(np.max(a[:, 2])) / px4.MPC_ACC_DOWN_MAX,
+    )
+    return r_vel, r_acc
 
 
 def trajectory_reference(traj: PiecewiseBezier, yaw: float = 0.0) -> Callable[[float], Reference]:

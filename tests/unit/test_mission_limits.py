@@ -175,3 +175,28 @@ def test_bound_is_below_every_planned_piece(name: str) -> None:
     bounds = s.piece_bounds_s()
     for piece, b in zip(s.pieces, bounds, strict=True):
         assert 0.0 < b <= piece.duration_s + 1e-9
+
+
+def test_each_axis_stays_within_its_own_px4_limit() -> None:
+    """Horizontal, climb and descent speed and acceleration, each against its own PX4
+    parameter, by finite differences of the positions, on a mission that climbs and descends
+    between waypoints (an isotropic limit alone would let the vertical axis use the
+    horizontal one's acceleration)."""
+    px4 = Px4PlanningParams(MPC_ACC_HOR_MAX=6.0, MPC_ACC_UP_MAX=2.0, MPC_ACC_DOWN_MAX=1.5,
+                            MPC_Z_VEL_MAX_UP=2.0, MPC_Z_VEL_MAX_DN=1.0, MPC_XY_VEL_MAX=12.0)  # fmt: skip
+    items = [_item(22, [0, 0, 0, None, HOME[0], HOME[1], 10]),
+             _wp(20.0, 25), _wp(40.0, 10), _wp(70.0, 30), _wp(90.0, 12),
+             _item(21, [0, 0, 0, None, HOME[0] + 90.0 / M_PER_DEG_LAT, HOME[1], 0])]  # fmt: skip
+    fp = mission_to_flight_plan(parse_plan(_plan_text(items), source="zig.plan"), px4=px4)
+    s = build_schedule(fp, PARAMS, LIMITS)
+    dt = 0.01
+    t = np.arange(0.0, s.duration_s, dt)
+    p = s.sample(t)
+    v = np.diff(p, axis=0) / dt
+    a = np.diff(p, 2, axis=0) / dt**2
+    tol = 1.02
+    assert float(np.max(np.hypot(a[:, 0], a[:, 1]))) <= px4.MPC_ACC_HOR_MAX * tol
+    assert float(np.max(-a[:, 2])) <= px4.MPC_ACC_UP_MAX * tol
+    assert float(np.max(a[:, 2])) <= px4.MPC_ACC_DOWN_MAX * tol
+    assert float(np.max(-v[:, 2])) <= px4.MPC_Z_VEL_MAX_UP * tol
+    assert float(np.max(v[:, 2])) <= px4.MPC_Z_VEL_MAX_DN * tol
