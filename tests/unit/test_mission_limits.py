@@ -182,8 +182,10 @@ def test_each_axis_stays_within_its_own_px4_limit() -> None:
     parameter, by finite differences of the positions, on a mission that climbs and descends
     between waypoints (an isotropic limit alone would let the vertical axis use the
     horizontal one's acceleration)."""
-    px4 = Px4PlanningParams(MPC_ACC_HOR_MAX=6.0, MPC_ACC_UP_MAX=2.0, MPC_ACC_DOWN_MAX=1.5,
-                            MPC_Z_VEL_MAX_UP=2.0, MPC_Z_VEL_MAX_DN=1.0, MPC_XY_VEL_MAX=12.0)  # fmt: skip
+    px4 = Px4PlanningParams(
+        MPC_ACC_HOR_MAX=6.0, MPC_ACC_UP_MAX=2.0, MPC_ACC_DOWN_MAX=1.5,
+        MPC_Z_VEL_MAX_UP=2.0, MPC_Z_VEL_MAX_DN=1.0, MPC_XY_VEL_MAX=12.0,
+    )  # fmt: skip
     items = [_item(22, [0, 0, 0, None, HOME[0], HOME[1], 10]),
              _wp(20.0, 25), _wp(40.0, 10), _wp(70.0, 30), _wp(90.0, 12),
              _item(21, [0, 0, 0, None, HOME[0] + 90.0 / M_PER_DEG_LAT, HOME[1], 0])]  # fmt: skip
