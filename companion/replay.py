@@ -725,25 +725,37 @@ def read_mock_params(
     names: tuple[str, ...] = PLANNING_PARAM_NAMES,
     *,
     floats: bool = True,
+    second_pass: bool = True,
     dt: float = 0.01,
     t_max: float = 10.0,
 ) -> ParamReadDone:
     """Read parameters from a fresh mock built from `config` (its `mock_params` applied) the
     way `fly` reads them from PX4: PARAM_REQUEST_READ by name over the lockstep link, with the
-    client's retries, on simulated time (`floats`: each must come back as REAL32)."""
+    client's retries, on simulated time (`floats`: each must come back as REAL32;
+    `second_pass`: names not answered are asked for once more, as `Vehicle` does)."""
     ap = _make_autopilot(config, home)
     link = VehicleLink(LinkConfig())
     lk = LockstepLink(ap, link, None, wanted=frozenset({22}))  # PARAM_VALUE only
     expect = {n: ParamType.REAL32 for n in names} if floats else None
-    done = [e for e in link.params.read(names, 0.0, expect) if isinstance(e, ParamReadDone)]
-    lk.to_vehicle(link.frames_to_send())
     t = 0.0
-    while not done:
-        t += dt
-        if t > t_max:  # the client gives up after its tries long before this
-            raise RuntimeError(f"parameter read from the mock did not finish in {t_max:g} s")
-        done = [e for e in lk.advance(t) if isinstance(e, ParamReadDone)]
-    return done[0]
+
+    def read(wanted: tuple[str, ...]) -> ParamReadDone:
+        nonlocal t
+        done = [e for e in link.params.read(wanted, t, expect) if isinstance(e, ParamReadDone)]
+        lk.to_vehicle(link.frames_to_send())
+        while not done:
+            t += dt
+            if t > t_max:  # the client gives up after its tries long before this
+                raise RuntimeError(f"parameter read from the mock did not finish in {t_max:g} s")
+            done = [e for e in lk.advance(t) if isinstance(e, ParamReadDone)]
+        return done[0]
+
+    first = read(names)
+    if not (second_pass and first.missing):
+        return first
+    again = read(first.missing)  # a second pass, as Vehicle.read_planning_params does
+    return ParamReadDone(again.t_s, {**first.values, **again.values}, again.missing,
+                         {**first.wrong_type, **again.wrong_type}, first.attempts + again.attempts)
 
 
 @dataclass(frozen=True)

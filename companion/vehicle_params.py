@@ -2,10 +2,13 @@
 file's ``[px4]`` table, PX4's default where the vehicle has no such parameter (pure: no I/O).
 
 Policy (safety): a value the vehicle sent is used unless the vehicle file overrides it. A
-parameter the vehicle did not answer (a PX4 build or airframe without it, or an autopilot that
-does not answer parameter requests at all) falls back to PX4 v1.16's multicopter default with a
-warning naming it: PX4 without that parameter does not apply its limit either, and the default
-is what the companion planned with before it read parameters. A parameter answered with the
+parameter the vehicle did not answer, even on a second pass of requests (a PX4 build or airframe
+without it, an autopilot that answers no parameter request at all, or a link losing most
+frames), falls back to PX4 v1.16's multicopter default with a warning naming it: PX4 without
+that parameter does not apply its limit either, and the default is what the companion planned
+with before it read parameters. Since the companion's own attitude/rates setpoints are not held
+to PX4's MPC_* limits, a vehicle configured below PX4's defaults must then say so in the
+vehicle file's ``[px4]`` table (which also silences the warning). A parameter answered with the
 wrong type or an impossible value (e.g. MPC_THR_HOVER 0, MPC_TILTMAX_AIR 95) is an error: the
 vehicle is not what the planner assumes, so nothing is flown until the vehicle file overrides it.
 """
@@ -113,7 +116,8 @@ def resolve_planning_params(
         warnings.append(f"{where} answered no parameter request: planning with PX4's defaults "
                         "(and the vehicle file's [px4] table)")
     elif defaulted:
-        warnings.append(f"{where} has no {', '.join(defaulted)}: planning with PX4's default "
+        warnings.append(f"{where} did not answer for {', '.join(defaulted)} (not there, or lost "
+                        f"on the link): planning with PX4's default "
                         f"({', '.join(f'{getattr(params, n):g}' for n in defaulted)})")
     return ResolvedPlanningParams(params, source, {n: float(v) for n, v in read.items()
                                                    if n in PLANNING_PARAM_NAMES},

@@ -485,14 +485,21 @@ class Vehicle:
     async def read_planning_params(self, overrides: Mapping[str, float] | None = None,
                                    timeout_s: float = 10.0) -> ResolvedPlanningParams:
         """The PX4 parameters the mission planner uses (``PLANNING_PARAM_NAMES``, all REAL32 in
-        PX4), read from the vehicle and combined with the vehicle file's ``[px4]`` overrides:
+        PX4), read from the vehicle (names not answered are asked for once more) and combined
+        with the vehicle file's ``[px4]`` overrides:
         ``.params`` is the :class:`Px4PlanningParams` to plan with, ``.warnings`` names the
         parameters the vehicle did not have (PX4's default used; see
         :mod:`companion.vehicle_params` for the policy). ValueError for a value the planner
         cannot use (wrong type, out of range) unless overridden."""
         names = list(PLANNING_PARAM_NAMES)
-        done = await self._read_params(names, timeout_s, {n: ParamType.REAL32 for n in names})
-        resolved = resolve_planning_params(done.values, overrides, wrong_type=done.wrong_type)
+        expect = {n: ParamType.REAL32 for n in names}
+        done = await self._read_params(names, timeout_s, expect)
+        values, wrong = dict(done.values), dict(done.wrong_type)
+        if done.missing:  # a second pass: tells a lossy link from a parameter PX4 lacks
+            again = await self._read_params(done.missing, timeout_s, expect)
+            values.update(again.values)
+            wrong.update(again.wrong_type)
+        resolved = resolve_planning_params(values, overrides, wrong_type=wrong)
         for w in resolved.warnings:
             log.warning("%s", w)
         return resolved
