@@ -20,6 +20,10 @@ Example `vehicle.toml` (every key optional; defaults are PX4's SIH quadrotor)::
     kd_xy = 8.5                             # over a link with ~100 ms latency use
     ki_xy = 3.0                             # kp_xy 6, kd_xy 4.5, ki_xy 1, k_roll 6.5
     k_roll = 10.0                           # attitude gains of rates mode [1/s]
+
+    [px4]                                   # PX4 parameters the mission planner uses: these
+    MPC_XY_CRUISE = 8.0                     # win over the values read from the vehicle at
+    NAV_ACC_RAD = 1.0                       # connect (names: companion.px4_params)
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ from typing import Any
 from companion.control import AttitudeGains, TrackingConfig, TrackingGains
 from companion.flatness import MultirotorParams
 from companion.schedule import VehicleLimits
+from companion.vehicle_params import check_overrides
 
 _VEHICLE_KEYS = {"mass_kg", "inertia_kg_m2", "hover_thrust", "drag_n_per_m_s"}
 _LIMIT_KEYS = {
@@ -40,7 +45,8 @@ _LIMIT_KEYS = {
 }
 _GAIN_KEYS = {f.name for f in fields(TrackingGains)}
 _ATT_KEYS = {"k_roll", "k_pitch", "k_yaw"}
-_SECTIONS = {"vehicle": _VEHICLE_KEYS, "limits": _LIMIT_KEYS, "tracking": _GAIN_KEYS | _ATT_KEYS}
+_SECTIONS = {"vehicle": _VEHICLE_KEYS, "limits": _LIMIT_KEYS, "tracking": _GAIN_KEYS | _ATT_KEYS,
+             "px4": set()}  # [px4]: checked by check_overrides (PX4 parameter names)
 
 
 @dataclass(frozen=True)
@@ -56,6 +62,8 @@ class VehicleFile:
     limits: VehicleLimits = field(default_factory=VehicleLimits)
     gains: TrackingGains = field(default_factory=TrackingGains)
     attitude_gains: AttitudeGains = field(default_factory=AttitudeGains)
+    px4_overrides: dict[str, float] = field(default_factory=dict)
+    """``[px4]``: PX4 parameter values that win over those read from the vehicle."""
 
     def tracking_config(self, max_tilt_rad: float) -> TrackingConfig:
         """The controller configuration for attitude/rates mode (tilt limit [rad])."""
@@ -91,7 +99,7 @@ def load_vehicle_file(path: str | Path) -> VehicleFile:
         if not isinstance(table, dict):
             raise ValueError(f"{p}: [{name}] must be a table")
         extra = set(table) - keys
-        if extra:
+        if extra and name != "px4":
             raise ValueError(f"{p}: [{name}] unknown key(s) {sorted(extra)}; known: {sorted(keys)}")
     where = f"{p} [vehicle]"
     inertia = veh.get("inertia_kg_m2", [0.025, 0.025, 0.030])
@@ -130,4 +138,6 @@ def load_vehicle_file(path: str | Path) -> VehicleFile:
     if (any(getattr(gains, k) < 0 for k in _GAIN_KEYS)
             or any(getattr(att, k) <= 0 for k in _ATT_KEYS)):
         raise ValueError(f"{where}: gains must be >= 0 (attitude gains > 0)")
-    return VehicleFile(params=params, limits=limits, gains=gains, attitude_gains=att)
+    px4 = check_overrides(data.get("px4", {}), f"{p} [px4]")
+    return VehicleFile(params=params, limits=limits, gains=gains, attitude_gains=att,
+                       px4_overrides=px4)

@@ -27,8 +27,10 @@ from companion.flight_report import FloatArray, TrackRecorder
 from companion.mavlink import FlightMode, LinkConfig
 from companion.mission import Mission, geodetic_to_ned, load_mission, mission_to_flight_plan
 from companion.patterns import PATTERNS, pattern_trajectory, pattern_waypoints
+from companion.px4_params import Px4PlanningParams
 from companion.schedule import Schedule, build_schedule, trajectory_reference
 from companion.tracking import TrackingSource
+from companion.vehicle_params import ResolvedPlanningParams
 
 DEFAULT_HOME = (47.397742, 8.545594, 488.0)
 #: A mission's planned home must be this close to the vehicle to be flown [m].
@@ -187,11 +189,14 @@ class PlannedFlight:
     final_action: str  # "land", "rtl" or "loiter"
 
 
-def plan_flight(opts: FlyOptions, inputs: FlyInputs, rover: bool) -> PlannedFlight:
-    """Plan the mission or pattern (CPU-bound: run it off the event loop)."""
+def plan_flight(opts: FlyOptions, inputs: FlyInputs, rover: bool,
+                px4: Px4PlanningParams | None = None) -> PlannedFlight:
+    """Plan the mission or pattern (CPU-bound: run it off the event loop). ``px4``: the
+    vehicle's planning parameters (None: PX4's defaults); patterns use their own options."""
     vf = inputs.vehicle
     if inputs.mission is not None:
-        fp = mission_to_flight_plan(inputs.mission, vehicle="rover" if rover else "quad")
+        fp = mission_to_flight_plan(inputs.mission, vehicle="rover" if rover else "quad",
+                                    px4=px4)
         schedule = build_schedule(fp, None if rover else vf.params, vf.limits)
         t_off = _takeoff_end(schedule)
 
@@ -236,6 +241,15 @@ async def _home_offset_m(v: Any, mission: Mission, timeout_s: float) -> float:
     return math.hypot(off[0], off[1])
 
 
+def print_planning_params(console: Console, resolved: ResolvedPlanningParams,
+                          where: str = "the vehicle") -> None:
+    """The PX4 parameters a plan uses, one compact block (overrides and defaults marked; the
+    warnings naming parameters the vehicle lacked are logged by ``Vehicle``)."""
+    console.print(f"PX4 parameters (read from {where}):")
+    for line in resolved.lines():
+        console.print(f"  {escape(line)}", soft_wrap=True)
+
+
 def write_report(log_path: str, report: dict[str, Any]) -> Path:
     """Write `report` as `<tlog>.report.json` next to the flight log; returns its path."""
     path = Path(f"{log_path}.report.json")
@@ -260,10 +274,11 @@ def summary_table(report: dict[str, Any]) -> Table:
 async def fly(opts: FlyOptions, console: Console) -> int:
     """Run `fly`; returns the exit code (0 ok, 1 flight failure, 2 bad input).
 
-    Safety order: files and options are checked before the link opens; the flight is planned
-    and the mission's planned home compared with the vehicle's position before anything but
-    link upkeep (HEARTBEAT, TIMESYNC, stream-rate requests) is sent, so a failed check never
-    arms the vehicle.
+    Safety order: files and options are checked before the link opens; the PX4 parameters the
+    mission plans with are read (PARAM_REQUEST_READ only), the flight is planned and the
+    mission's planned home compared with the vehicle's position before anything but link
+    upkeep (HEARTBEAT, TIMESYNC, stream-rate requests) and those reads is sent, so a failed
+    check never arms the vehicle.
     """
     from companion.aio import Vehicle, VehicleConfig, VehicleError, safe_exit
 
@@ -293,9 +308,15 @@ async def fly(opts: FlyOptions, console: Console) -> int:
         mode = "rover" if rover else opts.mode
         console.print(
             f"Connected: {'rover' if rover else 'multicopter'}, logging to {escape(log_path)}")
-        # every check that can fail, before the first command: plan (off the event loop,
-        # up to a second) and compare the mission's home with where the vehicle is
-        planned = await asyncio.to_thread(plan_flight, opts, inputs, rover)
+        # every check that can fail, before the first command: read the PX4 parameters the
+        # mission is planned with (only reads go out), plan (off the event loop, up to a
+        # second) and compare the mission's home with where the vehicle is
+        px4: ResolvedPlanningParams | None = None
+        if mission is not None:
+            px4 = await v.read_planning_params(inputs.vehicle.px4_overrides)
+            print_planning_params(console, px4)
+        planned = await asyncio.to_thread(plan_flight, opts, inputs, rover,
+                                          None if px4 is None else px4.params)
         if mission is not None:
             horiz = await _home_offset_m(v, mission, HOME_WAIT_S)
             if horiz > MAX_HOME_OFFSET_M:
@@ -352,6 +373,8 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                                           planned_duration_s=planned.duration_s)
                 report.update(result="ok", mode=mode, target=opts.target,
                               final_action=planned.final_action)
+                if px4 is not None:
+                    report["px4_params"] = px4.as_report()
                 if rover:
                     await v.disarm()
                 elif planned.final_action in ("land", "rtl"):

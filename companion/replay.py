@@ -38,6 +38,7 @@ from companion.mavlink.commands import CommandFinished
 from companion.mavlink.link import LinkConfig, VehicleLink
 from companion.mavlink.mission_client import MissionItem as WireItem
 from companion.mavlink.mission_client import MissionTransferDone
+from companion.mavlink.params import ParamReadDone, ParamType
 from companion.mavlink.px4_mode import FlightMode
 from companion.mavlink.setpoints import (
     AttitudeSetpoint,
@@ -48,8 +49,10 @@ from companion.mavlink.setpoints import (
 from companion.mission import Mission, MissionError, load_mission, mission_to_flight_plan
 from companion.mission.upload import mission_upload_items
 from companion.plotting import PlotData, PlotWorker, draw_flight_png
+from companion.px4_params import PLANNING_PARAM_NAMES
 from companion.schedule import Schedule, VehicleLimits, build_schedule
 from companion.tracking import SetpointMode, TrackingSource
+from companion.vehicle_params import ResolvedPlanningParams, resolve_planning_params
 
 FloatArray = NDArray[np.float64]
 Mode = Literal["position", "attitude", "rates"]
@@ -183,6 +186,7 @@ COMPANION_MSG_IDS = frozenset(
         1,  # SYS_STATUS
         31,  # ATTITUDE_QUATERNION
         32,  # LOCAL_POSITION_NED
+        22,  # PARAM_VALUE (the planning parameters, read before planning)
         39, 40, 42, 44, 45, 46, 47, 51, 73, 77,  # MISSION_* and COMMAND_ACK
         111,  # TIMESYNC
         242,  # HOME_POSITION
@@ -715,26 +719,72 @@ def plot_flight(
     draw_flight_png(path, plot_data(title, log, schedule, origin, px4_log))
 
 
+def read_mock_params(
+    config: ReplayConfig,
+    home: tuple[float, float, float],
+    names: tuple[str, ...] = PLANNING_PARAM_NAMES,
+    *,
+    floats: bool = True,
+    second_pass: bool = True,
+    dt: float = 0.01,
+    t_max: float = 10.0,
+) -> ParamReadDone:
+    """Read parameters from a fresh mock built from `config` (its `mock_params` applied) the
+    way `fly` reads them from PX4: PARAM_REQUEST_READ by name over the lockstep link, with the
+    client's retries, on simulated time (`floats`: each must come back as REAL32;
+    `second_pass`: names not answered are asked for once more, as `Vehicle` does)."""
+    ap = _make_autopilot(config, home)
+    link = VehicleLink(LinkConfig())
+    lk = LockstepLink(ap, link, None, wanted=frozenset({22}))  # PARAM_VALUE only
+    expect = {n: ParamType.REAL32 for n in names} if floats else None
+    t = 0.0
+
+    def read(wanted: tuple[str, ...]) -> ParamReadDone:
+        nonlocal t
+        done = [e for e in link.params.read(wanted, t, expect) if isinstance(e, ParamReadDone)]
+        lk.to_vehicle(link.frames_to_send())
+        while not done:
+            t += dt
+            if t > t_max:  # the client gives up after its tries long before this
+                raise RuntimeError(f"parameter read from the mock did not finish in {t_max:g} s")
+            done = [e for e in lk.advance(t) if isinstance(e, ParamReadDone)]
+        return done[0]
+
+    first = read(names)
+    if not (second_pass and first.missing):
+        return first
+    again = read(first.missing)  # a second pass, as Vehicle.read_planning_params does
+    return ParamReadDone(again.t_s, {**first.values, **again.values}, again.missing,
+                         {**first.wrong_type, **again.wrong_type}, first.attempts + again.attempts)
+
+
 @dataclass(frozen=True)
 class PreparedMission:
-    """A mission file loaded and planned for one `ReplayConfig`'s vehicle, params and limits."""
+    """A mission file loaded and planned for one `ReplayConfig`'s vehicle, params and limits;
+    `px4`: the PX4 planning parameters read from the mock and used (None: not read)."""
 
     path: Path
     mission: Mission
     warnings: tuple[str, ...]
     schedule: Schedule
     home: tuple[float, float, float]
+    px4: ResolvedPlanningParams | None = None
 
 
 def prepare_mission(path: str | os.PathLike[str], config: ReplayConfig) -> PreparedMission:
-    """Load and plan `path` as `config` would fly it. Raises MissionError on a bad file."""
+    """Load and plan `path` as `config` would fly it: the PX4 planning parameters are read
+    from the mock first (`read_mock_params`, so `--mock-param MPC_XY_CRUISE=8` changes the
+    plan as the vehicle's parameter would). Raises MissionError on a bad file."""
     src = Path(path)
     mission = load_mission(src)
-    flight_plan = mission_to_flight_plan(mission, vehicle=config.vehicle)
+    home = (mission.home.lat_deg, mission.home.lon_deg, mission.home.alt_amsl_m)
+    read = read_mock_params(config, home)
+    px4 = resolve_planning_params(read.values, wrong_type=read.wrong_type, where="the mock")
+    flight_plan = mission_to_flight_plan(mission, vehicle=config.vehicle, px4=px4.params)
     params = None if config.vehicle == "rover" else config.params
     schedule = build_schedule(flight_plan, params, planning_limits(config))
-    home = (mission.home.lat_deg, mission.home.lon_deg, mission.home.alt_amsl_m)
-    return PreparedMission(src, mission, tuple(flight_plan.warnings), schedule, home)
+    warnings = (*flight_plan.warnings, *px4.warnings)
+    return PreparedMission(src, mission, warnings, schedule, home, px4)
 
 
 @dataclass(frozen=True)
@@ -782,6 +832,8 @@ def run_prepared(
             "warnings": list(prep.warnings),
         }
     )
+    if prep.px4 is not None:
+        report["px4_params"] = prep.px4.as_report()
     if config.start_offset_ne_m != (0.0, 0.0):
         # the companion flew relative to where it stood; the mission's geodetic waypoints sit
         # at -offset in the vehicle's frame, this is how far the flight passed from them
@@ -872,6 +924,7 @@ __all__ = [
     "fly_schedule",
     "mission_frames",
     "prepare_mission",
+    "read_mock_params",
     "replay_file",
     "run_prepared",
     "summarize",

@@ -31,6 +31,7 @@ from rich.console import Console
 from companion.config import VehicleFile, load_vehicle_file
 from companion.mavlink import FlightMode, LinkConfig, VehicleLink
 from companion.mavlink.codec import MavMessage
+from companion.px4_params import Px4PlanningParams
 from companion.service import (
     Action,
     Announce,
@@ -44,6 +45,7 @@ from companion.service import (
     ServiceConfig,
     plan_program,
 )
+from companion.vehicle_params import ResolvedPlanningParams
 
 log = logging.getLogger("companion.serve")
 MSG_HOME_POSITION = 242
@@ -166,12 +168,36 @@ class _Session:
     """One connected Vehicle driven by the service until ``stop`` is set."""
 
     def __init__(self, v: Any, service: ServeService, events: EventLog, tlog: RotatingTlog,
-                 opts: ServeOptions) -> None:
+                 opts: ServeOptions, px4_overrides: dict[str, float] | None = None) -> None:
         self.v, self.service, self.events, self.tlog, self.opts = v, service, events, tlog, opts
+        self.px4_overrides = px4_overrides or {}  # the vehicle file's [px4] table
         self._tasks: set[asyncio.Task[None]] = set()
         self._mode_task: asyncio.Task[None] | None = None
         self._text_id = 0
         self._armed = False
+        self._px4: asyncio.Task[Px4PlanningParams | str] | None = None
+
+    async def read_px4_params(self) -> Px4PlanningParams | str:
+        """The vehicle's planning parameters with the vehicle file's [px4] overrides, logged
+        (``px4_params``); a reason string (``px4_params_refused``) if the planner cannot use
+        them: missions are then refused with it."""
+        from companion.aio import VehicleError
+
+        try:
+            r: ResolvedPlanningParams = await self.v.read_planning_params(self.px4_overrides)
+        except ValueError as exc:
+            self.events.write("px4_params_refused", why=str(exc))
+            return f"PX4 parameters: {exc}"
+        except (TimeoutError, VehicleError) as exc:  # e.g. the link went down meanwhile
+            self.events.write("px4_params_refused", why=f"read failed: {exc}")
+            return f"PX4 parameters could not be read: {exc}"
+        self.events.write(
+            "px4_params", **{n: round(v, 4) for n, v in r.params.as_dict().items()},
+            vehicle_file=sorted(n for n, s in r.source.items() if s == "file"),
+            defaulted=list(r.defaulted))
+        for w in r.warnings:
+            self.events.write("px4_params_warning", why=w)
+        return r.params
 
     def observe(self) -> Observation:
         v = self.v
@@ -262,8 +288,12 @@ class _Session:
         vehicle: Literal["quad", "rover"] = (
             "rover" if hb is not None and hb.vehicle_type == 10 else "quad")
         result: MissionProgram | str
+        px4 = await self._px4 if self._px4 is not None else None
         try:
-            result = await asyncio.to_thread(plan_program, items, home, key, svc.config, vehicle)
+            if isinstance(px4, str):
+                raise ValueError(px4)
+            config = dataclasses.replace(svc.config, px4=px4)
+            result = await asyncio.to_thread(plan_program, items, home, key, config, vehicle)
         except Exception as exc:  # MissionError, ValueError, planner failures: say why
             result = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         self.perform(svc.on_planned(key, result, time.monotonic()))
@@ -283,6 +313,9 @@ class _Session:
         streamer = FixedRateStreamer(self.opts.rate_hz, send, self.producer, on_sent=on_sent,
                                      name="serve-streamer")
         streamer.start()
+        # read the planning parameters beside the hold stream (never delay it); a mission
+        # download waits for them before it is planned
+        self._px4 = asyncio.get_running_loop().create_task(self.read_px4_params())
         try:
             while not stop.is_set():
                 obs = self.observe()
@@ -308,9 +341,9 @@ class _Session:
         finally:
             streamer.stop()
             self.service.stream = None
-            for t in list(self._tasks):
+            for t in [*self._tasks, *([self._px4] if self._px4 is not None else [])]:
                 t.cancel()
-            for t in list(self._tasks):
+            for t in [*self._tasks, *([self._px4] if self._px4 is not None else [])]:
                 with contextlib.suppress(asyncio.CancelledError, Exception):
                     await t
 
@@ -358,7 +391,7 @@ async def serve(opts: ServeOptions, console: Console) -> int:
             v.tlog = tlog  # type: ignore[assignment]  # same write/close interface
             events.write("connected", url=opts.connect)
             try:
-                await _Session(v, service, events, tlog, opts).run(stop)
+                await _Session(v, service, events, tlog, opts, vf.px4_overrides).run(stop)
             finally:
                 await v.close()
     finally:

@@ -41,6 +41,7 @@ from companion.mavlink.px4_mode import FlightMode
 from companion.mavlink.setpoints import PositionSetpoint, SetpointCommand
 from companion.mavlink.telemetry import HomePosition, LocalPosition, MissionCurrent
 from companion.mission import GeoPoint, loads_mission, mission_to_flight_plan
+from companion.px4_params import Px4PlanningParams
 from companion.schedule import Schedule, VehicleLimits, build_schedule, trajectory_reference
 from companion.tracking import SetpointMode, TrackingSource
 from companion.trajectory import Limits, plan
@@ -72,6 +73,7 @@ class ServiceConfig:
     settle_m: float = 0.5  # at the plan's end: request the final action within this distance
     settle_s: float = 3.0  # ... or this long after the plan ended
     mode_retry_s: float = 3.0  # re-request the final action if PX4 is still in OFFBOARD
+    px4: Px4PlanningParams | None = None  # the vehicle's planning parameters (None: defaults)
 
 
 # -- observations and actions ------------------------------------------------------------------
@@ -270,7 +272,7 @@ def plan_program(items: Sequence[MissionItem], home: HomePosition, key: tuple[in
     if not items:
         raise ValueError("the vehicle has no mission")
     mission = mission_from_items(items, home)
-    fp = mission_to_flight_plan(mission, vehicle=vehicle)
+    fp = mission_to_flight_plan(mission, vehicle=vehicle, px4=config.px4)
     schedule = build_schedule(fp, None if vehicle == "rover" else config.params, config.limits)
     return MissionProgram(schedule, home.pos_ned, key)
 

@@ -59,7 +59,7 @@ PARAMS: dict[str, ParamSpec] = {
     # Navigator / mission
     "MIS_TAKEOFF_ALT": ParamSpec(2.5, False, "default takeoff altitude above home [m]"),
     "NAV_ACC_RAD": ParamSpec(2.0, False, "default waypoint acceptance radius [m]"),
-    "RTL_RETURN_ALT": ParamSpec(60.0, False, "return altitude above home [m]"),
+    "RTL_RETURN_ALT": ParamSpec(30.0, False, "return altitude above home [m] (MC airframes: 30)"),
     # Multicopter position control (PX4 defaults)
     "MPC_THR_HOVER": ParamSpec(0.5, False, "hover thrust the controllers assume [0..1]"),
     "MPC_THR_MIN": ParamSpec(0.12, False, "minimum collective thrust in flight [0..1]"),
@@ -196,6 +196,16 @@ PARAMS.update(
     }
 )
 
+# Appended for the companion's planner (it reads every PX4 parameter it plans with over MAVLink;
+# the mock stores this one, its own AUTO flight uses MPC_ACC_HOR like PX4's auto modes).
+PARAMS.update(
+    {
+        "MPC_ACC_HOR_MAX": ParamSpec(
+            5.0, False, "maximum horizontal acceleration in velocity-controlled modes [m/s^2]"
+        ),
+    }
+)
+
 # Accepted values: PX4 v1.16 parameter metadata (min, max, enumerated values; the build's
 # etc/extras/parameters.json, checked by tests/unit/test_sitl_param_ranges.py) for every parameter
 # PX4 has. `_MOCK_RANGES` below replaces or completes a range where PX4 gives none or PX4's would
@@ -221,6 +231,7 @@ PX4_RANGES: dict[str, tuple[float | None, float | None, tuple[int, ...]]] = {
     "MPC_LAND_SPEED": (0.6, None, ()),
     "MPC_TILTMAX_AIR": (20.0, 89.0, ()),
     "MPC_ACC_HOR": (2.0, 15.0, ()),
+    "MPC_ACC_HOR_MAX": (2.0, 15.0, ()),
     "MPC_XY_P": (0.0, 2.0, ()),
     "MPC_Z_P": (0.1, 1.5, ()),
     "MPC_XY_VEL_P_ACC": (1.2, 5.0, ()),

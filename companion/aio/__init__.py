@@ -8,6 +8,7 @@ from .errors import (
     ModeChangeError,
     OffboardError,
     OffboardExitedError,
+    ParamReadError,
     SetpointSourceError,
     TelemetryStaleError,
     VehicleError,
@@ -21,7 +22,7 @@ from .vehicle import FlightReport, MissionAPI, Vehicle, VehicleConfig, safe_exit
 __all__ = [
     "CommandError", "ConnectTimeoutError", "Endpoint", "FixedRateStreamer", "FlightReport",
     "LinkLostError", "MissionAPI", "MissionError", "ModeChangeError", "OffboardError",
-    "OffboardExitedError", "SetpointSource", "SetpointSourceError", "StreamStats",
+    "OffboardExitedError", "ParamReadError", "SetpointSource", "SetpointSourceError", "StreamStats",
     "TelemetryStaleError", "TlogWriter", "TrajectoryPositionSource", "Transport",
     "TransportError", "Vehicle", "VehicleConfig", "VehicleError", "hold_setpoint",
     "open_transport", "parse_url", "safe_exit",

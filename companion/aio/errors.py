@@ -74,3 +74,15 @@ class MissionError(VehicleError):
         self.result = result
         self.mav_result = mav_result
         super().__init__(f"mission {operation} failed: {result.value} ({detail})")
+
+
+class ParamReadError(VehicleError):
+    """Parameters did not come back (or came back with an unexpected type). ``values``: those
+    that did; ``missing`` / ``wrong_type``: the others, by name."""
+
+    def __init__(self, values: dict[str, float], missing: tuple[str, ...],
+                 wrong_type: dict[str, str], detail: str) -> None:
+        self.values = values
+        self.missing = missing
+        self.wrong_type = wrong_type
+        super().__init__(f"parameter read failed: {detail}")

@@ -24,7 +24,7 @@ import logging
 import math
 import signal
 import time
-from collections.abc import AsyncIterator, Awaitable, Callable, Generator, Sequence
+from collections.abc import AsyncIterator, Awaitable, Callable, Generator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, Literal, TypeVar
 
@@ -45,6 +45,8 @@ from companion.mavlink import (
     ModeChanged,
     OffboardMachine,
     OffboardState,
+    ParamReadDone,
+    ParamType,
     PositionSetpoint,
     SetpointCommand,
     StatusText,
@@ -60,6 +62,8 @@ from companion.mavlink.commands import (
     MAV_CMD_NAV_TAKEOFF,
     MAV_CMD_SET_MESSAGE_INTERVAL,
 )
+from companion.px4_params import PLANNING_PARAM_NAMES
+from companion.vehicle_params import ResolvedPlanningParams, resolve_planning_params
 
 from .errors import (
     CommandError,
@@ -69,6 +73,7 @@ from .errors import (
     ModeChangeError,
     OffboardError,
     OffboardExitedError,
+    ParamReadError,
     SetpointSourceError,
     TelemetryStaleError,
     VehicleError,
@@ -251,6 +256,7 @@ class Vehicle:
         self._tasks: list[asyncio.Task[None]] = []
         self._cmd_waiters: dict[int, asyncio.Future[CommandFinished]] = {}
         self._mission_waiter: asyncio.Future[MissionTransferDone] | None = None
+        self._param_waiter: asyncio.Future[ParamReadDone] | None = None
         self._wake = asyncio.Event()
         self._changed = asyncio.Event()
         self._link_up = asyncio.Event()
@@ -338,6 +344,10 @@ class Vehicle:
                 mw = self._mission_waiter
                 if mw is not None and not mw.done():
                     mw.set_result(e)
+            elif isinstance(e, ParamReadDone):
+                pw = self._param_waiter
+                if pw is not None and not pw.done():
+                    pw.set_result(e)
             elif isinstance(e, LocalPosition):
                 self._pos_bc.publish(e)
             elif isinstance(e, Attitude):
@@ -441,6 +451,58 @@ class Vehicle:
         if check and not fin.ok:
             raise error(command, fin.result, fin.reason, what)
         return fin
+
+    # -- parameters -------------------------------------------------------------------------
+    async def _read_params(self, names: Sequence[str], timeout_s: float,
+                           expect: dict[str, ParamType] | None = None) -> ParamReadDone:
+        if self._param_waiter is not None:
+            raise VehicleError("a parameter read is already running")
+        fut: asyncio.Future[ParamReadDone] = asyncio.get_running_loop().create_future()
+        self._param_waiter = fut
+        try:
+            immediate = self.link.params.read(names, time.monotonic(), expect)
+            self._flush()
+            self._wake.set()
+            return immediate[0] if immediate else await _bounded(fut, timeout_s)
+        except (asyncio.CancelledError, TimeoutError):
+            self.link.params.cancel()
+            raise
+        finally:
+            self._param_waiter = None
+
+    async def read_params(self, names: Sequence[str], timeout_s: float = 10.0,
+                          *, floats_only: bool = False) -> dict[str, float]:
+        """Read PX4 parameters by name (PARAM_REQUEST_READ, 3 tries 0.5 s apart each); returns
+        {name: value}. Raises ParamReadError naming every parameter that never came back (or,
+        with ``floats_only``, came back as another type than REAL32), TimeoutError after
+        ``timeout_s`` [s]."""
+        expect = {n: ParamType.REAL32 for n in names} if floats_only else None
+        done = await self._read_params(names, timeout_s, expect)
+        if not done.ok:
+            raise ParamReadError(done.values, done.missing, done.wrong_type, done.problem())
+        return done.values
+
+    async def read_planning_params(self, overrides: Mapping[str, float] | None = None,
+                                   timeout_s: float = 10.0) -> ResolvedPlanningParams:
+        """The PX4 parameters the mission planner uses (``PLANNING_PARAM_NAMES``, all REAL32 in
+        PX4), read from the vehicle (names not answered are asked for once more) and combined
+        with the vehicle file's ``[px4]`` overrides:
+        ``.params`` is the :class:`Px4PlanningParams` to plan with, ``.warnings`` names the
+        parameters the vehicle did not have (PX4's default used; see
+        :mod:`companion.vehicle_params` for the policy). ValueError for a value the planner
+        cannot use (wrong type, out of range) unless overridden."""
+        names = list(PLANNING_PARAM_NAMES)
+        expect = {n: ParamType.REAL32 for n in names}
+        done = await self._read_params(names, timeout_s, expect)
+        values, wrong = dict(done.values), dict(done.wrong_type)
+        if done.missing:  # a second pass: tells a lossy link from a parameter PX4 lacks
+            again = await self._read_params(done.missing, timeout_s, expect)
+            values.update(again.values)
+            wrong.update(again.wrong_type)
+        resolved = resolve_planning_params(values, overrides, wrong_type=wrong)
+        for w in resolved.warnings:
+            log.warning("%s", w)
+        return resolved
 
     # -- state --------------------------------------------------------------------------------
     @property

@@ -37,6 +37,14 @@ from .offboard import (
     OffboardStateChanged,
     OffboardTrigger,
 )
+from .params import (
+    ParamBusyError,
+    ParamClient,
+    ParamReadDone,
+    ParamType,
+    decode_param_value,
+    encode_param_value,
+)
 from .px4_mode import (
     FlightMode,
     Px4AutoSubMode,
@@ -89,12 +97,14 @@ __all__ = [
     "LocalPosition", "MavResult", "MissionBusyError", "MissionClient", "MissionCurrent",
     "MissionItem", "MissionResult", "MissionTransferDone", "ModeChanged", "OffboardMachine",
     "OffboardNotPrimedError", "OffboardState", "OffboardStateChanged", "OffboardTrigger",
+    "ParamBusyError", "ParamClient", "ParamReadDone", "ParamType",
     "PositionSetpoint", "Px4AutoSubMode", "Px4MainMode", "RatesSetpoint",
     "RoverVelocitySetpoint", "SetpointCommand", "SetpointError", "Signer", "SigningConfig",
     "SigningKeyError", "StatusText", "SystemStatus", "TelemetrySnapshot", "TelemetryState",
     "TimeSync", "TimesyncUpdate", "VehicleHeartbeat", "VehicleLink", "Verdict",
     "build_attitude_target", "build_position_target", "build_rates_target",
     "build_rover_velocity_target", "build_setpoint", "custom_mode_of", "decode_custom_mode",
-    "encode_custom_mode", "flight_mode_from_custom_mode", "load_signing_key",
+    "decode_param_value", "encode_custom_mode", "encode_param_value",
+    "flight_mode_from_custom_mode", "load_signing_key",
     "parse_signing_key", "raw_frame", "result_name",
 ]

@@ -2,8 +2,8 @@
 
 Feed bytes with ``receive_bytes(data, now)`` (or decoded messages with ``handle_message``),
 drain ``frames_to_send()``, run ``handle_timer(now)`` at ``get_timer()``. Requests (arm,
-set_mode, takeoff, land, mission transfers) queue messages and return nothing; their outcomes
-come back as events. Never reads a clock, never touches a socket.
+set_mode, takeoff, land, mission transfers, parameter reads) queue messages and return nothing;
+their outcomes come back as events. Never reads a clock, never touches a socket.
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from .commands import (
 )
 from .heartbeat import HeartbeatEvent, HeartbeatTracker
 from .mission_client import MissionClient, MissionTransferDone
+from .params import ParamClient, ParamReadDone
 from .px4_mode import FlightMode, custom_mode_of, set_mode_params
 from .setpoints import SetpointCommand, build_setpoint, pack_setpoint
 from .signing import Signer, SigningConfig
@@ -39,7 +40,7 @@ MAV_AUTOPILOT_INVALID = 8
 MAV_STATE_ACTIVE = 4
 
 LinkEvent = (HeartbeatEvent | CommandEvent | MissionTransferDone | TelemetryEvent
-             | TimesyncUpdate)
+             | TimesyncUpdate | ParamReadDone)
 
 
 @dataclass(frozen=True)
@@ -58,6 +59,8 @@ class LinkConfig:
     mode_confirm_s: float = 2.5
     mission_timeout_s: float = 0.25
     mission_retries: int = 20
+    param_timeout_s: float = 0.5
+    param_retries: int = 2
     timesync_interval_s: float = 1.0
     signing: SigningConfig | None = None
 
@@ -83,6 +86,8 @@ class VehicleLink:
         self.mission = MissionClient(self._queue, cfg.target_sysid, cfg.target_compid,
                                      timeout_s=cfg.mission_timeout_s,
                                      retries=cfg.mission_retries)
+        self.params = ParamClient(self._queue, cfg.target_sysid, cfg.target_compid,
+                                  timeout_s=cfg.param_timeout_s, retries=cfg.param_retries)
         self.telemetry = TelemetryState(cfg.target_sysid, cfg.target_compid)
         self.timesync = TimeSync(self._queue, interval_s=cfg.timesync_interval_s)
         self._next_heartbeat: float | None = None
@@ -93,6 +98,7 @@ class VehicleLink:
             kind: self.telemetry.update for kind in self.telemetry.kinds}
         self._handlers["COMMAND_ACK"] = self.commands.on_command_ack
         self._handlers["TIMESYNC"] = self.timesync.on_timesync
+        self._handlers["PARAM_VALUE"] = self.params.on_message
 
     # -- output -----------------------------------------------------------------------------
     def _queue(self, msg: MavMessage) -> None:
@@ -165,7 +171,8 @@ class VehicleLink:
     def get_timer(self) -> float | None:
         """Earliest local time at which ``handle_timer`` has work."""
         ds = [self._next_heartbeat, self.heartbeat.next_deadline(), self.commands.next_deadline(),
-              self.mission.next_deadline(), self.timesync.next_deadline(),
+              self.mission.next_deadline(), self.params.next_deadline(),
+              self.timesync.next_deadline(),
               self.telemetry.next_deadline()]
         return min((d for d in ds if d is not None), default=None)
 
@@ -179,6 +186,7 @@ class VehicleLink:
         events += self.heartbeat.check(now)
         events += self.commands.handle_timer(now)
         events += self.mission.handle_timer(now)
+        events += self.params.handle_timer(now)
         events += self.telemetry.handle_timer(now)
         self.timesync.handle_timer(now)
         return events

@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import socket
+import struct
 import sys
 import time
 from pathlib import Path
@@ -20,9 +21,11 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.mission import load_mission
+from companion.px4_params import PLANNING_PARAM_NAMES, Px4PlanningParams
 from tests.integration.conftest import bounded, free_udp_port
 
 MISSION = Path(__file__).resolve().parents[1] / "data" / "missions" / "px4_short.plan"
+REAL32 = mavlink2.MAV_PARAM_TYPE_REAL32
 FORBIDDEN_COMMANDS = {400, 22, 176, 21, 300}  # ARM/DISARM, TAKEOFF, DO_SET_MODE, LAND, START
 SETPOINTS = {"SET_POSITION_TARGET_LOCAL_NED", "SET_ATTITUDE_TARGET",
              "SET_POSITION_TARGET_GLOBAL_INT"}
@@ -31,8 +34,13 @@ SETPOINTS = {"SET_POSITION_TARGET_LOCAL_NED", "SET_ATTITUDE_TARGET",
 class FakePx4(asyncio.DatagramProtocol):
     """Sends PX4-like telemetry to the companion's port; records what comes back."""
 
-    def __init__(self, lat_deg: float, lon_deg: float) -> None:
+    def __init__(self, lat_deg: float, lon_deg: float,
+                 params: dict[str, tuple[float, int]] | None = None,
+                 drop: dict[str, int] | None = None) -> None:
         self.lat, self.lon = lat_deg, lon_deg
+        self.params = params or {}  # answered by name, as PX4 does; others never
+        self.drop = drop or {}  # name -> how many of its first requests are lost
+        self.peer: tuple[str, int] | None = None
         self.mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
         self.rx = mavlink2.MAVLink(None)
         self.rx.robust_parsing = True
@@ -45,6 +53,16 @@ class FakePx4(asyncio.DatagramProtocol):
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
         for msg in self.rx.parse_buffer(data) or []:
             self.received.append(msg)
+            if msg.get_type() == "PARAM_REQUEST_READ" and self.drop.get(msg.param_id, 0) > 0:
+                self.drop[msg.param_id] -= 1  # this request (or its answer) is lost
+            elif msg.get_type() == "PARAM_REQUEST_READ" and msg.param_id in self.params:
+                value, ptype = self.params[msg.param_id]
+                if ptype == mavlink2.MAV_PARAM_TYPE_INT32:  # PX4's bytewise encoding
+                    value = struct.unpack("<f", struct.pack("<i", int(value)))[0]
+                reply = self.mav.param_value_encode(msg.param_id.encode(), value, ptype,
+                                                    len(self.params), 0)
+                assert self.transport is not None
+                self.transport.sendto(reply.pack(self.mav), addr)
 
     def frames(self, t_boot_ms: int) -> list[bytes]:
         m = self.mav
@@ -59,12 +77,14 @@ class FakePx4(asyncio.DatagramProtocol):
         ]
 
 
-async def _run_fly_against_fake(tmp_path: Path, lat: float, lon: float,
-                                *args: str) -> tuple[int, str, list[object]]:
+async def _run_fly_against_fake(tmp_path: Path, lat: float, lon: float, *args: str,
+                                params: dict[str, tuple[float, int]] | None = None,
+                                drop: dict[str, int] | None = None
+                                ) -> tuple[int, str, list[object]]:
     port = free_udp_port()
     loop = asyncio.get_running_loop()
     transport, fake = await loop.create_datagram_endpoint(
-        lambda: FakePx4(lat, lon), local_addr=("127.0.0.1", 0), family=socket.AF_INET)
+        lambda: FakePx4(lat, lon, params, drop), local_addr=("127.0.0.1", 0), family=socket.AF_INET)
     comp = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "companion", "fly", *args,
         "--connect", f"udpin://127.0.0.1:{port}", "--log", str(tmp_path / "f.tlog"),
@@ -109,6 +129,50 @@ async def test_far_mission_home_refused_before_any_command(tmp_path: Path) -> No
     assert not _commands(received) & FORBIDDEN_COMMANDS, _commands(received)
     assert not kinds & SETPOINTS, kinds
     assert not (tmp_path / "f.tlog.report.json").exists()
+
+
+async def test_parameters_read_and_vehicle_file_overrides_are_printed_before_the_checks(
+        tmp_path: Path) -> None:
+    """The planning parameters are read (and only read) before the home check refuses the
+    flight; the printout shows the vehicle's values and marks the vehicle file's override. A
+    parameter whose first three requests are lost is asked for again (its value, not the
+    default, is used)."""
+    home = load_mission(MISSION).home
+    params = {n: (v, REAL32) for n, v in Px4PlanningParams().as_dict().items()}
+    params.update(MPC_XY_CRUISE=(7.25, REAL32), NAV_ACC_RAD=(3.0, REAL32),
+                  MPC_TKO_SPEED=(2.5, REAL32))
+    vf = tmp_path / "v.toml"
+    vf.write_text("[px4]\nNAV_ACC_RAD = 0.75\n")
+    lat = home.lat_deg + 89.0 / 111_200.0
+    code, out, received = await _run_fly_against_fake(
+        tmp_path, lat, home.lon_deg, str(MISSION), "--vehicle", str(vf), params=params,
+        drop={"MPC_TKO_SPEED": 3})
+    assert code == 2, out
+    flat = " ".join(out.split())
+    assert "MPC_XY_CRUISE = 7.25" in flat, out
+    assert "NAV_ACC_RAD = 0.75 (vehicle file; vehicle 3)" in flat, out
+    assert "MPC_TKO_SPEED = 2.5 " in flat + " " and "(default)" not in flat, out
+    assert "89 m from the vehicle" in flat, out
+    asked = [m.param_id for m in received  # type: ignore[attr-defined]
+             if m.get_type() == "PARAM_REQUEST_READ"]  # type: ignore[attr-defined]
+    # each once by name (MPC_TKO_SPEED: three lost, the fourth in the second pass answered)
+    assert sorted(asked) == sorted([*PLANNING_PARAM_NAMES, *["MPC_TKO_SPEED"] * 3])
+    assert not any(m.get_type() in ("PARAM_REQUEST_LIST", "PARAM_SET")  # type: ignore[attr-defined]
+                   for m in received)
+    assert not _commands(received) & FORBIDDEN_COMMANDS
+
+
+async def test_a_parameter_the_planner_cannot_use_stops_fly_before_any_command(
+        tmp_path: Path) -> None:
+    home = load_mission(MISSION).home
+    params = {n: (v, REAL32) for n, v in Px4PlanningParams().as_dict().items()}
+    params["NAV_ACC_RAD"] = (2, mavlink2.MAV_PARAM_TYPE_INT32)  # not PX4's type for it
+    code, out, received = await _run_fly_against_fake(
+        tmp_path, home.lat_deg, home.lon_deg, str(MISSION), params=params)
+    assert code == 2, out
+    assert "NAV_ACC_RAD from the vehicle" in " ".join(out.split()), out
+    assert not _commands(received) & FORBIDDEN_COMMANDS
+    assert not {m.get_type() for m in received} & SETPOINTS  # type: ignore[attr-defined]
 
 
 @pytest.mark.parametrize("bad", [("--speed", "-1"), ("--size", "0"), ("--laps", "0"),

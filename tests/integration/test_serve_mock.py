@@ -271,3 +271,31 @@ async def test_serve_sigterm_holds_link_loss_and_kill_leave_it_to_px4(tmp_path: 
                 await svc.proc.wait()
                 await gcs.wait_for(lambda: gcs.mode != "OFFBOARD", 5.0, "failsafe after kill")
                 assert gcs.text_seen("ailsafe") or gcs.heartbeat.system_status == 5
+
+
+async def test_serve_reads_the_mocks_planning_parameters_and_the_vehicle_file_wins(
+        tmp_path: Path) -> None:
+    """At connect the service reads the PX4 planning parameters over MAVLink (the mock started
+    with changed values) and logs what it plans with; the vehicle file's [px4] entry wins."""
+    port = free_udp_port()
+    vf = tmp_path / "vehicle.toml"
+    vf.write_text("[px4]\nNAV_ACC_RAD = 1.25\n")
+    async with run_mock("--param", "MPC_XY_CRUISE=7.5", "--param", "MPC_TKO_SPEED=2.25",
+                        "--param", "NAV_ACC_RAD=3") as mock, \
+            relay(mock.client_port, port), \
+            run_service(port, tmp_path / "logs", "--vehicle-file", str(vf)) as svc:
+
+        def read() -> dict[str, object] | None:
+            return next((e for e in svc.events() if e["event"] == "px4_params"), None)
+
+        for _ in range(300):  # bounded: the service connects and reads within seconds
+            if read() is not None or svc.proc.returncode is not None:
+                break
+            await asyncio.sleep(0.05)
+        ev = read()
+        assert ev is not None, svc.events()
+        assert ev["MPC_XY_CRUISE"] == 7.5 and ev["MPC_TKO_SPEED"] == 2.25
+        assert ev["NAV_ACC_RAD"] == 1.25 and ev["vehicle_file"] == ["NAV_ACC_RAD"]
+        assert ev["defaulted"] == []
+        svc.proc.send_signal(signal.SIGTERM)
+        assert await bounded(svc.proc.wait(), 15.0, "serve to stop") == 0

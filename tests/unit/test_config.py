@@ -76,6 +76,9 @@ def test_an_empty_file_gives_the_defaults(tmp_path: Path) -> None:
         ("[tracking]\nkp_xy = -1\n", "gains must be >= 0"),
         ("[tracking]\nk_yaw = 0\n", "attitude gains > 0"),
         ("tracking = 3\n", r"\[tracking\] must be a table"),
+        ("[px4]\nMPC_XY_CRUSE = 8\n", r"unknown PX4 parameter.*MPC_XY_CRUSE.*known: .*CRUISE"),
+        ("[px4]\nMPC_THR_HOVER = 1.2\n", r"\[px4\]: MPC_THR_HOVER must be in \(0, 1\)"),
+        ("[px4]\nNAV_ACC_RAD = 'two'\n", "NAV_ACC_RAD must be a number"),
     ],
 )
 def test_bad_files_name_the_file_and_the_problem(tmp_path: Path, text: str, words: str) -> None:
@@ -83,6 +86,12 @@ def test_bad_files_name_the_file_and_the_problem(tmp_path: Path, text: str, word
     with pytest.raises(ValueError, match=words) as exc:
         load_vehicle_file(p)
     assert str(p) in str(exc.value)
+
+
+def test_px4_table_reads_overrides_by_px4_name(tmp_path: Path) -> None:
+    vf = load_vehicle_file(_write(tmp_path, "[px4]\nMPC_XY_CRUISE = 8\nNAV_ACC_RAD = 0.5\n"))
+    assert vf.px4_overrides == {"MPC_XY_CRUISE": 8.0, "NAV_ACC_RAD": 0.5}
+    assert load_vehicle_file(_write(tmp_path, "")).px4_overrides == {}
 
 
 def test_missing_file_is_a_clean_error(tmp_path: Path) -> None:

@@ -72,6 +72,20 @@ def test_downloaded_items_plan_like_the_mission_file() -> None:
     assert abs(prog.reference(prog.t_end).pos_ned[2] - direct.waypoints_ned[-2][2]) < 0.05
 
 
+def test_the_vehicles_planning_parameters_reach_the_plan() -> None:
+    """A faster MPC_XY_CRUISE (the mission's legs have no DO_CHANGE_SPEED) and a larger
+    NAV_ACC_RAD read from the vehicle change the downloaded mission's plan accordingly."""
+    from companion.px4_params import Px4PlanningParams
+
+    items, home = wire_items(MISSIONS / "px4_short.plan")
+    slow = plan_program(items, home, (1, len(items)),
+                        ServiceConfig(px4=Px4PlanningParams(MPC_XY_CRUISE=3.0)))
+    fast = plan_program(items, home, (1, len(items)),
+                        ServiceConfig(px4=Px4PlanningParams(MPC_XY_CRUISE=10.0, NAV_ACC_RAD=4.0)))
+    assert fast.t_end < slow.t_end
+    assert max(fast.schedule.acceptance_m) == 4.0 > max(slow.schedule.acceptance_m)
+
+
 def test_hold_is_streamed_only_while_armed_and_flying() -> None:
     svc = ServeService()
     svc.update(obs(0.0, armed=False, landed=1))

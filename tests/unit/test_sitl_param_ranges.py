@@ -126,3 +126,35 @@ def test_every_parameter_at_either_end_of_its_range_keeps_the_simulation_running
     assert len(h.msgs("HEARTBEAT", since=t0)) >= 2
     s = h.ap.state
     assert all(math.isfinite(x) for x in (*s.pos_ned, *s.vel_ned))
+
+
+def _mc_airframe_defaults() -> dict[str, float] | None:
+    """``param set-default NAME VALUE`` lines of PX4's multicopter defaults script (every MC
+    airframe, SIH quad included, runs it), or None without PX4 SITL beside the repository."""
+    for d in REPO.parents:
+        script = d / "shared" / "px4_sitl" / "etc" / "init.d" / "rc.mc_defaults"
+        if script.is_file():
+            out: dict[str, float] = {}
+            for line in script.read_text().splitlines():
+                words = line.split()
+                if len(words) == 4 and words[:2] == ["param", "set-default"]:
+                    out[words[2]] = float(words[3])
+            return out
+    return None
+
+
+def test_mock_has_every_planning_parameter_with_px4_multicopter_defaults() -> None:
+    """The companion reads PLANNING_PARAM_NAMES from the vehicle: the mock answers each of them
+    with PX4 v1.16's default for a multicopter (parameters.json, then rc.mc_defaults)."""
+    from companion.px4_params import PLANNING_PARAM_NAMES
+
+    meta = next((p for p in _META if p.is_file()), None)
+    mc = _mc_airframe_defaults()
+    if meta is None or mc is None:
+        pytest.skip("PX4 SITL's parameters.json.xz / rc.mc_defaults not found")
+    with lzma.open(meta) as f:
+        px4 = {p["name"]: p for p in json.loads(f.read())["parameters"]}
+    for name in PLANNING_PARAM_NAMES:
+        assert name in PARAMS, f"the mock lacks {name}"
+        assert not PARAMS[name].is_int and px4[name]["type"] == "Float", name
+        assert PARAMS[name].default == pytest.approx(mc.get(name, px4[name]["default"])), name

@@ -22,6 +22,7 @@ PURE = [
     "companion/config.py",
     "companion/flight_report.py",
     "companion/service.py",
+    "companion/vehicle_params.py",
 ]
 
 

@@ -1,0 +1,57 @@
+"""`Vehicle.read_params` / `read_planning_params` against the mock PX4 over loopback UDP
+(`python -m sitl_mock serve` subprocess): values set on the mock's command line, an INT32
+parameter (bytewise on the wire), a parameter changed by PARAM_SET from another client
+(pymavlink, playing the ground station), and a name the vehicle does not have."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+from pymavlink import mavutil
+
+from companion.aio import ParamReadError, Vehicle, VehicleConfig
+from tests.integration.conftest import bounded, free_udp_port, run_mock
+
+
+async def test_vehicle_reads_changed_planning_parameters_from_the_mock() -> None:
+    gcs_port = free_udp_port()
+    async with run_mock("--param", "MPC_XY_CRUISE=8.5", "--param", "COM_OBL_RC_ACT=4",
+                        "--param", "MPC_LAND_ALT1=12", gcs_port=gcs_port) as mock:
+        gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{gcs_port}", source_system=255,
+                                         dialect="common")
+        try:
+            async with Vehicle.connect(f"udpin://127.0.0.1:{mock.client_port}",
+                                       config=VehicleConfig(connect_timeout_s=15.0)) as v:
+                got = await bounded(v.read_params(["MPC_XY_CRUISE", "COM_OBL_RC_ACT"]), 10.0,
+                                    "the parameter read")
+                assert got == {"MPC_XY_CRUISE": 8.5, "COM_OBL_RC_ACT": 4.0}
+
+                # the ground station changes a parameter; the next read sees it
+                # (the mock sends first on its GCS link: its HEARTBEAT gives pymavlink the peer)
+                assert await bounded(_recv(gcs, "HEARTBEAT"), 10.0, "the GCS link") is not None
+                gcs.mav.param_set_send(1, 1, b"MPC_TKO_SPEED", 2.75,
+                                       mavutil.mavlink.MAV_PARAM_TYPE_REAL32)
+                echo = await bounded(_recv(gcs, "PARAM_VALUE"), 10.0, "the PARAM_SET echo")
+                assert echo is not None and echo.param_id == "MPC_TKO_SPEED"
+                r = await bounded(v.read_planning_params({"NAV_ACC_RAD": 0.5}), 10.0,
+                                  "the planning parameter read")
+                assert r.params.MPC_XY_CRUISE == 8.5 and r.params.MPC_LAND_ALT1 == 12.0
+                assert r.params.MPC_TKO_SPEED == 2.75
+                assert r.params.NAV_ACC_RAD == 0.5 and r.source["NAV_ACC_RAD"] == "file"
+                assert r.vehicle_values["NAV_ACC_RAD"] == 2.0 and r.warnings == ()
+
+                with pytest.raises(ParamReadError, match="no answer for MPC_NOT_A_PARAM") as exc:
+                    await bounded(v.read_params(["MPC_XY_CRUISE", "MPC_NOT_A_PARAM"]), 10.0,
+                                  "the failing read")
+                assert exc.value.missing == ("MPC_NOT_A_PARAM",)
+                assert exc.value.values == {"MPC_XY_CRUISE": 8.5}
+                with pytest.raises(ParamReadError, match=r"COM_OBL_RC_ACT.*INT32"):
+                    await v.read_params(["COM_OBL_RC_ACT"], floats_only=True)
+        finally:
+            gcs.close()
+
+
+async def _recv(gcs: mavutil.mavfile, kind: str) -> object | None:
+    """The next ``kind`` message on the GCS link (5 s at most), off the event loop."""
+    return await asyncio.to_thread(gcs.recv_match, type=kind, blocking=True, timeout=5.0)

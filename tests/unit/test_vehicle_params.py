@@ -1,0 +1,80 @@
+"""Which PX4 planning parameters a flight uses: the vehicle file's [px4] table wins over the
+vehicle, the vehicle's values win over PX4's defaults, a parameter the vehicle lacks falls back
+to the default with a warning naming it, and a value the planner cannot use stops the flight
+unless the vehicle file overrides it."""
+
+from __future__ import annotations
+
+import pytest
+
+from companion.px4_params import PLANNING_PARAM_NAMES, Px4PlanningParams
+from companion.vehicle_params import resolve_planning_params
+
+ALL_READ = {n: v for n, v in Px4PlanningParams().as_dict().items()}
+
+
+def test_vehicle_file_override_wins_over_the_vehicle_and_is_marked() -> None:
+    read = {**ALL_READ, "MPC_XY_CRUISE": 7.0}
+    r = resolve_planning_params(read, {"MPC_XY_CRUISE": 9.5})
+    assert r.params.MPC_XY_CRUISE == 9.5
+    assert r.source["MPC_XY_CRUISE"] == "file" and r.vehicle_values["MPC_XY_CRUISE"] == 7.0
+    assert r.warnings == ()
+    text = "\n".join(r.lines())
+    assert "MPC_XY_CRUISE = 9.5 (vehicle file; vehicle 7)" in text
+    assert all(name in text for name in PLANNING_PARAM_NAMES)
+
+
+def test_values_read_from_the_vehicle_replace_the_defaults() -> None:
+    read = {**ALL_READ, "MPC_TKO_SPEED": 2.5, "NAV_ACC_RAD": 0.8}
+    r = resolve_planning_params(read)
+    assert (r.params.MPC_TKO_SPEED, r.params.NAV_ACC_RAD) == (2.5, 0.8)
+    assert set(r.source.values()) == {"vehicle"}
+    assert r.as_report()["NAV_ACC_RAD"] == {"value": 0.8, "source": "vehicle"}
+
+
+def test_a_parameter_the_vehicle_lacks_falls_back_to_the_default_with_a_warning() -> None:
+    read = {n: v for n, v in ALL_READ.items() if n not in ("MPC_LAND_ALT2", "MPC_ACC_HOR_MAX")}
+    read["MPC_XY_CRUISE"] = 6.0
+    r = resolve_planning_params(read)
+    assert r.defaulted == ("MPC_ACC_HOR_MAX", "MPC_LAND_ALT2")
+    assert r.params.MPC_LAND_ALT2 == Px4PlanningParams().MPC_LAND_ALT2
+    assert r.params.MPC_XY_CRUISE == 6.0
+    (w,) = r.warnings
+    assert "MPC_ACC_HOR_MAX" in w and "MPC_LAND_ALT2" in w and "default" in w
+    assert "MPC_LAND_ALT2 = 5 (default)" in "\n".join(r.lines())
+    # the vehicle file fills the gap: no warning for it any more
+    r2 = resolve_planning_params(read, {"MPC_LAND_ALT2": 4.0, "MPC_ACC_HOR_MAX": 3.0})
+    assert r2.warnings == () and r2.params.MPC_LAND_ALT2 == 4.0
+
+
+def test_a_vehicle_that_answers_nothing_is_said_so() -> None:
+    r = resolve_planning_params({})
+    assert r.params == Px4PlanningParams()
+    (w,) = r.warnings
+    assert "answered no parameter request" in w
+
+
+@pytest.mark.parametrize(("name", "value"), [("MPC_THR_HOVER", 0.0), ("MPC_TILTMAX_AIR", 95.0),
+                                             ("MPC_XY_CRUISE", -1.0)])
+def test_an_unusable_value_from_the_vehicle_is_an_error_unless_overridden(
+    name: str, value: float
+) -> None:
+    read = {**ALL_READ, name: value}
+    with pytest.raises(ValueError, match=f"{name}.*read from the vehicle.*\\[px4\\]"):
+        resolve_planning_params(read)
+    r = resolve_planning_params(read, {name: ALL_READ[name]})
+    assert getattr(r.params, name) == ALL_READ[name]
+
+
+def test_a_wrongly_typed_answer_is_an_error_unless_overridden() -> None:
+    read = {n: v for n, v in ALL_READ.items() if n != "NAV_ACC_RAD"}
+    why = {"NAV_ACC_RAD": "the vehicle sent INT32, expected REAL32"}
+    with pytest.raises(ValueError, match="NAV_ACC_RAD from the vehicle: the vehicle sent INT32"):
+        resolve_planning_params(read, wrong_type=why)
+    r = resolve_planning_params(read, {"NAV_ACC_RAD": 1.5}, wrong_type=why)
+    assert r.params.NAV_ACC_RAD == 1.5
+
+
+def test_unknown_override_names_list_the_known_ones() -> None:
+    with pytest.raises(ValueError, match=r"unknown PX4 parameter.*MPC_FOO.*known: MPC_XY_CRUISE"):
+        resolve_planning_params(ALL_READ, {"MPC_FOO": 1.0})
