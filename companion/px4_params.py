@@ -2,8 +2,9 @@
 
 At connect the companion reads these from the vehicle (``fly``, ``serve``) or from the mock
 (``replay``); a vehicle TOML overrides them. Names and units are PX4's (v1.16 parameter
-metadata); the defaults are PX4 v1.16's, except NAV_ACC_RAD, which PX4's multicopter SITL
-airframes set to 2 m (the generic default, 10 m, is for fixed-wing).
+metadata); the defaults are PX4 v1.16's for a multicopter: its generic defaults, except where
+its multicopter defaults (``rc.mc_defaults``, as on the SITL airframes) change them: NAV_ACC_RAD
+2 m (generic 10 m) and RTL_RETURN_ALT 30 m (generic 60 m).
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ class Px4PlanningParams:
     """Height above home below which a landing descends at MPC_LAND_SPEED [m]."""
     NAV_ACC_RAD: float = 2.0
     """Default waypoint acceptance radius [m]."""
-    RTL_RETURN_ALT: float = 60.0
+    RTL_RETURN_ALT: float = 30.0
     """Return altitude above home of RTL [m]."""
     MIS_TAKEOFF_ALT: float = 2.5
     """Default (and minimum) takeoff height above home [m]."""

@@ -233,7 +233,7 @@ def mission_to_flight_plan(
     acceptance_default: float = 2.0,
     cruise_speed_default: float = 5.0,
     vehicle: Literal["quad", "rover"] = "quad",
-    rtl_return_alt_m: float = 60.0,
+    rtl_return_alt_m: float = 30.0,
     takeoff_speed_m_s: float = 1.5,
     land_speed_m_s: float = 0.7,
     max_items: int = 10_000,
@@ -243,12 +243,12 @@ def mission_to_flight_plan(
 ) -> FlightPlan:
     """Expand ``mission`` into the :class:`FlightPlan` the companion flies (see module doc).
 
-    Defaults are PX4's: MIS_TAKEOFF_ALT 2.5 m, NAV_ACC_RAD 2 m, MPC_XY_CRUISE 5 m/s,
-    RTL_RETURN_ALT 60 m, MPC_TKO_SPEED 1.5 m/s, MPC_LAND_SPEED 0.7 m/s. Waypoints or legs outside
-    the geofence give warnings (``strict_geofence=True``: a :class:`MissionError`, like PX4's
-    mission feasibility check). A multicopter waypoint (WAYPOINT, LOITER, TAKEOFF as a waypoint)
-    less than ``min_height_m`` above home is a :class:`MissionError`: the vehicle would fly at
-    ground level (typically a ground-vehicle mission flown with ``vehicle="quad"``).
+    Defaults are PX4's (multicopter): MIS_TAKEOFF_ALT 2.5 m, NAV_ACC_RAD 2 m, MPC_XY_CRUISE
+    5 m/s, RTL_RETURN_ALT 30 m, MPC_TKO_SPEED 1.5 m/s, MPC_LAND_SPEED 0.7 m/s. Waypoints or legs
+    outside the geofence give warnings (``strict_geofence=True``: a :class:`MissionError`, like
+    PX4's mission feasibility check). A multicopter waypoint (WAYPOINT, LOITER, TAKEOFF as a
+    waypoint) less than ``min_height_m`` above home is a :class:`MissionError`: the vehicle would
+    fly at ground level (typically a ground-vehicle mission flown with ``vehicle="quad"``).
 
     ``px4``: the vehicle's parameters (read at connect); when given they replace the defaults
     above (MIS_TAKEOFF_ALT, NAV_ACC_RAD, MPC_XY_CRUISE, RTL_RETURN_ALT, MPC_TKO_SPEED,

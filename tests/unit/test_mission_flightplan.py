@@ -129,8 +129,9 @@ def test_rtl_climbs_returns_and_lands() -> None:
     wp2 = _ned(raw[2], 10.0)
     pts = [np.asarray(w.pos_ned_m) for w in fp.waypoints]
     np.testing.assert_allclose(pts[1], wp2, atol=1e-6)
-    np.testing.assert_allclose(pts[2], [wp2[0], wp2[1], -60.0], atol=1e-9)  # RTL_RETURN_ALT
-    np.testing.assert_allclose(pts[3], [0.0, 0.0, -60.0], atol=1e-9)
+    # RTL_RETURN_ALT: 30 m on PX4's multicopter airframes (rc.mc_defaults)
+    np.testing.assert_allclose(pts[2], [wp2[0], wp2[1], -30.0], atol=1e-9)
+    np.testing.assert_allclose(pts[3], [0.0, 0.0, -30.0], atol=1e-9)
     assert fp.final_action == "rtl" and fp.touchdown_ned_m == (0.0, 0.0, 0.0)
     assert all(w.stop for w in fp.waypoints[1:])
     assert [w.item_index for w in fp.waypoints] == [1, 2, None, 3]
