@@ -22,6 +22,8 @@ PURE = [
     "companion/config.py",
     "companion/flight_report.py",
     "companion/service.py",
+    "companion/legs.py",
+    "companion/fence_check.py",
 ]
 
 
