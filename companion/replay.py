@@ -709,9 +709,11 @@ def plot_data(
     schedule: Schedule,
     origin: FloatArray,
     px4_log: FlightLog | None = None,
+    legs: list[dict[str, Any]] | None = None,
 ) -> PlotData:
     """What flight.png shows for a flight: the plan sampled at 20 Hz, the flown positions and
-    the tracking error (all NED, shifted by the flight's `origin`)."""
+    the tracking error (all NED, shifted by the flight's `origin`), and the per-leg figures of
+    its report (`legs`), if any."""
     ts = np.linspace(0.0, schedule.duration_s, max(int(schedule.duration_s * 20), 2))
     te, err = tracking_error(log, schedule, origin)
     p4 = None
@@ -729,6 +731,7 @@ def plot_data(
         t_fly0=log.fly_t0 or 0.0,
         err_t=te,
         err_m=err,
+        legs=tuple(legs or ()),
     )
 
 
@@ -900,6 +903,7 @@ def replay_file(
             schedule,
             flight.origin,
             px4_log,
+            report.get("legs"),
         )
         if plotter is not None:
             plotter.draw(tmp / "flight.png", data)

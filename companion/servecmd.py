@@ -47,6 +47,7 @@ from companion.service import (
 
 log = logging.getLogger("companion.serve")
 MSG_HOME_POSITION = 242
+MAV_MISSION_TYPE_FENCE = 1
 _TS_BYTES = 8
 
 
@@ -245,6 +246,8 @@ class _Session:
         v, svc = self.v, self.service
         try:
             items = await v.mission.download()
+            # the geofence too: a plan that breaches it is refused (MAV_MISSION_TYPE_FENCE)
+            fence_items = await v.mission.download(MAV_MISSION_TYPE_FENCE)
             if v.telemetry.home is None:
                 v.link.request_message(MSG_HOME_POSITION, time.monotonic())
                 v._flush()
@@ -263,7 +266,8 @@ class _Session:
             "rover" if hb is not None and hb.vehicle_type == 10 else "quad")
         result: MissionProgram | str
         try:
-            result = await asyncio.to_thread(plan_program, items, home, key, svc.config, vehicle)
+            result = await asyncio.to_thread(plan_program, items, home, key, svc.config, vehicle,
+                                             fence_items)
         except Exception as exc:  # MissionError, ValueError, planner failures: say why
             result = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         self.perform(svc.on_planned(key, result, time.monotonic()))
