@@ -31,9 +31,11 @@ IntArray = NDArray[np.int64]
 #: Legs shorter than this are dropped (repeated points, e.g. a LAND item above the last
 #: waypoint) [m].
 MIN_LEG_M = 1e-3
-#: A leg starts when the trajectory last leaves this distance of its start point (or at the
-#: passage, if it never came that close) [m].
+#: Time at rest within this distance of a leg's start point (a hold, a turn on the spot) is not
+#: the leg's [m] ...
 DEPART_RADIUS_M = 0.5
+#: ... at rest: slower than this [m/s].
+REST_SPEED_M_S = 0.2
 #: Smallest acceptance radius used to find passages [m].
 MIN_ACCEPTANCE_M = 0.2
 
@@ -162,10 +164,12 @@ def passages(points: FloatArray, legs: Sequence[Leg]) -> list[int | None]:
     return out
 
 
-def leg_spans(points: FloatArray, legs: Sequence[Leg]) -> list[tuple[int, int] | None]:
-    """Per leg, the sample range ``(first, last)`` (inclusive) flown on it, from leaving its
-    start point (the last sample within DEPART_RADIUS_M of it, or the passage) to passing its
-    end point; None if the trajectory never got there."""
+def leg_spans(points: FloatArray, legs: Sequence[Leg],
+              speed_m_s: FloatArray | None = None) -> list[tuple[int, int] | None]:
+    """Per leg, the sample range ``(first, last)`` (inclusive) flown on it: from the passage
+    of its start point, or, if the trajectory rests there (``speed_m_s`` per sample below
+    REST_SPEED_M_S within DEPART_RADIUS_M: a hold, a turn), from the end of that rest, to the
+    passage of its end point; None if the trajectory never got there."""
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     pas = passages(p, legs)
     spans: list[tuple[int, int] | None] = []
@@ -174,9 +178,13 @@ def leg_spans(points: FloatArray, legs: Sequence[Leg]) -> list[tuple[int, int] |
         if i is None or j is None or j < i:
             spans.append(None)
             continue
-        d0 = np.linalg.norm(p[i:j + 1] - np.asarray(leg.start_ned_m), axis=1)
-        near = np.flatnonzero(d0 <= max(DEPART_RADIUS_M, float(d0[0])))
-        spans.append((i + int(near[-1]) if len(near) else i, j))
+        if speed_m_s is not None:
+            d0 = np.linalg.norm(p[i:j + 1] - np.asarray(leg.start_ned_m), axis=1)
+            resting = (speed_m_s[i:j + 1] < REST_SPEED_M_S) & (d0 <= DEPART_RADIUS_M)
+            moving = np.flatnonzero(~resting)
+            if len(moving) and moving[0] > 0:
+                i = min(i + int(moving[0]) - 1, j)  # the last sample at rest
+        spans.append((i, j))
     return spans
 
 
@@ -224,15 +232,15 @@ def leg_figures(
     if bounds_s is not None and len(bounds_s) != len(legs):
         raise ValueError(f"{len(legs)} legs but {len(bounds_s)} bounds")
     speed = _speeds(t, p, vel_ned)
-    spans = leg_spans(p, legs)
+    spans = leg_spans(p, legs, speed)
     pspans: list[tuple[int, int] | None] = [None] * len(legs)
     pspeed = np.zeros(0)
     pt = np.zeros(0)
     if planned_t_s is not None and planned_ned is not None:
         pt = np.asarray(planned_t_s, dtype=np.float64).reshape(-1)
         pp = np.asarray(planned_ned, dtype=np.float64).reshape(-1, 3)
-        pspans = leg_spans(pp, legs)
         pspeed = _speeds(pt, pp, None)
+        pspans = leg_spans(pp, legs, pspeed)
     out: list[dict[str, Any]] = []
     for k, leg in enumerate(legs):
         bound = None if bounds_s is None else bounds_s[k]
@@ -247,7 +255,8 @@ def leg_figures(
         ps = pspans[k]
         if ps is not None:
             row["planned_time_s"] = _r(float(pt[ps[1]] - pt[ps[0]]))
-            row["planned_max_speed_m_s"] = _r(float(np.max(pspeed[ps[0]:ps[1] + 1])))
+            row["planned_max_speed_m_s"] = _r(float(np.max(pspeed[min(ps[0] + 1, ps[1]):
+                                                                  ps[1] + 1])))
         sp = spans[k]
         if sp is not None:
             i, j = sp
@@ -258,7 +267,8 @@ def leg_figures(
             row.update(
                 time_s=_r(dt),
                 mean_speed_m_s=_r(flown / dt) if dt > 0 else None,
-                max_speed_m_s=_r(float(np.max(speed[i:j + 1]))),
+                # the first sample is the previous leg's arrival
+                max_speed_m_s=_r(float(np.max(speed[min(i + 1, j):j + 1]))),
                 max_deviation_m=_r(float(np.max(dev))),
                 rms_deviation_m=_r(float(np.sqrt(np.mean(dev**2)))),
                 samples=int(j - i + 1),
@@ -270,7 +280,7 @@ def leg_figures(
 
 
 def _speeds(t: FloatArray, p: FloatArray, vel: FloatArray | None) -> FloatArray:
-    """|velocity| per sample [m/s]: from ``vel`` if given, else central differences."""
+    """|velocity| per sample [m/s]: from ``vel`` if given, else backward differences."""
     if vel is not None:
         v = np.asarray(vel, dtype=np.float64).reshape(-1, 3)
         if len(v) != len(p):
@@ -282,10 +292,8 @@ def _speeds(t: FloatArray, p: FloatArray, vel: FloatArray | None) -> FloatArray:
     step = np.linalg.norm(np.diff(p, axis=0), axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         seg = np.where(dt > 0, step / np.where(dt > 0, dt, 1.0), 0.0)
-    s = np.empty(len(p))
-    s[0], s[-1] = seg[0], seg[-1]
-    s[1:-1] = np.maximum(seg[:-1], seg[1:]) if len(p) > 2 else s[1:-1]
-    return s
+    # backward differences: a sample's speed is that of the step arriving at it
+    return np.concatenate([seg[:1], seg])
 
 
 def worst_leg(figures: Sequence[dict[str, Any]]) -> dict[str, Any] | None:
