@@ -131,6 +131,32 @@ def segment_distance(points: FloatArray, a: Sequence[float] | FloatArray,
     return np.asarray(np.linalg.norm(p - (a_ + s[:, None] * ab), axis=1), dtype=np.float64)
 
 
+def _first_within(p: FloatArray, i0: int, point: FloatArray, r: float) -> int | None:
+    """First index >= i0 of ``p`` within ``r`` of ``point`` (searched in growing windows, so
+    a long flight costs about the samples up to the hit)."""
+    n, i, w = len(p), i0, 1024
+    while i < n:
+        hit = np.flatnonzero(np.linalg.norm(p[i:i + w] - point, axis=1) <= r)
+        if len(hit):
+            return i + int(hit[0])
+        i += w
+        w *= 2
+    return None
+
+
+def _downhill(p: FloatArray, j: int, point: FloatArray) -> int:
+    """From ``j`` on, the first sample after which the distance to ``point`` stops shrinking."""
+    n = len(p)
+    while True:
+        d = np.linalg.norm(p[j:j + 256] - point, axis=1)
+        up = np.flatnonzero(np.diff(d) >= 0.0)
+        if len(up):
+            return j + int(up[0])
+        if j + len(d) >= n:
+            return n - 1
+        j += len(d) - 1
+
+
 def passages(points: FloatArray, legs: Sequence[Leg]) -> list[int | None]:
     """Sample index at which ``points`` (N, 3, in time order) passes each leg's end point, in
     order (see the module doc); None once the samples run out. Element 0 is the start (index 0
@@ -139,28 +165,24 @@ def passages(points: FloatArray, legs: Sequence[Leg]) -> list[int | None]:
     n = len(p)
     out: list[int | None] = [0 if n else None]
     i0 = 0
-    ends = [np.asarray(leg.end_ned_m) for leg in legs]
+    ends = [np.asarray(leg.end_ned_m, dtype=np.float64) for leg in legs]
     for k, leg in enumerate(legs):
-        if n == 0 or i0 >= n or out[-1] is None:
+        if n == 0 or out[-1] is None:
             out.append(None)
             continue
-        d = np.linalg.norm(p[i0:] - ends[k], axis=1)
-        inside = np.flatnonzero(d <= leg.acceptance_m)
-        if len(inside):
-            j = int(inside[0])
-            while j + 1 < len(d) and d[j + 1] < d[j]:
-                j += 1
+        first = _first_within(p, i0, ends[k], leg.acceptance_m)
+        if first is not None:
+            j = _downhill(p, first, ends[k])
         else:
             # never entered: the closest sample before the next point is entered
-            stop = len(d)
+            stop = n
             if k + 1 < len(legs):
-                dn = np.linalg.norm(p[i0:] - ends[k + 1], axis=1)
-                nxt = np.flatnonzero(dn <= legs[k + 1].acceptance_m)
-                if len(nxt) and nxt[0] > 0:
-                    stop = int(nxt[0])
-            j = int(np.argmin(d[:stop]))
-        out.append(i0 + j)
-        i0 = i0 + j
+                nxt = _first_within(p, i0, ends[k + 1], legs[k + 1].acceptance_m)
+                if nxt is not None and nxt > i0:
+                    stop = nxt
+            j = i0 + int(np.argmin(np.linalg.norm(p[i0:stop] - ends[k], axis=1)))
+        out.append(j)
+        i0 = j
     return out
 
 

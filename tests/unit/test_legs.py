@@ -157,3 +157,48 @@ def test_planned_samples_give_planned_time_and_speed(tmp_path: Path) -> None:
         assert r["planned_max_speed_m_s"] <= r["cruise_speed_m_s"] * 1.02
         assert r["time_s"] == pytest.approx(r["planned_time_s"], abs=1e-6)
     assert sum(r["planned_time_s"] for r in rows) <= sched.duration_s + 1e-6
+
+
+def _passages_reference(p: np.ndarray, legs: list) -> list:  # type: ignore[type-arg]
+    """The passage rule written plainly over whole arrays (one sample at a time)."""
+    out: list = [0]  # type: ignore[type-arg]
+    i0 = 0
+    for k, leg in enumerate(legs):
+        end = np.asarray(leg.end_ned_m)
+        d = [float(np.linalg.norm(p[i] - end)) for i in range(i0, len(p))]
+        entered = [i for i, x in enumerate(d) if x <= leg.acceptance_m]
+        if entered:
+            j = entered[0]
+            while j + 1 < len(d) and d[j + 1] < d[j]:
+                j += 1
+        else:
+            stop = len(d)
+            if k + 1 < len(legs):
+                nend = np.asarray(legs[k + 1].end_ned_m)
+                nxt = [i for i in range(len(d)) if float(np.linalg.norm(p[i0 + i] - nend))
+                       <= legs[k + 1].acceptance_m]
+                if nxt and nxt[0] > 0:
+                    stop = nxt[0]
+            j = int(np.argmin(d[:stop]))
+        out.append(i0 + j)
+        i0 += j
+    return out
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(50, 3000))
+def test_passages_equal_a_plain_reference_on_noisy_flights(seed: int, n: int) -> None:
+    import tempfile
+
+    rng = np.random.default_rng(seed)
+    with tempfile.TemporaryDirectory() as d:
+        fp = _plan(Path(d), [(30, 0), (30, 20), (0, 20)], land=False)
+    legs = list(plan_legs(fp))
+    pts = [np.array(fp.start_ned_m)] + [np.array(w.pos_ned_m) for w in fp.waypoints]
+    # a noisy, sometimes wandering flight along the path (may miss points, may stop short)
+    s = np.sort(rng.uniform(0, len(pts) - 1, n))
+    k = np.minimum(s.astype(int), len(pts) - 2)
+    f = (s - k)[:, None]
+    base = np.array([pts[i] for i in k]) * (1 - f) + np.array([pts[i + 1] for i in k]) * f
+    p = base + rng.normal(0.0, rng.uniform(0.01, 3.0), base.shape)
+    assert passages(p, legs) == _passages_reference(p, legs)
