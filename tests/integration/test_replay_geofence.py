@@ -98,3 +98,15 @@ def test_flight_breaching_the_fence_fails_with_exit_1(
     ne = _flown_ne(out / "shifted" / "flight.tlog")
     inside = ((ne[:, 0] > 20.0) & (ne[:, 0] < 40.0) & (ne[:, 1] > 3.0) & (ne[:, 1] < 9.0))
     assert inside.sum() > 10
+
+
+def test_campaign_refuses_a_fence_crossing_plan_before_any_run(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    plan = write_plan(tmp_path / "cross.plan", POINTS, land=False,
+                      polygons=[(False, box(50.0, 70.0, 20.0, 34.0))])
+    out = tmp_path / "camp"
+    code = cli_main(["campaign", str(plan), "--runs", "2", "--workers", "1", "--out", str(out)])
+    text = " ".join(capsys.readouterr().out.split())
+    assert code == 2
+    assert "the leg from item 2 to item 3 crosses exclusion polygon 0" in text, text
+    assert not (out / "runs.jsonl").exists()
