@@ -240,7 +240,10 @@ def _print_leg_lines(
         name = escape(Path(f).name)
         legs = rep.get("legs")
         if isinstance(legs, list) and legs:
-            console.print(f"{name}: {escape(worst_leg_text(legs))}", soft_wrap=True)
+            bound = rep.get("bound_s")
+            planned = (f"planned {rep['planned_duration_s']:.1f} s (bound "
+                       f"{'-' if bound is None else format(bound, '.1f')} s); ")
+            console.print(f"{name}: {planned}{escape(worst_leg_text(legs))}", soft_wrap=True)
         breaches = rep.get("geofence_breaches")
         if isinstance(breaches, list):
             for b in breaches:

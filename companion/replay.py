@@ -22,7 +22,7 @@ import os
 import shutil
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -626,15 +626,18 @@ def summarize(
     thrust_from_log: bool = True,
     flight_plan: FlightPlan | None = None,
     fence_shift_ned: FloatArray | None = None,
-    leg_bounds_s: list[float | None] | None = None,
+    leg_bounds_s: Sequence[float | None] | None = None,
+    bound_s: float | None = None,
 ) -> dict[str, Any]:
     """Report metrics of one flight (keys carry units).
 
     With ``flight_plan`` the report also has ``legs`` (per-leg figures, see
     :func:`companion.legs.leg_figures`; ``leg_bounds_s`` the time-optimal bound per leg, None
     unknown) and ``geofence_breaches`` (per leg and zone, see
-    :mod:`companion.fence_check`). The fence is checked in the mission's frame: flown local
-    positions plus ``fence_shift_ned`` (default ``-origin``: the companion's plan frame)."""
+    :mod:`companion.fence_check`). ``bound_s``: the time-optimal bound of the whole schedule
+    [s] (None: unknown), reported with the planned duration over it. The fence is checked in
+    the mission's frame: flown local positions plus ``fence_shift_ned`` (default ``-origin``:
+    the companion's plan frame)."""
     pos = np.asarray(log.pos, dtype=np.float64).reshape(-1, 3)
     vel = np.asarray(log.vel, dtype=np.float64).reshape(-1, 3)
     t = np.asarray(log.t)
@@ -690,6 +693,9 @@ def summarize(
         "geofence_violations": int(sum(int(np.count_nonzero(m)) for _, m in masks)),
         "geofence_violation_zones": sorted(z for z, m in masks if m.any()),
         "failsafes": failsafes,
+        "bound_s": None if bound_s is None else round(float(bound_s), 3),
+        "planned_over_bound": (round(schedule.duration_s / bound_s, 3)
+                               if bound_s is not None and bound_s > 0 else None),
     }
     if flight_plan is not None:
         legs = plan_legs(flight_plan)
@@ -757,6 +763,11 @@ class PreparedMission:
     schedule: Schedule
     home: tuple[float, float, float]
     flight_plan: FlightPlan | None = None
+    leg_bounds_s: tuple[float | None, ...] | None = None
+    """Time-optimal bound of each leg of `companion.legs.plan_legs(flight_plan)` [s] (None:
+    not known; the report shows "-")."""
+    bound_s: float | None = None
+    """Time-optimal bound of the whole schedule [s] (None: not known)."""
 
 
 def prepare_mission(path: str | os.PathLike[str], config: ReplayConfig) -> PreparedMission:
@@ -830,7 +841,8 @@ def run_prepared(
     flight, log = fly_schedule(config, schedule, prep.home, tlog, progress)
     wall = time.perf_counter() - wall0
     report = summarize(log, schedule, prep.mission, flight.origin, flight_plan=prep.flight_plan,
-                       fence_shift_ned=fence_shift(config, flight.origin))
+                       fence_shift_ned=fence_shift(config, flight.origin),
+                       leg_bounds_s=prep.leg_bounds_s, bound_s=prep.bound_s)
     sim_s = flight.lk.now
     report.update(
         {

@@ -110,3 +110,27 @@ def test_campaign_refuses_a_fence_crossing_plan_before_any_run(
     assert code == 2
     assert "the leg from item 2 to item 3 crosses exclusion polygon 0" in text, text
     assert not (out / "runs.jsonl").exists()
+
+
+def test_time_optimal_bounds_given_to_the_replay_appear_per_leg_and_per_flight(
+        tmp_path: Path) -> None:
+    import dataclasses
+
+    from companion.legs import plan_legs
+    from companion.replay import ReplayConfig, prepare_mission, run_prepared
+
+    plan = write_plan(tmp_path / "b.plan", POINTS, land=False)
+    config = ReplayConfig()
+    prep = prepare_mission(plan, config)
+    assert prep.flight_plan is not None
+    n = len(plan_legs(prep.flight_plan))
+    bounds = tuple([None] + [4.0] * (n - 1))
+    prep = dataclasses.replace(prep, leg_bounds_s=bounds, bound_s=20.0)
+    rep = run_prepared(prep, config, None).report
+    assert rep["bound_s"] == 20.0
+    assert rep["planned_over_bound"] == pytest.approx(rep["planned_duration_s"] / 20.0, rel=1e-3)
+    legs = rep["legs"]
+    assert legs[0]["bound_s"] is None and legs[0]["time_over_bound"] is None
+    for g in legs[1:]:
+        assert g["bound_s"] == 4.0
+        assert g["time_over_bound"] == pytest.approx(g["time_s"] / 4.0, abs=1e-3)
