@@ -318,7 +318,7 @@ def summary_table(report: dict[str, Any]) -> Table:
               f"{report['planned_duration_s']:.1f})")
     legs = report.get("legs")
     if legs:
-        t.add_row("worst leg", escape(worst_leg_text(legs)))
+        t.add_row("worst leg", escape(worst_leg_text(legs).removeprefix("worst leg ")))
     return t
 
 
