@@ -220,9 +220,35 @@ def _cmd_replay(args: argparse.Namespace) -> int:
                 f"{px4['max_tilt_deg']:.1f}", "",
             )
     console.print(table)
+    _print_leg_lines(args.files, results)
     for err in errors:
         print_error("error", err)
     return exit_code
+
+
+def _print_leg_lines(
+    files: Sequence[str], results: dict[str, tuple[dict[str, object] | None, str | None]]
+) -> None:
+    """Below the summary table: per file, the worst leg (path deviation, speeds, time vs the
+    bound) and every geofence breach (per-leg detail is in report.json)."""
+    from companion.legs import worst_leg_text
+
+    for f in files:
+        rep = results[f][0]
+        if rep is None:
+            continue
+        name = escape(Path(f).name)
+        legs = rep.get("legs")
+        if isinstance(legs, list) and legs:
+            bound = rep.get("bound_s")
+            planned = (f"planned {rep['planned_duration_s']:.1f} s (bound "
+                       f"{'-' if bound is None else format(bound, '.1f')} s); ")
+            console.print(f"{name}: {planned}{escape(worst_leg_text(legs))}", soft_wrap=True)
+        breaches = rep.get("geofence_breaches")
+        if isinstance(breaches, list):
+            for b in breaches:
+                console.print(f"[red]{name}: geofence breach in flight:[/red] "
+                              f"{escape(str(b['message']))}", soft_wrap=True)
 
 
 _PX4_ROW = "  (PX4 AUTO.MISSION)"

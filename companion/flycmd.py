@@ -23,9 +23,23 @@ from rich.table import Table
 
 from companion.config import VehicleFile, load_vehicle_file
 from companion.control import Reference
+from companion.fence_check import (
+    breach_report,
+    flown_breaches,
+    require_plan_inside,
+    sample_schedule,
+    zone_masks,
+)
 from companion.flight_report import FloatArray, TrackRecorder
+from companion.legs import leg_figures, plan_bounds, plan_legs, worst_leg_text
 from companion.mavlink import FlightMode, LinkConfig
-from companion.mission import Mission, geodetic_to_ned, load_mission, mission_to_flight_plan
+from companion.mission import (
+    FlightPlan,
+    Mission,
+    geodetic_to_ned,
+    load_mission,
+    mission_to_flight_plan,
+)
 from companion.patterns import PATTERNS, pattern_trajectory, pattern_waypoints
 from companion.px4_params import Px4PlanningParams
 from companion.schedule import Schedule, build_schedule, trajectory_reference
@@ -187,17 +201,23 @@ class PlannedFlight:
     waypoints_rel: FloatArray  # (K, 3) in the plan's frame
     acceptance_m: tuple[float, ...]
     final_action: str  # "land", "rtl" or "loiter"
+    flight_plan: FlightPlan | None = None  # a mission's plan (legs, geofence); None: pattern
+    schedule: Schedule | None = None  # a mission's schedule (the plan's frame)
+    t_off_s: float = 0.0  # schedule time at which the offboard part starts [s]
 
 
 def plan_flight(opts: FlyOptions, inputs: FlyInputs, rover: bool,
                 px4: Px4PlanningParams | None = None) -> PlannedFlight:
     """Plan the mission or pattern (CPU-bound: run it off the event loop). ``px4``: the
-    vehicle's planning parameters (None: PX4's defaults); patterns use their own options."""
+    vehicle's planning parameters (None: PX4's defaults); patterns use their own options. A
+    mission whose planned trajectory breaches its geofence raises MissionError naming the
+    leg's items."""
     vf = inputs.vehicle
     if inputs.mission is not None:
         fp = mission_to_flight_plan(inputs.mission, vehicle="rover" if rover else "quad",
                                     px4=px4)
         schedule = build_schedule(fp, None if rover else vf.params, vf.limits)
+        require_plan_inside(fp, schedule)
         t_off = _takeoff_end(schedule)
 
         def sched_ref(t: float, origin: FloatArray | None = None) -> Reference:
@@ -206,7 +226,8 @@ def plan_flight(opts: FlyOptions, inputs: FlyInputs, rover: bool,
         return PlannedFlight(fp.takeoff_alt_m, schedule.duration_s - t_off,
                              schedule.reference(t_off).pos_ned, sched_ref,
                              np.asarray(schedule.waypoints_ned, dtype=np.float64),
-                             tuple(schedule.acceptance_m), schedule.final_action)
+                             tuple(schedule.acceptance_m), schedule.final_action,
+                             fp, schedule, t_off)
     traj = pattern_trajectory(
         opts.target, np.zeros(3), size_m=opts.size_m, speed_m_s=opts.speed_m_s,
         laps=opts.laps, yaw=0.0, params=vf.params, max_acc_m_s2=vf.limits.max_acc_m_s2,
@@ -226,9 +247,11 @@ def plan_flight(opts: FlyOptions, inputs: FlyInputs, rover: bool,
                          (PATTERN_ACCEPTANCE_M,) * len(wps), "land")
 
 
-async def _home_offset_m(v: Any, mission: Mission, timeout_s: float) -> float:
+async def _home_offset_m(v: Any, mission: Mission,
+                         timeout_s: float) -> tuple[float, FloatArray | None]:
     """Horizontal distance [m] from the vehicle to the mission's planned home (waits for a
-    GLOBAL_POSITION_INT); ValueError without one."""
+    GLOBAL_POSITION_INT; ValueError without one), and the shift local NED -> mission frame
+    (add it to a local position) [m], None without a local position."""
     loop = asyncio.get_running_loop()
     deadline = loop.time() + timeout_s
     while v.telemetry.global_position is None and loop.time() < deadline:
@@ -238,7 +261,53 @@ async def _home_offset_m(v: Any, mission: Mission, timeout_s: float) -> float:
         raise ValueError(f"no global position from the vehicle within {timeout_s:g} s: cannot "
                          "check the mission's planned home (GPS?)")
     off = geodetic_to_ned(g.lat_deg, g.lon_deg, g.alt_amsl_m, mission.home)
-    return math.hypot(off[0], off[1])
+    local = v.telemetry.position
+    shift = None if local is None else np.asarray(off, float) - np.asarray(local.pos_ned, float)
+    return math.hypot(off[0], off[1]), shift
+
+
+def mission_figures(planned: PlannedFlight, recorder: TrackRecorder, origin: FloatArray,
+                    fence_shift_ned: FloatArray | None) -> dict[str, Any]:
+    """Per-leg figures and geofence breaches of a flown mission (empty for a pattern).
+
+    ``origin``: the plan's frame in local NED (local = plan + origin); ``fence_shift_ned``:
+    local -> mission frame for the geofence (None: ``-origin``, the plan's frame)."""
+    fp, schedule = planned.flight_plan, planned.schedule
+    if fp is None or schedule is None:
+        return {}
+    t = np.asarray(recorder.t_s, dtype=np.float64)
+    pos = np.asarray(recorder.pos_ned, dtype=np.float64).reshape(-1, 3)
+    shift = -np.asarray(origin, float) if fence_shift_ned is None else fence_shift_ned
+    fence_pos = pos + shift
+    masks = zone_masks(fp.geofence, fence_pos) if len(pos) and not fp.geofence.empty else []
+    found = flown_breaches(fp, t, fence_pos) if masks else []
+    # PX4 flies the takeoff: the legs from the end of the companion's takeoff climb on
+    all_legs = plan_legs(fp)
+    leg_bounds, bound = plan_bounds(fp, schedule)
+    flown = [k for k, leg in enumerate(all_legs) if leg.phase != "takeoff"]
+    legs = [all_legs[k] for k in flown]
+    pt, pp = sample_schedule(schedule)
+    keep = pt >= planned.t_off_s
+    return {
+        "geofence_violations": int(sum(int(np.count_nonzero(m)) for _, m in masks)),
+        "geofence_violation_zones": sorted(z for z, m in masks if m.any()),
+        "geofence_breaches": breach_report(found),
+        "planned_s": round(schedule.duration_s, 3),
+        "bound_s": round(bound, 3),
+        "legs": leg_figures(legs, t, pos - origin, planned_t_s=pt[keep], planned_ned=pp[keep],
+                            bounds_s=[leg_bounds[k] for k in flown]),
+    }
+
+
+def breach_failure(report: dict[str, Any]) -> str | None:
+    """``"geofence breach: ..."`` if the flight breached the fence, else None."""
+    found = report.get("geofence_breaches") or []
+    if found:
+        more = f" (+{len(found) - 1} more)" if len(found) > 1 else ""
+        return f"geofence breach: {found[0]['message']}{more}"
+    if report.get("geofence_violations"):
+        return "geofence breach: " + ", ".join(report.get("geofence_violation_zones") or [])
+    return None
 
 
 def print_planning_params(console: Console, resolved: ResolvedPlanningParams,
@@ -268,6 +337,9 @@ def summary_table(report: dict[str, Any]) -> Table:
         t.add_row(label, "-" if val is None else f"{val:.2f}")
     t.add_row("duration \\[s]", f"{report['duration_s']:.1f} (planned "
               f"{report['planned_duration_s']:.1f})")
+    legs = report.get("legs")
+    if legs:
+        t.add_row("worst leg", escape(worst_leg_text(legs).removeprefix("worst leg ")))
     return t
 
 
@@ -290,6 +362,7 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                             stream_cpu=opts.sender_cpu)
     recorder = TrackRecorder()
     report: dict[str, Any] | None = None
+    fence_shift: FloatArray | None = None
     async with contextlib.AsyncExitStack() as stack:
         url = opts.connect
         if url is None:
@@ -318,7 +391,7 @@ async def fly(opts: FlyOptions, console: Console) -> int:
         planned = await asyncio.to_thread(plan_flight, opts, inputs, rover,
                                           None if px4 is None else px4.params)
         if mission is not None:
-            horiz = await _home_offset_m(v, mission, HOME_WAIT_S)
+            horiz, fence_shift = await _home_offset_m(v, mission, HOME_WAIT_S)
             if horiz > MAX_HOME_OFFSET_M:
                 raise ValueError(
                     f"{opts.target}: planned home is {horiz:.0f} m from the vehicle "
@@ -375,6 +448,8 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                               final_action=planned.final_action)
                 if px4 is not None:
                     report["px4_params"] = px4.as_report()
+                report.update(mission_figures(planned, recorder, origin, fence_shift))
+                report["result"] = breach_failure(report) or "ok"
                 if rover:
                     await v.disarm()
                 elif planned.final_action in ("land", "rtl"):
@@ -397,10 +472,13 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                             await task
                 live.update(_status_table(v, source, started, ended or 0.0))
     if report is not None:
+        report["ok"] = bool(report["result"] == "ok")
         console.print(summary_table(report))
+        for b in report.get("geofence_breaches") or []:
+            console.print(f"[red]geofence breach in flight:[/red] {escape(str(b['message']))}")
         console.print(f"Report: {escape(str(write_report(log_path, report)))}")
     console.print(f"Done. Log: {escape(str(Path(log_path).resolve()))}")
-    return 0
+    return 0 if report is None or report["result"] == "ok" else 1
 
 
 async def status(url: str, console: Console, timeout_s: float = 10.0,

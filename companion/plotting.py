@@ -18,6 +18,7 @@ import traceback
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,7 +33,8 @@ class PlotData:
     `plan_t` [s] from the start of the planned schedule with the planned positions `plan_ned`
     (N, 3); `t`/`pos_ned` the flown position samples; `px4_pos_ned` the PX4-mission flight, if
     any; `waypoints_ned` (K, 3) with their `acceptance_m`; `t_fly0` the simulated time at which
-    the plan started; `err_t`/`err_m` the tracking error series.
+    the plan started; `err_t`/`err_m` the tracking error series; `legs` the per-leg figures of
+    the report (`companion.legs.leg_figures`), drawn in a fourth panel when given.
     """
 
     title: str
@@ -46,6 +48,7 @@ class PlotData:
     t_fly0: float
     err_t: FloatArray
     err_m: FloatArray
+    legs: tuple[dict[str, Any], ...] = ()
 
 
 def draw_flight_png(path: str | Path, d: PlotData) -> None:
@@ -56,7 +59,7 @@ def draw_flight_png(path: str | Path, d: PlotData) -> None:
     import matplotlib.pyplot as plt
     from matplotlib.patches import Circle
 
-    fig, ax = plt.subplots(1, 3, figsize=(16, 5.2))
+    fig, ax = plt.subplots(1, 4 if d.legs else 3, figsize=(21 if d.legs else 16, 5.2))
     try:
         plan, pos = d.plan_ned, d.pos_ned
         ax[0].plot(plan[:, 1], plan[:, 0], "--", color="C0", label="planned")
@@ -77,6 +80,8 @@ def draw_flight_png(path: str | Path, d: PlotData) -> None:
         if len(d.err_t):
             ax[2].plot(d.err_t, d.err_m)
         ax[2].set(xlabel="t [s]", ylabel="|flown - planned| [m]", title="Tracking error")
+        if d.legs:
+            _draw_legs(ax[3], d.legs)
         fig.suptitle(d.title)
         fig.tight_layout()
         # tight_layout leaves a placeholder layout engine, which makes savefig run a second,
@@ -85,6 +90,42 @@ def draw_flight_png(path: str | Path, d: PlotData) -> None:
         fig.savefig(path, dpi=80)
     finally:
         plt.close(fig)
+
+
+def _leg_tick(leg: dict[str, Any], k: int) -> str:
+    a, b = leg.get("from_item"), leg.get("to_item")
+    if a is None and b is None:
+        return str(k)
+    return f"{'-' if a is None else a}>{'-' if b is None else b}"
+
+
+def _draw_legs(ax: Any, legs: tuple[dict[str, Any], ...]) -> None:
+    """Per leg (x: from>to mission items): max and RMS deviation from the straight leg (bars,
+    left axis); flown mean speed and planned cruise speed (markers, right axis)."""
+    x = np.arange(len(legs))
+
+    def col(key: str) -> FloatArray:
+        return np.array([np.nan if g.get(key) is None else float(g[key]) for g in legs])
+
+    dev, speeds = col("max_deviation_m"), np.concatenate([col("mean_speed_m_s"),
+                                                          col("cruise_speed_m_s")])
+    ax.bar(x - 0.2, dev, 0.4, color="C3", label="max deviation")
+    ax.bar(x + 0.2, col("rms_deviation_m"), 0.4, color="C1", label="RMS deviation")
+    ax.set(xlabel="leg (mission items)", ylabel="distance to the straight leg [m]",
+           title="Per leg")
+    ax.set_xticks(x, [_leg_tick(g, k) for k, g in enumerate(legs)], rotation=60, fontsize=7)
+    sp = ax.twinx()
+    sp.plot(x, col("mean_speed_m_s"), "o", color="C0", ms=4, label="flown mean speed")
+    sp.plot(x, col("cruise_speed_m_s"), "_", color="k", ms=10, label="planned cruise speed")
+    sp.set_ylabel("speed [m/s]")
+    # head room above the data for the legend
+    if np.isfinite(dev).any():
+        ax.set_ylim(0.0, max(float(np.nanmax(dev)), 0.1) * 1.5)
+    if np.isfinite(speeds).any():
+        sp.set_ylim(0.0, max(float(np.nanmax(speeds)), 0.1) * 1.5)
+    h1, l1 = ax.get_legend_handles_labels()
+    h2, l2 = sp.get_legend_handles_labels()
+    ax.legend(h1 + h2, l1 + l2, fontsize=7, loc="upper center", ncol=2)
 
 
 def _serve(rx: Connection, tx: Connection) -> None:

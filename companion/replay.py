@@ -22,7 +22,7 @@ import os
 import shutil
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -32,8 +32,10 @@ from numpy.typing import NDArray
 
 from companion.aio.tlog import TlogWriter
 from companion.control import Reference
+from companion.fence_check import breach_report, flown_breaches, require_plan_inside, zone_masks
 from companion.flatness import MultirotorParams
 from companion.flight_report import closest_approach
+from companion.legs import leg_figures, plan_bounds, plan_legs
 from companion.mavlink.commands import CommandFinished
 from companion.mavlink.link import LinkConfig, VehicleLink
 from companion.mavlink.mission_client import MissionItem as WireItem
@@ -46,7 +48,13 @@ from companion.mavlink.setpoints import (
     RatesSetpoint,
     SetpointCommand,
 )
-from companion.mission import Mission, MissionError, load_mission, mission_to_flight_plan
+from companion.mission import (
+    FlightPlan,
+    Mission,
+    MissionError,
+    load_mission,
+    mission_to_flight_plan,
+)
 from companion.mission.upload import mission_upload_items
 from companion.plotting import PlotData, PlotWorker, draw_flight_png
 from companion.px4_params import PLANNING_PARAM_NAMES
@@ -620,16 +628,28 @@ def summarize(
     origin: FloatArray,
     *,
     thrust_from_log: bool = True,
+    flight_plan: FlightPlan | None = None,
+    fence_shift_ned: FloatArray | None = None,
+    leg_bounds_s: Sequence[float | None] | None = None,
+    bound_s: float | None = None,
 ) -> dict[str, Any]:
-    """Report metrics of one flight (keys carry units)."""
+    """Report metrics of one flight (keys carry units).
+
+    With ``flight_plan`` the report also has ``legs`` (per-leg figures, see
+    :func:`companion.legs.leg_figures`; ``leg_bounds_s`` the time-optimal bound per leg, None
+    unknown) and ``geofence_breaches`` (per leg and zone, see
+    :mod:`companion.fence_check`). ``bound_s``: the time-optimal bound of the whole schedule
+    [s] (None: unknown), reported with the planned duration over it. The fence is checked in
+    the mission's frame: flown local positions plus ``fence_shift_ned`` (default ``-origin``:
+    the companion's plan frame)."""
     pos = np.asarray(log.pos, dtype=np.float64).reshape(-1, 3)
     vel = np.asarray(log.vel, dtype=np.float64).reshape(-1, 3)
     t = np.asarray(log.t)
     if log.armed_t is not None:
         sel = (t >= log.armed_t) & (t <= (log.disarmed_t if log.disarmed_t is not None else t[-1]))
-        pos_f, vel_f = pos[sel], vel[sel]
+        pos_f, vel_f, t_f = pos[sel], vel[sel], t[sel]
     else:
-        pos_f, vel_f = pos[:0], vel[:0]
+        pos_f, vel_f, t_f = pos[:0], vel[:0], t[:0]
     wps = schedule.waypoints_ned + origin
     closest = closest_approach(pos_f, wps)
     waypoints = [
@@ -646,7 +666,9 @@ def summarize(
     ]
     _, err = tracking_error(log, schedule, origin)
     fence = mission.geofence
-    violations = fence.violations(pos_f - origin) if len(pos_f) else []
+    shift = -np.asarray(origin, dtype=np.float64) if fence_shift_ned is None else fence_shift_ned
+    pos_fence = pos_f + shift
+    masks = zone_masks(fence, pos_fence) if len(pos_f) and not fence.empty else []
     failsafes = [
         {"t_s": round(ts, 3), "text": s}
         for ts, _sev, s in log.statustext
@@ -658,7 +680,7 @@ def summarize(
         if log.armed_t is not None
         else 0.0
     )
-    return {
+    out: dict[str, Any] = {
         "duration_s": round(float(duration), 3),
         "planned_duration_s": round(schedule.duration_s, 3),
         "path_length_m": float(np.sum(np.linalg.norm(np.diff(pos_f, axis=0), axis=1)))
@@ -672,10 +694,23 @@ def summarize(
         "max_tilt_deg": float(np.degrees(np.max(log.tilt))) if log.tilt else 0.0,
         "max_thrust_norm": float(np.max(log.thrust_norm)) if log.thrust_norm else None,
         "max_body_rate_rad_s": float(np.max(log.rate_norm)) if log.rate_norm else 0.0,
-        "geofence_violations": len(violations),
-        "geofence_violation_zones": sorted({v.zone for v in violations}),
+        "geofence_violations": int(sum(int(np.count_nonzero(m)) for _, m in masks)),
+        "geofence_violation_zones": sorted(z for z, m in masks if m.any()),
         "failsafes": failsafes,
+        "bound_s": None if bound_s is None else round(float(bound_s), 3),
+        "planned_over_bound": (round(schedule.duration_s / bound_s, 3)
+                               if bound_s is not None and bound_s > 0 else None),
     }
+    if flight_plan is not None:
+        legs = plan_legs(flight_plan)
+        found = flown_breaches(flight_plan, t_f, pos_fence) if masks else []
+        out["geofence_breaches"] = breach_report(found)
+        from companion.fence_check import sample_schedule
+
+        pt, pp = sample_schedule(schedule)
+        out["legs"] = leg_figures(legs, t_f, pos_f - origin, vel_ned=vel_f, planned_t_s=pt,
+                                  planned_ned=pp, bounds_s=leg_bounds_s)
+    return out
 
 
 def plot_data(
@@ -684,9 +719,11 @@ def plot_data(
     schedule: Schedule,
     origin: FloatArray,
     px4_log: FlightLog | None = None,
+    legs: list[dict[str, Any]] | None = None,
 ) -> PlotData:
     """What flight.png shows for a flight: the plan sampled at 20 Hz, the flown positions and
-    the tracking error (all NED, shifted by the flight's `origin`)."""
+    the tracking error (all NED, shifted by the flight's `origin`), and the per-leg figures of
+    its report (`legs`), if any."""
     ts = np.linspace(0.0, schedule.duration_s, max(int(schedule.duration_s * 20), 2))
     te, err = tracking_error(log, schedule, origin)
     p4 = None
@@ -704,6 +741,7 @@ def plot_data(
         t_fly0=log.fly_t0 or 0.0,
         err_t=te,
         err_m=err,
+        legs=tuple(legs or ()),
     )
 
 
@@ -769,12 +807,19 @@ class PreparedMission:
     schedule: Schedule
     home: tuple[float, float, float]
     px4: ResolvedPlanningParams | None = None
+    flight_plan: FlightPlan | None = None
+    leg_bounds_s: tuple[float | None, ...] | None = None
+    """Time-optimal bound of each leg of `companion.legs.plan_legs(flight_plan)` [s] (None:
+    not known; the report shows "-")."""
+    bound_s: float | None = None
+    """Time-optimal bound of the whole schedule [s] (None: not known)."""
 
 
 def prepare_mission(path: str | os.PathLike[str], config: ReplayConfig) -> PreparedMission:
     """Load and plan `path` as `config` would fly it: the PX4 planning parameters are read
     from the mock first (`read_mock_params`, so `--mock-param MPC_XY_CRUISE=8` changes the
-    plan as the vehicle's parameter would). Raises MissionError on a bad file."""
+    plan as the vehicle's parameter would). Raises MissionError on a bad file and on a plan
+    whose trajectory breaches the mission's geofence (naming the leg's items)."""
     src = Path(path)
     mission = load_mission(src)
     home = (mission.home.lat_deg, mission.home.lon_deg, mission.home.alt_amsl_m)
@@ -783,8 +828,35 @@ def prepare_mission(path: str | os.PathLike[str], config: ReplayConfig) -> Prepa
     flight_plan = mission_to_flight_plan(mission, vehicle=config.vehicle, px4=px4.params)
     params = None if config.vehicle == "rover" else config.params
     schedule = build_schedule(flight_plan, params, planning_limits(config))
+    require_plan_inside(flight_plan, schedule)
     warnings = (*flight_plan.warnings, *px4.warnings)
-    return PreparedMission(src, mission, warnings, schedule, home, px4)
+    leg_bounds, bound = plan_bounds(flight_plan, schedule)
+    return PreparedMission(src, mission, warnings, schedule, home, px4, flight_plan, leg_bounds,
+                           bound)
+
+
+def fence_shift(config: ReplayConfig, origin: FloatArray) -> FloatArray:
+    """Local mock NED -> mission frame: the mock's local origin is where it booted, the
+    mission's home moved by `config.start_offset_ne_m`, so the geofence is checked where the
+    vehicle really was (the companion itself flies relative to where it stood: `origin`)."""
+    n, e = config.start_offset_ne_m
+    if (n, e) == (0.0, 0.0):
+        return -np.asarray(origin, dtype=np.float64)
+    return np.array([n, e, 0.0])
+
+
+def breach_result(report: dict[str, Any]) -> str:
+    """The report's result, failed by a geofence breach: ``"geofence breach: ..."`` if the
+    flight otherwise ended "ok" and breached the fence (a breach is never ok)."""
+    result = str(report["result"])
+    found = report.get("geofence_breaches") or []
+    if result != "ok" or not (found or report.get("geofence_violations")):
+        return result
+    if not found:
+        zones = ", ".join(report.get("geofence_violation_zones") or [])
+        return f"geofence breach: {zones}"
+    more = f" (+{len(found) - 1} more)" if len(found) > 1 else ""
+    return f"geofence breach: {found[0]['message']}{more}"
 
 
 @dataclass(frozen=True)
@@ -797,9 +869,13 @@ class ReplayRun:
 
     @property
     def ok(self) -> bool:
-        """Completed and reached every waypoint."""
-        r = self.report
-        return bool(r["result"] == "ok" and r["waypoints_reached"] == len(r["waypoints"]))
+        """Completed inside the geofence and reached every waypoint."""
+        return report_ok(self.report)
+
+
+def report_ok(r: dict[str, Any]) -> bool:
+    """A report's verdict: result "ok" (no abort, no geofence breach), every waypoint reached."""
+    return bool(r["result"] == "ok" and r["waypoints_reached"] == len(r["waypoints"]))
 
 
 def run_prepared(
@@ -815,7 +891,9 @@ def run_prepared(
         tlog.write_many(mission_frames(prep.mission), TLOG_EPOCH_S)
     flight, log = fly_schedule(config, schedule, prep.home, tlog, progress)
     wall = time.perf_counter() - wall0
-    report = summarize(log, schedule, prep.mission, flight.origin)
+    report = summarize(log, schedule, prep.mission, flight.origin, flight_plan=prep.flight_plan,
+                       fence_shift_ned=fence_shift(config, flight.origin),
+                       leg_bounds_s=prep.leg_bounds_s, bound_s=prep.bound_s)
     sim_s = flight.lk.now
     report.update(
         {
@@ -834,6 +912,8 @@ def run_prepared(
     )
     if prep.px4 is not None:
         report["px4_params"] = prep.px4.as_report()
+    report["result"] = breach_result(report)
+    report["ok"] = report_ok(report)
     if config.start_offset_ne_m != (0.0, 0.0):
         # the companion flew relative to where it stood; the mission's geodetic waypoints sit
         # at -offset in the vehicle's frame, this is how far the flight passed from them
@@ -871,8 +951,12 @@ def replay_file(
         px4_log = None
         if config.compare_px4_mission:
             res, px4_log = fly_px4_mission(config, mission, home, schedule.duration_s)
-            px4 = summarize(px4_log, schedule, mission, flight.origin)
+            px4 = summarize(px4_log, schedule, mission, flight.origin,
+                            flight_plan=prep.flight_plan,
+                            fence_shift_ned=fence_shift(config, flight.origin))
             px4["result"] = res
+            px4["result"] = breach_result(px4)
+            px4["ok"] = report_ok(px4)
             px4.pop("rms_error_m")
             px4.pop("max_error_m")
             report["px4_mission"] = px4
@@ -884,6 +968,7 @@ def replay_file(
             schedule,
             flight.origin,
             px4_log,
+            report.get("legs"),
         )
         if plotter is not None:
             plotter.draw(tmp / "flight.png", data)

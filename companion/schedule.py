@@ -28,7 +28,11 @@ from companion.mission import FlightChunk, FlightPlan, split_flight_plan
 from companion.px4_params import Px4PlanningParams
 from companion.trajectory import Limits, PiecewiseBezier, RoverLimits, hermite, plan
 from companion.trajectory.bezier import ScalarEvaluator
-from companion.trajectory.bound import KinematicLimits, time_optimal_duration
+from companion.trajectory.bound import (
+    KinematicLimits,
+    time_optimal_duration,
+    time_optimal_profile,
+)
 from companion.trajectory.planner import velocity_heading
 
 _log = logging.getLogger("companion.schedule")
@@ -107,13 +111,33 @@ class Schedule:
     vehicle: str
     px4: Px4PlanningParams = dataclasses.field(default_factory=Px4PlanningParams)
 
-    def piece_bounds_s(self) -> list[float]:
-        """Per piece, the time-optimal bound [s]: for a multirotor trajectory piece the
-        shortest time along the same path under the same speed caps and PX4's speed and
-        acceleration limits (``companion.trajectory.bound``); turns, holds and rover pieces
-        count at their planned duration."""
+    def bound_profile(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The time-optimal traversal behind :meth:`piece_bounds_s`, piece after piece: times
+        (N,) [s], points (N, 3) NED [m] (with the schedule's turns and holds as rests) and
+        speeds (N,) [m/s]. Multirotor only."""
+        lim = self._bound_limits()
+        ts: list[FloatArray] = []
+        ps: list[FloatArray] = []
+        vs: list[FloatArray] = []
+        t0 = 0.0
+        for p in self.pieces:
+            if p.kind == "traj" and p.traj is not None and p.traj.dim == 3:
+                t, pts, v = time_optimal_profile(p.traj, lim, p.speed_caps)
+                ts.append(t0 + t)
+                ps.append(pts)
+                vs.append(v)
+                t0 += float(t[-1])
+            else:
+                ts.append(np.array([t0, t0 + p.duration_s]))
+                ps.append(np.repeat(_pad3(np.asarray(p.pos_ned, dtype=np.float64))[None, :], 2,
+                                    axis=0))
+                vs.append(np.zeros(2))
+                t0 += p.duration_s
+        return np.concatenate(ts), np.concatenate(ps), np.concatenate(vs)
+
+    def _bound_limits(self) -> KinematicLimits:
         px4 = self.px4
-        lim = KinematicLimits(
+        return KinematicLimits(
             max_speed_xy_m_s=px4.MPC_XY_VEL_MAX,
             max_climb_m_s=px4.MPC_Z_VEL_MAX_UP,
             max_descent_m_s=px4.MPC_Z_VEL_MAX_DN,
@@ -121,6 +145,13 @@ class Schedule:
             max_acc_up_m_s2=px4.MPC_ACC_UP_MAX,
             max_acc_down_m_s2=px4.MPC_ACC_DOWN_MAX,
         )
+
+    def piece_bounds_s(self) -> list[float]:
+        """Per piece, the time-optimal bound [s]: for a multirotor trajectory piece the
+        shortest time along the same path under the same speed caps and PX4's speed and
+        acceleration limits (``companion.trajectory.bound``); turns, holds and rover pieces
+        count at their planned duration."""
+        lim = self._bound_limits()
         out: list[float] = []
         for p in self.pieces:
             if p.kind == "traj" and p.traj is not None and p.traj.dim == 3:

@@ -49,6 +49,7 @@ from companion.vehicle_params import ResolvedPlanningParams
 
 log = logging.getLogger("companion.serve")
 MSG_HOME_POSITION = 242
+MAV_MISSION_TYPE_FENCE = 1
 _TS_BYTES = 8
 
 
@@ -271,6 +272,8 @@ class _Session:
         v, svc = self.v, self.service
         try:
             items = await v.mission.download()
+            # the geofence too: a plan that breaches it is refused (MAV_MISSION_TYPE_FENCE)
+            fence_items = await v.mission.download(MAV_MISSION_TYPE_FENCE)
             if v.telemetry.home is None:
                 v.link.request_message(MSG_HOME_POSITION, time.monotonic())
                 v._flush()
@@ -293,7 +296,8 @@ class _Session:
             if isinstance(px4, str):
                 raise ValueError(px4)
             config = dataclasses.replace(svc.config, px4=px4)
-            result = await asyncio.to_thread(plan_program, items, home, key, config, vehicle)
+            result = await asyncio.to_thread(plan_program, items, home, key, config, vehicle,
+                                             fence_items)
         except Exception as exc:  # MissionError, ValueError, planner failures: say why
             result = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         self.perform(svc.on_planned(key, result, time.monotonic()))

@@ -146,10 +146,13 @@ class Gcs(asyncio.DatagramProtocol):
         base = 1 | (128 if self.armed else 0)
         return await self.command(176, base, main, sub)
 
-    async def upload_mission(self, items: list[Any], timeout_s: float = 10.0) -> None:
-        """MISSION_COUNT, answer each MISSION_REQUEST(_INT) with MISSION_ITEM_INT, until ACK."""
+    async def upload_mission(self, items: list[Any], timeout_s: float = 10.0,
+                             mission_type: int = 0) -> None:
+        """MISSION_COUNT, answer each MISSION_REQUEST(_INT) with MISSION_ITEM_INT, until ACK
+        (``mission_type`` 1: the geofence; the items must carry the same type)."""
         self.mission_msgs.clear()
-        self.send(mavlink2.MAVLink_mission_count_message(self.target_system, 1, len(items), 0))
+        self.send(mavlink2.MAVLink_mission_count_message(self.target_system, 1, len(items),
+                                                         mission_type))
         deadline = time.monotonic() + timeout_s
         handled = 0
         while time.monotonic() < deadline:

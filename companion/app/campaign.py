@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from rich.console import Console
+from rich.markup import escape
 
 from companion.campaign.perturb import PerturbationRanges
 
@@ -143,14 +144,17 @@ def run_campaign(
         make_tasks,
         run_tasks,
     )
-    from companion.mission import MissionError, load_mission, mission_to_flight_plan
+    from companion.mission import MissionError
+    from companion.replay import ReplayConfig, prepare_mission
 
-    for f in opts.files:  # every file must load before anything is flown
-        try:
-            mission_to_flight_plan(load_mission(f), vehicle="quad")
+    for f in opts.files:  # every file must load (and its plan keep inside its geofence)
+        try:  # before anything is flown
+            prepare_mission(f, ReplayConfig(vehicle="quad"))
         except (MissionError, OSError) as exc:
-            console.print(f"[red]error:[/red] {exc}")
+            console.print(f"[red]error:[/red] {escape(str(exc))}")
             return EXIT_BAD_INPUT
+        except ValueError:
+            pass  # a plan the planner cannot make: every run records why
     if opts.rate_hz < 20.0 or opts.rate_hz > 500.0:
         raise ValueError(f"setpoint rate must be 20..500 Hz, got {opts.rate_hz}")
     out = Path(opts.out)

@@ -28,7 +28,7 @@ from companion.trajectory.bezier import PiecewiseBezier
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["KinematicLimits", "time_optimal_duration"]
+__all__ = ["KinematicLimits", "time_optimal_duration", "time_optimal_profile"]
 
 #: Samples per trajectory segment used to discretise the path.
 BOUND_SAMPLES_PER_SEGMENT = 40
@@ -73,6 +73,18 @@ def time_optimal_duration(
     """Shortest time [s] to fly the path of `traj` (3-D, NED) from rest to rest under
     `limits` (see the module docstring). ``speed_caps`` (M,): a speed limit along the path
     per segment of `traj` [m/s] (e.g. the planner's per-leg caps)."""
+    t, _, _ = time_optimal_profile(traj, limits, speed_caps, samples_per_segment)
+    return float(t[-1]) if t.shape[0] else 0.0
+
+
+def time_optimal_profile(
+    traj: PiecewiseBezier,
+    limits: KinematicLimits,
+    speed_caps: FloatArray | None = None,
+    samples_per_segment: int = BOUND_SAMPLES_PER_SEGMENT,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The time-optimal traversal of :func:`time_optimal_duration`: times (N,) [s] from 0,
+    points (N, 3) of the path [m] and speeds (N,) [m/s] at them."""
     if traj.dim != 3:
         raise ValueError("the bound needs a 3-D (NED) trajectory")
     n = samples_per_segment
@@ -90,7 +102,7 @@ def time_optimal_duration(
     keep = np.concatenate([[True], ds > 1e-6])  # drop repeated points (rest at the ends)
     p, v, a, speed, seg = p[keep], v[keep], a[keep], speed[keep], seg[keep]
     if p.shape[0] < 2:
-        return 0.0
+        return np.zeros(1), p[:1], np.zeros(1)
     ds = np.linalg.norm(np.diff(p, axis=0), axis=1)
     # unit tangent and curvature vector d2p/ds2 from the time derivatives
     moving = speed > 1e-6 * max(float(speed.max()), 1e-12)
@@ -137,6 +149,7 @@ def time_optimal_duration(
         x_hi[i] = _max_x(np.asarray(rows, dtype=np.float64))
     # forward pass: as fast as allowed below x_hi
     x = np.zeros(n_pts)
+    times = np.zeros(n_pts)
     total = 0.0
     for i in range(n_pts - 1):
         d2 = 2.0 * float(ds[i])
@@ -147,7 +160,6 @@ def time_optimal_duration(
         nxt = min(x[i] + d2 * u_hi, float(x_hi[i + 1]))
         x[i + 1] = max(nxt, 0.0)
         vs = math.sqrt(x[i]) + math.sqrt(x[i + 1])
-        if vs <= 0.0:
-            return math.inf
-        total += d2 / vs
-    return total
+        total = math.inf if vs <= 0.0 else total + d2 / vs
+        times[i + 1] = total
+    return times, p, np.sqrt(np.maximum(x, 0.0))

@@ -193,3 +193,18 @@ async def test_missing_vehicle_file_fails_before_anything_is_sent(tmp_path: Path
         str(tmp_path / "missing.toml"))
     assert code == 2 and "not found" in out, out
     assert received == []
+
+
+async def test_mission_crossing_its_geofence_refused_before_any_command(tmp_path: Path) -> None:
+    from tests.fence_plans import HOME, box, write_plan
+
+    plan = write_plan(tmp_path / "cross.plan", [(60.0, 0.0), (60.0, 60.0)],
+                      polygons=[(False, box(50.0, 70.0, 20.0, 34.0))])
+    code, out, received = await _run_fly_against_fake(tmp_path, HOME[0], HOME[1], str(plan))
+    assert code == 2, out
+    flat = " ".join(out.split())
+    assert "the leg from item 2 to item 3 crosses exclusion polygon 0 for 14 m" in flat, out
+    kinds = {m.get_type() for m in received}  # type: ignore[attr-defined]
+    assert not _commands(received) & FORBIDDEN_COMMANDS, _commands(received)
+    assert not kinds & SETPOINTS, kinds
+    assert not (tmp_path / "f.tlog.report.json").exists()

@@ -299,3 +299,37 @@ async def test_serve_reads_the_mocks_planning_parameters_and_the_vehicle_file_wi
         assert ev["defaulted"] == []
         svc.proc.send_signal(signal.SIGTERM)
         assert await bounded(svc.proc.wait(), 15.0, "serve to stop") == 0
+
+
+async def test_serve_refuses_a_mission_that_crosses_the_vehicles_geofence(
+        tmp_path: Path) -> None:
+    """The pilot uploads a fence (an exclusion box across the leg wp 1 -> wp 2) and then the
+    mission: the service downloads both and refuses the plan by STATUSTEXT, naming the leg."""
+    from pymavlink.dialects.v20 import common as mavlink2
+
+    box_ne = [(15.0, 5.0), (25.0, 5.0), (25.0, 10.0), (15.0, 10.0)]  # across north 20, east 5..10
+    fence = []
+    for i, (n, e) in enumerate(box_ne):
+        dlat, dlon = offset_deg(HOME[0], n, e)
+        fence.append(mavlink2.MAVLink_mission_item_int_message(
+            1, 1, i, 0, 5002, 0, 1, float(len(box_ne)), 0.0, 0.0, 0.0,
+            round((HOME[0] + dlat) * 1e7), round((HOME[1] + dlon) * 1e7), 0.0, 1))
+    gcs_port = free_udp_port()
+    async with (ground_station(gcs_port) as gcs,
+                run_mock("--estimator-ready", "0.5", gcs_port=gcs_port) as mock,
+                run_service(mock.client_port, tmp_path) as svc):
+        await gcs.wait_for(lambda: gcs.heartbeat is not None, 15.0, "the autopilot's HEARTBEAT")
+        await gcs.upload_mission(fence, mission_type=1)
+        await gcs.upload_mission(mission())
+
+        def joined() -> str:  # the refusal comes in 50-character STATUSTEXT chunks
+            return "".join(t for _, t in gcs.texts)
+
+        await gcs.wait_for(lambda: "refusing to fly" in joined(), 20.0,
+                           "the service's refusal")
+        assert gcs.text_seen("ecca: cannot fly mission")
+        # items as the service numbers the downloaded mission: takeoff 1, wp 2, 3, 4, land 5
+        assert "the leg from item 2 to item 3 crosses exclusion polygon 0" in joined(), joined()
+        assert not gcs.text_seen("ecca: mission 4 wp")
+        rejected = [e for e in svc.events() if e["event"] == "mission_rejected"]
+        assert rejected and "geofence" in str(rejected[0]["why"])

@@ -97,3 +97,27 @@ def test_close_is_idempotent(tmp_path: Path) -> None:
     assert proc is None or proc.poll() is not None
     w.draw(tmp_path / "a.png", _data(100))  # closed: draws here
     assert (tmp_path / "a.png").exists()
+
+
+def test_per_leg_panel_is_drawn_even_for_legs_never_flown(tmp_path: Path) -> None:
+    import dataclasses
+
+    import matplotlib.image as mpimg
+
+    legs = (
+        {"from_item": None, "to_item": 1, "max_deviation_m": 0.0, "rms_deviation_m": 0.0,
+         "mean_speed_m_s": 1.2, "cruise_speed_m_s": 1.5},
+        {"from_item": 1, "to_item": 2, "max_deviation_m": 2.5, "rms_deviation_m": 1.1,
+         "mean_speed_m_s": 4.1, "cruise_speed_m_s": 5.0},
+        {"from_item": 2, "to_item": 3, "max_deviation_m": None, "rms_deviation_m": None,
+         "mean_speed_m_s": None, "cruise_speed_m_s": 5.0},  # never reached
+    )
+    draw_flight_png(tmp_path / "three.png", _data(500))
+    draw_flight_png(tmp_path / "four.png", dataclasses.replace(_data(500), legs=legs))
+    three, four = mpimg.imread(tmp_path / "three.png"), mpimg.imread(tmp_path / "four.png")
+    assert three.shape[0] == four.shape[0]
+    assert four.shape[1] > three.shape[1] * 1.2  # a fourth panel
+    # the added strip is not blank: the deviation bars are drawn in red (C3)
+    strip = four[:, three.shape[1]:, :3]
+    red = (strip[..., 0] > 0.7) & (strip[..., 1] < 0.3) & (strip[..., 2] < 0.3)
+    assert red.sum() > 50

@@ -23,6 +23,8 @@ PURE = [
     "companion/flight_report.py",
     "companion/service.py",
     "companion/vehicle_params.py",
+    "companion/legs.py",
+    "companion/fence_check.py",
 ]
 
 
