@@ -53,6 +53,9 @@ MAX_HOME_OFFSET_M = 5.0
 HOME_WAIT_S = 5.0
 #: A pattern's interpolation points count as reached within this distance [m].
 PATTERN_ACCEPTANCE_M = 1.0
+#: Test patterns (figure-8, circle, square) accelerate at most this much [m/s^2], whatever the
+#: vehicle allows (missions plan with the vehicle's PX4 limits): a pattern is a tracking test.
+PATTERN_MAX_ACC_M_S2 = 3.0
 MAV_TYPE_GROUND_ROVER = 10
 
 
@@ -230,7 +233,8 @@ def plan_flight(opts: FlyOptions, inputs: FlyInputs, rover: bool,
                              fp, schedule, t_off)
     traj = pattern_trajectory(
         opts.target, np.zeros(3), size_m=opts.size_m, speed_m_s=opts.speed_m_s,
-        laps=opts.laps, yaw=0.0, params=vf.params, max_acc_m_s2=vf.limits.max_acc_m_s2,
+        laps=opts.laps, yaw=0.0, params=vf.params,
+        max_acc_m_s2=min(vf.limits.max_acc_m_s2, PATTERN_MAX_ACC_M_S2),
         max_tilt_rad=vf.limits.max_tilt_rad,
     )
     pattern_ref = trajectory_reference(traj, 0.0)
