@@ -29,7 +29,7 @@ def _segment_distance(points: FloatArray, a: FloatArray, b: FloatArray) -> Float
         u = np.einsum("nmk,mk->nm", ap, ab) / ab2[None, :]
     u = np.where(ab2[None, :] > 0.0, np.clip(u, 0.0, 1.0), 0.0)
     d = ap - u[:, :, None] * ab[None, :, :]
-    return np.sqrt(np.einsum("nmk,nmk->nm", d, d))
+    return np.asarray(np.sqrt(np.einsum("nmk,nmk->nm", d, d)), dtype=np.float64)
 
 
 def polyline_distance(points: FloatArray, poly: FloatArray, chunk: int = 4096) -> FloatArray:
