@@ -137,7 +137,8 @@ def path_metrics(pos: np.ndarray, wps: np.ndarray, legs: np.ndarray, corners: np
     return {"closest_m": [float(c) for c in ca],
             "max_closest_m": float(np.max(ca)) if len(ca) else math.nan,
             "max_dev_m": cr.max_dev_m, "rms_dev_m": cr.rms_dev_m, "samples": cr.samples,
-            "outside": cr.outside, "max_excess_m": cr.max_excess_m, "within": cr.within}
+            "outside": cr.outside, "max_excess_m": cr.max_excess_m, "within": cr.within,
+            "outside_pct": 100.0 * cr.outside / cr.samples if cr.samples else math.nan}
 
 
 # ----------------------------------------------------------------------------- mock
@@ -407,28 +408,33 @@ def px4_flight(kind: str, plan: Path, folder: Path, timeout_s: float, corridor_m
     return out
 
 
-def px4_part(args: argparse.Namespace) -> dict[str, Any]:
-    plan = Path(args.px4_mission)
-    runs: dict[str, list[dict[str, Any]]] = {"companion": [], "auto_mission": []}
-    for i in range(args.repeat):
-        for kind in runs:
-            t0 = time.perf_counter()
-            try:
-                r = px4_flight(kind, plan, Path(args.out) / f"px4-{kind}-{i}",
-                               args.px4_timeout, args.corridor, args.mode)
-            except Exception as exc:  # one failed flight must not lose the run
-                r = {"kind": kind, "error": f"{type(exc).__name__}: {exc}", "time_s": math.nan}
-            r["wall_s"] = time.perf_counter() - t0
-            runs[kind].append(r)
-            est = r.get("estimate", {})
-            print(f"px4 {kind} #{i}: armed {r['time_s']:.1f} s, worst waypoint "
-                  f"{est.get('max_closest_m', math.nan):.2f} m (estimate) "
-                  f"{r.get('error', '')} ({r['wall_s']:.0f} s wall, lock wait "
-                  f"{r.get('lock_wait_s', 0.0):.0f} s)", flush=True)
-    return {"mission": str(plan.relative_to(REPO) if plan.is_absolute() and
-                           plan.is_relative_to(REPO) else plan),
-            "mode": args.mode, "runs": runs,
-            "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+def px4_part(args: argparse.Namespace) -> list[dict[str, Any]]:
+    """Every `--px4-mission`, `--repeat` times by the companion and by AUTO.MISSION."""
+    out = []
+    for m, mission in enumerate(args.px4_mission):
+        plan = Path(mission).resolve()
+        runs: dict[str, list[dict[str, Any]]] = {"companion": [], "auto_mission": []}
+        for i in range(args.repeat):
+            for kind in runs:
+                t0 = time.perf_counter()
+                try:
+                    r = px4_flight(kind, plan, Path(args.out) / f"px4-{m}-{kind}-{i}",
+                                   args.px4_timeout, args.corridor, args.mode)
+                except Exception as exc:  # one failed flight must not lose the run
+                    r = {"kind": kind, "error": f"{type(exc).__name__}: {exc}",
+                         "time_s": math.nan}
+                r["wall_s"] = time.perf_counter() - t0
+                runs[kind].append(r)
+                est = r.get("estimate", {})
+                print(f"px4 {plan.name} {kind} #{i}: armed {r['time_s']:.1f} s, worst waypoint "
+                      f"{est.get('max_closest_m', math.nan):.2f} m (estimate) "
+                      f"{r.get('error', '')} ({r['wall_s']:.0f} s wall, lock wait "
+                      f"{r.get('lock_wait_s', 0.0):.0f} s)", flush=True)
+        out.append({"mission": str(plan.relative_to(REPO) if plan.is_relative_to(REPO)
+                                   else plan),
+                    "mode": args.mode, "runs": runs,
+                    "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())})
+    return out
 
 
 # ----------------------------------------------------------------------------- planning
@@ -588,7 +594,10 @@ def px4_table(px4: dict[str, Any]) -> str:
              f"{cell('auto_mission', 'truth', 'max_closest_m', '.2f')} |",
              "| max deviation from the legs, estimate [m] | "
              f"{cell('companion', 'estimate', 'max_dev_m', '.2f')} | "
-             f"{cell('auto_mission', 'estimate', 'max_dev_m', '.2f')} |"]
+             f"{cell('auto_mission', 'estimate', 'max_dev_m', '.2f')} |",
+             "| armed samples outside the corridor, estimate [%] | "
+             f"{cell('companion', 'estimate', 'outside_pct', '.1f')} | "
+             f"{cell('auto_mission', 'estimate', 'outside_pct', '.1f')} |"]
     per = []
     for kind in runs:
         for i, r in enumerate(runs[kind]):
@@ -623,7 +632,7 @@ def planning_text(p: dict[str, Any]) -> str:
 
 
 def section(title: str, argv: str, mock: list[dict[str, Any]] | None,
-            px4: dict[str, Any] | None, planning: dict[str, Any] | None, corridor_m: float,
+            px4: list[dict[str, Any]] | None, planning: dict[str, Any] | None, corridor_m: float,
             bound_name: str, load: tuple[float, float], label: str, reused: str) -> str:
     head = (f"## {title}\n\nCommand: `.venv/bin/python bench/bench_missions.py {argv}` "
             f"({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, git "
@@ -642,12 +651,12 @@ def section(title: str, argv: str, mock: list[dict[str, Any]] | None,
             f"waypoints, touchdown); in the corridor when within {corridor_m:g} m of them or "
             "within the acceptance radius of a waypoint.\n\n" + mock_table(mock, corridor_m,
                                                                             bound_name))
-    if px4 is not None:
+    for entry in px4 or []:
         parts.append(
-            f"### Real PX4 v1.16 SITL (SIH quad, default parameters, real time): {px4['mission']}"
-            f"\n\n{reused}Each flight on a fresh PX4; armed time from the flight's .tlog (arm "
-            "COMMAND_ACK to the first disarmed HEARTBEAT, +-1 s); waypoints placed at PX4's "
-            "HOME_POSITION.\n\n" + px4_table(px4))
+            "### Real PX4 v1.16 SITL (SIH quad, default parameters, real time): "
+            f"{entry['mission']}\n\n{reused}Each flight on a fresh PX4 ({entry['date']}); armed "
+            "time from the flight's .tlog (arm COMMAND_ACK to the first disarmed HEARTBEAT, "
+            "+-1 s); waypoints placed at PX4's HOME_POSITION.\n\n" + px4_table(entry))
     if planning is not None:
         parts.append("### Planning time\n\n" + planning_text(planning))
     return "\n".join(parts)
@@ -674,8 +683,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="mock parameter for both mock flights (repeatable)")
     ap.add_argument("--corridor", type=float, default=1.0,
                     help="corridor half-width along the legs [m] (default 1)")
-    ap.add_argument("--px4-mission", default=str(MISSIONS_DIR / "square.plan"),
-                    help="mission flown on real PX4 (default examples/missions/square.plan)")
+    ap.add_argument("--px4-mission", nargs="+", default=[str(MISSIONS_DIR / "square.plan")],
+                    help="mission(s) flown on real PX4 (default examples/missions/square.plan)")
     ap.add_argument("--repeat", type=int, default=1,
                     help="real-PX4 flights per kind (each ~2-3 min real time)")
     ap.add_argument("--mode", default="attitude", choices=("position", "attitude", "rates"),
@@ -702,8 +711,7 @@ def main(argv: list[str] | None = None) -> int:
     px4 = None
     if args.reuse_px4:
         px4 = json.loads(Path(args.reuse_px4).read_text())["px4"]
-        reused = (f"Figures from an earlier run of this script ({px4['date']}, read from "
-                  f"{args.reuse_px4}). ")
+        reused = f"Figures from an earlier run of this script (read from {args.reuse_px4}). "
     elif "px4" in args.parts:
         px4 = px4_part(args)
     planning = planning_part() if "planning" in args.parts else None
