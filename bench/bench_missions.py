@@ -48,6 +48,7 @@ import json
 import math
 import os
 import platform
+import shlex
 import shutil
 import subprocess
 import sys
@@ -103,15 +104,20 @@ GCS_PORT = 14550
 # ----------------------------------------------------------------------------- shared
 
 
+BOUND_CALL = "time_optimal_bound_s(flight_plan, params, limits)"
+
+
 def time_optimal_bound() -> tuple[Callable[..., float] | None, str]:
-    """The planner's `time_optimal_bound_s(flight_plan, params, limits) -> s`, or None and why."""
+    """The planner's `time_optimal_bound_s(flight_plan, params, limits) -> s` (same arguments
+    as `build_schedule`), or None and why."""
     import importlib
 
     for mod in ("companion.schedule", "companion.trajectory"):
         fn = getattr(importlib.import_module(mod), "time_optimal_bound_s", None)
         if callable(fn):
-            return fn, f"{mod}.time_optimal_bound_s"
-    return None, "no time_optimal_bound_s in companion.schedule or companion.trajectory"
+            return fn, f"`{mod}.{BOUND_CALL}`"
+    return None, (f"n/a: the planner has no `{BOUND_CALL}` (looked in companion.schedule and "
+                  "companion.trajectory)")
 
 
 def flight_plan_of(prep: PreparedMission, vehicle: str) -> FlightPlan:
@@ -182,7 +188,8 @@ def mock_mission(path: Path, config: ReplayConfig, corridor_m: float,
                                         acc, corridor_m)},
         "planned_s": sched.duration_s, "item_indices": list(sched.item_indices),
         "acceptance_m": list(sched.acceptance_m), "warnings": list(prep.warnings),
-        "wall_s": wall,
+        "wall_s": wall, "limits": dataclasses.asdict(config.limits),
+        "mock_params": dict(config.mock_params),
     }
     out["ratio"] = out["companion"]["time_s"] / out["auto_mission"]["time_s"]
     out["bound_s"] = math.nan
@@ -649,8 +656,9 @@ def section(title: str, argv: str, mock: list[dict[str, Any]] | None,
             "(LOCAL_POSITION_NED joined by straight lines) to each mission waypoint of the "
             "schedule. Deviation: distance of each armed sample from the straight legs (start, "
             f"waypoints, touchdown); in the corridor when within {corridor_m:g} m of them or "
-            "within the acceptance radius of a waypoint.\n\n" + mock_table(mock, corridor_m,
-                                                                            bound_name))
+            "within the acceptance radius of a waypoint. The companion plans as "
+            f"`prepare_mission` does (`ReplayConfig.limits`: {_limits_text(mock)}).\n\n"
+            + mock_table(mock, corridor_m, bound_name))
     for entry in px4 or []:
         parts.append(
             "### Real PX4 v1.16 SITL (SIH quad, default parameters, real time): "
@@ -660,6 +668,14 @@ def section(title: str, argv: str, mock: list[dict[str, Any]] | None,
     if planning is not None:
         parts.append("### Planning time\n\n" + planning_text(planning))
     return "\n".join(parts)
+
+
+def _limits_text(rows: list[dict[str, Any]]) -> str:
+    lim = next((r["limits"] for r in rows if "limits" in r and r["vehicle"] == "quad"), {})
+    mp = next((r["mock_params"] for r in rows if r.get("mock_params")), {})
+    text = ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}"
+                     for k, v in lim.items() if not k.startswith("rover"))
+    return text + (f"; mock parameters {mp}" if mp else "")
 
 
 def _git_rev() -> str:
@@ -717,7 +733,7 @@ def main(argv: list[str] | None = None) -> int:
     planning = planning_part() if "planning" in args.parts else None
     if planning is not None:
         print(planning_text(planning), flush=True)
-    argv_s = " ".join(sys.argv[1:] if argv is None else argv)
+    argv_s = shlex.join(sys.argv[1:] if argv is None else argv)
     (out / "missions.json").write_text(json.dumps(
         {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "command": argv_s,
          "mock": mock, "px4": px4, "planning": planning, "bound": bound_name},
