@@ -569,8 +569,25 @@ def mock_table(rows: list[dict[str, Any]], corridor_m: float, bound_name: str) -
     return text
 
 
+def fly_report_worst(closest: list[float | None], plan: Path) -> float:
+    """Worst closest approach [m] in `fly`'s own report.json (its plan anchored where PX4's
+    takeoff ended), the landing point left out: that report stops at the handover to NAV_LAND
+    1 m above it."""
+    from companion.mission import load_mission
+
+    fp = mission_to_flight_plan(load_mission(plan))
+    land = {w.item_index for w in fp.waypoints if w.command == 21}
+    items = build_schedule(fp, DEFAULT_QUAD, VehicleLimits()).item_indices
+    vals = [c for c, i in zip(closest, items, strict=False) if c is not None and i not in land]
+    return max(vals) if vals else math.nan
+
+
 def px4_table(px4: dict[str, Any]) -> str:
     runs = px4["runs"]
+    plan = REPO / px4["mission"]
+    for r in runs["companion"]:
+        if r.get("fly_report_closest_m"):
+            r["fly_report_worst_m"] = fly_report_worst(r["fly_report_closest_m"], plan)
 
     def cell(kind: str, key: str, sub: str | None = None, fmt: str = ".1f") -> str:
         vals = []
@@ -599,6 +616,9 @@ def px4_table(px4: dict[str, Any]) -> str:
              "| worst waypoint closest approach, truth (HIL_STATE_QUATERNION) [m] | "
              f"{cell('companion', 'truth', 'max_closest_m', '.2f')} | "
              f"{cell('auto_mission', 'truth', 'max_closest_m', '.2f')} |",
+             "| worst waypoint but the landing point, `fly`'s own report (its plan anchored "
+             "where PX4's takeoff ended, not at the mission's home) [m] | "
+             f"{cell('companion', 'fly_report_worst_m', None, '.2f')} | - |",
              "| max deviation from the legs, estimate [m] | "
              f"{cell('companion', 'estimate', 'max_dev_m', '.2f')} | "
              f"{cell('auto_mission', 'estimate', 'max_dev_m', '.2f')} |",
@@ -664,7 +684,10 @@ def section(title: str, argv: str, mock: list[dict[str, Any]] | None,
             "### Real PX4 v1.16 SITL (SIH quad, default parameters, real time): "
             f"{entry['mission']}\n\n{reused}Each flight on a fresh PX4 ({entry['date']}); armed "
             "time from the flight's .tlog (arm COMMAND_ACK to the first disarmed HEARTBEAT, "
-            "+-1 s); waypoints placed at PX4's HOME_POSITION.\n\n" + px4_table(entry))
+            "+-1 s); waypoints placed at PX4's HOME_POSITION. The companion's `fly` plans "
+            "relative to where PX4's takeoff ended, so against the mission's waypoints it also "
+            "carries the takeoff's horizontal drift (its first waypoint, the takeoff point, shows "
+            "it); `fly`'s own report measures in that shifted frame.\n\n" + px4_table(entry))
     if planning is not None:
         parts.append("### Planning time\n\n" + planning_text(planning))
     return "\n".join(parts)
@@ -726,8 +749,10 @@ def main(argv: list[str] | None = None) -> int:
     reused = ""
     px4 = None
     if args.reuse_px4:
-        px4 = json.loads(Path(args.reuse_px4).read_text())["px4"]
-        reused = f"Figures from an earlier run of this script (read from {args.reuse_px4}). "
+        old = json.loads(Path(args.reuse_px4).read_text())
+        px4 = old["px4"]
+        reused = (f"Figures of an earlier run, `.venv/bin/python bench/bench_missions.py "
+                  f"{old['command']}` ({old['date']}), read from its JSON. ")
     elif "px4" in args.parts:
         px4 = px4_part(args)
     planning = planning_part() if "planning" in args.parts else None
