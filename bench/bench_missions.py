@@ -156,6 +156,17 @@ def _window(log: FlightLog, t0: float, t1: float) -> np.ndarray:
     return pos[(t >= t0) & (t <= t1)]
 
 
+def _disarmed_at(log: FlightLog, t_from: float, heartbeat_t: float | None,
+                 ends: tuple[str, ...] = ("Disarmed",)) -> float:
+    """When the flight ended: the first mock STATUSTEXT after `t_from` starting with one of
+    `ends` ("Disarmed by ...", sent at the moment it disarms), else the first HEARTBEAT
+    showing it (`heartbeat_t`, 1 Hz)."""
+    for t, _sev, text in log.statustext:
+        if t >= t_from and text.startswith(ends):
+            return t
+    return heartbeat_t if heartbeat_t is not None else math.nan
+
+
 def mock_mission(path: Path, config: ReplayConfig, corridor_m: float,
                  bound_fn: Callable[..., float] | None) -> dict[str, Any]:
     """Fly `path` with the companion and in AUTO.MISSION on fresh mocks; the figures."""
@@ -166,11 +177,12 @@ def mock_mission(path: Path, config: ReplayConfig, corridor_m: float,
     flight, clog = run.flight, run.log
     # companion: arm ACK (start of FLY) to the disarmed HEARTBEAT, or to Hold at a loiter end
     t0 = clog.fly_t0 if clog.fly_t0 is not None else math.nan
-    t1 = clog.disarmed_t if clog.disarmed_t is not None else (
-        flight.t_phase if flight.phase == Phase.DONE else math.nan)
+    t1 = _disarmed_at(clog, t0, clog.disarmed_t)
+    if math.isnan(t1) and flight.phase == Phase.DONE:  # loiter ending: Hold seen
+        t1 = flight.t_phase
     res, plog = fly_px4_mission(config, prep.mission, prep.home, sched.duration_s)
     p0 = plog.armed_t if plog.armed_t is not None else math.nan
-    p1 = plog.disarmed_t if plog.disarmed_t is not None else math.nan
+    p1 = _disarmed_at(plog, p0, plog.disarmed_t, ("Disarmed", "Mission finished"))
     wall = time.perf_counter() - wall0
     origin = flight.origin
     fp = flight_plan_of(prep, config.vehicle)
@@ -188,6 +200,7 @@ def mock_mission(path: Path, config: ReplayConfig, corridor_m: float,
                                         acc, corridor_m)},
         "planned_s": sched.duration_s, "item_indices": list(sched.item_indices),
         "acceptance_m": list(sched.acceptance_m), "warnings": list(prep.warnings),
+        "report_closest_m": [w["closest_approach_m"] for w in run.report["waypoints"]],
         "wall_s": wall, "limits": dataclasses.asdict(config.limits),
         "mock_params": dict(config.mock_params),
     }
@@ -671,12 +684,14 @@ def section(title: str, argv: str, mock: list[dict[str, Any]] | None,
     if mock is not None:
         parts.append(
             "### Mock (lockstep replay, attitude mode, default PX4 parameters on both sides)\n\n"
-            "Time: arm COMMAND_ACK to the first HEARTBEAT showing disarmed (a loiter ending: "
-            "in Hold), the same for both flights. Waypoints: closest approach of the flown path "
-            "(LOCAL_POSITION_NED joined by straight lines) to each mission waypoint of the "
-            "schedule. Deviation: distance of each armed sample from the straight legs (start, "
-            f"waypoints, touchdown); in the corridor when within {corridor_m:g} m of them or "
-            "within the acceptance radius of a waypoint. The companion plans as "
+            "Time: arm COMMAND_ACK to the mock's \"Disarmed by ...\" STATUSTEXT, the same for "
+            "both flights (a loiter ending: AUTO.MISSION's \"Mission finished\", the companion's "
+            "Hold HEARTBEAT after its plan, or its own disarm of a rover). Waypoints: "
+            "closest approach of the flown path (LOCAL_POSITION_NED joined by straight lines) "
+            "to each mission waypoint of the schedule. Deviation: distance of each armed "
+            "sample from the straight legs (start, waypoints, touchdown); in the corridor when "
+            f"within {corridor_m:g} m of them or within the acceptance radius of a waypoint. "
+            "The companion plans as "
             f"`prepare_mission` does (`ReplayConfig.limits`: {_limits_text(mock)}).\n\n"
             + mock_table(mock, corridor_m, bound_name))
     for entry in px4 or []:

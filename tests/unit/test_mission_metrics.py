@@ -96,3 +96,25 @@ def test_corridor_without_samples_is_not_within() -> None:
     assert not r.within and r.samples == 0
     with pytest.raises(ValueError, match="acceptance"):
         corridor_check(SQUARE, SQUARE, SQUARE, [2.0], 1.0)
+
+
+def test_mission_bench_on_a_short_mission_agrees_with_the_replay_report() -> None:
+    """bench_missions' mock row of a 3-waypoint mission: times cover the flights, its closest
+    approach (between samples) is never worse than the replay report's (at samples), and the
+    mock's AUTO.MISSION passes every waypoint within its acceptance radius."""
+    import bench_missions
+
+    from companion.replay import ReplayConfig
+
+    root = Path(__file__).resolve().parents[2]
+    row = bench_missions.mock_mission(root / "tests" / "data" / "missions" / "px4_short.plan",
+                                      ReplayConfig(), 1.0, None)
+    comp, auto = row["companion"], row["auto_mission"]
+    assert comp["result"] == "ok" and auto["result"] == "ok"
+    assert comp["time_s"] > row["planned_s"]  # armed for the whole plan, then the landing
+    assert 0.0 < auto["time_s"] < 3.0 * row["planned_s"]
+    assert row["ratio"] == pytest.approx(comp["time_s"] / auto["time_s"])
+    assert np.all(np.array(comp["closest_m"]) <= np.array(row["report_closest_m"]) + 1e-9)
+    assert np.all(np.array(auto["closest_m"]) <= np.array(row["acceptance_m"]))
+    assert comp["samples"] > 0 and auto["samples"] > 0
+    assert math.isnan(row["bound_s"])  # no bound function given
