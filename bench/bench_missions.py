@@ -735,8 +735,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="mock: only these files of examples/missions (name or stem)")
     ap.add_argument("--mock-param", action="append", default=[], metavar="NAME=VALUE",
                     help="mock parameter for both mock flights (repeatable)")
-    ap.add_argument("--corridor", type=float, default=1.0,
-                    help="corridor half-width along the legs [m] (default 1)")
+    ap.add_argument("--corridor", type=float, default=None,
+                    help="corridor half-width along the legs [m] (default: VehicleLimits()."
+                         "corridor_m if the planner has it, else 1)")
     ap.add_argument("--px4-mission", nargs="+", default=[str(MISSIONS_DIR / "square.plan")],
                     help="mission(s) flown on real PX4 (default examples/missions/square.plan)")
     ap.add_argument("--repeat", type=int, default=1,
@@ -756,6 +757,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.repeat < 1:
         ap.error("--repeat must be >= 1")
+    if args.corridor is None:
+        args.corridor = float(getattr(VehicleLimits(), "corridor_m", 1.0))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     load0 = os.getloadavg()
