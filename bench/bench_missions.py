@@ -219,7 +219,8 @@ def mock_missions(args: argparse.Namespace, bound_fn: Callable[..., float] | Non
                   ) -> list[dict[str, Any]]:
     files = sorted([*MISSIONS_DIR.glob("*.plan"), *MISSIONS_DIR.glob("*.waypoints")])
     if args.missions:
-        files = [f for f in files if f.name in args.missions or f.stem in args.missions]
+        extra = [Path(m).resolve() for m in args.missions if Path(m).is_file()]
+        files = [f for f in files if f.name in args.missions or f.stem in args.missions] + extra
     rows = []
     mock_params = tuple((k, float(v)) for k, v in (p.split("=", 1) for p in args.mock_param))
     for f in files:
@@ -732,7 +733,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--parts", nargs="+", choices=("mock", "px4", "planning"),
                     default=["mock", "px4", "planning"])
     ap.add_argument("--missions", nargs="*", default=[],
-                    help="mock: only these files of examples/missions (name or stem)")
+                    help="mock: only these files of examples/missions (name or stem) and any "
+                         "other mission file given by its path")
     ap.add_argument("--mock-param", action="append", default=[], metavar="NAME=VALUE",
                     help="mock parameter for both mock flights (repeatable)")
     ap.add_argument("--corridor", type=float, default=None,
