@@ -442,6 +442,14 @@ def _legs(chunk: FlightChunk) -> list[FlightChunk]:
 LAND_PROFILE_STEPS = 3
 
 
+def time_optimal_bound_s(
+    flight: FlightPlan, params: MultirotorParams | None, limits: VehicleLimits | None = None
+) -> float:
+    """Time-optimal lower bound [s] of the schedule `build_schedule(flight, params, limits)`
+    flies (:meth:`Schedule.time_optimal_bound_s`)."""
+    return build_schedule(flight, params, limits).time_optimal_bound_s()
+
+
 def _leg_speed_caps(
     chunk: FlightChunk, pts: FloatArray, px4: Px4PlanningParams, rover: bool
 ) -> FloatArray:
