@@ -134,10 +134,13 @@ def _polyline_deviation(p: np.ndarray, pts: np.ndarray, acc: np.ndarray) -> np.n
     return best
 
 
-@pytest.mark.parametrize("name", ["five_minute.plan", "survey.plan", "ten_waypoints.plan"])
+@pytest.mark.parametrize("name", ["five_minute.plan", "survey.plan", "ten_waypoints.plan",
+                                  "rover_square.plan"])
 def test_mission_path_stays_in_the_corridor_under_dense_sampling(name: str) -> None:
-    fp = mission_to_flight_plan(load_mission(ROOT / "examples" / "missions" / name))
-    s = build_schedule(fp, PARAMS, LIMITS)
+    rover = name.startswith("rover")
+    fp = mission_to_flight_plan(load_mission(ROOT / "examples" / "missions" / name),
+                                vehicle="rover" if rover else "quad")
+    s = build_schedule(fp, None if rover else PARAMS, LIMITS)
     end = [] if fp.touchdown_ned_m is None else [fp.touchdown_ned_m]
     pts = np.array([fp.start_ned_m, *[w.pos_ned_m for w in fp.waypoints], *end])
     acc = np.array([fp.waypoints[0].acceptance_radius_m,
