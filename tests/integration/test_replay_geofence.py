@@ -64,7 +64,9 @@ def test_fenced_plan_inside_flies_ok_with_per_leg_figures(tmp_path: Path) -> Non
     assert [(g["from_item"], g["to_item"]) for g in legs] == [(None, 1), (1, 2), (2, 3)]
     for g in legs:
         assert g["time_s"] > 0 and g["max_deviation_m"] >= g["rms_deviation_m"] >= 0
-        assert g["bound_s"] is None and g["time_over_bound"] is None
+        # the time-optimal bound is a lower bound: the flown leg is not quicker (up to the
+        # passage detection's sample spacing)
+        assert g["bound_s"] > 0 and g["time_over_bound"] >= 0.98, g
     # the 60 m leg north: the flown mean speed is below its 5 m/s cruise speed, and reaches it
     north = legs[1]
     assert north["cruise_speed_m_s"] == pytest.approx(5.0)

@@ -182,11 +182,13 @@ async def test_serve_flies_the_pilots_mission_pauses_on_hold_resumes_and_lands(
         await gcs.wait_for(lambda: gcs.mode == "HOLD", 3.0, "Hold")
         i_hold = len(gcs.track)
         t_hold = gcs.track[-1].t
-        await gcs.wait_for(lambda: gcs.track[-1].t > t_hold + 4.0, 10.0, "4 s in Hold")
+        await gcs.wait_for(lambda: gcs.track[-1].t > t_hold + 6.0, 12.0, "6 s in Hold")
         held = np.array([s.pos_ned for s in gcs.track[i_hold:]])
-        # stopped: braked short of wp 2 (never within its 2 m acceptance radius), at rest
+        late = np.array([s.pos_ned for s in gcs.track[i_hold:] if s.t >= t_hold + 4.0])
+        # stopped: braked short of wp 2 (never within its 2 m acceptance radius), at rest from
+        # 4 s on (it was flying at up to 5 m/s; Hold brakes, then settles on its position loop)
         assert min(dist_xy(tuple(p), WPS[2]) for p in held) > 2.0  # type: ignore[arg-type]
-        assert np.ptp(held[-50:, :2], axis=0).max() < 0.5
+        assert len(late) >= 2 and np.ptp(late[:, :2], axis=0).max() < 0.5, late
         # back to OFFBOARD: resumes from here to wp 2, wp 3, then LAND
         i_resume = len(gcs.track)
         assert await gcs.set_mode("OFFBOARD") == 0
