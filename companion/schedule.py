@@ -521,19 +521,6 @@ def _land_profile(
     return np.array(out_p), np.array(out_c)
 
 
-def _chunk_accel(pts: FloatArray, limits: VehicleLimits, px4: Px4PlanningParams) -> float:
-    """One acceleration limit for a chunk [m/s^2] that keeps each axis within PX4's
-    (MPC_ACC_HOR_MAX horizontally, min(MPC_ACC_UP_MAX, MPC_ACC_DOWN_MAX) vertically) for
-    acceleration along any of its legs, and within `limits.max_acc_m_s2`."""
-    a_h, a_z = px4.MPC_ACC_HOR_MAX, min(px4.MPC_ACC_UP_MAX, px4.MPC_ACC_DOWN_MAX)
-    acc = min(limits.max_acc_m_s2, a_h)
-    for d in np.diff(pts, axis=0):
-        n = float(np.linalg.norm(d))
-        if n > 0.0 and abs(float(d[2])) > 1e-6 * n:
-            acc = min(acc, a_z * n / abs(float(d[2])))
-    return acc
-
-
 def _plan_chunk(
     chunk: FlightChunk,
     pts: FloatArray,
@@ -562,10 +549,16 @@ def _plan_chunk(
         )
     vertical = chunk.phase in ("takeoff", "land")
     hover_n = params.mass * params.g if params is not None else None
-    acc = _chunk_accel(pts, limits, px4)
+    acc = limits.max_acc_m_s2
     lim = Limits(
         max_speed_m_s=speed,
         max_acc_m_s2=min(acc, 1.5) if vertical else acc,
+        max_acc_axes_m_s2=(px4.MPC_ACC_HOR_MAX, px4.MPC_ACC_UP_MAX, px4.MPC_ACC_DOWN_MAX),
+        max_vel_axes_m_s=(
+            px4.MPC_XY_VEL_MAX,
+            px4.MPC_TKO_SPEED if chunk.phase == "takeoff" else px4.MPC_Z_VEL_MAX_UP,
+            px4.MPC_Z_VEL_MAX_DN,
+        ),
         max_tilt_rad=(
             min(limits.max_tilt_rad, math.radians(px4.MPC_TILTMAX_AIR))
             if params is not None else None
@@ -599,10 +592,20 @@ def _plan_chunk(
         if r_vel <= 1.0 + 1e-3 and r_acc <= 1.0 + 1e-3:
             break
         if r_acc > 1.0 + 1e-3:
-            lim = dataclasses.replace(lim, max_acc_m_s2=lim.max_acc_m_s2 / r_acc)
+            axes = lim.max_acc_axes_m_s2
+            lim = dataclasses.replace(
+                lim, max_acc_m_s2=lim.max_acc_m_s2 / r_acc,
+                max_acc_axes_m_s2=None if axes is None else (
+                    axes[0] / r_acc, axes[1] / r_acc, axes[2] / r_acc),
+            )
         if r_vel > 1.0 + 1e-3:
             caps = caps / r_vel
-            lim = dataclasses.replace(lim, max_speed_m_s=lim.max_speed_m_s / r_vel)
+            vax = lim.max_vel_axes_m_s
+            lim = dataclasses.replace(
+                lim, max_speed_m_s=lim.max_speed_m_s / r_vel,
+                max_vel_axes_m_s=None if vax is None else (
+                    vax[0] / r_vel, vax[1] / r_vel, vax[2] / r_vel),
+            )
     return traj.with_yaw(velocity_heading(traj)) if follow else traj
 
 

@@ -56,8 +56,25 @@ class Limits:
     max_thrust_n: float | None = None
     min_thrust_n: float | None = None
     max_body_rate_rad_s: float | None = None
+    max_acc_axes_m_s2: tuple[float, float, float] | None = None
+    """Per-axis acceleration limits (horizontal, up, down) [m/s^2] on top of the norm limit
+    ``max_acc_m_s2`` (NED: up is -z), e.g. PX4's MPC_ACC_HOR_MAX, MPC_ACC_UP_MAX,
+    MPC_ACC_DOWN_MAX; None: the norm limit only."""
+
+    max_vel_axes_m_s: tuple[float, float, float] | None = None
+    """Per-axis speed limits (horizontal, climb, descent) [m/s] on top of ``max_speed_m_s``
+    (NED: climbing is -z), e.g. PX4's MPC_XY_VEL_MAX, MPC_Z_VEL_MAX_UP, MPC_Z_VEL_MAX_DN."""
 
     def __post_init__(self) -> None:
+        for name in ("max_acc_axes_m_s2", "max_vel_axes_m_s"):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            axes = tuple(float(v) for v in value)
+            if len(axes) != 3 or not all(math.isfinite(v) and v > 0.0 for v in axes):
+                raise ValueError(
+                    f"{name} must be three positive values (horizontal, up, down), got {value!r}"
+                )
         _positive("max_speed_m_s", self.max_speed_m_s, optional=False)
         _positive("max_acc_m_s2", self.max_acc_m_s2, optional=False)
         _positive("max_jerk_m_s3", self.max_jerk_m_s3, optional=True)
@@ -424,6 +441,12 @@ class TimeScaledRatio:
         if limits.max_jerk_m_s3 is not None:
             assert smp.jerk is not None
             self.kin.append((3, float(np.max(_norm(smp.jerk))) / (limits.max_jerk_m_s3 * margin)))
+        if limits.max_acc_axes_m_s2 is not None:
+            self.kin.append((2, float(np.max(axis_acc_ratio(smp.acc, limits))) / margin))
+        if limits.max_vel_axes_m_s is not None:
+            self.kin.append(
+                (1, float(np.max(axis_ratio(smp.vel, limits.max_vel_axes_m_s))) / margin)
+            )
         self.dynamic = limits.needs_params
         if self.dynamic:
             m = float(params.mass)
@@ -481,6 +504,22 @@ class TimeScaledRatio:
                 rate = max(rate, float(np.max(exact)))
             worst = max(worst, rate / cap)
         return worst
+
+
+def axis_ratio(vec: FloatArray, axes: tuple[float, float, float]) -> FloatArray:
+    """Per-sample ratio (N,) of vectors (N, 3) NED to per-axis limits (horizontal norm, up
+    (-z), down (+z))."""
+    hor = np.sqrt(vec[:, 0] ** 2 + vec[:, 1] ** 2) / axes[0]
+    ver = np.where(vec[:, 2] < 0.0, -vec[:, 2] / axes[1], vec[:, 2] / axes[2])
+    return np.asarray(np.maximum(hor, ver), dtype=np.float64)
+
+
+def axis_acc_ratio(acc: FloatArray, limits: Limits) -> FloatArray:
+    """Per-sample ratio (N,) of the acceleration (N, 3) NED to the per-axis limits
+    ``limits.max_acc_axes_m_s2`` (horizontal, up, down); zeros without them."""
+    if limits.max_acc_axes_m_s2 is None or acc.shape[1] != 3:
+        return np.zeros(acc.shape[0])
+    return axis_ratio(acc, limits.max_acc_axes_m_s2)
 
 
 def _screened_body_rate(smp: _Samples, params: Any, threshold: float) -> FloatArray:

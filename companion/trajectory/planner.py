@@ -65,6 +65,8 @@ from companion.trajectory.limits import (
     RoverLimits,
     TimeScaledRatio,
     _validate,
+    axis_acc_ratio,
+    axis_ratio,
     rover_extrema,
     segment_samples,
     segment_worst,
@@ -584,6 +586,13 @@ class _Penalty:
                     row = row / (speed_scale * speed_scale)
                 self.kin_inv_lim2[self.orders.index(kin_order[name]), 0, :] = row
         self.dyn_terms = [(nm, lim2) for nm, lim2 in self.terms if nm not in kin_order]
+        # per-axis speed and acceleration (horizontal, up, down), squared with the margin
+        self.axis_terms: list[tuple[int, tuple[float, float, float]]] = []
+        if isinstance(limits, Limits):
+            for order, axes in ((1, limits.max_vel_axes_m_s), (2, limits.max_acc_axes_m_s2)):
+                if axes is not None:
+                    h2, up2, dn2 = ((v * m) ** 2 for v in axes)
+                    self.axis_terms.append((self.orders.index(order), (h2, up2, dn2)))
         self.W_all_T = np.ascontiguousarray(self.W_all.T)
         self.W_all_rT = np.ascontiguousarray(self.W_all_r.T)
 
@@ -608,6 +617,24 @@ class _Penalty:
                 g_all = d_all * w[:, :, :, None]
         else:
             phi = np.zeros((n, m))
+        for row, (h2, up2, dn2) in self.axis_terms if d_all.shape[3] == 3 else ():
+            # per-axis limits: |x_xy|^2 / L_h^2 - 1 and x_z^2 / L_up|down^2 - 1
+            vec = d_all[row]
+            inv_z = np.where(vec[:, :, 2] < 0.0, 1.0 / up2, 1.0 / dn2)
+            g_h = (vec[:, :, 0] ** 2 + vec[:, :, 1] ** 2) / h2 - 1.0
+            g_z = vec[:, :, 2] ** 2 * inv_z - 1.0
+            for g, axes, inv in ((g_h, (0, 1), 1.0 / h2), (g_z, (2,), inv_z)):
+                if not g.max() > 0.0:
+                    continue
+                pos = np.maximum(g, 0.0)
+                w = pos * pos
+                phi = phi + w * pos
+                if not grad:
+                    continue
+                if g_all is None:
+                    g_all = np.zeros_like(d_all)
+                for ax in axes:
+                    g_all[row, :, :, ax] += 6.0 * w * inv * vec[:, :, ax]
         if not self.dyn_terms:
             return phi, g_all
         i1, i2 = self.orders.index(1), self.orders.index(2)
@@ -945,6 +972,15 @@ class _Planner:
         )
         if self.speed_scale is not None:
             ratios["speed"] = ratios["speed"] / self.speed_scale
+        if isinstance(limits, Limits) and limits.max_acc_axes_m_s2 is not None:
+            ratios["acc_axes"] = (
+                axis_acc_ratio(smp.acc, limits).reshape(m, -1).max(axis=1) / ALLOCATION_MARGIN
+            )
+        if isinstance(limits, Limits) and limits.max_vel_axes_m_s is not None:
+            ratios["vel_axes"] = (
+                axis_ratio(smp.vel, limits.max_vel_axes_m_s).reshape(m, -1).max(axis=1)
+                / ALLOCATION_MARGIN
+            )
         per_seg = np.max(np.stack(list(ratios.values())), axis=0)
         return float(np.max(per_seg)), per_seg
 
@@ -1320,6 +1356,14 @@ def _ramp_fractions(
     legs = np.diff(wp, axis=0)
     lengths = np.linalg.norm(legs, axis=1)
     unit = legs / np.maximum(lengths, 1e-12)[:, None]
+    acc_leg = np.full(n_legs, amax)
+    if limits.max_acc_axes_m_s2 is not None and wp.shape[1] == 3:
+        # along a leg the per-axis limits allow min(A_h / |u_xy|, A_z / |u_z|)
+        a_h, a_up, a_dn = limits.max_acc_axes_m_s2
+        u_h = np.hypot(unit[:, 0], unit[:, 1])
+        u_z = np.abs(unit[:, 2])
+        with np.errstate(divide="ignore"):
+            acc_leg = np.minimum(acc_leg, np.minimum(a_h / u_h, min(a_up, a_dn) / u_z))
     # speed at each waypoint: rest at the ends, a corner speed from the turn angle, then the
     # forward-backward acceleration passes
     v = np.zeros(n_legs + 1)
@@ -1327,9 +1371,9 @@ def _ramp_fractions(
         cos_turn = np.clip(np.sum(unit[1:] * unit[:-1], axis=1), -1.0, 1.0)
         v[1:-1] = np.minimum(vmax[1:], vmax[:-1]) * 0.5 * (1.0 + cos_turn)
     for i in range(1, n_legs + 1):
-        v[i] = min(v[i], math.sqrt(v[i - 1] ** 2 + 2.0 * amax * lengths[i - 1]))
+        v[i] = min(v[i], math.sqrt(v[i - 1] ** 2 + 2.0 * acc_leg[i - 1] * lengths[i - 1]))
     for i in range(n_legs - 1, -1, -1):
-        v[i] = min(v[i], math.sqrt(v[i + 1] ** 2 + 2.0 * amax * lengths[i]))
+        v[i] = min(v[i], math.sqrt(v[i + 1] ** 2 + 2.0 * acc_leg[i] * lengths[i]))
     out: list[list[float]] = []
     lo_f, hi_f = RAMP_JOINTS
     for i in range(n_legs):
@@ -1337,8 +1381,8 @@ def _ramp_fractions(
         base = list(np.arange(ALLOCATION_PIECES, dtype=np.float64) / ALLOCATION_PIECES)
         # ramp joints only where the leg starts or ends at rest (corners keep the equal
         # pieces: short pieces round a corner force a tight turn that slows the whole plan)
-        d_acc = vc * vc / (2.0 * amax) if v[i] == 0.0 else 0.0
-        d_dec = vc * vc / (2.0 * amax) if v[i + 1] == 0.0 else 0.0
+        d_acc = vc * vc / (2.0 * acc_leg[i]) if v[i] == 0.0 else 0.0
+        d_dec = vc * vc / (2.0 * acc_leg[i]) if v[i + 1] == 0.0 else 0.0
         if length <= 0.0 or hi_f * (d_acc + d_dec) >= 0.9 * length or d_acc + d_dec == 0.0:
             out.append(base)
             continue
@@ -1655,7 +1699,9 @@ def plan_with_info(
         # joints one acceptance radius from each corner, on both legs: the path turns inside
         # the waypoint's acceptance sphere instead of swinging wide across the legs
         lengths = np.linalg.norm(np.diff(wp, axis=0), axis=1)
-        for leg in range(n_j - 1):
+        # (rovers: a pinned turn at the corner would slow the whole plan through the rover's
+        # uniform time scaling; their segments are split only where they leave the corridor)
+        for leg in range(n_j - 1 if isinstance(limits, Limits) else 0):
             extra = []
             if leg > 0 and acc_j[leg] > 0.0:
                 extra.append(acc_j[leg] / lengths[leg])
@@ -1682,7 +1728,7 @@ def plan_with_info(
                 f = fracs[leg]
                 lo = f[i_f]
                 hi = f[i_f + 1] if i_f + 1 < len(f) else 1.0
-                f.append(0.5 * (lo + hi))
+                f.extend((lo + (hi - lo) / 3.0, lo + 2.0 * (hi - lo) / 3.0))
             fracs = [sorted(f) for f in fracs]
             planner, traj, cost, seg_leg, is_waypoint = _plan_joints(
                 wp, fracs, s, start_spec, end_spec, interior, yaw, yaw_wp, caps_in, limits,
