@@ -113,8 +113,10 @@ BISECTION_SAMPLES_PER_SEGMENT = 16
 LOCAL_STRETCH_GIVE_UP = 1.25
 #: Jerk penalised in the allocation per rad/s of the body-rate limit, in units of g.
 BODY_RATE_JERK_PROXY = 0.8
-#: Passes of the multirotor local stretch tried before the uniform time scaling.
+#: Passes of the multirotor local stretch tried before the uniform time scaling; below
+#: LOCAL_STRETCH_FINISH (worst limit ratio) a uniform scaling by the excess ends it.
 LOCAL_STRETCH_PASSES = 25
+LOCAL_STRETCH_FINISH = 1.01
 #: Slack passes after the saturation (multirotor): segments whose worst limit ratio is below
 #: SHRINK_SLACK are shortened by max(ratio, SHRINK_MIN_FACTOR) per pass.
 SHRINK_PASSES = 6
@@ -1025,10 +1027,20 @@ class _Planner:
     ) -> FloatArray | None:
         """Stretch only the segments over a limit (and their neighbours a little) until the
         plan is feasible; None if that does not converge within ``LOCAL_STRETCH_PASSES``."""
+        best = math.inf
         for _ in range(LOCAL_STRETCH_PASSES):
             worst, per_seg = self._max_ratio(h, limits, params)
             if worst <= 1.0:
                 return h
+            best = min(best, worst)
+            if worst > LOCAL_STRETCH_GIVE_UP * best:
+                return None  # the path balloons between unequal segments: scale uniformly
+            if worst < LOCAL_STRETCH_FINISH:
+                # a few segments just over: a uniform scaling by the excess finishes it (the
+                # local passes can circle around such small excesses for many passes)
+                done = h * (worst * 1.001)
+                if self._max_ratio(done, limits, params)[0] <= 1.0:
+                    return done
             bad = per_seg > 1.0
             grow = np.where(bad, np.sqrt(np.minimum(per_seg, 2.25)) * 1.002, 1.0)
             spread = np.where(bad, np.sqrt(grow), 1.0)
