@@ -446,7 +446,10 @@ def time_optimal_bound_s(
     flight: FlightPlan, params: MultirotorParams | None, limits: VehicleLimits | None = None
 ) -> float:
     """Time-optimal lower bound [s] of the schedule `build_schedule(flight, params, limits)`
-    flies (:meth:`Schedule.time_optimal_bound_s`)."""
+    flies (:meth:`Schedule.time_optimal_bound_s`). Multirotors only (ValueError for a rover:
+    the bound's limits are a multirotor's)."""
+    if flight.vehicle == "rover":
+        raise ValueError("the time-optimal bound is computed for multirotor plans only")
     return build_schedule(flight, params, limits).time_optimal_bound_s()
 
 
