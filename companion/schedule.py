@@ -55,8 +55,11 @@ class VehicleLimits:
     max_thrust_ratio: float = 1.8
     """Peak collective thrust allowed in planning, as a multiple of the hover thrust m g."""
     corridor_m: float | None = 1.0
-    """The planned path stays within this distance of the straight mission legs [m], except
-    inside a waypoint's acceptance radius; None: no corridor."""
+    """Multirotor: the planned path stays within this distance of the straight mission legs
+    [m], except inside a waypoint's acceptance radius; None: no corridor."""
+    rover_corridor_m: float | None = None
+    """The same for a rover; off by default: each refinement re-runs the rover's exact-extrema
+    allocation (seconds on a 14-waypoint mission)."""
     rover_max_yaw_rate_rad_s: float = math.radians(60.0)
     rover_max_lat_acc_m_s2: float = 1.5
     rover_max_speed_m_s: float | None = None
@@ -545,7 +548,7 @@ def _plan_chunk(
             max_yaw_rate_rad_s=limits.rover_max_yaw_rate_rad_s,
             max_lat_acc_m_s2=limits.rover_max_lat_acc_m_s2,
         )
-        corridor = limits.corridor_m if len(pts) == len(chunk.points_ned_m) else None
+        corridor = limits.rover_corridor_m if len(pts) == len(chunk.points_ned_m) else None
         return plan(
             pts[:, :2], limits=lim, yaw="velocity", speed_caps=caps, corridor_m=corridor,
             acceptance_m=chunk.acceptance_radius_m if corridor is not None else None,

@@ -5,6 +5,7 @@ the PX4 formulas are written out here independently of companion/schedule.py."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 import math
@@ -137,10 +138,12 @@ def _polyline_deviation(p: np.ndarray, pts: np.ndarray, acc: np.ndarray) -> np.n
 @pytest.mark.parametrize("name", ["five_minute.plan", "survey.plan", "ten_waypoints.plan",
                                   "rover_square.plan"])
 def test_mission_path_stays_in_the_corridor_under_dense_sampling(name: str) -> None:
+    """Multirotors by default; a rover with `rover_corridor_m` set (off by default)."""
     rover = name.startswith("rover")
     fp = mission_to_flight_plan(load_mission(ROOT / "examples" / "missions" / name),
                                 vehicle="rover" if rover else "quad")
-    s = build_schedule(fp, None if rover else PARAMS, LIMITS)
+    limits = dataclasses.replace(LIMITS, rover_corridor_m=1.0) if rover else LIMITS
+    s = build_schedule(fp, None if rover else PARAMS, limits)
     end = [] if fp.touchdown_ned_m is None else [fp.touchdown_ned_m]
     pts = np.array([fp.start_ned_m, *[w.pos_ned_m for w in fp.waypoints], *end])
     acc = np.array([fp.waypoints[0].acceptance_radius_m,
