@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -23,6 +25,25 @@ def _flat_ne(lat: float, lon: float, lat0: float, lon0: float) -> tuple[float, f
     north = math.radians(lat - lat0) * R_EARTH
     east = math.radians(lon - lon0) * R_EARTH * math.cos(math.radians(lat0))
     return north, east
+
+
+_OPEN_LOGS: list[Any] = []
+
+
+def _open_tlog(path: str) -> Any:
+    """A pymavlink tlog reader, closed by the autouse fixture below after the test."""
+    conn = mavutil.mavlink_connection(path)
+    _OPEN_LOGS.append(conn)
+    return conn
+
+
+@pytest.fixture(autouse=True)
+def _close_tlogs() -> Iterator[None]:
+    try:
+        yield
+    finally:
+        while _OPEN_LOGS:
+            _OPEN_LOGS.pop().close()
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +65,7 @@ def test_every_waypoint_reached_from_tlog_positions(replayed: Path) -> None:
             radius = it["params"][1] or 2.0
             wps.append((n, e, -rel, radius))
     assert len(wps) == 10
-    mlog = mavutil.mavlink_connection(str(replayed / "flight.tlog"))
+    mlog = _open_tlog(str(replayed / "flight.tlog"))
     flown = []
     while True:
         m = mlog.recv_match(type="GLOBAL_POSITION_INT")
@@ -65,7 +86,7 @@ def test_tlog_carries_the_mission_items_at_the_file_coordinates(replayed: Path) 
 
     plan = json.loads(MISSION.read_text())
     in_file = [it for it in plan["mission"]["items"] if it["command"] in (16, 22, 21)]
-    mlog = mavutil.mavlink_connection(str(replayed / "flight.tlog"))
+    mlog = _open_tlog(str(replayed / "flight.tlog"))
     # one type set per connection: pymavlink's indexed tlog reader keeps the first one
     kinds = ["MISSION_COUNT", "MISSION_ITEM_INT"]
     count = mlog.recv_match(type=kinds)
@@ -91,7 +112,7 @@ def test_tlog_carries_the_mission_items_at_the_file_coordinates(replayed: Path) 
 
 def test_tlog_reads_back_with_expected_message_counts(replayed: Path) -> None:
     report = json.loads((replayed / "report.json").read_text())
-    mlog = mavutil.mavlink_connection(str(replayed / "flight.tlog"))
+    mlog = _open_tlog(str(replayed / "flight.tlog"))
     hb_px4 = 0
     setpoints = []
     stamps = []
@@ -158,7 +179,7 @@ ROVER_MISSION = ROOT / "examples" / "missions" / "rover_square.plan"
 
 def _rover_track(tlog: Path, lat0: float, lon0: float) -> tuple[np.ndarray, np.ndarray]:
     """(north, east) positions [m] and ground speeds [m/s] from the tlog's GLOBAL_POSITION_INT."""
-    mlog = mavutil.mavlink_connection(str(tlog))
+    mlog = _open_tlog(str(tlog))
     pos, speed = [], []
     while True:
         m = mlog.recv_match(type="GLOBAL_POSITION_INT")
