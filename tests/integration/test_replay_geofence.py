@@ -29,13 +29,16 @@ def _flown_ne(tlog: Path) -> np.ndarray:
     (equirectangular projection, independent of the companion's)."""
     mlog = mavutil.mavlink_connection(str(tlog))
     out = []
-    for _ in range(1_000_000):
-        m = mlog.recv_match(type="GLOBAL_POSITION_INT")
-        if m is None:
-            break
-        out.append((math.radians(m.lat * 1e-7 - HOME[0]) * R_EARTH,
-                    math.radians(m.lon * 1e-7 - HOME[1]) * R_EARTH
-                    * math.cos(math.radians(HOME[0]))))
+    try:
+        for _ in range(1_000_000):
+            m = mlog.recv_match(type="GLOBAL_POSITION_INT")
+            if m is None:
+                break
+            out.append((math.radians(m.lat * 1e-7 - HOME[0]) * R_EARTH,
+                        math.radians(m.lon * 1e-7 - HOME[1]) * R_EARTH
+                        * math.cos(math.radians(HOME[0]))))
+    finally:
+        mlog.close()
     return np.asarray(out)
 
 
