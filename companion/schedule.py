@@ -33,7 +33,7 @@ from companion.trajectory.bound import (
     time_optimal_duration,
     time_optimal_profile,
 )
-from companion.trajectory.planner import velocity_heading
+from companion.trajectory.planner import point_segment_distance, velocity_heading
 
 _log = logging.getLogger("companion.schedule")
 
@@ -412,10 +412,7 @@ def _segment_caps(traj: PiecewiseBezier, pts: FloatArray, caps: FloatArray) -> F
     best = np.full(mid.shape[0], np.inf)
     out = np.full(mid.shape[0], float(np.max(caps)))
     for a, b, c in zip(legs[:-1], legs[1:], caps, strict=True):
-        ab = b - a
-        den = float(ab @ ab)
-        f = np.zeros(mid.shape[0]) if den <= 0.0 else np.clip((mid - a) @ ab / den, 0.0, 1.0)
-        dist = np.linalg.norm(mid - (a + f[:, None] * ab), axis=1)
+        dist = point_segment_distance(mid, a, b)
         closer = dist < best
         best[closer] = dist[closer]
         out[closer] = c

@@ -774,6 +774,16 @@ class PlanResult:
     solves: int
 
 
+def _stretch_factors(per_seg: FloatArray) -> FloatArray:
+    """Duration factors of one feasibility pass: each segment over a limit grows by its ratio
+    (at most 1.5), its neighbours by 0.2 %."""
+    bad = per_seg > 1.0
+    grow = np.where(bad, np.minimum(per_seg, 1.5) * 1.002, 1.0)
+    grow[1:] = np.maximum(grow[1:], np.where(bad[:-1], 1.002, 1.0))
+    grow[:-1] = np.maximum(grow[:-1], np.where(bad[1:], 1.002, 1.0))
+    return np.asarray(grow, dtype=np.float64)
+
+
 class _Planner:
     """One planning problem: joints (waypoints and, for time allocation, intermediate points on
     the straight legs), their fixed derivatives, and the yaw specification."""
@@ -1007,11 +1017,7 @@ class _Planner:
                 # stretching single segments of a minimum-snap path can make it balloon
                 # (a long segment between short ones overshoots): stop making it worse
                 break
-            bad = per_seg > 1.0
-            grow = np.where(bad, np.minimum(per_seg, 1.5) * 1.002, 1.0)
-            grow[1:] = np.maximum(grow[1:], np.where(bad[:-1], 1.002, 1.0))
-            grow[:-1] = np.maximum(grow[:-1], np.where(bad[1:], 1.002, 1.0))
-            h = h * grow
+            h = h * _stretch_factors(per_seg)
         # fallback: uniform scaling of the bisection's durations, which keeps the path shape
         # (speed ~ 1/k, acceleration ~ 1/k^2, ...); only the dense check's last percent is missing
         h = h_uniform
@@ -1067,11 +1073,7 @@ class _Planner:
                 worst, per_seg_c = self._max_ratio(cand, limits, params)
                 if worst <= 1.0:
                     break
-                bad = per_seg_c > 1.0
-                grow = np.where(bad, np.minimum(per_seg_c, 1.5) * 1.002, 1.0)
-                grow[1:] = np.maximum(grow[1:], np.where(bad[:-1], 1.002, 1.0))
-                grow[:-1] = np.maximum(grow[:-1], np.where(bad[1:], 1.002, 1.0))
-                cand = cand * grow
+                cand = cand * _stretch_factors(per_seg_c)
             else:
                 break
             total = float(cand.sum())
@@ -1290,7 +1292,7 @@ def _plan_joints(
     return planner, traj, cost, seg_leg_a, is_waypoint
 
 
-def _point_segment_distance(p: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
+def point_segment_distance(p: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
     """Distance (N,) of the points p (N, d) to the segment a-b [m]."""
     ab = b - a
     den = float(ab @ ab)
@@ -1313,7 +1315,7 @@ def corridor_deviation(
         for other in (leg - 1, leg, leg + 1):
             if 0 <= other < n_legs:
                 best = np.minimum(
-                    best, _point_segment_distance(p, waypoints[other], waypoints[other + 1])
+                    best, point_segment_distance(p, waypoints[other], waypoints[other + 1])
                 )
         for w in (leg, leg + 1):
             near = np.linalg.norm(p - waypoints[w], axis=1) <= acceptance_m[w]
