@@ -210,18 +210,20 @@ class PlannedFlight:
 
 
 def plan_flight(opts: FlyOptions, inputs: FlyInputs, rover: bool,
-                px4: Px4PlanningParams | None = None) -> PlannedFlight:
+                px4: Px4PlanningParams | None = None,
+                fly_takeoff: bool = False) -> PlannedFlight:
     """Plan the mission or pattern (CPU-bound: run it off the event loop). ``px4``: the
     vehicle's planning parameters (None: PX4's defaults); patterns use their own options. A
     mission whose planned trajectory breaches its geofence raises MissionError naming the
-    leg's items."""
+    leg's items. fly_takeoff: the offboard part starts on the ground and flies the
+    mission's takeoff climb (else it starts where PX4's NAV_TAKEOFF ended)."""
     vf = inputs.vehicle
     if inputs.mission is not None:
         fp = mission_to_flight_plan(inputs.mission, vehicle="rover" if rover else "quad",
                                     px4=px4)
         schedule = build_schedule(fp, None if rover else vf.params, vf.limits)
         require_plan_inside(fp, schedule)
-        t_off = _takeoff_end(schedule)
+        t_off = 0.0 if fly_takeoff else _takeoff_end(schedule)
 
         def sched_ref(t: float, origin: FloatArray | None = None) -> Reference:
             return schedule.reference(t + t_off, origin)
@@ -285,10 +287,11 @@ def mission_figures(planned: PlannedFlight, recorder: TrackRecorder, origin: Flo
     fence_pos = pos + shift
     masks = zone_masks(fp.geofence, fence_pos) if len(pos) and not fp.geofence.empty else []
     found = flown_breaches(fp, t, fence_pos) if masks else []
-    # PX4 flies the takeoff: the legs from the end of the companion's takeoff climb on
+    # when PX4 flew the takeoff: the legs from the end of the companion's takeoff climb on
     all_legs = plan_legs(fp)
     leg_bounds, bound = plan_bounds(fp, schedule)
-    flown = [k for k, leg in enumerate(all_legs) if leg.phase != "takeoff"]
+    flown = [k for k, leg in enumerate(all_legs)
+             if planned.t_off_s <= 0.0 or leg.phase != "takeoff"]
     legs = [all_legs[k] for k in flown]
     pt, pp = sample_schedule(schedule)
     keep = pt >= planned.t_off_s
@@ -392,8 +395,11 @@ async def fly(opts: FlyOptions, console: Console) -> int:
         if mission is not None:
             px4 = await v.read_planning_params(inputs.vehicle.px4_overrides)
             print_planning_params(console, px4)
+        # a multicopter mission from the ground: the plan flies the takeoff too, armed in
+        # OFFBOARD (PX4's NAV_TAKEOFF spool-up and the switch after it cost ~5 s)
+        fly_takeoff = mission is not None and not rover and not v.is_armed
         planned = await asyncio.to_thread(plan_flight, opts, inputs, rover,
-                                          None if px4 is None else px4.params)
+                                          None if px4 is None else px4.params, fly_takeoff)
         if mission is not None:
             horiz, fence_shift = await _home_offset_m(v, mission, HOME_WAIT_S)
             if horiz > MAX_HOME_OFFSET_M:
@@ -421,12 +427,15 @@ async def fly(opts: FlyOptions, console: Console) -> int:
             ui = loop.create_task(show(live))
             rec: asyncio.Task[None] | None = None
             try:
-                await v.arm()
-                if not rover:
-                    await v.takeoff(planned.alt_m)
+                if fly_takeoff:
+                    await v.wait_armable()
+                else:
+                    await v.arm()
+                    if not rover:
+                        await v.takeoff(planned.alt_m)
                 snap = v.telemetry
                 if snap.position is None:
-                    raise VehicleError("no position telemetry after takeoff")
+                    raise VehicleError("no position telemetry")
                 here = np.asarray(snap.position.pos_ned, dtype=float)
                 origin = here - planned.start_rel
                 rel_ref = planned.rel_ref
@@ -441,8 +450,10 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                               if mode in ("attitude", "rates") else None))
                 rec = loop.create_task(record())
                 started = loop.time()
+                landing = not rover and planned.final_action in ("land", "rtl")
                 flown = await v.fly(mode=mode, setpoint_source=source,
-                                    duration_s=planned.duration_s)
+                                    duration_s=planned.duration_s, arm=fly_takeoff,
+                                    end_action="land" if landing else "hold")
                 ended = loop.time()
                 console.print(f"Trajectory flown in {mode} mode: {flown.duration_s:.1f} s")
                 report = recorder.summary(planned.waypoints_rel + origin, planned.acceptance_m,
@@ -456,10 +467,8 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                 report["result"] = breach_failure(report) or "ok"
                 if rover:
                     await v.disarm()
-                elif planned.final_action in ("land", "rtl"):
-                    await v.land()
-                else:
-                    await v.hold()
+                elif landing:
+                    await v.land()  # already in LAND: waits for the landing, then disarms
             except Exception as exc:
                 if recorder.t_s:  # what was flown before the failure, for the post-mortem
                     report = recorder.summary(None, (), duration_s=recorder.t_s[-1]

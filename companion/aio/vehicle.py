@@ -88,6 +88,7 @@ log = logging.getLogger("companion.aio")
 T = TypeVar("T")
 MODES = ("position", "attitude", "rates", "rover")
 MAV_STATE_CRITICAL = 5  # HEARTBEAT system_status while PX4 is in a failsafe
+LANDED_STATE_ON_GROUND = 1  # EXTENDED_SYS_STATE landed_state (MAV_LANDED_STATE_ON_GROUND)
 _CAN_NOT_ARM = {FlightMode.OFFBOARD, FlightMode.POSCTL, FlightMode.ALTCTL,
                 FlightMode.STABILIZED, FlightMode.MANUAL, FlightMode.ACRO}
 
@@ -573,13 +574,18 @@ class Vehicle:
         st: SystemStatus | None = self.link.telemetry.sys_status
         return (st is None or st.armable) and self.link.telemetry.position is not None
 
+    async def wait_armable(self) -> None:
+        """Wait (up to ``armable_timeout_s``) until the vehicle reports it is ready to arm and
+        sends its local position."""
+        await self._wait_for(self._armable, self.config.armable_timeout_s,
+                             "the vehicle to be ready to arm (estimator / preflight checks)")
+
     async def arm(self, force: bool = False) -> None:
         """Arm (after the vehicle reports it is armable); switches to Hold first if the current
         mode cannot arm without RC (PX4 returns to OFFBOARD/POSCTL after a landing)."""
         if self.is_armed:
             return
-        await self._wait_for(self._armable, self.config.armable_timeout_s,
-                             "the vehicle to be ready to arm (estimator / preflight checks)")
+        await self.wait_armable()
         if self.mode in _CAN_NOT_ARM:
             await self.set_mode(FlightMode.HOLD)
         await self._command(lambda now: self.link.arm(now, force), MAV_CMD_COMPONENT_ARM_DISARM,
@@ -613,17 +619,37 @@ class Vehicle:
 
         await self._wait_for(done, self.config.takeoff_timeout_s, f"the takeoff to {alt_m:g} m")
 
-    async def land(self, wait: bool = True) -> None:
-        """NAV_LAND here; waits until landed and disarmed."""
-        await self._command(self.link.land, MAV_CMD_NAV_LAND, "landing")
+    async def land(self, wait: bool = True, disarm_when_landed: bool = True) -> None:
+        """NAV_LAND here (unless already in LAND); waits until landed and disarmed.
+
+        disarm_when_landed: disarm as soon as PX4's land detector reports the vehicle on the
+        ground (EXTENDED_SYS_STATE), instead of waiting COM_DISARM_LAND for PX4's own
+        auto-disarm; PX4 refuses a disarm that is not forced unless it has detected the
+        landing, and a refusal leaves the wait for the auto-disarm."""
+        if self.mode is not FlightMode.LAND:
+            await self._command(self.link.land, MAV_CMD_NAV_LAND, "landing")
         if not wait:
             return
 
+        def on_ground() -> bool:
+            ext: ExtendedState | None = self.link.telemetry.extended
+            return ext is not None and ext.landed_state == LANDED_STATE_ON_GROUND
+
         def landed() -> bool:
             ext: ExtendedState | None = self.link.telemetry.extended
-            return not self.is_armed and (ext is None or ext.landed_state == 1)
+            return not self.is_armed and (ext is None or ext.landed_state == LANDED_STATE_ON_GROUND)
 
-        await self._wait_for(landed, self.config.land_timeout_s, "landing and disarm")
+        deadline = time.monotonic() + self.config.land_timeout_s
+        if disarm_when_landed:
+            await self._wait_for(lambda: not self.is_armed or on_ground(),
+                                 self.config.land_timeout_s, "the landing")
+            if self.is_armed:
+                try:
+                    await self.disarm()
+                except CommandError as exc:  # not landed after all: PX4 disarms on its own
+                    log.warning("disarm after landing refused (%s): waiting for PX4's "
+                                "auto-disarm", exc)
+        await self._wait_for(landed, max(0.1, deadline - time.monotonic()), "landing and disarm")
 
     async def exit_action(self, action: str | None = None) -> None:
         """The configured safe action (Hold or Land), best effort, bounded in time."""
@@ -639,15 +665,31 @@ class Vehicle:
     # -- offboard flight ------------------------------------------------------------------------
     async def fly(self, trajectory: TrajectoryLike | None = None, *, mode: str = "position",
                   setpoint_source: SetpointSource | None = None, rate_hz: float | None = None,
-                  duration_s: float | None = None, feedforward: str = "acc") -> FlightReport:
-        """Fly ``trajectory`` (or ``setpoint_source`` for ``duration_s``) in OFFBOARD, then Hold.
+                  duration_s: float | None = None, feedforward: str = "acc",
+                  arm: bool = False, end_action: str = "hold") -> FlightReport:
+        """Fly ``trajectory`` (or ``setpoint_source`` for ``duration_s``) in OFFBOARD, then Hold
+        (or Land).
 
         mode: "position" (built-in: trajectory -> SET_POSITION_TARGET_LOCAL_NED), or
         "attitude" / "rates" / "rover" with a ``setpoint_source`` (see ``sources``). The
         stream is primed for ``prime_s`` before OFFBOARD is requested once.
+        arm: the vehicle is disarmed on the ground; it is switched to OFFBOARD disarmed (PX4
+        accepts that with a live stream) and armed there, and the trajectory's time starts
+        when the HEARTBEAT shows armed: the setpoints fly the takeoff.
+        end_action: "hold" or "land": the mode requested, still streaming, when the trajectory
+        is complete.
         """
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        if end_action not in ("hold", "land"):
+            raise ValueError(f"end_action must be 'hold' or 'land', got {end_action!r}")
+        if arm:
+            ext = self.link.telemetry.extended
+            if self.is_armed:
+                raise VehicleError("fly(arm=True) takes off from the ground, but the vehicle "
+                                   "is already armed")
+            if ext is not None and ext.landed_state not in (0, LANDED_STATE_ON_GROUND):
+                raise VehicleError("fly(arm=True): the vehicle is not reported on the ground")
         if self._flying:
             raise VehicleError("already flying a trajectory")
         if not self.link_ok:
@@ -680,12 +722,15 @@ class Vehicle:
             if trajectory is not None and math.isfinite(total):
                 pe = trajectory.evaluate(total, 0)
                 end_pos = (float(pe[0]), float(pe[1]), float(pe[2]))
-            return await self._fly(source, mode, rate_hz or self.config.rate_hz, total, end_pos)
+            return await self._fly(source, mode, rate_hz or self.config.rate_hz, total, end_pos,
+                                   arm, FlightMode.LAND if end_action == "land" else
+                                   FlightMode.HOLD)
         finally:
             self._flying = False
 
     async def _fly(self, source: SetpointSource, mode: str, rate: float, total_s: float,
-                   end_pos: tuple[float, float, float] | None) -> FlightReport:
+                   end_pos: tuple[float, float, float] | None, arm: bool = False,
+                   end_mode: FlightMode = FlightMode.HOLD) -> FlightReport:
         cfg = self.config
         sm = OffboardMachine(rate, cfg.prime_s)
         state: dict[str, Any] = {"t0": None, "hold": None, "error": ""}
@@ -765,10 +810,12 @@ class Vehicle:
                 text = self.last_status_text.text if self.last_status_text else ""
                 raise OffboardError(f"OFFBOARD refused: {fin.reason}"
                                     + (f" (vehicle: {text})" if text else ""), fin.result)
+            sm.on_mode_result(True, time.monotonic(), "HEARTBEAT shows OFFBOARD")
+            log.info("OFFBOARD active (%s mode, %g Hz)", mode, rate)
+            if arm:
+                await self._arm_in_offboard(streamer, sm)
             t_start = time.monotonic()
             state["t0"] = t_start
-            sm.on_mode_result(True, t_start, "HEARTBEAT shows OFFBOARD")
-            log.info("OFFBOARD active (%s mode, %g Hz)", mode, rate)
             stale_since: float | None = None
             # ACTIVE
             while True:
@@ -814,7 +861,7 @@ class Vehicle:
                         end_pos is None or now - t_start >= total_s + cfg.settle_s
                         or (pos is not None
                             and math.dist(pos.pos_ned, end_pos) <= cfg.settle_m)):
-                    await self._hold_and_stop(streamer, sm, "trajectory complete")
+                    await self._hold_and_stop(streamer, sm, "trajectory complete", end_mode)
                     held_at_end = True
                     break
         except asyncio.CancelledError:
@@ -833,14 +880,32 @@ class Vehicle:
             pump()
             await asyncio.sleep(0.02)
 
-    async def _hold_and_stop(self, streamer: FixedRateStreamer, sm: OffboardMachine,
-                             why: str) -> None:
-        """Switch to Hold while still streaming, then stop the stream."""
-        log.info("%s: switching to HOLD", why)
+    async def _arm_in_offboard(self, streamer: FixedRateStreamer, sm: OffboardMachine) -> None:
+        """Arm while in OFFBOARD and streaming; on a refusal stop the stream (still disarmed)
+        and return to Hold, so a later ``arm`` works."""
         try:
-            await self.hold()
+            await self._command(lambda now: self.link.arm(now, False),
+                                MAV_CMD_COMPONENT_ARM_DISARM, "arming in OFFBOARD")
+            await self._wait_for(lambda: self.is_armed, 3.0, "the HEARTBEAT to show armed")
+        except (VehicleError, TimeoutError):
+            streamer.stop()
+            sm.stop(time.monotonic(), "arming refused")
+            if not self.is_armed:
+                with contextlib.suppress(VehicleError, TimeoutError):
+                    await _bounded(self.hold(), 5.0)
+            else:  # armed late (the HEARTBEAT came after the wait): never leave it so
+                with contextlib.suppress(VehicleError, TimeoutError):
+                    await _bounded(self.disarm(), 5.0)
+            raise
+
+    async def _hold_and_stop(self, streamer: FixedRateStreamer, sm: OffboardMachine,
+                             why: str, end_mode: FlightMode = FlightMode.HOLD) -> None:
+        """Switch to Hold (or ``end_mode``) while still streaming, then stop the stream."""
+        log.info("%s: switching to %s", why, end_mode.name)
+        try:
+            await self.set_mode(end_mode)
         except (VehicleError, TimeoutError) as exc:
-            log.error("HOLD after %s failed: %s", why, exc)
+            log.error("%s after %s failed: %s", end_mode.name, why, exc)
         finally:
             streamer.stop()
             sm.stop(time.monotonic(), why)
