@@ -8,7 +8,8 @@ timestamp + raw MAVLink frame), readable by pymavlink, MAVExplorer and QGroundCo
 
 The companion side follows PX4's offboard protocol exactly as on a real vehicle: wait for a
 healthy vehicle, stream setpoints for 0.5 s (priming), switch to OFFBOARD, arm, fly the planned
-schedule, then hand over to PX4's NAV_LAND (or Hold for a loiter ending) and wait for disarm.
+schedule, then hand over to PX4's NAV_LAND (or Hold for a loiter ending) and disarm once PX4
+reports the vehicle on the ground (as `fly` does).
 """
 
 from __future__ import annotations
@@ -336,6 +337,7 @@ class Flight:
         self.source = TrackingSource(self._reference, mode, config.params)
         self.setpoints_sent = 0
         self.offboard_seen = False
+        self.disarm_sent = False  # the DISARM sent once the landing was detected
 
     # -- per-tick -----------------------------------------------------------------------------
     def _go(self, phase: Phase, now: float, reason: str = "") -> None:
@@ -435,8 +437,14 @@ class Flight:
             elif now - self.t_phase > 3.0:
                 self._go(Phase.ABORTED, now, "PX4 did not switch to LAND")
             return
-        if ph == Phase.WAIT_DISARM and not armed:
-            self._go(Phase.DONE, now)
+        if ph == Phase.WAIT_DISARM:
+            if not armed:
+                self._go(Phase.DONE, now)
+            elif self.config.vehicle == "quad" and not self.disarm_sent:
+                ext = tel.extended
+                if ext is not None and ext.landed_state == 1:  # on ground: disarm, as `fly`
+                    self.link.disarm(now)
+                    self.disarm_sent = True
 
     def _handover(self, now: float) -> None:
         self._go(Phase.HANDOVER, now)

@@ -134,6 +134,31 @@ def test_tlog_reads_back_with_expected_message_counts(replayed: Path) -> None:
     assert report["setpoints_sent"] == len(setpoints)
 
 
+def test_companion_disarms_once_px4_reports_on_ground(replayed: Path) -> None:
+    """After the LAND handover the companion's DISARM follows PX4's first on-ground
+    EXTENDED_SYS_STATE, and it is what disarms the vehicle (not COM_DISARM_LAND)."""
+    mlog = _open_tlog(str(replayed / "flight.tlog"))
+    land_t = on_ground_t = disarm_t = None
+    texts = []
+    while True:
+        m = mlog.recv_match()
+        if m is None:
+            break
+        kind, t = m.get_type(), m._timestamp
+        if kind == "COMMAND_LONG" and m.command == 21 and land_t is None:
+            land_t = t
+        elif (kind == "EXTENDED_SYS_STATE" and land_t is not None and on_ground_t is None
+              and m.landed_state == 1):
+            on_ground_t = t
+        elif kind == "COMMAND_LONG" and m.command == 400 and m.param1 == 0.0 and disarm_t is None:
+            disarm_t = t
+        elif kind == "STATUSTEXT" and "Disarmed" in m.text:
+            texts.append(m.text)
+    assert land_t is not None and on_ground_t is not None and disarm_t is not None
+    assert land_t < on_ground_t <= disarm_t < on_ground_t + 0.5
+    assert texts == ["Disarmed by external command"]
+
+
 def test_report_and_plot(replayed: Path) -> None:
     import matplotlib.image as mpimg
 
