@@ -63,6 +63,7 @@ from companion.mavlink.commands import (
     MAV_CMD_SET_MESSAGE_INTERVAL,
 )
 from companion.px4_params import PLANNING_PARAM_NAMES
+from companion.tracking import TOUCHDOWN_TIMEOUT_S
 from companion.vehicle_params import ResolvedPlanningParams, resolve_planning_params
 
 from .errors import (
@@ -113,6 +114,7 @@ class VehicleConfig:
     armable_timeout_s: float = 15.0
     takeoff_timeout_s: float = 40.0
     land_timeout_s: float = 90.0
+    touchdown_timeout_s: float = TOUCHDOWN_TIMEOUT_S  # end_action "touchdown": then LAND
     command_timeout_s: float = 15.0
     exit_action: str = "hold"  # "hold" or "land" on cancellation / signals
     tlog_path: str | None = None
@@ -677,12 +679,19 @@ class Vehicle:
         accepts that with a live stream) and armed there, and the trajectory's time starts
         when the HEARTBEAT shows armed: the setpoints fly the takeoff.
         end_action: "hold" or "land": the mode requested, still streaming, when the trajectory
-        is complete.
+        is complete. "touchdown": the source lands the vehicle itself after ``duration_s``
+        (e.g. a ``TrackingSource`` with a ``Touchdown``): the stream goes on until PX4 reports
+        the vehicle on the ground (EXTENDED_SYS_STATE), then it is disarmed while still
+        streaming; without a detected landing within ``touchdown_timeout_s``, or if the disarm
+        is refused, PX4's LAND is requested (and finishes the landing).
         """
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
-        if end_action not in ("hold", "land"):
-            raise ValueError(f"end_action must be 'hold' or 'land', got {end_action!r}")
+        if end_action not in ("hold", "land", "touchdown"):
+            raise ValueError(f"end_action must be 'hold', 'land' or 'touchdown', "
+                             f"got {end_action!r}")
+        if end_action == "touchdown" and not math.isfinite(duration_s or math.inf):
+            raise ValueError("end_action 'touchdown' needs a finite duration_s")
         if arm:
             ext = self.link.telemetry.extended
             if self.is_armed:
@@ -723,14 +732,15 @@ class Vehicle:
                 pe = trajectory.evaluate(total, 0)
                 end_pos = (float(pe[0]), float(pe[1]), float(pe[2]))
             return await self._fly(source, mode, rate_hz or self.config.rate_hz, total, end_pos,
-                                   arm, FlightMode.LAND if end_action == "land" else
-                                   FlightMode.HOLD)
+                                   arm, FlightMode.HOLD if end_action == "hold" else
+                                   FlightMode.LAND, end_action == "touchdown")
         finally:
             self._flying = False
 
     async def _fly(self, source: SetpointSource, mode: str, rate: float, total_s: float,
                    end_pos: tuple[float, float, float] | None, arm: bool = False,
-                   end_mode: FlightMode = FlightMode.HOLD) -> FlightReport:
+                   end_mode: FlightMode = FlightMode.HOLD,
+                   touchdown: bool = False) -> FlightReport:
         cfg = self.config
         sm = OffboardMachine(rate, cfg.prime_s)
         state: dict[str, Any] = {"t0": None, "hold": None, "error": ""}
@@ -857,6 +867,11 @@ class Vehicle:
                     await self._hold_and_stop(streamer, sm, "telemetry was stale")
                     raise TelemetryStaleError("position telemetry was interrupted; vehicle told "
                                               "to hold")
+                if touchdown and now - t_start >= total_s:
+                    if await self._touchdown_step(streamer, sm, now - t_start - total_s):
+                        held_at_end = True
+                        break
+                    continue
                 if now - t_start >= total_s and (
                         end_pos is None or now - t_start >= total_s + cfg.settle_s
                         or (pos is not None
@@ -879,6 +894,30 @@ class Vehicle:
         while True:
             pump()
             await asyncio.sleep(0.02)
+
+    async def _touchdown_step(self, streamer: FixedRateStreamer, sm: OffboardMachine,
+                              late_s: float) -> bool:
+        """One check after the trajectory of a self-landing source: True when finished
+        (disarmed on the ground, or handed over to PX4's LAND)."""
+        ext: ExtendedState | None = self.link.telemetry.extended
+        if ext is not None and ext.landed_state == LANDED_STATE_ON_GROUND:
+            try:  # still streaming: PX4 sees no offboard loss while it disarms
+                await self.disarm()
+                await self._wait_for(lambda: not self.is_armed, 3.0,
+                                     "the HEARTBEAT to show disarmed")
+            except (VehicleError, TimeoutError) as exc:
+                log.warning("disarm after touchdown failed (%s): requesting LAND", exc)
+                await self._hold_and_stop(streamer, sm, "disarm refused", FlightMode.LAND)
+                return True
+            log.info("landed and disarmed")
+            streamer.stop()
+            sm.stop(time.monotonic(), "landed and disarmed")
+            return True
+        if late_s >= self.config.touchdown_timeout_s:
+            await self._hold_and_stop(streamer, sm, f"no landing detected after "
+                                      f"{late_s:.0f} s", FlightMode.LAND)
+            return True
+        return False
 
     async def _arm_in_offboard(self, streamer: FixedRateStreamer, sm: OffboardMachine) -> None:
         """Arm while in OFFBOARD and streaming; on a refusal stop the stream (still disarmed)
