@@ -247,12 +247,13 @@ def test_rover_replay_reaches_every_corner_within_its_top_speed(tmp_path: Path) 
 def test_rover_planned_above_its_top_speed_misses_corners_and_says_so(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """Without the speed cap (5 m/s legs for a 3 m/s rover) the rover falls behind and cuts the
-    corners: the replay exits 1 and the summary names the missed waypoints."""
+    """Without the speed cap (5 m/s legs for a 1.5 m/s rover) the rover falls behind and cuts
+    the corners: the replay exits 1 and the summary names the missed waypoints."""
     import companion.replay as replay
 
-    monkeypatch.setattr(replay, "ROVER_SPEED_FRACTION", 2.0)  # cap 6 m/s: legs at 5 m/s
-    code = cli_main(["replay", str(ROVER_MISSION), "--vehicle", "rover", "--out", str(tmp_path)])
+    monkeypatch.setattr(replay, "ROVER_SPEED_FRACTION", 4.0)  # cap 6 m/s: legs at 5 m/s
+    code = cli_main(["replay", str(ROVER_MISSION), "--vehicle", "rover", "--out", str(tmp_path),
+                     "--mock-param", "RO_MAX_SPEED=1.5"])
     assert code == 1
     assert "missed" in capsys.readouterr().out
     report = json.loads((tmp_path / ROVER_MISSION.stem / "report.json").read_text())
