@@ -125,6 +125,7 @@ class Quadrotor:
         "_gust_tau",
         "_gyro",
         "_gyro_rate",
+        "_gyro_rng",
         "_gyro_std",
         "_hdt",
         "_hdt2",
@@ -230,6 +231,8 @@ class Quadrotor:
         self._gust_acc = 0.0
         # gusts draw from their own stream, so turning them on leaves the noise sequence alone
         self._gust_rng = random.Random(seed * 7919 + 104729)
+        # SIH's gyro noise too: turning it on leaves the estimator and sensor noise alone
+        self._gyro_rng = random.Random(seed * 6271 + 130363)
         # derived
         self._battery = 1.0
         self._local_pos_valid = True
@@ -804,7 +807,7 @@ class Quadrotor:
         s0, s1, s2 = self._gyro_std
         if s0 > 0.0 or s1 > 0.0 or s2 > 0.0:
             k = math.sqrt(SIH_IMU_PERIOD_S / dtr)
-            gauss = self._rng.gauss
+            gauss = self._gyro_rng.gauss
             raw = (
                 self._wx + gauss(0.0, s0 * k),
                 self._wy + gauss(0.0, s1 * k),
