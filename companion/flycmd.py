@@ -43,7 +43,7 @@ from companion.mission import (
 from companion.patterns import PATTERNS, pattern_trajectory, pattern_waypoints
 from companion.px4_params import Px4PlanningParams
 from companion.schedule import Schedule, build_schedule, trajectory_reference
-from companion.tracking import TrackingSource
+from companion.tracking import TOUCHDOWN_FROM_M, Touchdown, TrackingSource
 from companion.vehicle_params import ResolvedPlanningParams
 
 DEFAULT_HOME = (47.397742, 8.545594, 488.0)
@@ -210,18 +210,22 @@ class PlannedFlight:
 
 
 def plan_flight(opts: FlyOptions, inputs: FlyInputs, rover: bool,
-                px4: Px4PlanningParams | None = None) -> PlannedFlight:
+                px4: Px4PlanningParams | None = None,
+                fly_takeoff: bool = False, handover_height_m: float = 1.0) -> PlannedFlight:
     """Plan the mission or pattern (CPU-bound: run it off the event loop). ``px4``: the
     vehicle's planning parameters (None: PX4's defaults); patterns use their own options. A
     mission whose planned trajectory breaches its geofence raises MissionError naming the
-    leg's items."""
+    leg's items. fly_takeoff: the offboard part starts on the ground and flies the
+    mission's takeoff climb (else it starts where PX4's NAV_TAKEOFF ended).
+    handover_height_m: a multicopter's final descent ends this high above the ground [m]."""
     vf = inputs.vehicle
     if inputs.mission is not None:
         fp = mission_to_flight_plan(inputs.mission, vehicle="rover" if rover else "quad",
                                     px4=px4)
-        schedule = build_schedule(fp, None if rover else vf.params, vf.limits)
+        schedule = build_schedule(fp, None if rover else vf.params, vf.limits,
+                                  handover_height_m=handover_height_m)
         require_plan_inside(fp, schedule)
-        t_off = _takeoff_end(schedule)
+        t_off = 0.0 if fly_takeoff else _takeoff_end(schedule)
 
         def sched_ref(t: float, origin: FloatArray | None = None) -> Reference:
             return schedule.reference(t + t_off, origin)
@@ -285,10 +289,11 @@ def mission_figures(planned: PlannedFlight, recorder: TrackRecorder, origin: Flo
     fence_pos = pos + shift
     masks = zone_masks(fp.geofence, fence_pos) if len(pos) and not fp.geofence.empty else []
     found = flown_breaches(fp, t, fence_pos) if masks else []
-    # PX4 flies the takeoff: the legs from the end of the companion's takeoff climb on
+    # when PX4 flew the takeoff: the legs from the end of the companion's takeoff climb on
     all_legs = plan_legs(fp)
     leg_bounds, bound = plan_bounds(fp, schedule)
-    flown = [k for k, leg in enumerate(all_legs) if leg.phase != "takeoff"]
+    flown = [k for k, leg in enumerate(all_legs)
+             if planned.t_off_s <= 0.0 or leg.phase != "takeoff"]
     legs = [all_legs[k] for k in flown]
     pt, pp = sample_schedule(schedule)
     keep = pt >= planned.t_off_s
@@ -392,8 +397,16 @@ async def fly(opts: FlyOptions, console: Console) -> int:
         if mission is not None:
             px4 = await v.read_planning_params(inputs.vehicle.px4_overrides)
             print_planning_params(console, px4)
-        planned = await asyncio.to_thread(plan_flight, opts, inputs, rover,
-                                          None if px4 is None else px4.params)
+        # a multicopter mission from the ground: the plan flies the takeoff too, armed in
+        # OFFBOARD (PX4's NAV_TAKEOFF spool-up and the switch after it cost ~5 s)
+        fly_takeoff = mission is not None and not rover and not v.is_armed
+        # attitude and rates mode land the vehicle themselves: the plan ends TOUCHDOWN_FROM_M
+        # above the ground, then descends at MPC_LAND_SPEED until PX4 sees the landing (PX4's
+        # LAND crawls the last metre at MPC_LAND_CRWL and takes ~4 s to detect it)
+        touchdown = mission is not None and not rover and mode in ("attitude", "rates")
+        planned = await asyncio.to_thread(
+            plan_flight, opts, inputs, rover, None if px4 is None else px4.params, fly_takeoff,
+            TOUCHDOWN_FROM_M if touchdown else 1.0)
         if mission is not None:
             horiz, fence_shift = await _home_offset_m(v, mission, HOME_WAIT_S)
             if horiz > MAX_HOME_OFFSET_M:
@@ -412,7 +425,9 @@ async def fly(opts: FlyOptions, console: Console) -> int:
 
         async def record() -> None:
             async for p in v.position():
-                ref = source.last_reference if source is not None else None
+                if source is None or source.touching_down:  # the plan, not the touchdown
+                    continue
+                ref = source.last_reference
                 if ref is not None and v.mode is FlightMode.OFFBOARD:
                     recorder.add(p.t_s, p.pos_ned, ref.pos_ned)
 
@@ -421,12 +436,15 @@ async def fly(opts: FlyOptions, console: Console) -> int:
             ui = loop.create_task(show(live))
             rec: asyncio.Task[None] | None = None
             try:
-                await v.arm()
-                if not rover:
-                    await v.takeoff(planned.alt_m)
+                if fly_takeoff:
+                    await v.wait_armable()
+                else:
+                    await v.arm()
+                    if not rover:
+                        await v.takeoff(planned.alt_m)
                 snap = v.telemetry
                 if snap.position is None:
-                    raise VehicleError("no position telemetry after takeoff")
+                    raise VehicleError("no position telemetry")
                 here = np.asarray(snap.position.pos_ned, dtype=float)
                 origin = here - planned.start_rel
                 rel_ref = planned.rel_ref
@@ -435,14 +453,21 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                     return rel_ref(t, origin)
 
                 vf = inputs.vehicle
+                landing = not rover and planned.final_action in ("land", "rtl")
+                land_speed = (px4.params.MPC_LAND_SPEED if px4 is not None
+                              else Px4PlanningParams().MPC_LAND_SPEED)
                 source = TrackingSource(
                     ref, mode, vf.params,  # type: ignore[arg-type]
                     tracking=(vf.tracking_config(math.radians(50.0))
-                              if mode in ("attitude", "rates") else None))
+                              if mode in ("attitude", "rates") else None),
+                    touchdown=(Touchdown(planned.duration_s, descent_m_s=land_speed)
+                               if touchdown and landing else None))
                 rec = loop.create_task(record())
                 started = loop.time()
                 flown = await v.fly(mode=mode, setpoint_source=source,
-                                    duration_s=planned.duration_s)
+                                    duration_s=planned.duration_s, arm=fly_takeoff,
+                                    end_action=("touchdown" if source.touchdown is not None
+                                                else "land" if landing else "hold"))
                 ended = loop.time()
                 console.print(f"Trajectory flown in {mode} mode: {flown.duration_s:.1f} s")
                 report = recorder.summary(planned.waypoints_rel + origin, planned.acceptance_m,
@@ -456,10 +481,8 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                 report["result"] = breach_failure(report) or "ok"
                 if rover:
                     await v.disarm()
-                elif planned.final_action in ("land", "rtl"):
-                    await v.land()
-                else:
-                    await v.hold()
+                elif landing and v.is_armed:
+                    await v.land()  # in LAND already: waits for the landing, then disarms
             except Exception as exc:
                 if recorder.t_s:  # what was flown before the failure, for the post-mortem
                     report = recorder.summary(None, (), duration_s=recorder.t_s[-1]

@@ -8,7 +8,8 @@ timestamp + raw MAVLink frame), readable by pymavlink, MAVExplorer and QGroundCo
 
 The companion side follows PX4's offboard protocol exactly as on a real vehicle: wait for a
 healthy vehicle, stream setpoints for 0.5 s (priming), switch to OFFBOARD, arm, fly the planned
-schedule, then hand over to PX4's NAV_LAND (or Hold for a loiter ending) and wait for disarm.
+schedule, then hand over to PX4's NAV_LAND (or Hold for a loiter ending) and disarm once PX4
+reports the vehicle on the ground (as `fly` does).
 """
 
 from __future__ import annotations
@@ -59,7 +60,13 @@ from companion.mission.upload import mission_upload_items
 from companion.plotting import PlotData, PlotWorker, draw_flight_png
 from companion.px4_params import PLANNING_PARAM_NAMES
 from companion.schedule import Schedule, VehicleLimits, build_schedule
-from companion.tracking import SetpointMode, TrackingSource
+from companion.tracking import (
+    TOUCHDOWN_FROM_M,
+    TOUCHDOWN_TIMEOUT_S,
+    SetpointMode,
+    Touchdown,
+    TrackingSource,
+)
 from companion.vehicle_params import ResolvedPlanningParams, resolve_planning_params
 
 FloatArray = NDArray[np.float64]
@@ -333,9 +340,16 @@ class Flight:
         self.t_fly0 = math.nan
         self.origin = np.zeros(3)
         mode: SetpointMode = "rover" if config.vehicle == "rover" else config.mode
-        self.source = TrackingSource(self._reference, mode, config.params)
+        # attitude and rates mode land a quad themselves (as `fly` does): the plan ends
+        # TOUCHDOWN_FROM_M above the ground (`prepare_mission`), then the source descends until
+        # PX4 detects the landing, and the companion disarms
+        self.touchdown = (Touchdown(schedule.duration_s, descent_m_s=schedule.px4.MPC_LAND_SPEED)
+                          if self_lands(config, schedule.final_action) else None)
+        self.source = TrackingSource(self._reference, mode, config.params,
+                                     touchdown=self.touchdown)
         self.setpoints_sent = 0
         self.offboard_seen = False
+        self.disarm_sent = False  # the DISARM sent once the landing was detected
 
     # -- per-tick -----------------------------------------------------------------------------
     def _go(self, phase: Phase, now: float, reason: str = "") -> None:
@@ -415,10 +429,15 @@ class Flight:
                 name = mode.name if mode is not None else "unknown"
                 self._go(Phase.ABORTED, now, f"vehicle left OFFBOARD (now {name})")
                 return
+            if ph == Phase.FLY and self.disarm_sent and not armed:
+                self._go(Phase.DONE, now)  # landed and disarmed by the companion
+                return
             self._stream(now)
             if ph == Phase.PRIME and now - self.t_phase >= PRIME_S:
                 self._go(Phase.REQUEST_OFFBOARD, now)
                 self.link.set_mode(FlightMode.OFFBOARD, now)
+            elif ph == Phase.FLY and self.touchdown is not None:
+                self._touchdown_step(now)
             elif ph == Phase.FLY and now - self.t_fly0 >= self.schedule.duration_s + SETTLE_S:
                 self._handover(now)
             return
@@ -435,8 +454,29 @@ class Flight:
             elif now - self.t_phase > 3.0:
                 self._go(Phase.ABORTED, now, "PX4 did not switch to LAND")
             return
-        if ph == Phase.WAIT_DISARM and not armed:
-            self._go(Phase.DONE, now)
+        if ph == Phase.WAIT_DISARM:
+            if not armed:
+                self._go(Phase.DONE, now)
+            elif self.config.vehicle == "quad" and not self.disarm_sent:
+                ext = tel.extended
+                if ext is not None and ext.landed_state == 1:  # on ground: disarm, as `fly`
+                    self.link.disarm(now)
+                    self.disarm_sent = True
+
+    def _touchdown_step(self, now: float) -> None:
+        """After the plan of a self-landing flight: disarm (still streaming) once PX4 reports
+        the vehicle on the ground; PX4's LAND after TOUCHDOWN_TIMEOUT_S without it."""
+        late = now - self.t_fly0 - self.schedule.duration_s
+        if late < 0.0 or self.disarm_sent:
+            return
+        ext = self.link.telemetry.extended
+        if ext is not None and ext.landed_state == 1:
+            # the plan ended at its start: what follows is the touchdown, not plan tracking
+            self.log.fly_t1 = self.t_fly0 + self.schedule.duration_s
+            self.link.disarm(now)
+            self.disarm_sent = True
+        elif late >= TOUCHDOWN_TIMEOUT_S:
+            self._handover(now)
 
     def _handover(self, now: float) -> None:
         self._go(Phase.HANDOVER, now)
@@ -815,6 +855,13 @@ class PreparedMission:
     """Time-optimal bound of the whole schedule [s] (None: not known)."""
 
 
+def self_lands(config: ReplayConfig, final_action: str) -> bool:
+    """The companion lands the vehicle itself (a quad in attitude or rates mode whose mission
+    ends in a landing); else PX4's LAND does the last metre."""
+    return (config.vehicle == "quad" and config.mode in ("attitude", "rates")
+            and final_action in ("land", "rtl"))
+
+
 def prepare_mission(path: str | os.PathLike[str], config: ReplayConfig) -> PreparedMission:
     """Load and plan `path` as `config` would fly it: the PX4 planning parameters are read
     from the mock first (`read_mock_params`, so `--mock-param MPC_XY_CRUISE=8` changes the
@@ -827,7 +874,10 @@ def prepare_mission(path: str | os.PathLike[str], config: ReplayConfig) -> Prepa
     px4 = resolve_planning_params(read.values, wrong_type=read.wrong_type, where="the mock")
     flight_plan = mission_to_flight_plan(mission, vehicle=config.vehicle, px4=px4.params)
     params = None if config.vehicle == "rover" else config.params
-    schedule = build_schedule(flight_plan, params, planning_limits(config))
+    schedule = build_schedule(
+        flight_plan, params, planning_limits(config),
+        handover_height_m=(TOUCHDOWN_FROM_M if self_lands(config, flight_plan.final_action)
+                           else 1.0))
     require_plan_inside(flight_plan, schedule)
     warnings = (*flight_plan.warnings, *px4.warnings)
     leg_bounds, bound = plan_bounds(flight_plan, schedule)

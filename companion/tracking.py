@@ -12,6 +12,7 @@ import math
 import statistics
 from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
@@ -134,6 +135,69 @@ def estimate_from_telemetry(
     )
 
 
+#: Height above the ground [m] where a mission's planned descent ends when the companion lands
+#: the vehicle itself (attitude and rates modes, :class:`Touchdown`).
+TOUCHDOWN_FROM_M = 0.5
+#: After this long past the plan without a landing detected, PX4's LAND is requested [s].
+TOUCHDOWN_TIMEOUT_S = 15.0
+
+
+@dataclass(frozen=True)
+class Touchdown:
+    """How a source lands the vehicle itself once its reference has ended (a plan that ends
+    at rest just above the ground), instead of handing over to PX4's LAND.
+
+    From reference time `from_s` [s] the reference descends straight down, accelerating at
+    `accel_m_s2` to `descent_m_s` (PX4's MPC_LAND_SPEED) [m/s]. Ground contact is what PX4's
+    land detector calls "hit ground": after the ramp-in, the vehicle is not descending
+    (|vz| < `still_m_s`) while the reference is more than `gap_m` [m] below it, for
+    `contact_s` [s]; `still_m_s` is PX4's own LNDMC_Z_VEL_MAX (EKF2's vertical speed jitters
+    by +-0.2 m/s on the ground). Then (attitude and rates modes) the attitude goes level at the
+    current yaw and the thrust ramps from its last value to zero over `ramp_s` [s], so PX4's
+    land detector sees low thrust and no motion (its three stages take LNDMC_TRIG_TIME or
+    more) and accepts a disarm. Position mode only descends: PX4's own controller and land
+    detector finish it."""
+
+    from_s: float
+    descent_m_s: float = 0.7
+    accel_m_s2: float = 1.0
+    still_m_s: float = 0.25
+    gap_m: float = 0.2
+    contact_s: float = 0.3
+    ramp_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("descent_m_s", "accel_m_s2", "still_m_s", "gap_m", "contact_s", "ramp_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0.0):
+                raise ValueError(f"Touchdown.{name} must be a positive number, got {v}")
+        if not math.isfinite(self.from_s):
+            raise ValueError(f"Touchdown.from_s must be finite, got {self.from_s}")
+
+    def offset(self, tau: float) -> tuple[float, float, float]:
+        """Distance below the end point [m], descent speed [m/s] and acceleration [m/s^2]
+        `tau` [s] after `from_s`."""
+        if tau <= 0.0:
+            return 0.0, 0.0, 0.0
+        a, v = self.accel_m_s2, self.descent_m_s
+        t_ramp = v / a
+        if tau < t_ramp:
+            return 0.5 * a * tau * tau, a * tau, a
+        return 0.5 * v * t_ramp + v * (tau - t_ramp), v, 0.0
+
+    @property
+    def ramp_in_s(self) -> float:
+        """Time from `from_s` until the descent reaches its speed [s]."""
+        return self.descent_m_s / self.accel_m_s2
+
+
+def _level_q(q_wxyz: np.ndarray) -> tuple[float, float, float, float]:
+    """The level attitude (roll = pitch = 0) with the yaw of `q_wxyz` (3-2-1), as (w, x, y, z)."""
+    w, x, y, z = (float(c) for c in q_wxyz)
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return (math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw))
+
+
 def _tuple3(v: np.ndarray) -> tuple[float, float, float] | None:
     x, y, z = (float(c) for c in v.tolist())
     if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
@@ -173,6 +237,7 @@ class TrackingSource:
         *,
         tracking: TrackingConfig | None = None,
         max_tilt_rad: float = math.radians(50.0),
+        touchdown: Touchdown | None = None,
     ) -> None:
         if mode not in ("position", "attitude", "rates", "rover"):
             raise ValueError(f"unknown setpoint mode {mode!r}")
@@ -193,23 +258,63 @@ class TrackingSource:
         # the last estimate and the (immutable) telemetry values it was built from
         self._est_key: tuple[object, object, bool] | None = None
         self._est: StateEstimate | None = None
+        self.touchdown = touchdown
+        self.contact_s: float | None = None  # local time ground contact was detected [s]
+        self._still_since: float | None = None
+        self._contact_thrust = 0.0
+        self._last_thrust = 0.0
 
     @property
     def last_reference(self) -> Reference | None:
         """The reference of the most recent call (for status displays)."""
         return self._ref
 
+    @property
+    def touching_down(self) -> bool:
+        """The last call was past the plan, in the :class:`Touchdown` descent."""
+        td = self.touchdown
+        return td is not None and self._ref_key is not None and self._ref_key > td.from_s
+
     def reset(self) -> None:
         """Forget controller state (call when OFFBOARD is (re-)entered)."""
         if self.controller is not None:
             self.controller.reset()
+        self.contact_s = self._still_since = None
 
     def ref(self, t_s: float) -> Reference:
         """The reference at `t_s` (cached for repeated calls at the same time)."""
         if self._ref is None or self._ref_key != t_s:
-            self._ref = self.reference(max(t_s, 0.0))
+            td = self.touchdown
+            if td is not None and t_s > td.from_s:
+                end = self.reference(td.from_s)
+                dz, vz, az = td.offset(t_s - td.from_s)
+                self._ref = Reference(end.pos_ned + np.array([0.0, 0.0, dz]),
+                                      np.array([0.0, 0.0, vz]), np.array([0.0, 0.0, az]),
+                                      yaw=end.yaw)
+            else:
+                self._ref = self.reference(max(t_s, 0.0))
             self._ref_key = t_s
         return self._ref
+
+    def _touched_down(self, t_s: float, now: float, est: StateEstimate,
+                      ref: Reference) -> bool:
+        """Ground contact (see :class:`Touchdown`), latched once seen."""
+        td = self.touchdown
+        if self.contact_s is not None:
+            return True
+        if td is None or t_s < td.from_s + td.ramp_in_s:
+            return False
+        gap = float(ref.pos_ned[2]) - float(est.pos_ned[2])  # > 0: reference below (NED)
+        if gap > td.gap_m and abs(float(est.vel_ned[2])) < td.still_m_s:
+            if self._still_since is None:
+                self._still_since = now
+            if now - self._still_since >= td.contact_s:
+                self.contact_s = now
+                self._contact_thrust = self._last_thrust
+                return True
+        else:
+            self._still_since = None
+        return False
 
     def _estimate(self, telemetry: TelemetrySnapshot) -> StateEstimate | None:
         """`estimate_from_telemetry` with this source's clock, reused while the position and
@@ -263,6 +368,13 @@ class TrackingSource:
                 yaw_rate=_opt(float(cmd.yaw_rate)),
             )
         assert self.controller is not None
+        if self.touchdown is not None and self._touched_down(t_s, now, est, ref):
+            assert self.contact_s is not None and self.touchdown is not None
+            fade = max(0.0, 1.0 - (now - self.contact_s) / self.touchdown.ramp_s)
+            thrust = self._contact_thrust * fade
+            if self.mode == "attitude":
+                return AttitudeSetpoint(_level_q(est.q_wxyz), thrust, 0.0)
+            return RatesSetpoint((0.0, 0.0, 0.0), thrust)
         if self.mode == "attitude":
             out = self.controller.attitude_values(now, est, ref)
             if isinstance(out, AttitudeCommand):  # a hover fallback
@@ -270,6 +382,7 @@ class TrackingSource:
                 thrust, rate_ff = out.thrust_norm, out.yaw_rate_ff
             else:  # the regular command as floats (no arrays on the way)
                 (qw, qx, qy, qz), thrust, rate_ff, _sat = out
+            self._last_thrust = float(thrust)
             return AttitudeSetpoint(
                 (float(qw), float(qx), float(qy), float(qz)),
                 float(thrust),
@@ -277,4 +390,5 @@ class TrackingSource:
             )
         r = self.controller.rates(now, est, ref)
         w = r.omega_frd
+        self._last_thrust = float(r.thrust_norm)
         return RatesSetpoint((float(w[0]), float(w[1]), float(w[2])), float(r.thrust_norm))

@@ -63,6 +63,7 @@ from companion.mavlink.commands import (
     MAV_CMD_SET_MESSAGE_INTERVAL,
 )
 from companion.px4_params import PLANNING_PARAM_NAMES
+from companion.tracking import TOUCHDOWN_TIMEOUT_S
 from companion.vehicle_params import ResolvedPlanningParams, resolve_planning_params
 
 from .errors import (
@@ -88,6 +89,7 @@ log = logging.getLogger("companion.aio")
 T = TypeVar("T")
 MODES = ("position", "attitude", "rates", "rover")
 MAV_STATE_CRITICAL = 5  # HEARTBEAT system_status while PX4 is in a failsafe
+LANDED_STATE_ON_GROUND = 1  # EXTENDED_SYS_STATE landed_state (MAV_LANDED_STATE_ON_GROUND)
 _CAN_NOT_ARM = {FlightMode.OFFBOARD, FlightMode.POSCTL, FlightMode.ALTCTL,
                 FlightMode.STABILIZED, FlightMode.MANUAL, FlightMode.ACRO}
 
@@ -112,6 +114,7 @@ class VehicleConfig:
     armable_timeout_s: float = 15.0
     takeoff_timeout_s: float = 40.0
     land_timeout_s: float = 90.0
+    touchdown_timeout_s: float = TOUCHDOWN_TIMEOUT_S  # end_action "touchdown": then LAND
     command_timeout_s: float = 15.0
     exit_action: str = "hold"  # "hold" or "land" on cancellation / signals
     tlog_path: str | None = None
@@ -573,13 +576,18 @@ class Vehicle:
         st: SystemStatus | None = self.link.telemetry.sys_status
         return (st is None or st.armable) and self.link.telemetry.position is not None
 
+    async def wait_armable(self) -> None:
+        """Wait (up to ``armable_timeout_s``) until the vehicle reports it is ready to arm and
+        sends its local position."""
+        await self._wait_for(self._armable, self.config.armable_timeout_s,
+                             "the vehicle to be ready to arm (estimator / preflight checks)")
+
     async def arm(self, force: bool = False) -> None:
         """Arm (after the vehicle reports it is armable); switches to Hold first if the current
         mode cannot arm without RC (PX4 returns to OFFBOARD/POSCTL after a landing)."""
         if self.is_armed:
             return
-        await self._wait_for(self._armable, self.config.armable_timeout_s,
-                             "the vehicle to be ready to arm (estimator / preflight checks)")
+        await self.wait_armable()
         if self.mode in _CAN_NOT_ARM:
             await self.set_mode(FlightMode.HOLD)
         await self._command(lambda now: self.link.arm(now, force), MAV_CMD_COMPONENT_ARM_DISARM,
@@ -613,17 +621,37 @@ class Vehicle:
 
         await self._wait_for(done, self.config.takeoff_timeout_s, f"the takeoff to {alt_m:g} m")
 
-    async def land(self, wait: bool = True) -> None:
-        """NAV_LAND here; waits until landed and disarmed."""
-        await self._command(self.link.land, MAV_CMD_NAV_LAND, "landing")
+    async def land(self, wait: bool = True, disarm_when_landed: bool = True) -> None:
+        """NAV_LAND here (unless already in LAND); waits until landed and disarmed.
+
+        disarm_when_landed: disarm as soon as PX4's land detector reports the vehicle on the
+        ground (EXTENDED_SYS_STATE), instead of waiting COM_DISARM_LAND for PX4's own
+        auto-disarm; PX4 refuses a disarm that is not forced unless it has detected the
+        landing, and a refusal leaves the wait for the auto-disarm."""
+        if self.mode is not FlightMode.LAND:
+            await self._command(self.link.land, MAV_CMD_NAV_LAND, "landing")
         if not wait:
             return
 
+        def on_ground() -> bool:
+            ext: ExtendedState | None = self.link.telemetry.extended
+            return ext is not None and ext.landed_state == LANDED_STATE_ON_GROUND
+
         def landed() -> bool:
             ext: ExtendedState | None = self.link.telemetry.extended
-            return not self.is_armed and (ext is None or ext.landed_state == 1)
+            return not self.is_armed and (ext is None or ext.landed_state == LANDED_STATE_ON_GROUND)
 
-        await self._wait_for(landed, self.config.land_timeout_s, "landing and disarm")
+        deadline = time.monotonic() + self.config.land_timeout_s
+        if disarm_when_landed:
+            await self._wait_for(lambda: not self.is_armed or on_ground(),
+                                 self.config.land_timeout_s, "the landing")
+            if self.is_armed:
+                try:
+                    await self.disarm()
+                except CommandError as exc:  # not landed after all: PX4 disarms on its own
+                    log.warning("disarm after landing refused (%s): waiting for PX4's "
+                                "auto-disarm", exc)
+        await self._wait_for(landed, max(0.1, deadline - time.monotonic()), "landing and disarm")
 
     async def exit_action(self, action: str | None = None) -> None:
         """The configured safe action (Hold or Land), best effort, bounded in time."""
@@ -639,15 +667,38 @@ class Vehicle:
     # -- offboard flight ------------------------------------------------------------------------
     async def fly(self, trajectory: TrajectoryLike | None = None, *, mode: str = "position",
                   setpoint_source: SetpointSource | None = None, rate_hz: float | None = None,
-                  duration_s: float | None = None, feedforward: str = "acc") -> FlightReport:
-        """Fly ``trajectory`` (or ``setpoint_source`` for ``duration_s``) in OFFBOARD, then Hold.
+                  duration_s: float | None = None, feedforward: str = "acc",
+                  arm: bool = False, end_action: str = "hold") -> FlightReport:
+        """Fly ``trajectory`` (or ``setpoint_source`` for ``duration_s``) in OFFBOARD, then Hold
+        (or Land).
 
         mode: "position" (built-in: trajectory -> SET_POSITION_TARGET_LOCAL_NED), or
         "attitude" / "rates" / "rover" with a ``setpoint_source`` (see ``sources``). The
         stream is primed for ``prime_s`` before OFFBOARD is requested once.
+        arm: the vehicle is disarmed on the ground; it is switched to OFFBOARD disarmed (PX4
+        accepts that with a live stream) and armed there, and the trajectory's time starts
+        when the HEARTBEAT shows armed: the setpoints fly the takeoff.
+        end_action: "hold" or "land": the mode requested, still streaming, when the trajectory
+        is complete. "touchdown": the source lands the vehicle itself after ``duration_s``
+        (e.g. a ``TrackingSource`` with a ``Touchdown``): the stream goes on until PX4 reports
+        the vehicle on the ground (EXTENDED_SYS_STATE), then it is disarmed while still
+        streaming; without a detected landing within ``touchdown_timeout_s``, or if the disarm
+        is refused, PX4's LAND is requested (and finishes the landing).
         """
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        if end_action not in ("hold", "land", "touchdown"):
+            raise ValueError(f"end_action must be 'hold', 'land' or 'touchdown', "
+                             f"got {end_action!r}")
+        if end_action == "touchdown" and not math.isfinite(duration_s or math.inf):
+            raise ValueError("end_action 'touchdown' needs a finite duration_s")
+        if arm:
+            ext = self.link.telemetry.extended
+            if self.is_armed:
+                raise VehicleError("fly(arm=True) takes off from the ground, but the vehicle "
+                                   "is already armed")
+            if ext is not None and ext.landed_state not in (0, LANDED_STATE_ON_GROUND):
+                raise VehicleError("fly(arm=True): the vehicle is not reported on the ground")
         if self._flying:
             raise VehicleError("already flying a trajectory")
         if not self.link_ok:
@@ -680,12 +731,16 @@ class Vehicle:
             if trajectory is not None and math.isfinite(total):
                 pe = trajectory.evaluate(total, 0)
                 end_pos = (float(pe[0]), float(pe[1]), float(pe[2]))
-            return await self._fly(source, mode, rate_hz or self.config.rate_hz, total, end_pos)
+            return await self._fly(source, mode, rate_hz or self.config.rate_hz, total, end_pos,
+                                   arm, FlightMode.HOLD if end_action == "hold" else
+                                   FlightMode.LAND, end_action == "touchdown")
         finally:
             self._flying = False
 
     async def _fly(self, source: SetpointSource, mode: str, rate: float, total_s: float,
-                   end_pos: tuple[float, float, float] | None) -> FlightReport:
+                   end_pos: tuple[float, float, float] | None, arm: bool = False,
+                   end_mode: FlightMode = FlightMode.HOLD,
+                   touchdown: bool = False) -> FlightReport:
         cfg = self.config
         sm = OffboardMachine(rate, cfg.prime_s)
         state: dict[str, Any] = {"t0": None, "hold": None, "error": ""}
@@ -765,10 +820,12 @@ class Vehicle:
                 text = self.last_status_text.text if self.last_status_text else ""
                 raise OffboardError(f"OFFBOARD refused: {fin.reason}"
                                     + (f" (vehicle: {text})" if text else ""), fin.result)
+            sm.on_mode_result(True, time.monotonic(), "HEARTBEAT shows OFFBOARD")
+            log.info("OFFBOARD active (%s mode, %g Hz)", mode, rate)
+            if arm:
+                await self._arm_in_offboard(streamer, sm)
             t_start = time.monotonic()
             state["t0"] = t_start
-            sm.on_mode_result(True, t_start, "HEARTBEAT shows OFFBOARD")
-            log.info("OFFBOARD active (%s mode, %g Hz)", mode, rate)
             stale_since: float | None = None
             # ACTIVE
             while True:
@@ -810,11 +867,16 @@ class Vehicle:
                     await self._hold_and_stop(streamer, sm, "telemetry was stale")
                     raise TelemetryStaleError("position telemetry was interrupted; vehicle told "
                                               "to hold")
+                if touchdown and now - t_start >= total_s:
+                    if await self._touchdown_step(streamer, sm, now - t_start - total_s):
+                        held_at_end = True
+                        break
+                    continue
                 if now - t_start >= total_s and (
                         end_pos is None or now - t_start >= total_s + cfg.settle_s
                         or (pos is not None
                             and math.dist(pos.pos_ned, end_pos) <= cfg.settle_m)):
-                    await self._hold_and_stop(streamer, sm, "trajectory complete")
+                    await self._hold_and_stop(streamer, sm, "trajectory complete", end_mode)
                     held_at_end = True
                     break
         except asyncio.CancelledError:
@@ -833,14 +895,56 @@ class Vehicle:
             pump()
             await asyncio.sleep(0.02)
 
-    async def _hold_and_stop(self, streamer: FixedRateStreamer, sm: OffboardMachine,
-                             why: str) -> None:
-        """Switch to Hold while still streaming, then stop the stream."""
-        log.info("%s: switching to HOLD", why)
+    async def _touchdown_step(self, streamer: FixedRateStreamer, sm: OffboardMachine,
+                              late_s: float) -> bool:
+        """One check after the trajectory of a self-landing source: True when finished
+        (disarmed on the ground, or handed over to PX4's LAND)."""
+        ext: ExtendedState | None = self.link.telemetry.extended
+        if ext is not None and ext.landed_state == LANDED_STATE_ON_GROUND:
+            try:  # still streaming: PX4 sees no offboard loss while it disarms
+                await self.disarm()
+                await self._wait_for(lambda: not self.is_armed, 3.0,
+                                     "the HEARTBEAT to show disarmed")
+            except (VehicleError, TimeoutError) as exc:
+                log.warning("disarm after touchdown failed (%s): requesting LAND", exc)
+                await self._hold_and_stop(streamer, sm, "disarm refused", FlightMode.LAND)
+                return True
+            log.info("landed and disarmed")
+            streamer.stop()
+            sm.stop(time.monotonic(), "landed and disarmed")
+            return True
+        if late_s >= self.config.touchdown_timeout_s:
+            await self._hold_and_stop(streamer, sm, f"no landing detected after "
+                                      f"{late_s:.0f} s", FlightMode.LAND)
+            return True
+        return False
+
+    async def _arm_in_offboard(self, streamer: FixedRateStreamer, sm: OffboardMachine) -> None:
+        """Arm while in OFFBOARD and streaming; on a refusal stop the stream (still disarmed)
+        and return to Hold, so a later ``arm`` works."""
         try:
-            await self.hold()
+            await self._command(lambda now: self.link.arm(now, False),
+                                MAV_CMD_COMPONENT_ARM_DISARM, "arming in OFFBOARD")
+            await self._wait_for(lambda: self.is_armed, 3.0, "the HEARTBEAT to show armed")
+        except (VehicleError, TimeoutError):
+            streamer.stop()
+            sm.stop(time.monotonic(), "arming refused")
+            if not self.is_armed:
+                with contextlib.suppress(VehicleError, TimeoutError):
+                    await _bounded(self.hold(), 5.0)
+            else:  # armed late (the HEARTBEAT came after the wait): never leave it so
+                with contextlib.suppress(VehicleError, TimeoutError):
+                    await _bounded(self.disarm(), 5.0)
+            raise
+
+    async def _hold_and_stop(self, streamer: FixedRateStreamer, sm: OffboardMachine,
+                             why: str, end_mode: FlightMode = FlightMode.HOLD) -> None:
+        """Switch to Hold (or ``end_mode``) while still streaming, then stop the stream."""
+        log.info("%s: switching to %s", why, end_mode.name)
+        try:
+            await self.set_mode(end_mode)
         except (VehicleError, TimeoutError) as exc:
-            log.error("HOLD after %s failed: %s", why, exc)
+            log.error("%s after %s failed: %s", end_mode.name, why, exc)
         finally:
             streamer.stop()
             sm.stop(time.monotonic(), why)

@@ -134,6 +134,39 @@ def test_tlog_reads_back_with_expected_message_counts(replayed: Path) -> None:
     assert report["setpoints_sent"] == len(setpoints)
 
 
+def test_companion_lands_itself_and_disarms_once_px4_reports_on_ground(replayed: Path) -> None:
+    """Attitude mode lands the quad itself: no NAV_LAND, the setpoints go on until PX4's land
+    detector says "on ground" after the flight (EXTENDED_SYS_STATE), the companion's DISARM
+    follows at once, and it is what disarms the vehicle (not COM_DISARM_LAND)."""
+    mlog = _open_tlog(str(replayed / "flight.tlog"))
+    airborne = False
+    on_ground_t = disarm_t = last_setpoint_t = None
+    lands = 0
+    texts = []
+    while True:
+        m = mlog.recv_match()
+        if m is None:
+            break
+        kind, t = m.get_type(), m._timestamp
+        if kind == "COMMAND_LONG" and m.command == 21:
+            lands += 1
+        elif kind == "EXTENDED_SYS_STATE" and m.landed_state == 2:
+            airborne = True
+        elif kind == "EXTENDED_SYS_STATE" and airborne and m.landed_state == 1:
+            on_ground_t = t if on_ground_t is None else on_ground_t
+        elif kind == "COMMAND_LONG" and m.command == 400 and m.param1 == 0.0 and disarm_t is None:
+            disarm_t = t
+        elif kind == "SET_ATTITUDE_TARGET":
+            last_setpoint_t = t
+        elif kind == "STATUSTEXT" and "Disarmed" in m.text:
+            texts.append(m.text)
+    assert lands == 0
+    assert on_ground_t is not None and disarm_t is not None and last_setpoint_t is not None
+    assert on_ground_t <= disarm_t < on_ground_t + 0.5
+    assert last_setpoint_t >= disarm_t  # still streaming while it disarms
+    assert texts == ["Disarmed by external command"]
+
+
 def test_report_and_plot(replayed: Path) -> None:
     import matplotlib.image as mpimg
 

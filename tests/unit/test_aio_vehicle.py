@@ -21,6 +21,7 @@ from companion.aio import (
     TelemetryStaleError,
     Vehicle,
     VehicleConfig,
+    VehicleError,
 )
 from companion.mavlink import FlightMode, PositionSetpoint, TelemetrySnapshot, custom_mode_of
 
@@ -28,7 +29,11 @@ from companion.mavlink import FlightMode, PositionSetpoint, TelemetrySnapshot, c
 @dataclass
 class Script:
     arm_result: int = 0
+    disarm_result: int = 0
     reject_offboard: bool = False
+    landed_state: int | None = None  # EXTENDED_SYS_STATE sent when set
+    touchdown_s: float = 0.3  # after a LAND request: landed_state 1 (on ground) this much later
+    auto_disarm_s: float | None = None  # after touchdown: PX4's COM_DISARM_LAND (None: never)
     send_position: bool = True
     received: list[Any] = field(default_factory=list)
 
@@ -64,9 +69,14 @@ class FakePx4(asyncio.DatagramProtocol):
     def on_command(self, c: Any) -> None:
         loop = asyncio.get_running_loop()
         if c.command == 400:
-            self.send(m.MAVLink_command_ack_message(400, self.s.arm_result, 0, 0, 1, 191))
-            if self.s.arm_result == 0:
+            result = self.s.arm_result if c.param1 == 1 else self.s.disarm_result
+            self.send(m.MAVLink_command_ack_message(400, result, 0, 0, 1, 191))
+            if result == 0:
                 self.armed = c.param1 == 1
+        elif c.command == 21:  # NAV_LAND: touchdown, then (maybe) PX4's own auto-disarm
+            self.send(m.MAVLink_command_ack_message(21, 0, 0, 0, 1, 191))
+            self.custom_mode = custom_mode_of(FlightMode.LAND)
+            loop.call_later(self.s.touchdown_s, self.touchdown)
         elif c.command == 176:
             self.send(m.MAVLink_command_ack_message(176, 0, 0, 0, 1, 191))
             target = (int(c.param2) << 16) | (int(c.param3) << 24)
@@ -80,10 +90,20 @@ class FakePx4(asyncio.DatagramProtocol):
                 loop.call_later(0.01, self.send,
                                 m.MAVLink_command_ack_message(176, 0, 0, 0, 1, 191))
 
+    def touchdown(self) -> None:
+        self.s.landed_state = 1
+        if self.s.auto_disarm_s is not None:
+            asyncio.get_running_loop().call_later(self.s.auto_disarm_s, self.auto_disarm)
+
+    def auto_disarm(self) -> None:
+        self.armed = False
+
     async def run(self) -> None:
         k = 0
         while True:
             k += 1
+            if k % 6 == 0 and self.s.landed_state is not None:
+                self.send(m.MAVLink_extended_sys_state_message(0, self.s.landed_state))
             if k % 3 == 0:
                 self.send(m.MAVLink_heartbeat_message(
                     2, 12, 29 | (128 if self.armed else 0), self.custom_mode, 4, 3))
@@ -109,7 +129,7 @@ async def px4() -> AsyncIterator[tuple[Script, int, FakePx4]]:
 
 
 CFG = VehicleConfig(connect_timeout_s=5.0, armable_timeout_s=2.0, rate_hz=50.0,
-                    stale_telemetry_s=0.3, stale_abort_s=0.5)
+                    stale_telemetry_s=0.3, stale_abort_s=0.5, land_timeout_s=5.0)
 
 
 def setpoints(script: Script) -> list[Any]:
@@ -257,3 +277,69 @@ async def test_tcp_link_is_reopened_after_the_peer_closes() -> None:
             w.close()
         srv.close()
         await srv.wait_closed()
+
+
+def commands(script: Script, command: int) -> list[Any]:
+    return [x for x in script.received
+            if x.get_type() == "COMMAND_LONG" and x.command == command and x.confirmation == 0]
+
+
+async def test_fly_arm_in_offboard_refused_stops_stream_disarmed(
+        px4: tuple[Script, int, FakePx4]) -> None:
+    script, port, fake = px4
+    script.arm_result = 2
+    script.landed_state = 1
+    async with Vehicle.connect(f"udpout://127.0.0.1:{port}", config=CFG) as v:
+        with pytest.raises(CommandError) as info:
+            await v.fly(setpoint_source=lambda t, tel: PositionSetpoint(pos_ned=(1.0, 2.0, -3.0)),
+                        duration_s=5.0, arm=True)
+        assert info.value.result == 2
+        raised_ms = v.link.time_boot_ms(time.monotonic())
+        assert not fake.armed and v.mode is FlightMode.HOLD  # back to a mode that can arm
+    # OFFBOARD requested before the ARM, which followed the primed stream
+    sent = [x for x in script.received if x.get_type() in ("COMMAND_LONG",
+                                                           "SET_POSITION_TARGET_LOCAL_NED")]
+    kinds = [("sp" if x.get_type() != "COMMAND_LONG" else (x.command, x.param2)) for x in sent]
+    i_off = kinds.index((176, 6.0))
+    i_arm = kinds.index((400, 0.0))
+    assert kinds[:i_off].count("sp") >= 20 and i_off < i_arm
+    assert max(x.time_boot_ms for x in setpoints(script)) <= raised_ms + 1
+
+
+async def test_fly_arm_refuses_an_armed_vehicle(px4: tuple[Script, int, FakePx4]) -> None:
+    script, port, _ = px4
+    async with Vehicle.connect(f"udpout://127.0.0.1:{port}", config=CFG) as v:
+        await v.arm()
+        with pytest.raises(VehicleError, match="already armed"):
+            await v.fly(setpoint_source=lambda t, tel: PositionSetpoint(pos_ned=(1.0, 2.0, -3.0)),
+                        duration_s=5.0, arm=True)
+    assert not setpoints(script) and not mode_requests(script, 6)
+
+
+async def test_land_disarms_once_on_ground(px4: tuple[Script, int, FakePx4]) -> None:
+    script, port, fake = px4
+    script.landed_state = 2  # in air
+    async with Vehicle.connect(f"udpout://127.0.0.1:{port}", config=CFG) as v:
+        await v.arm()
+        t0 = time.monotonic()
+        await v.land()
+        assert time.monotonic() - t0 >= script.touchdown_s
+        assert not fake.armed and not v.is_armed
+    disarms = [x for x in commands(script, 400) if x.param1 == 0.0]
+    assert len(disarms) == 1 and disarms[0].param2 == 0.0  # never forced
+
+
+async def test_land_waits_for_px4_disarm_when_the_disarm_is_refused(
+        px4: tuple[Script, int, FakePx4]) -> None:
+    script, port, fake = px4
+    script.landed_state = 2
+    script.disarm_result = 1  # TEMPORARILY_REJECTED: PX4 not sure yet
+    script.auto_disarm_s = 0.4
+    async with Vehicle.connect(f"udpout://127.0.0.1:{port}", config=CFG) as v:
+        await v.arm()
+        t0 = time.monotonic()
+        await v.land()
+        assert time.monotonic() - t0 >= script.touchdown_s + script.auto_disarm_s
+        assert not v.is_armed
+    assert len([x for x in commands(script, 400) if x.param1 == 0.0]) == 1
+    assert fake.custom_mode == custom_mode_of(FlightMode.LAND)
