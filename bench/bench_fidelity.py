@@ -320,7 +320,7 @@ def smooth(y: FloatArray, n: int = 5) -> FloatArray:
 
 def analyse_steps(tlog: Path, sysid: int) -> dict[str, float]:
     """Step metrics of one flight from its tlog alone (see the module docstring)."""
-    s = read_series(tlog, sysid)
+    s = read_series(tlog, sysid, keep=("HIL_STATE_QUATERNION",))
     st, p0 = phase_starts(tlog, sysid)
     out: dict[str, float] = {}
     out["pos_rise"], out["pos_peak"] = step_metrics(
@@ -339,6 +339,16 @@ def analyse_steps(tlog: Path, sysid: int) -> dict[str, float]:
     out["rate_rev"] = crossing(s.att_t, -p / w, 0.0, st["rate_back"]) - st["rate_back"]
     out["latency"] = first_response(s.att_recv, s.roll, st["att_step"], r)
     out["thr_acc"], out["thr_t63"] = thrust_metrics(s.lp_t, s.lp[:, 5], st["thr_step"])
+    # the same from the true vertical velocity: PX4 streams its simulator's truth
+    # (HIL_STATE_QUATERNION, receive times); the mock's vertical estimate is its truth (no
+    # vertical estimator error modelled), so its LOCAL_POSITION_NED figure is repeated
+    hil = s.extra["HIL_STATE_QUATERNION"]
+    if len(hil) > 10:
+        ht = np.array([t for t, _m in hil])
+        hvz = np.array([m.vz * 0.01 for _t, m in hil])
+        out["thr_acc_true"] = thrust_metrics(ht, hvz, st["thr_step"])[0]
+    else:
+        out["thr_acc_true"] = out["thr_acc"]
     j0 = st["jitter"] + JITTER_SKIP_S
     sel = (s.lp_t >= j0) & (s.lp_t <= st["jitter"] + PHASES[-1].duration_s)
     e = np.hypot(s.lp[sel, 0] - p0[0], s.lp[sel, 1] - p0[1])
@@ -451,6 +461,8 @@ ROWS: tuple[tuple[str, str, float], ...] = (
      BOUND),
     ("thr_acc", f"thrust step +{THRUST_STEP:g} for {THRUST_STEP_S:g} s: mean vertical "
      "acceleration [m/s^2]", BOUND),
+    ("thr_acc_true", f"thrust step +{THRUST_STEP:g}: mean vertical acceleration, true (PX4: "
+     "HIL_STATE_QUATERNION; mock: its estimate, = truth vertically) [m/s^2]", BOUND),
     ("thr_t63", f"thrust step +{THRUST_STEP:g}: time to 63 % of the climb-rate change [s]",
      BOUND),
     ("pos_rise", f"position step {POS_STEP_M:g} m: rise time 10-90 % [s]", BOUND),

@@ -493,6 +493,73 @@ def attitude_control_reference(g: McGains, q: Quat, q_sp: Quat, yaw_rate_ff: flo
     return (_clamp(rx, -rm[0], rm[0]), _clamp(ry, -rm[1], rm[1]), _clamp(rz, -rm[2], rm[2]))
 
 
+class AngularVelocityFilter:
+    """PX4's sensors/vehicle_angular_velocity on three axes: the gyro through a second-order
+    Butterworth low-pass at IMU_GYRO_CUTOFF [Hz] (the rates the rate loop and ATTITUDE use),
+    and its derivative (the raw gyro differenced per sample) through one at IMU_DGYRO_CUTOFF
+    [Hz] (the angular acceleration the rate loop's D term uses). A cutoff <= 0 or at or above
+    the Nyquist rate passes the signal through, as PX4's LowPassFilter2p does. The design is
+    the bilinear transform with pre-warping (PX4's math::LowPassFilter2p, same coefficients)."""
+
+    def __init__(self) -> None:
+        self._key: tuple[float, float, float] | None = None
+        self._cv: tuple[float, float, float, float, float] = (1.0, 0.0, 0.0, 0.0, 0.0)
+        self._ca: tuple[float, float, float, float, float] = (1.0, 0.0, 0.0, 0.0, 0.0)
+        self._dv: list[float] = [0.0] * 6  # delay elements w1, w2 per axis (rates)
+        self._da: list[float] = [0.0] * 6  # (angular acceleration)
+        self._prev: Vec3 | None = None
+
+    @staticmethod
+    def _coefficients(dt: float, cutoff_hz: float) -> tuple[float, float, float, float, float]:
+        """(b0, b1, b2, a1, a2) of the low-pass at `cutoff_hz` sampled every `dt` [s]."""
+        fs = 1.0 / dt
+        if cutoff_hz <= 0.0 or cutoff_hz >= 0.5 * fs:
+            return (1.0, 0.0, 0.0, 0.0, 0.0)
+        ohm = math.tan(math.pi * cutoff_hz / fs)
+        k = 2.0 * math.cos(math.pi / 4.0) * ohm
+        c = 1.0 + k + ohm * ohm
+        b0 = ohm * ohm / c
+        return (b0, 2.0 * b0, b0, 2.0 * (ohm * ohm - 1.0) / c, (1.0 - k + ohm * ohm) / c)
+
+    def reset(self, rate: Vec3) -> None:
+        """Steady state at body rates `rate` [rad/s] with zero angular acceleration."""
+        self._prev = rate
+        for d, c, v in ((self._dv, self._cv, rate), (self._da, self._ca, (0.0, 0.0, 0.0))):
+            den = 1.0 + c[3] + c[4]
+            for i in range(3):
+                d[2 * i] = d[2 * i + 1] = v[i] / den
+
+    def update(self, raw: Vec3, dt: float, cutoff_hz: float, dcutoff_hz: float
+               ) -> tuple[Vec3, Vec3]:
+        """Filter one gyro sample `raw` [rad/s] taken `dt` [s] after the last: (rates [rad/s],
+        angular acceleration [rad/s^2])."""
+        key = (dt, cutoff_hz, dcutoff_hz)
+        if key != self._key:
+            self._key = key
+            self._cv = self._coefficients(dt, cutoff_hz)
+            self._ca = self._coefficients(dt, dcutoff_hz)
+            if self._prev is None:
+                self.reset(raw)
+            else:  # keep the outputs continuous (PX4 resets its filters likewise)
+                self.reset(self._prev)
+        prev = self._prev if self._prev is not None else raw
+        self._prev = raw
+        inv = 1.0 / dt
+        out: list[list[float]] = [[], []]
+        for j, (d, (b0, b1, b2, a1, a2), x) in enumerate((
+                (self._dv, self._cv, raw),
+                (self._da, self._ca, ((raw[0] - prev[0]) * inv, (raw[1] - prev[1]) * inv,
+                                      (raw[2] - prev[2]) * inv)))):
+            o = out[j]
+            for i in range(3):
+                w1, w2 = d[2 * i], d[2 * i + 1]
+                w0 = x[i] - a1 * w1 - a2 * w2
+                o.append(b0 * w0 + b1 * w1 + b2 * w2)
+                d[2 * i], d[2 * i + 1] = w0, w1
+        r, a = out
+        return (r[0], r[1], r[2]), (a[0], a[1], a[2])
+
+
 class RateController:
     """Body-rate PID with PX4's integrator shaping; output is normalised torque [-1, 1]."""
 
@@ -506,9 +573,12 @@ class RateController:
         self._prev_rate = None
 
     def update(
-        self, g: McGains, rate: Vec3, rate_sp: Vec3, dt: float, freeze_integral: bool
+        self, g: McGains, rate: Vec3, rate_sp: Vec3, dt: float, freeze_integral: bool,
+        accel: Vec3 | None = None,
     ) -> Vec3:
-        """Torque (normalised) for the rate error; D acts on the measured angular acceleration.
+        """Torque (normalised) for the rate error; D acts on the measured angular acceleration
+        `accel` [rad/s^2] (PX4: vehicle_angular_acceleration), or if None on the difference of
+        successive `rate` samples.
 
         The integrator is frozen while `freeze_integral` (landed), shaped by PX4's
         1 - (e / 400 deg/s)^2 factor and limited to +-0.3.
@@ -517,15 +587,17 @@ class RateController:
         if prev is None:
             prev = rate
         self._prev_rate = rate
-        inv_dt = 1.0 / dt
         wx, wy, wz = rate
+        if accel is None:
+            inv_dt = 1.0 / dt
+            accel = ((wx - prev[0]) * inv_dt, (wy - prev[1]) * inv_dt, (wz - prev[2]) * inv_dt)
         ex, ey, ez = rate_sp[0] - wx, rate_sp[1] - wy, rate_sp[2] - wz
         kp, kd = g.rate_p, g.rate_d
         integ = self.integral
         ix, iy, iz = integ
-        tx = kp[0] * ex + ix - kd[0] * (wx - prev[0]) * inv_dt
-        ty = kp[1] * ey + iy - kd[1] * (wy - prev[1]) * inv_dt
-        tz = kp[2] * ez + iz - kd[2] * (wz - prev[2]) * inv_dt
+        tx = kp[0] * ex + ix - kd[0] * accel[0]
+        ty = kp[1] * ey + iy - kd[1] * accel[1]
+        tz = kp[2] * ez + iz - kd[2] * accel[2]
         if not freeze_integral:
             ki, lim = g.rate_i, g.rate_int_lim
             k = 1.0 / 6.981317007977318  # 1 / (400 deg/s)

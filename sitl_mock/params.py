@@ -206,6 +206,23 @@ PARAMS.update(
     }
 )
 
+# Appended by the vehicle model: PX4's gyro pipeline (sensors/vehicle_angular_velocity, PX4 names
+# and defaults) and SIH's gyro noise (hard-coded in SIH: no PX4 parameter, hence a mock-only name).
+PARAMS.update(
+    {
+        "IMU_GYRO_CUTOFF": ParamSpec(
+            40.0, False, "low-pass cutoff of the gyro the rate loop and ATTITUDE use [Hz]"
+        ),
+        "IMU_DGYRO_CUTOFF": ParamSpec(
+            30.0, False, "low-pass cutoff of the angular acceleration (rate loop D term) [Hz]"
+        ),
+        "SIM_GYRO_SIH": ParamSpec(
+            1.0, False, "scale of SIH's gyro noise (0.14/0.07/0.03 rad/s roll/pitch/yaw per "
+            "250 Hz sample while the rotors push; 0 = off)"
+        ),
+    }
+)
+
 # Accepted values: PX4 v1.16 parameter metadata (min, max, enumerated values; the build's
 # etc/extras/parameters.json, checked by tests/unit/test_sitl_param_ranges.py) for every parameter
 # PX4 has. `_MOCK_RANGES` below replaces or completes a range where PX4 gives none or PX4's would
@@ -283,6 +300,8 @@ PX4_RANGES: dict[str, tuple[float | None, float | None, tuple[int, ...]]] = {
     "BAT_CRIT_THR": (0.05, 0.5, ()),
     "BAT_EMERGEN_THR": (0.03, 0.5, ()),
     "COM_LOW_BAT_ACT": (None, None, (0, 2, 3)),
+    "IMU_GYRO_CUTOFF": (0.0, 1000.0, ()),
+    "IMU_DGYRO_CUTOFF": (0.0, 1000.0, ()),
 }
 
 _MOCK_RANGES: dict[str, tuple[float, float]] = {
@@ -321,6 +340,7 @@ _MOCK_RANGES: dict[str, tuple[float, float]] = {
     "SIM_EST_XY_STD": (0.0, 10.0),
     "SIM_EST_VXY_STD": (0.0, 10.0),
     "SIM_EST_XY_TAU": (0.05, 600.0),
+    "SIM_GYRO_SIH": (0.0, 10.0),
 }
 
 

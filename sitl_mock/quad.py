@@ -22,6 +22,7 @@ import math
 import random
 
 from sitl_mock.flight_control import (
+    AngularVelocityFilter,
     G,
     McGains,
     PositionVelocityController,
@@ -51,6 +52,20 @@ MAX_STEP_S = 1.0 / 250.0  # longer steps are split (integration always at >= 250
 ATT_LOOP_PERIOD_S = 0.004
 RATE_LOOP_PERIOD_S = 0.002  # rate loop at <= 500 Hz (every physics step below 500 Hz)
 LAND_DETECT_TIME_S = 0.5
+#: Rate [Hz] at which a change of the offboard attitude-target kind (attitude <-> body rates)
+#: reaches the controllers. PX4: vehicle_control_mode is republished at 2 Hz or on a status
+#: change, and a changed offboard_control_mode is not one (Commander::offboardControlCheck); on
+#: PX4 v1.16 SITL the switch lands 0.06-0.16 s after the first setpoint of the new kind, at the
+#: same phase of a 100 ms cycle for both directions within a flight (the commander's 10 Hz
+#: health checks): modelled as a 10 Hz tick of the vehicle's clock
+CONTROL_MODE_RATE_HZ = 10.0
+#: SIH's sensor period in PX4 SITL (IMU_INTEG_RATE 250 Hz): its gyro noise is per sample of this
+#: period; the mock scales it to its rate-loop period so the noise density (and what the
+#: IMU_GYRO_CUTOFF filter lets through) does not depend on the physics rate
+SIH_IMU_PERIOD_S = 0.004
+#: SIH's gyro noise std per sample while the rotors push, roll/pitch/yaw [rad/s]
+#: (SIH reconstruct_sensors_signals; times SIM_GYRO_SIH)
+SIH_GYRO_NOISE = (0.14, 0.07, 0.03)
 #: Touching the ground while the position controller asks for more than this descent rate
 #: [m/s] is "ground contact" (PX4's land detector stage): the thrust is cut (see
 #: `_control_position`); the land detector uses the same threshold.
@@ -94,6 +109,11 @@ class Quadrotor:
         "_bat_drain",
         "_bat_min",
         "_battery",
+        "_cm_att",
+        "_cm_q",
+        "_cm_rates",
+        "_cm_thrust",
+        "_cm_tick",
         "_est",
         "_est_acc",
         "_est_cfg",
@@ -103,10 +123,15 @@ class Quadrotor:
         "_gust_rng",
         "_gust_std",
         "_gust_tau",
+        "_gyro",
+        "_gyro_rate",
+        "_gyro_rng",
+        "_gyro_std",
         "_hdt",
         "_hdt2",
         "_home",
         "_idle",
+        "_imu_cut",
         "_invdt",
         "_ixx",
         "_ixx_m_izz",
@@ -183,6 +208,13 @@ class Quadrotor:
         self._att_thrust = 0.0
         self._att_q: Quat | None = None
         self._att_rates: Vec3 | None = None
+        # control mode of attitude targets in effect: attitude control (True) or rates only,
+        # its 10 Hz tick, and the last setpoints of each kind (held across a pending switch)
+        self._cm_att = False
+        self._cm_tick = -1
+        self._cm_q: Quat | None = None
+        self._cm_rates: Vec3 = (0.0, 0.0, 0.0)
+        self._cm_thrust = 0.0
         # rigid-body state
         self._t = 0.0
         self._px = self._py = self._pz = 0.0
@@ -199,6 +231,8 @@ class Quadrotor:
         self._gust_acc = 0.0
         # gusts draw from their own stream, so turning them on leaves the noise sequence alone
         self._gust_rng = random.Random(seed * 7919 + 104729)
+        # SIH's gyro noise too: turning it on leaves the estimator and sensor noise alone
+        self._gyro_rng = random.Random(seed * 6271 + 130363)
         # derived
         self._battery = 1.0
         self._local_pos_valid = True
@@ -209,6 +243,8 @@ class Quadrotor:
         self._param_version: int | None = getattr(params, "version", None)
         self._pvc = PositionVelocityController()
         self._rc = RateController()
+        self._gyro = AngularVelocityFilter()
+        self._gyro_rate: Vec3 | None = None  # filtered gyro; None while idle (= true rates)
         self._pos_acc = math.inf
         self._att_acc = math.inf
         self._rate_acc = math.inf
@@ -306,8 +342,13 @@ class Quadrotor:
 
     @property
     def attitude(self) -> tuple[Quat, Vec3]:
-        """= (`state.q_wxyz`, `state.omega_frd`): attitude body FRD -> NED, body rates [rad/s]."""
-        return (self._qw, self._qx, self._qy, self._qz), (self._wx, self._wy, self._wz)
+        """(`state.q_wxyz`, measured body rates [rad/s FRD]): the rates are the gyro as PX4
+        reports it (SIH noise, IMU_GYRO_CUTOFF low-pass) while the rate loop runs, else the true
+        rates `state.omega_frd`."""
+        w = self._gyro_rate
+        return (self._qw, self._qx, self._qy, self._qz), (
+            (self._wx, self._wy, self._wz) if w is None else w
+        )
 
     @property
     def last_attitude_target(self) -> AttitudeTargetReport:
@@ -409,6 +450,13 @@ class Quadrotor:
             self._tau = tau
             self._alpha_dt = -1.0
         self._noise = (p["SIM_POS_NOISE"], p["SIM_VEL_NOISE"], p["SIM_GYRO_NOISE"])
+        sih, white = max(p["SIM_GYRO_SIH"], 0.0), max(p["SIM_GYRO_NOISE"], 0.0)
+        self._gyro_std: tuple[float, float, float] = (
+            math.hypot(sih * SIH_GYRO_NOISE[0], white),
+            math.hypot(sih * SIH_GYRO_NOISE[1], white),
+            math.hypot(sih * SIH_GYRO_NOISE[2], white),
+        )
+        self._imu_cut = (p["IMU_GYRO_CUTOFF"], p["IMU_DGYRO_CUTOFF"])
         self._gust_std = max(p["SIM_WIND_GUST"], 0.0)
         self._gust_tau = p["SIM_WIND_GUST_T"]
         self._est_cfg = (max(p["SIM_EST_XY_STD"], 0.0), max(p["SIM_EST_VXY_STD"], 0.0),
@@ -515,6 +563,7 @@ class Quadrotor:
         self._thrust_sp = 0.0
         self._motor_cmd = (0.0, 0.0, 0.0, 0.0)
         self._idle = True
+        self._gyro_rate = None
 
     def _advance_estimator_error(self, dt: float) -> None:
         """Horizontal estimator errors like EKF2's on SIH (measured on PX4 v1.16 SITL: position
@@ -620,6 +669,7 @@ class Quadrotor:
                 self._pvc.reset()
                 self._rc.reset()
                 self._idle = True
+                self._gyro_rate = None
                 self._q_sp = quat_from_yaw(yaw_now)
                 self._thrust_sp = 0.0
                 self._yaw_ff = math.nan
@@ -659,10 +709,19 @@ class Quadrotor:
         self._rate_loop(dt, self._q_sp, self._yaw_ff, None)
 
     def _control_attitude(self, dt: float, tgt: AttitudeTarget) -> None:
+        new = tgt is not self._att_tgt
+        if new:
+            self._accept_attitude_target(tgt)
+        q_in, r_in = self._att_q, self._att_rates
+        want_att = q_in is not None and r_in is None  # else rates (zero if none given)
+        tick = int(self._t * CONTROL_MODE_RATE_HZ)
         if self._last_mode != "att":
             self._last_mode = "att"
             self._att_acc = math.inf
             self._rate_acc = math.inf
+            self._cm_att, self._cm_tick = want_att, tick  # entering: at once (see README)
+        elif tick != self._cm_tick:
+            self._cm_att, self._cm_tick = want_att, tick
         self._last_pos_target = None
         self._idle = False
         pos_acc = self._pos_acc + dt
@@ -670,23 +729,35 @@ class Quadrotor:
             pos_acc = 0.0
             self._refresh()
         self._pos_acc = pos_acc
-        if tgt is not self._att_tgt:
-            self._accept_attitude_target(tgt)
-        self._thrust_sp = self._att_thrust
-        q_sp = self._att_q
-        rates = self._att_rates
+        self._att_acc += dt
+        thrust = self._att_thrust
         yaw_ff = math.nan
-        if rates is not None:
-            if q_sp is None:
-                q_sp = (self._qw, self._qx, self._qy, self._qz)
-        elif q_sp is not None:
-            yaw_ff = tgt.yaw_rate_ff
+        rates: Vec3 | None
+        q_sp: Quat
+        if self._cm_att:
+            if want_att and q_in is not None:
+                q_sp = self._cm_q = q_in
+                yaw_ff = tgt.yaw_rate_ff
+            else:
+                # switching to rates: PX4's attitude controller still runs on the last attitude
+                # setpoint; each new offboard rates setpoint wins until its next tick
+                q_sp = self._cm_q or (self._qw, self._qx, self._qy, self._qz)
+                if new:
+                    self._rate_sp = r_in or (0.0, 0.0, 0.0)
+                    self._att_acc = 0.0
+            rates = None
         else:
-            q_sp = (self._qw, self._qx, self._qy, self._qz)
-            rates = (0.0, 0.0, 0.0)
+            if want_att:
+                # switching to attitude: nothing turns the attitude setpoint into rates yet;
+                # PX4's rate controller keeps the last rates setpoint and its thrust
+                rates, thrust = self._cm_rates, self._cm_thrust
+            else:
+                rates = self._cm_rates = r_in or (0.0, 0.0, 0.0)
+                self._cm_thrust = thrust
+            q_sp = q_in or (self._qw, self._qx, self._qy, self._qz)
+        self._thrust_sp = thrust
         self._q_sp = q_sp
         # attitude / rate loop timing (the rate-loop hold checked inline: hot path)
-        self._att_acc += dt
         rate_acc = self._rate_acc + dt
         self._rate_acc = rate_acc
         if rate_acc < _RATE_TICK_S:
@@ -731,17 +802,24 @@ class Quadrotor:
         else:
             self._att_acc = math.inf
             self._rate_sp = rates
-        s = self._noise[2]
-        if s > 0.0:
-            gauss = self._rng.gauss
-            omega = (
-                self._wx + gauss(0.0, s),
-                self._wy + gauss(0.0, s),
-                self._wz + gauss(0.0, s),
+        # the gyro (PX4 sensors/vehicle_angular_velocity): SIH's noise while the rotors push,
+        # low-passed; the D term acts on the filtered derivative
+        s0, s1, s2 = self._gyro_std
+        if s0 > 0.0 or s1 > 0.0 or s2 > 0.0:
+            k = math.sqrt(SIH_IMU_PERIOD_S / dtr)
+            gauss = self._gyro_rng.gauss
+            raw = (
+                self._wx + gauss(0.0, s0 * k),
+                self._wy + gauss(0.0, s1 * k),
+                self._wz + gauss(0.0, s2 * k),
             )
         else:
-            omega = (self._wx, self._wy, self._wz)
-        torque = self._rc.update(g, omega, self._rate_sp, dtr, self._landed)
+            raw = (self._wx, self._wy, self._wz)
+        if self._gyro_rate is None:  # the rate loop starts: filters settled on the true rates
+            self._gyro.reset((self._wx, self._wy, self._wz))
+        omega, accel = self._gyro.update(raw, dtr, self._imu_cut[0], self._imu_cut[1])
+        self._gyro_rate = omega
+        torque = self._rc.update(g, omega, self._rate_sp, dtr, self._landed, accel)
         self._motor_cmd = mix_quad_x(torque, self._thrust_sp)
 
     def _integrate(self, dt: float) -> None:

@@ -152,14 +152,14 @@ def build_heartbeat(ap: Autopilot) -> Msg:
 
 
 def build_attitude(ap: Autopilot) -> Msg:
-    q_wxyz, omega_frd = ap.vehicle.attitude  # = state.q_wxyz, state.omega_frd
+    q_wxyz, omega_frd = ap.vehicle.attitude  # = state.q_wxyz, the measured body rates
     roll, pitch, yaw = euler_321(q_wxyz)
     p, q, r = omega_frd
     return (_C_ATTITUDE, (ap.time_boot_ms, roll, pitch, yaw, p, q, r))
 
 
 def build_attitude_quaternion(ap: Autopilot) -> Msg:
-    (w, x, y, z), (p, q, r) = ap.vehicle.attitude  # = state.q_wxyz, state.omega_frd
+    (w, x, y, z), (p, q, r) = ap.vehicle.attitude  # = state.q_wxyz, the measured body rates
     return (_C_ATTITUDE_QUATERNION, (ap.time_boot_ms, w, x, y, z, p, q, r, (0.0, 0.0, 0.0, 0.0)))
 
 
@@ -178,7 +178,7 @@ def build_odometry(ap: Autopilot) -> Msg | None:
         return None
     x, y, z = s.pos_ned
     vb = rotate_ned_to_body(s.q_wxyz, s.vel_ned)
-    p, q, r = s.omega_frd
+    p, q, r = ap.vehicle.attitude[1]  # the measured body rates, as ATTITUDE
     nan21 = _NAN21
     return (
         _C_ODOMETRY,

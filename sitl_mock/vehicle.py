@@ -140,7 +140,9 @@ class Vehicle(Protocol):
 
     @property
     def attitude(self) -> tuple[Quat, Vec3]:
-        """(`state.q_wxyz`, `state.omega_frd`) without building a snapshot (100 Hz ATTITUDE)."""
+        """(`state.q_wxyz`, body rates as the autopilot measures them [rad/s FRD]) without
+        building a snapshot (100 Hz ATTITUDE): the quadrotor's gyro after PX4's filter while its
+        rate loop runs (`state.omega_frd` holds the true rates)."""
         ...
 
     @property

@@ -123,7 +123,8 @@ def test_attitude_target_yaw_rate_feed_forward() -> None:
 
 
 def test_body_rates_target_and_rates_win_over_q() -> None:
-    v = _hovering()
+    # the controller's law to 0.02 rad/s: without SIH's gyro noise (test_sitl_gyro.py has it)
+    v = _hovering(ParamStore({"SIM_GYRO_SIH": 0.0}))
     level = (1.0, 0.0, 0.0, 0.0)
     both = AttitudeTarget(q_wxyz=level, thrust_norm=0.49, body_rates_frd=(0.0, 0.0, 0.8))
     _run(v, both, 3.0)
@@ -146,8 +147,9 @@ def test_attitude_thrust_is_not_hover_scaled() -> None:
 
 # ------------------------------------------------------------------------------ position targets
 def test_velocity_only_target() -> None:
-    """Tracked; the drag (KDV v) is taken up by the velocity integral, slowly, like PX4 + SIH."""
-    v = _hovering()
+    """Tracked; the drag (KDV v) is taken up by the velocity integral, slowly, like PX4 + SIH.
+    (The error shrinks monotonically second by second: without SIH's gyro noise.)"""
+    v = _hovering(ParamStore({"SIM_GYRO_SIH": 0.0}))
     z0 = v.state.pos_ned[2]
     rows = _run(v, PositionTarget(vel_ned=(2.0, -1.0, 0.0), yaw=0.0), 20.0)
     s = v.state
