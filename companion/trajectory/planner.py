@@ -843,17 +843,36 @@ class _Planner:
         return traj, cost
 
     # ------------------------------------------------------------------ allocation
-    def allocate(self, limits: Limits | RoverLimits, params: Any) -> FloatArray:
-        """Durations (s) per segment: trapezoid guess, penalised refinement, saturation."""
-        joints = self.joints
+    def allocate(
+        self, limits: Limits | RoverLimits, params: Any, start: FloatArray | None = None
+    ) -> FloatArray:
+        """Durations (s) per segment: trapezoid guess, penalised refinement, saturation.
+        ``start`` (multirotor): warm start of the refinement (see :meth:`refined`)."""
+        if isinstance(limits, RoverLimits):
+            return self._allocate_rover(self._initial_guess(limits), limits)
+        return self._saturate(self.refined(limits, params, start), limits, params)
+
+    def _initial_guess(self, limits: Limits | RoverLimits) -> FloatArray:
+        """Trapezoidal-profile durations along the joints (s), see
+        :func:`_polyline_profile_durations`."""
         vmax = limits.max_speed_m_s
         amax = limits.max_lat_acc_m_s2 if isinstance(limits, RoverLimits) else limits.max_acc_m_s2
         seg_vmax = None if self.speed_scale is None else vmax * self.speed_scale
-        h0 = _polyline_profile_durations(joints, self.is_waypoint, vmax, amax, seg_vmax)
-        if isinstance(limits, RoverLimits):
-            return self._allocate_rover(h0, limits)
-        h = self._refine(h0, limits, params)
-        return self._saturate(h, limits, params)
+        return _polyline_profile_durations(self.joints, self.is_waypoint, vmax, amax, seg_vmax)
+
+    def refined(
+        self, limits: Limits, params: Any, start: FloatArray | None = None
+    ) -> FloatArray:
+        """The refinement's durations (s), before the saturation. ``start``: a warm start (e.g.
+        the refined durations of a coarser joint set, a split segment's duration shared by its
+        pieces); the objective (its weights and box) stays the one set by the trapezoid guess,
+        only the starting point changes."""
+        return self._refine(self._initial_guess(limits), limits, params, start)
+
+    def position(self, h: FloatArray) -> PiecewiseBezier:
+        """The position trajectory (no yaw channel) for durations h."""
+        x, _ = self.solve(h)
+        return PiecewiseBezier.from_control_points(self.system.control_points(x, h), h)
 
     # ------------------------------------------------------------------ rover allocation
     def _rover_stretch(self, h: FloatArray, limits: RoverLimits) -> FloatArray:
@@ -926,15 +945,22 @@ class _Planner:
             dtype=np.float64,
         )
 
-    def _refine(self, h0: FloatArray, limits: Limits | RoverLimits, params: Any) -> FloatArray:
+    def _refine(
+        self,
+        h0: FloatArray,
+        limits: Limits | RoverLimits,
+        params: Any,
+        start: FloatArray | None = None,
+    ) -> FloatArray:
         """Minimise ``sum(h) + rho J(h) + w P(h)`` over log-durations (projected L-BFGS) and the
         analytic gradient (envelope theorem for J, adjoint of the banded system for the
         sampled limit penalty P). rho is set relative to the initial guess (small: time
         dominates, the penalty keeps the limits). Rover: w = 0 (no P), see
-        ``_allocate_rover``."""
+        ``_allocate_rover``. ``start``: start the search there instead of at h0 (clipped to
+        the box around h0)."""
         _, j0 = self.solve(h0)
         if not np.isfinite(j0) or j0 <= 0.0:
-            return h0
+            return h0 if start is None else start
         t0 = float(h0.sum())
         rho = REFINE_RHO * t0 / ((2 * self.s - 1) * j0)
         rover = isinstance(limits, RoverLimits)
@@ -961,7 +987,8 @@ class _Planner:
 
             return float(h.sum() + rho * j + weight * p) / t0, grad
 
-        z = _projected_lbfgs(fun, lz, lz - 3.0, lz + 3.0, maxiter, ftol=REFINE_FTOL)
+        z0 = lz if start is None else np.log(np.maximum(start, 1e-300))
+        z = _projected_lbfgs(fun, z0, lz - 3.0, lz + 3.0, maxiter, ftol=REFINE_FTOL)
         return np.exp(z)
 
     def _max_ratio(
@@ -1247,7 +1274,7 @@ CORRIDOR_PASSES = 6
 CORRIDOR_SAMPLES_PER_SEGMENT = 24
 
 
-def _plan_joints(
+def _joint_planner(
     wp: FloatArray,
     fracs: list[list[float]],
     s: int,
@@ -1258,12 +1285,10 @@ def _plan_joints(
     yaw_wp: FloatArray | None,
     caps: FloatArray | None,
     limits: Limits | RoverLimits | None,
-    params: Any,
-    h_in: FloatArray | None,
-) -> tuple[_Planner, PiecewiseBezier, float, NDArray[np.intp], NDArray[np.bool_]]:
-    """Plan through `wp` with extra joints on each straight leg at the fractions `fracs[leg]`
-    (each list starts with 0): (planner, trajectory, cost, leg of each segment, which joints
-    are waypoints)."""
+) -> tuple[_Planner, NDArray[np.intp], NDArray[np.bool_]]:
+    """The planner through `wp` with extra joints on each straight leg at the fractions
+    `fracs[leg]` (each list starts with 0): (planner, leg of each segment, which joints are
+    waypoints)."""
     d = wp.shape[1]
     pts: list[FloatArray] = []
     seg_leg: list[int] = []
@@ -1283,6 +1308,29 @@ def _plan_joints(
     planner = _Planner(
         joints, is_waypoint, s, start_spec, end_spec, interior_j, yaw, yaw_wp, speed_scale=scale
     )
+    return planner, seg_leg_a, is_waypoint
+
+
+def _plan_joints(
+    wp: FloatArray,
+    fracs: list[list[float]],
+    s: int,
+    start_spec: dict[int, FloatArray | None],
+    end_spec: dict[int, FloatArray | None],
+    interior: dict[int, dict[int, FloatArray | None]],
+    yaw: YawSpec,
+    yaw_wp: FloatArray | None,
+    caps: FloatArray | None,
+    limits: Limits | RoverLimits | None,
+    params: Any,
+    h_in: FloatArray | None,
+) -> tuple[_Planner, PiecewiseBezier, float, NDArray[np.intp], NDArray[np.bool_]]:
+    """Plan through `wp` with extra joints on each straight leg at the fractions `fracs[leg]`
+    (each list starts with 0): (planner, trajectory, cost, leg of each segment, which joints
+    are waypoints)."""
+    planner, seg_leg_a, is_waypoint = _joint_planner(
+        wp, fracs, s, start_spec, end_spec, interior, yaw, yaw_wp, caps, limits
+    )
     if h_in is None:
         assert limits is not None
         h = planner.allocate(limits, params)
@@ -1290,6 +1338,94 @@ def _plan_joints(
         h = h_in
     traj, cost = planner.build(h)
     return planner, traj, cost, seg_leg_a, is_waypoint
+
+
+def _split_breaches(
+    fracs: list[list[float]],
+    seg_leg: NDArray[np.intp],
+    bad: NDArray[np.bool_],
+    h: FloatArray | None = None,
+) -> tuple[list[list[float]], FloatArray | None]:
+    """Split each segment flagged in `bad` (M,) in three equal pieces of its leg: the new joint
+    fractions per leg and, given the segments' durations `h` (M,) [s], durations for the new
+    segments (a split segment's duration shared equally by its pieces: a warm start)."""
+    fracs = [list(f) for f in fracs]
+    first = np.searchsorted(seg_leg, np.arange(len(fracs)))  # each leg's first segment
+    for sg in np.flatnonzero(bad).tolist():
+        leg = int(seg_leg[sg])
+        i_f = sg - int(first[leg])
+        f = fracs[leg]
+        lo = f[i_f]
+        hi = f[i_f + 1] if i_f + 1 < len(f) else 1.0
+        f.extend((lo + (hi - lo) / 3.0, lo + 2.0 * (hi - lo) / 3.0))
+    fracs = [sorted(f) for f in fracs]
+    if h is None:
+        return fracs, None
+    pieces = np.where(bad, 3, 1)
+    return fracs, np.repeat(h / pieces, pieces)
+
+
+def _plan_corridor(
+    wp: FloatArray,
+    fracs: list[list[float]],
+    s: int,
+    start_spec: dict[int, FloatArray | None],
+    end_spec: dict[int, FloatArray | None],
+    interior: dict[int, dict[int, FloatArray | None]],
+    yaw: YawSpec,
+    yaw_wp: FloatArray | None,
+    caps: FloatArray | None,
+    limits: Limits,
+    params: Any,
+    corridor_m: float,
+    acc_j: FloatArray,
+) -> tuple[_Planner, PiecewiseBezier, float, NDArray[np.intp], NDArray[np.bool_], int]:
+    """Multirotor time allocation with the corridor: (planner, trajectory, cost, leg of each
+    segment, waypoint joints, solves).
+
+    The corridor is refined on the refinement's durations, before the saturation (which
+    rescales them, mostly uniformly, so the path keeps its shape): each pass splits the
+    segments that leave the corridor and re-runs the refinement warm-started from the previous
+    durations, then the saturation runs once. Should the saturated path still leave the
+    corridor, the segments are split again and the allocation redone (warm-started), at most
+    ``CORRIDOR_PASSES`` times each; ValueError if it still leaves it."""
+    args = (wp, s, start_spec, end_spec, interior, yaw, yaw_wp, caps, limits)
+
+    def planner_of(fr: list[list[float]]) -> tuple[_Planner, NDArray[np.intp], NDArray[np.bool_]]:
+        return _joint_planner(wp, fr, *args[1:])
+
+    def breaches(traj: PiecewiseBezier, seg_leg: NDArray[np.intp]) -> NDArray[np.bool_]:
+        return _corridor_breaches(traj, wp, seg_leg, corridor_m, acc_j)
+
+    planner, seg_leg, is_wp = planner_of(fracs)
+    solves = 0
+    h = planner.refined(limits, params)
+    for _ in range(CORRIDOR_PASSES):
+        bad = breaches(planner.position(h), seg_leg)
+        if not bad.any():
+            break
+        fracs, h_split = _split_breaches(fracs, seg_leg, bad, h)
+        assert h_split is not None
+        solves += planner.solves
+        planner, seg_leg, is_wp = planner_of(fracs)
+        h = planner.refined(limits, params, h_split)
+    h = planner._saturate(h, limits, params)
+    traj, cost = planner.build(h)
+    for _ in range(CORRIDOR_PASSES):
+        bad = breaches(traj, seg_leg)
+        if not bad.any():
+            return planner, traj, cost, seg_leg, is_wp, solves + planner.solves
+        fracs, h_split = _split_breaches(fracs, seg_leg, bad, h)
+        solves += planner.solves
+        planner, seg_leg, is_wp = planner_of(fracs)
+        h = planner.allocate(limits, params, h_split)
+        traj, cost = planner.build(h)
+    if breaches(traj, seg_leg).any():
+        raise ValueError(
+            f"the planned path leaves the {corridor_m:g} m corridor around the legs after "
+            f"{CORRIDOR_PASSES} refinements (fly the legs rest to rest, or widen the corridor)"
+        )
+    return planner, traj, cost, seg_leg, is_wp, solves + planner.solves
 
 
 def point_segment_distance(p: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
@@ -1305,23 +1441,31 @@ def corridor_deviation(
 ) -> FloatArray:
     """Corridor deviation (N,) [m] of `points` (N, d) flown on the waypoint legs `legs` (N,):
     distance to the nearest of that leg and its neighbours, or 0 inside a waypoint's
-    acceptance radius (corners may be cut or overshot there)."""
-    n_legs = waypoints.shape[0] - 1
-    dev = np.full(points.shape[0], np.inf)
-    for leg in np.unique(legs):
-        sel = legs == leg
-        p = points[sel]
-        best = np.full(p.shape[0], np.inf)
-        for other in (leg - 1, leg, leg + 1):
-            if 0 <= other < n_legs:
-                best = np.minimum(
-                    best, point_segment_distance(p, waypoints[other], waypoints[other + 1])
-                )
-        for w in (leg, leg + 1):
-            near = np.linalg.norm(p - waypoints[w], axis=1) <= acceptance_m[w]
-            best[near] = 0.0
-        dev[sel] = best
-    return dev
+    acceptance radius (corners may be cut or overshot there). Vectorised over the points."""
+    p = np.asarray(points, dtype=np.float64)
+    wp = np.asarray(waypoints, dtype=np.float64)
+    legs = np.asarray(legs, dtype=np.intp)
+    n_legs = wp.shape[0] - 1
+    acc = np.asarray(acceptance_m, dtype=np.float64)
+    best = np.full(p.shape[0], np.inf)
+    ab_all = np.diff(wp, axis=0)
+    den_all = np.einsum("ij,ij->i", ab_all, ab_all)
+    for off in (-1, 0, 1):
+        other = legs + off
+        ok = (other >= 0) & (other < n_legs)
+        oc = np.clip(other, 0, max(n_legs - 1, 0))
+        a, ab, den = wp[oc], ab_all[oc], den_all[oc]
+        rel = p - a
+        t = np.einsum("ij,ij->i", rel, ab) / np.where(den > 0.0, den, 1.0)
+        t = np.where(den > 0.0, np.clip(t, 0.0, 1.0), 0.0)
+        diff = rel - t[:, None] * ab
+        dist = np.sqrt(np.einsum("ij,ij->i", diff, diff))
+        best = np.where(ok, np.minimum(best, dist), best)
+    for w in (legs, legs + 1):
+        diff = p - wp[w]
+        near = np.sqrt(np.einsum("ij,ij->i", diff, diff)) <= acc[w]
+        best[near] = 0.0
+    return np.asarray(best, dtype=np.float64)
 
 
 def _corridor_breaches(
@@ -1726,24 +1870,26 @@ def plan_with_info(
                 if 0.0 < e < 1.0 and min(abs(e - x) for x in [*f, 1.0]) * lengths[leg] > 0.5:
                     f.append(float(e))
             fracs[leg] = sorted(f)
-    planner, traj, cost, seg_leg, is_waypoint = _plan_joints(
-        wp, fracs, s, start_spec, end_spec, interior, yaw, yaw_wp, caps_in, limits, params, h_in
-    )
-    solves = planner.solves
-    if acc_j is not None:
+    if acc_j is not None and h_in is None and isinstance(limits, Limits):
+        assert corridor_m is not None
+        planner, traj, cost, seg_leg, is_waypoint, solves = _plan_corridor(
+            wp, fracs, s, start_spec, end_spec, interior, yaw, yaw_wp, caps_in, limits, params,
+            float(corridor_m), acc_j,
+        )
+    else:
+        planner, traj, cost, seg_leg, is_waypoint = _plan_joints(
+            wp, fracs, s, start_spec, end_spec, interior, yaw, yaw_wp, caps_in, limits, params,
+            h_in,
+        )
+        solves = planner.solves
+    if acc_j is not None and not isinstance(limits, Limits):
+        # rover: each refinement re-runs the (exact-extrema) allocation
         assert corridor_m is not None
         for _ in range(CORRIDOR_PASSES):
             bad = _corridor_breaches(traj, wp, seg_leg, float(corridor_m), acc_j)
             if not bad.any():
                 break
-            for sg in np.flatnonzero(bad).tolist():
-                leg = int(seg_leg[sg])
-                i_f = sg - int(np.flatnonzero(seg_leg == leg)[0])
-                f = fracs[leg]
-                lo = f[i_f]
-                hi = f[i_f + 1] if i_f + 1 < len(f) else 1.0
-                f.extend((lo + (hi - lo) / 3.0, lo + 2.0 * (hi - lo) / 3.0))
-            fracs = [sorted(f) for f in fracs]
+            fracs, _ = _split_breaches(fracs, seg_leg, bad)
             planner, traj, cost, seg_leg, is_waypoint = _plan_joints(
                 wp, fracs, s, start_spec, end_spec, interior, yaw, yaw_wp, caps_in, limits,
                 params, h_in
