@@ -47,7 +47,7 @@ def rows(synthetic: bool) -> list[dict[str, object]]:
             t0 = time.perf_counter()
             sched = build_schedule(fp, DEFAULT_QUAD, limits)
             dt = time.perf_counter() - t0
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:
             out.append({"mission": name, "error": f"{type(exc).__name__}: {exc}"})
             continue
         row: dict[str, object] = {"mission": name, "vehicle": fp.vehicle,
@@ -84,8 +84,8 @@ def rows(synthetic: bool) -> list[dict[str, object]]:
 
 def table(rs: list[dict[str, object]]) -> str:
     def f(v: object, fmt: str) -> str:
-        return "-" if not isinstance(v, float | int) or (isinstance(v, float)
-                                                         and not math.isfinite(v)) else format(v, fmt)
+        bad = not isinstance(v, float | int) or (isinstance(v, float) and not math.isfinite(v))
+        return "-" if bad else format(v, fmt)
     lines = ["| mission | planned [s] | bound [s] | planned/bound | max dev [m] | samples out "
              "| waypoint err [m] | axis vel/acc ratio | plan [ms] |",
              "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]

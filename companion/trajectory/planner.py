@@ -101,10 +101,25 @@ ROVER_ALLOCATION_PIECES = 1
 #: the uniform scaling again; kept only while the total duration drops.
 ROVER_LOCAL_PASSES = 6
 REFINE_FTOL = 1e-5
+#: Work cap of one multirotor refinement: iterations x segments (each iteration costs a
+#: banded solve and a penalty evaluation per segment). Plans of up to
+#: REFINE_WORK_BUDGET / REFINE_MAXITER segments get REFINE_MAXITER iterations; larger ones
+#: fewer, at least REFINE_MIN_ITER (planning time stays bounded on long missions).
+REFINE_WORK_BUDGET = 13_500
+REFINE_MIN_ITER = 10
+
+
+#: Warm-started refinement after a corridor split: the work budget times this multiple of
+#: the share of segments split, at least REFINE_WARM_FLOOR (plans of up to 150 segments
+#: keep every iteration).
+REFINE_WARM_GAIN = 3.0
+REFINE_WARM_FLOOR = 6_750
 #: yaw="velocity": heading samples per segment and smoothing time as a fraction of the median
 #: segment duration (see ``_heading_fit``).
 HEADING_SAMPLES_PER_SEGMENT = 16
 VELOCITY_YAW_SMOOTHING = 0.1
+#: Samples per segment of the feasibility passes' first look (see ``_Planner._max_ratio``).
+COARSE_SAMPLES_PER_SEGMENT = 16
 #: Samples per segment while bisecting the common time scale (final checks use more).
 BISECTION_SAMPLES_PER_SEGMENT = 16
 #: The multirotor feasibility pass stretches the offending segments only while the worst
@@ -774,6 +789,22 @@ class PlanResult:
     solves: int
 
 
+def refine_iterations(segments: int, budget: float = REFINE_WORK_BUDGET) -> int:
+    """L-BFGS iteration cap of a multirotor refinement over `segments` segments with the work
+    `budget` (iterations x segments)."""
+    return max(REFINE_MIN_ITER, min(REFINE_MAXITER, int(budget) // max(segments, 1)))
+
+
+def _warm_iterations(bad: NDArray[np.bool_]) -> int:
+    """Iteration cap of the warm-started refinement after splitting the segments flagged in
+    `bad`: the work budget in proportion to the share of segments split
+    (``REFINE_WARM_GAIN``), at least ``REFINE_WARM_FLOOR``."""
+    frac = float(np.count_nonzero(bad)) / max(bad.shape[0], 1)
+    budget = max(REFINE_WARM_FLOOR, REFINE_WORK_BUDGET * min(1.0, REFINE_WARM_GAIN * frac))
+    new_segments = bad.shape[0] + 2 * int(np.count_nonzero(bad))
+    return refine_iterations(new_segments, budget)
+
+
 def _stretch_factors(per_seg: FloatArray) -> FloatArray:
     """Duration factors of one feasibility pass: each segment over a limit grows by its ratio
     (at most 1.5), its neighbours by 0.2 %."""
@@ -828,6 +859,8 @@ class _Planner:
         self.yaw = yaw
         self.yaw_wp = yaw_wp
         self.solves = 0
+        #: the per-waypoint yaw channel's banded system (same structure at every build)
+        self._yaw_systems: dict[str, _System] = {}
 
     def solve(self, h: FloatArray) -> tuple[FloatArray, float]:
         self.solves += 1
@@ -837,7 +870,9 @@ class _Planner:
         x, cost = self.solve(h)
         cp = self.system.control_points(x, h)
         traj = PiecewiseBezier.from_control_points(cp, h)
-        yaw_traj = _yaw_channel(traj, self.is_waypoint, h, self.s, self.yaw, self.yaw_wp)
+        yaw_traj = _yaw_channel(
+            traj, self.is_waypoint, h, self.s, self.yaw, self.yaw_wp, self._yaw_systems
+        )
         if yaw_traj is not None:
             traj = traj.with_yaw(yaw_traj)
         return traj, cost
@@ -861,13 +896,18 @@ class _Planner:
         return _polyline_profile_durations(self.joints, self.is_waypoint, vmax, amax, seg_vmax)
 
     def refined(
-        self, limits: Limits, params: Any, start: FloatArray | None = None
+        self,
+        limits: Limits,
+        params: Any,
+        start: FloatArray | None = None,
+        maxiter: int | None = None,
     ) -> FloatArray:
         """The refinement's durations (s), before the saturation. ``start``: a warm start (e.g.
         the refined durations of a coarser joint set, a split segment's duration shared by its
         pieces); the objective (its weights and box) stays the one set by the trapezoid guess,
-        only the starting point changes."""
-        return self._refine(self._initial_guess(limits), limits, params, start)
+        only the starting point changes. ``maxiter``: iteration cap (default
+        ``REFINE_MAXITER``)."""
+        return self._refine(self._initial_guess(limits), limits, params, start, maxiter)
 
     def position(self, h: FloatArray) -> PiecewiseBezier:
         """The position trajectory (no yaw channel) for durations h."""
@@ -951,6 +991,7 @@ class _Planner:
         limits: Limits | RoverLimits,
         params: Any,
         start: FloatArray | None = None,
+        maxiter: int | None = None,
     ) -> FloatArray:
         """Minimise ``sum(h) + rho J(h) + w P(h)`` over log-durations (projected L-BFGS) and the
         analytic gradient (envelope theorem for J, adjoint of the banded system for the
@@ -969,7 +1010,8 @@ class _Planner:
         )
         lz = np.log(h0)
         weight = REFINE_PENALTY_WEIGHT
-        maxiter = ROVER_REFINE_MAXITER if rover else REFINE_MAXITER
+        if maxiter is None:
+            maxiter = ROVER_REFINE_MAXITER if rover else refine_iterations(h0.shape[0])
 
         def fun(z: FloatArray) -> tuple[float, Callable[[], FloatArray]]:
             h = np.exp(z)
@@ -992,12 +1034,25 @@ class _Planner:
         return np.exp(z)
 
     def _max_ratio(
-        self, h: FloatArray, limits: Limits | RoverLimits, params: Any
+        self, h: FloatArray, limits: Limits | RoverLimits, params: Any, coarse: bool = False
     ) -> tuple[float, FloatArray]:
-        """Largest value/limit ratio (with margin) over the trajectory and per segment."""
+        """Largest value/limit ratio (with margin) over the trajectory and per segment.
+
+        ``coarse``: first on ``COARSE_SAMPLES_PER_SEGMENT`` samples per segment, returned when
+        they already exceed a limit (a sampled excess is an excess); otherwise, as always
+        without it, on the dense ``limits.SAMPLES_PER_SEGMENT`` ones: a pass that only needs
+        to know where to stretch skips the dense sampling, a feasible verdict is always the
+        dense check's."""
         traj, _ = self.build(h)
+        m = h.shape[0]
+        if coarse:
+            worst, per_seg = self._ratio_of(
+                segment_samples(traj, limits, COARSE_SAMPLES_PER_SEGMENT), m, limits, params
+            )
+            if worst > 1.0:
+                return worst, per_seg
         smp = segment_samples(traj, limits)
-        return self._ratio_of(smp, h.shape[0], limits, params)
+        return self._ratio_of(smp, m, limits, params)
 
     def _scale(self) -> FloatArray | float:
         """Per-segment speed scale (M,), or 1.0 without per-segment caps."""
@@ -1036,7 +1091,7 @@ class _Planner:
         # feasibility pass on the real trajectory (re-solved, not scaled)
         best = math.inf  # the smallest worst ratio seen
         for _ in range(30):
-            worst, per_seg = self._max_ratio(h, limits, params)
+            worst, per_seg = self._max_ratio(h, limits, params, coarse=True)
             if worst <= 1.0:
                 return self._shrink(h, per_seg, limits, params)
             best = min(best, worst)
@@ -1050,7 +1105,7 @@ class _Planner:
         h = h_uniform
         for _ in range(60):
             h = h * 1.02
-            worst, per_seg = self._max_ratio(h, limits, params)
+            worst, per_seg = self._max_ratio(h, limits, params, coarse=True)
             if worst <= 1.0:
                 return self._shrink(h, per_seg, limits, params)
         raise ValueError("time allocation could not satisfy the limits (check their values)")
@@ -1062,7 +1117,7 @@ class _Planner:
         plan is feasible; None if that does not converge within ``LOCAL_STRETCH_PASSES``."""
         best = math.inf
         for _ in range(LOCAL_STRETCH_PASSES):
-            worst, per_seg = self._max_ratio(h, limits, params)
+            worst, per_seg = self._max_ratio(h, limits, params, coarse=True)
             if worst <= 1.0:
                 return h
             best = min(best, worst)
@@ -1097,7 +1152,7 @@ class _Planner:
                 break
             cand = best_h * np.where(slack, np.maximum(per_seg, SHRINK_MIN_FACTOR), 1.0)
             for _ in range(8):
-                worst, per_seg_c = self._max_ratio(cand, limits, params)
+                worst, per_seg_c = self._max_ratio(cand, limits, params, coarse=True)
                 if worst <= 1.0:
                     break
                 cand = cand * _stretch_factors(per_seg_c)
@@ -1184,9 +1239,16 @@ def _solve_1d(
     value_mask: NDArray[np.bool_] | None = None,
     mask_extra: NDArray[np.bool_] | None = None,
     vals_extra: FloatArray | None = None,
+    cache: dict[str, _System] | None = None,
 ) -> PiecewiseBezier:
     """1-D minimum-derivative channel through ``values`` at the joints where ``value_mask``
-    (default: all), at rest at both ends, plus extra fixed derivatives."""
+    (default: all), at rest at both ends, plus extra fixed derivatives. ``cache``: holds the
+    banded system under "1d" between calls with the same values, masks and number of joints
+    (the durations may change)."""
+    if cache is not None and "1d" in cache:
+        sys_c = cache["1d"]
+        x, _ = sys_c.solve(h)
+        return PiecewiseBezier.from_control_points(sys_c.control_points(x, h), h)
     n_j = values.shape[0]
     mask = np.zeros((n_j, s), dtype=bool)
     vals = np.zeros((n_j, s, 1))
@@ -1198,6 +1260,8 @@ def _solve_1d(
         mask |= mask_extra
         vals[mask_extra] = vals_extra[mask_extra]
     sys_ = _System(mask, vals, s)
+    if cache is not None:
+        cache["1d"] = sys_
     x, _ = sys_.solve(h)
     return PiecewiseBezier.from_control_points(sys_.control_points(x, h), h)
 
@@ -1251,7 +1315,10 @@ def _yaw_channel(
     s: int,
     yaw: YawSpec,
     yaw_wp: FloatArray | None,
+    cache: dict[str, _System] | None = None,
 ) -> PiecewiseBezier | None:
+    """The yaw channel of `traj` (durations h) for the yaw spec; ``cache`` (one per joint set
+    and yaw spec) keeps the per-waypoint channel's banded system between calls."""
     if yaw is None:
         return None
     m = h.shape[0]
@@ -1262,9 +1329,11 @@ def _yaw_channel(
     if yaw_wp.shape[0] == 1:
         cp = np.full((m, 2 * s, 1), float(yaw_wp[0]))
         return PiecewiseBezier.from_control_points(cp, h)
+    if cache is not None and "1d" in cache:
+        return _solve_1d(np.zeros(m + 1), h, s, cache=cache)  # the cached system has the values
     values = np.zeros(m + 1)
     values[is_waypoint] = _unwrap_sequence(yaw_wp)
-    return _solve_1d(values, h, s, is_waypoint)
+    return _solve_1d(values, h, s, is_waypoint, cache=cache)
 
 
 # =========================================================================== public API
@@ -1408,7 +1477,7 @@ def _plan_corridor(
         assert h_split is not None
         solves += planner.solves
         planner, seg_leg, is_wp = planner_of(fracs)
-        h = planner.refined(limits, params, h_split)
+        h = planner.refined(limits, params, h_split, maxiter=_warm_iterations(bad))
     h = planner._saturate(h, limits, params)
     traj, cost = planner.build(h)
     for _ in range(CORRIDOR_PASSES):
@@ -1418,7 +1487,10 @@ def _plan_corridor(
         fracs, h_split = _split_breaches(fracs, seg_leg, bad, h)
         solves += planner.solves
         planner, seg_leg, is_wp = planner_of(fracs)
-        h = planner.allocate(limits, params, h_split)
+        h = planner._saturate(
+            planner.refined(limits, params, h_split, maxiter=_warm_iterations(bad)),
+            limits, params,
+        )
         traj, cost = planner.build(h)
     if breaches(traj, seg_leg).any():
         raise ValueError(
