@@ -1548,14 +1548,50 @@ def _corridor_breaches(
     acceptance_m: FloatArray,
 ) -> NDArray[np.bool_]:
     """Which segments (M,) leave the corridor (sampled ``CORRIDOR_SAMPLES_PER_SEGMENT`` per
-    segment)."""
+    segment at the midpoints of equal time steps): :func:`corridor_deviation` evaluated
+    segment-wise, all segments at once (one matrix product for the samples, each segment's
+    three candidate legs broadcast over its samples)."""
     n = CORRIDOR_SAMPLES_PER_SEGMENT
+    p = _segment_grid_points(traj, n)  # (M, n, d)
+    n_legs = wp.shape[0] - 1
+    cand = seg_leg[:, None] + np.array([-1, 0, 1])[None, :]  # this leg and its neighbours
+    ok = (cand >= 0) & (cand < n_legs)
+    cc = np.clip(cand, 0, max(n_legs - 1, 0))
+    dev = np.full(p.shape[:2], np.inf)
+    for k in range(3):
+        a = wp[cc[:, k]]  # (M, d)
+        ab = wp[cc[:, k] + 1] - a
+        den = np.einsum("md,md->m", ab, ab)
+        rel = p - a[:, None, :]
+        t = np.einsum("mnd,md->mn", rel, ab) / np.where(den > 0.0, den, 1.0)[:, None]
+        t = np.where((den > 0.0)[:, None], np.clip(t, 0.0, 1.0), 0.0)
+        rel -= t[:, :, None] * ab[:, None, :]
+        dist = np.sqrt(np.einsum("mnd,mnd->mn", rel, rel))
+        np.minimum(dev, np.where(ok[:, k : k + 1], dist, np.inf), out=dev)
+    out = dev > corridor_m
+    for w in (seg_leg, seg_leg + 1):
+        dw = p - wp[w][:, None, :]
+        out &= ~(np.sqrt(np.einsum("mnd,mnd->mn", dw, dw)) <= acceptance_m[w][:, None])
+    return np.asarray(out.any(axis=1), dtype=np.bool_)
+
+
+@lru_cache(maxsize=8)
+def _midpoint_basis(degree: int, n: int) -> FloatArray:
+    """(n, degree + 1) Bernstein basis at the normalised times (k + 0.5) / n."""
     tau = (np.arange(n) + 0.5) / n
-    t = (traj.breaks[:-1, None] + tau[None, :] * traj.durations[:, None]).reshape(-1)
-    p = traj.evaluate(t, 0)
-    legs = np.repeat(seg_leg, n)
-    dev = corridor_deviation(p, wp, legs, acceptance_m)
-    return np.asarray((dev > corridor_m).reshape(-1, n).any(axis=1), dtype=np.bool_)
+    i = np.arange(degree + 1)
+    comb = np.array([math.comb(degree, int(k)) for k in i], dtype=np.float64)
+    out = comb[None, :] * tau[:, None] ** i[None, :] * (1.0 - tau[:, None]) ** (degree - i)[None, :]
+    out.setflags(write=False)
+    return out
+
+
+def _segment_grid_points(traj: PiecewiseBezier, n: int) -> FloatArray:
+    """Positions (M, n, d) of every segment at the normalised times (k + 0.5) / n."""
+    cp = traj.control_points
+    m, n1, d = cp.shape
+    vals = thin_matmul(_midpoint_basis(n1 - 1, n), cp.transpose(1, 0, 2).reshape(n1, m * d))
+    return np.ascontiguousarray(vals.reshape(n, m, d).transpose(1, 0, 2))
 
 
 #: Joints placed on a leg with a cruise part, at these multiples of the distance the
