@@ -132,6 +132,7 @@ BODY_RATE_JERK_PROXY = 0.8
 #: LOCAL_STRETCH_FINISH (worst limit ratio) a uniform scaling by the excess ends it.
 LOCAL_STRETCH_PASSES = 25
 LOCAL_STRETCH_FINISH = 1.01
+LOCAL_STRETCH_FINISH_TRIES = 3
 #: Slack passes after the saturation (multirotor): segments whose worst limit ratio is below
 #: SHRINK_SLACK are shortened by max(ratio, SHRINK_MIN_FACTOR) per pass.
 SHRINK_PASSES = 6
@@ -1125,10 +1126,20 @@ class _Planner:
                 return None  # the path balloons between unequal segments: scale uniformly
             if worst < LOCAL_STRETCH_FINISH:
                 # a few segments just over: a uniform scaling by the excess finishes it (the
-                # local passes can circle around such small excesses for many passes)
-                done = h * (worst * 1.001)
-                if self._max_ratio(done, limits, params)[0] <= 1.0:
-                    return done
+                # local passes can circle around such small excesses for many passes); the
+                # excess from the dense samples (the coarse look can miss part of it)
+                # (a scaling that leaves a small excess is scaled again by it)
+                worst, per_seg = self._max_ratio(h, limits, params)
+                if worst <= 1.0:
+                    return h
+                done, w = h, worst
+                for _ in range(LOCAL_STRETCH_FINISH_TRIES):
+                    done = done * (w * 1.001)
+                    w = self._max_ratio(done, limits, params)[0]
+                    if w <= 1.0:
+                        return done
+                    if w >= LOCAL_STRETCH_FINISH:
+                        break
             bad = per_seg > 1.0
             grow = np.where(bad, np.sqrt(np.minimum(per_seg, 2.25)) * 1.002, 1.0)
             spread = np.where(bad, np.sqrt(grow), 1.0)
