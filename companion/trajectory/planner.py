@@ -860,6 +860,11 @@ class _Planner:
         self.yaw = yaw
         self.yaw_wp = yaw_wp
         self.solves = 0
+        #: (samples per segment, smallest uniform stretch factor) of the last ratio check
+        self._stretch_floor: tuple[int, float] = (0, 0.0)
+        #: lower bound of the uniform scaling factor of the durations the last local stretch
+        #: started from (0 when unknown)
+        self._uniform_floor = 0.0
         #: the per-waypoint yaw channel's banded system (same structure at every build)
         self._yaw_systems: dict[str, _System] = {}
 
@@ -1077,6 +1082,16 @@ class _Planner:
                 / ALLOCATION_MARGIN
             )
         per_seg = np.max(np.stack(list(ratios.values())), axis=0)
+        # the smallest uniform stretch these samples could pass with: speeds fall as 1 / k,
+        # accelerations as 1 / k^2, jerks as 1 / k^3 (see _uniform_scale's lower bound)
+        powers = {"speed": 1.0, "vel_axes": 1.0, "acc": 2.0, "acc_axes": 2.0, "jerk": 3.0}
+        self._stretch_floor = (
+            smp.vel.shape[0] // max(m, 1),
+            max(
+                (float(np.max(ratios[k])) ** (1.0 / p) for k, p in powers.items() if k in ratios),
+                default=0.0,
+            ),
+        )
         return float(np.max(per_seg)), per_seg
 
     def _saturate(self, h: FloatArray, limits: Limits | RoverLimits, params: Any) -> FloatArray:
@@ -1085,7 +1100,14 @@ class _Planner:
         limit is still exceeded (feasibility pass). Multirotor: first try stretching only
         the segments over a limit (a tight corner then slows only its own neighbourhood); kept
         when it ends feasible and shorter than the uniform scaling."""
-        local = self._local_stretch(h, limits, params) if isinstance(limits, Limits) else None
+        local = None
+        floor = 0.0
+        if isinstance(limits, Limits):
+            local = self._local_stretch(h, limits, params)
+            floor = self._uniform_floor
+        if local is not None and float(local.sum()) < float(h.sum()) * floor:
+            # the uniform scaling cannot beat it: its factor is at least `floor`
+            return local
         h_uniform = h = h * self._uniform_scale(h, limits, params)
         if local is not None and float(local.sum()) < float(h.sum()):
             return local
@@ -1117,8 +1139,15 @@ class _Planner:
         """Stretch only the segments over a limit (and their neighbours a little) until the
         plan is feasible; None if that does not converge within ``LOCAL_STRETCH_PASSES``."""
         best = math.inf
-        for _ in range(LOCAL_STRETCH_PASSES):
+        self._uniform_floor = 0.0
+        for npass in range(LOCAL_STRETCH_PASSES):
             worst, per_seg = self._max_ratio(h, limits, params, coarse=True)
+            if npass == 0 and self.homogeneous and self._stretch_floor[0] == (
+                BISECTION_SAMPLES_PER_SEGMENT
+            ):
+                # the samples of the uniform scaling's bisection (same grid): the factor it
+                # finds is at least the floor of their speed, acceleration and jerk ratios
+                self._uniform_floor = self._stretch_floor[1]
             if worst <= 1.0:
                 return h
             best = min(best, worst)
