@@ -1540,12 +1540,22 @@ def _plan_corridor(
     return planner, traj, cost, seg_leg, is_wp, solves + planner.solves
 
 
+def segment_distances(p: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
+    """Distance [m] of points `p` to the segments `a`-`b`, all (..., d) and broadcast
+    together over the leading axes (projection clamped to the segment; a zero-length segment
+    is its point)."""
+    ab = b - a
+    den = np.einsum("...d,...d->...", ab, ab)
+    rel = p - a
+    t = np.einsum("...d,...d->...", rel, ab) / np.where(den > 0.0, den, 1.0)
+    t = np.where(den > 0.0, np.clip(t, 0.0, 1.0), 0.0)
+    diff = rel - t[..., None] * ab
+    return np.asarray(np.sqrt(np.einsum("...d,...d->...", diff, diff)), dtype=np.float64)
+
+
 def point_segment_distance(p: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
     """Distance (N,) of the points p (N, d) to the segment a-b [m]."""
-    ab = b - a
-    den = float(ab @ ab)
-    t = np.zeros(p.shape[0]) if den <= 0.0 else np.clip((p - a) @ ab / den, 0.0, 1.0)
-    return np.asarray(np.linalg.norm(p - (a + t[:, None] * ab), axis=1), dtype=np.float64)
+    return segment_distances(p, a[None, :], b[None, :])
 
 
 def corridor_deviation(
@@ -1560,18 +1570,11 @@ def corridor_deviation(
     n_legs = wp.shape[0] - 1
     acc = np.asarray(acceptance_m, dtype=np.float64)
     best = np.full(p.shape[0], np.inf)
-    ab_all = np.diff(wp, axis=0)
-    den_all = np.einsum("ij,ij->i", ab_all, ab_all)
     for off in (-1, 0, 1):
         other = legs + off
         ok = (other >= 0) & (other < n_legs)
         oc = np.clip(other, 0, max(n_legs - 1, 0))
-        a, ab, den = wp[oc], ab_all[oc], den_all[oc]
-        rel = p - a
-        t = np.einsum("ij,ij->i", rel, ab) / np.where(den > 0.0, den, 1.0)
-        t = np.where(den > 0.0, np.clip(t, 0.0, 1.0), 0.0)
-        diff = rel - t[:, None] * ab
-        dist = np.sqrt(np.einsum("ij,ij->i", diff, diff))
+        dist = segment_distances(p, wp[oc], wp[oc + 1])
         best = np.where(ok, np.minimum(best, dist), best)
     for w in (legs, legs + 1):
         diff = p - wp[w]
@@ -1599,14 +1602,7 @@ def _corridor_breaches(
     cc = np.clip(cand, 0, max(n_legs - 1, 0))
     dev = np.full(p.shape[:2], np.inf)
     for k in range(3):
-        a = wp[cc[:, k]]  # (M, d)
-        ab = wp[cc[:, k] + 1] - a
-        den = np.einsum("md,md->m", ab, ab)
-        rel = p - a[:, None, :]
-        t = np.einsum("mnd,md->mn", rel, ab) / np.where(den > 0.0, den, 1.0)[:, None]
-        t = np.where((den > 0.0)[:, None], np.clip(t, 0.0, 1.0), 0.0)
-        rel -= t[:, :, None] * ab[:, None, :]
-        dist = np.sqrt(np.einsum("mnd,mnd->mn", rel, rel))
+        dist = segment_distances(p, wp[cc[:, k]][:, None, :], wp[cc[:, k] + 1][:, None, :])
         np.minimum(dev, np.where(ok[:, k : k + 1], dist, np.inf), out=dev)
     out = dev > corridor_m
     for w in (seg_leg, seg_leg + 1):
