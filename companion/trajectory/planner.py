@@ -36,8 +36,19 @@ durations: the maxima come from the critical points of each segment's polynomial
 rate scale by 1/k and lateral acceleration by 1/k^2 (``_Planner._rover_stretch``), so the
 result always exists and meets every limit.
 
-Cost (100 waypoints, 297 segments, all multirotor limits): about 55 fixed-duration solves, each
-with one penalty evaluation of 8 samples per segment. All samples of all segments are evaluated
+Corridor (``corridor_m``, multirotor). The segments that leave the corridor are split in three
+on their leg; the split is decided on the refinement's durations (before the saturation, which
+rescales them mostly uniformly and so keeps the path's shape), and the refinement of the new
+joint set is warm-started from the previous durations (a split segment's duration shared by
+its pieces), for as many iterations as the share of split segments calls for
+(``_warm_iterations``); the saturation then runs once, and a path that still leaves the
+corridor after it is split and re-allocated again (warm-started).
+
+Cost. One refinement is capped at ``REFINE_WORK_BUDGET`` iterations x segments (plans of up to
+300 segments get the full ``REFINE_MAXITER``). The feasibility passes look at 16 samples per
+segment first and at the dense ``limits.SAMPLES_PER_SEGMENT`` only when those pass. 100
+waypoints, 297 segments, all multirotor limits: about 55 fixed-duration solves, each with one
+penalty evaluation of 8 samples per segment. All samples of all segments are evaluated
 with one matrix product per step (no per-segment Python loops, no multi-threaded BLAS), and the
 body rate goes through the flatness map only at samples where a cheap attitude-free upper bound
 (``limits._body_rate_bound``) comes within the margin of the limit. See BENCHMARKS.md
@@ -1736,8 +1747,10 @@ def plan(
       ``limits.max_speed_m_s``; used by the time allocation.
     - ``corridor_m`` (time allocation only): keep the path within this distance [m] of the
       straight legs, except inside a waypoint's ``acceptance_m`` (M,) radius [m] (default 0):
-      segments that leave it are split at a joint on their leg and the plan is redone (at
-      most ``CORRIDOR_PASSES`` times; ValueError if it still leaves it).
+      segments that leave it are split in three on their leg (multirotor: checked on the
+      refinement's durations, each pass warm-started from the previous ones, then one
+      saturation and a final check; at most ``CORRIDOR_PASSES`` passes before and after the
+      saturation; ValueError if it still leaves it).
     - ``pieces``: segments per waypoint leg. Default 1 with ``durations``; with time
       allocation ``ALLOCATION_PIECES`` (3) under :class:`Limits`: the extra joints lie on the
       straight leg between the waypoints (at 1/3 and 2/3), which keeps the path close to the
