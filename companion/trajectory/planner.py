@@ -1394,70 +1394,66 @@ CORRIDOR_PASSES = 6
 CORRIDOR_SAMPLES_PER_SEGMENT = 24
 
 
-def _joint_planner(
-    wp: FloatArray,
-    fracs: list[list[float]],
-    s: int,
-    start_spec: dict[int, FloatArray | None],
-    end_spec: dict[int, FloatArray | None],
-    interior: dict[int, dict[int, FloatArray | None]],
-    yaw: YawSpec,
-    yaw_wp: FloatArray | None,
-    caps: FloatArray | None,
-    limits: Limits | RoverLimits | None,
-) -> tuple[_Planner, NDArray[np.intp], NDArray[np.bool_]]:
-    """The planner through `wp` with extra joints on each straight leg at the fractions
-    `fracs[leg]` (each list starts with 0): (planner, leg of each segment, which joints are
-    waypoints)."""
-    d = wp.shape[1]
-    pts: list[FloatArray] = []
-    seg_leg: list[int] = []
-    for leg, f in enumerate(fracs):
-        fa = np.asarray(f, dtype=np.float64)
-        pts.append(wp[leg][None, :] + fa[:, None] * (wp[leg + 1] - wp[leg])[None, :])
-        seg_leg += [leg] * len(f)
-    joints = np.concatenate([*pts, wp[-1:]]).reshape(-1, d)
-    is_waypoint = np.zeros(joints.shape[0], dtype=bool)
-    starts = np.concatenate([[0], np.cumsum([len(f) for f in fracs])]).astype(np.intp)
-    is_waypoint[starts] = True
-    interior_j = {int(starts[idx]): spec for idx, spec in interior.items()}
-    seg_leg_a = np.asarray(seg_leg, dtype=np.intp)
-    scale: FloatArray | None = None
-    if caps is not None and limits is not None and caps.shape[0] == len(fracs):
-        scale = np.minimum(caps / limits.max_speed_m_s, 1.0)[seg_leg_a]
-    planner = _Planner(
-        joints, is_waypoint, s, start_spec, end_spec, interior_j, yaw, yaw_wp, speed_scale=scale
-    )
-    return planner, seg_leg_a, is_waypoint
+@dataclass(frozen=True)
+class _Problem:
+    """What stays fixed while joints are added on the legs: the waypoints `wp`, the half order
+    `s`, the start / end / interior derivative specs, the yaw spec, the per-leg speed caps and
+    the limits."""
 
+    wp: FloatArray
+    s: int
+    start: dict[int, FloatArray | None]
+    end: dict[int, FloatArray | None]
+    interior: dict[int, dict[int, FloatArray | None]]
+    yaw: YawSpec
+    yaw_wp: FloatArray | None
+    caps: FloatArray | None
+    limits: Limits | RoverLimits | None
 
-def _plan_joints(
-    wp: FloatArray,
-    fracs: list[list[float]],
-    s: int,
-    start_spec: dict[int, FloatArray | None],
-    end_spec: dict[int, FloatArray | None],
-    interior: dict[int, dict[int, FloatArray | None]],
-    yaw: YawSpec,
-    yaw_wp: FloatArray | None,
-    caps: FloatArray | None,
-    limits: Limits | RoverLimits | None,
-    params: Any,
-    h_in: FloatArray | None,
-) -> tuple[_Planner, PiecewiseBezier, float, NDArray[np.intp], NDArray[np.bool_]]:
-    """Plan through `wp` with extra joints on each straight leg at the fractions `fracs[leg]`
-    (each list starts with 0): (planner, trajectory, cost, leg of each segment, which joints
-    are waypoints)."""
-    planner, seg_leg_a, is_waypoint = _joint_planner(
-        wp, fracs, s, start_spec, end_spec, interior, yaw, yaw_wp, caps, limits
-    )
-    if h_in is None:
-        assert limits is not None
-        h = planner.allocate(limits, params)
-    else:
-        h = h_in
-    traj, cost = planner.build(h)
-    return planner, traj, cost, seg_leg_a, is_waypoint
+    def planner(
+        self, fracs: list[list[float]]
+    ) -> tuple[_Planner, NDArray[np.intp], NDArray[np.bool_]]:
+        """The planner with extra joints on each straight leg at the fractions `fracs[leg]`
+        (each list starts with 0): (planner, leg of each segment, which joints are
+        waypoints)."""
+        wp = self.wp
+        d = wp.shape[1]
+        pts: list[FloatArray] = []
+        seg_leg: list[int] = []
+        for leg, f in enumerate(fracs):
+            fa = np.asarray(f, dtype=np.float64)
+            pts.append(wp[leg][None, :] + fa[:, None] * (wp[leg + 1] - wp[leg])[None, :])
+            seg_leg += [leg] * len(f)
+        joints = np.concatenate([*pts, wp[-1:]]).reshape(-1, d)
+        is_waypoint = np.zeros(joints.shape[0], dtype=bool)
+        starts = np.concatenate([[0], np.cumsum([len(f) for f in fracs])]).astype(np.intp)
+        is_waypoint[starts] = True
+        interior_j = {int(starts[idx]): spec for idx, spec in self.interior.items()}
+        seg_leg_a = np.asarray(seg_leg, dtype=np.intp)
+        scale: FloatArray | None = None
+        caps, limits = self.caps, self.limits
+        if caps is not None and limits is not None and caps.shape[0] == len(fracs):
+            scale = np.minimum(caps / limits.max_speed_m_s, 1.0)[seg_leg_a]
+        planner = _Planner(
+            joints, is_waypoint, self.s, self.start, self.end, interior_j, self.yaw,
+            self.yaw_wp, speed_scale=scale,
+        )
+        return planner, seg_leg_a, is_waypoint
+
+    def plan(
+        self, fracs: list[list[float]], params: Any, h_in: FloatArray | None
+    ) -> tuple[_Planner, PiecewiseBezier, float, NDArray[np.intp], NDArray[np.bool_]]:
+        """Plan with the joints of :meth:`planner` (durations `h_in`, or allocated under the
+        limits): (planner, trajectory, cost, leg of each segment, which joints are
+        waypoints)."""
+        planner, seg_leg_a, is_waypoint = self.planner(fracs)
+        if h_in is None:
+            assert self.limits is not None
+            h = planner.allocate(self.limits, params)
+        else:
+            h = h_in
+        traj, cost = planner.build(h)
+        return planner, traj, cost, seg_leg_a, is_waypoint
 
 
 def _split_breaches(
@@ -1486,15 +1482,8 @@ def _split_breaches(
 
 
 def _plan_corridor(
-    wp: FloatArray,
+    problem: _Problem,
     fracs: list[list[float]],
-    s: int,
-    start_spec: dict[int, FloatArray | None],
-    end_spec: dict[int, FloatArray | None],
-    interior: dict[int, dict[int, FloatArray | None]],
-    yaw: YawSpec,
-    yaw_wp: FloatArray | None,
-    caps: FloatArray | None,
     limits: Limits,
     params: Any,
     corridor_m: float,
@@ -1509,10 +1498,8 @@ def _plan_corridor(
     durations, then the saturation runs once. Should the saturated path still leave the
     corridor, the segments are split again and the allocation redone (warm-started), at most
     ``CORRIDOR_PASSES`` times each; ValueError if it still leaves it."""
-    args = (wp, s, start_spec, end_spec, interior, yaw, yaw_wp, caps, limits)
-
-    def planner_of(fr: list[list[float]]) -> tuple[_Planner, NDArray[np.intp], NDArray[np.bool_]]:
-        return _joint_planner(wp, fr, *args[1:])
+    wp = problem.wp
+    planner_of = problem.planner
 
     def breaches(traj: PiecewiseBezier, seg_leg: NDArray[np.intp]) -> NDArray[np.bool_]:
         return _corridor_breaches(traj, wp, seg_leg, corridor_m, acc_j)
@@ -2027,17 +2014,14 @@ def plan_with_info(
                 if 0.0 < e < 1.0 and min(abs(e - x) for x in [*f, 1.0]) * lengths[leg] > 0.5:
                     f.append(float(e))
             fracs[leg] = sorted(f)
+    problem = _Problem(wp, s, start_spec, end_spec, interior, yaw, yaw_wp, caps_in, limits)
     if acc_j is not None and h_in is None and isinstance(limits, Limits):
         assert corridor_m is not None
         planner, traj, cost, seg_leg, is_waypoint, solves = _plan_corridor(
-            wp, fracs, s, start_spec, end_spec, interior, yaw, yaw_wp, caps_in, limits, params,
-            float(corridor_m), acc_j,
+            problem, fracs, limits, params, float(corridor_m), acc_j
         )
     else:
-        planner, traj, cost, seg_leg, is_waypoint = _plan_joints(
-            wp, fracs, s, start_spec, end_spec, interior, yaw, yaw_wp, caps_in, limits, params,
-            h_in,
-        )
+        planner, traj, cost, seg_leg, is_waypoint = problem.plan(fracs, params, h_in)
         solves = planner.solves
     if acc_j is not None and not isinstance(limits, Limits):
         # rover: each refinement re-runs the (exact-extrema) allocation
@@ -2047,10 +2031,7 @@ def plan_with_info(
             if not bad.any():
                 break
             fracs, _ = _split_breaches(fracs, seg_leg, bad)
-            planner, traj, cost, seg_leg, is_waypoint = _plan_joints(
-                wp, fracs, s, start_spec, end_spec, interior, yaw, yaw_wp, caps_in, limits,
-                params, h_in
-            )
+            planner, traj, cost, seg_leg, is_waypoint = problem.plan(fracs, params, h_in)
             solves += planner.solves
         else:
             if _corridor_breaches(traj, wp, seg_leg, float(corridor_m), acc_j).any():

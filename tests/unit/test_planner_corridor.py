@@ -20,7 +20,7 @@ from companion.trajectory.planner import (
     REFINE_MIN_ITER,
     REFINE_WORK_BUDGET,
     _corridor_breaches,
-    _joint_planner,
+    _Problem,
     _split_breaches,
     refine_iterations,
 )
@@ -176,7 +176,7 @@ def test_coarse_feasibility_look_gives_the_dense_verdict(seed: int) -> None:
     rng = np.random.default_rng(20 + seed)
     wp = zigzag(rng, 6)
     fracs = [[0.0, 1.0 / 3.0, 2.0 / 3.0] for _ in range(len(wp) - 1)]
-    planner, _, _ = _joint_planner(wp, fracs, 4, {}, {}, {}, None, None, None, LIMITS)
+    planner, _, _ = _Problem(wp, 4, {}, {}, {}, None, None, None, LIMITS).planner(fracs)
     h = planner.refined(LIMITS, PARAMS)
     seen = set()
     for k in np.linspace(0.8, 1.6, 17):
