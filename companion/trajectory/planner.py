@@ -273,8 +273,10 @@ class _System:
         self,
         h: FloatArray,
         fit: tuple[FloatArray, FloatArray] | None = None,
+        with_cost: bool = True,
     ) -> tuple[FloatArray, float]:
-        """Joint derivatives x (n_joints * s, d, read-only) and cost J for durations h (M,).
+        """Joint derivatives x (n_joints * s, d, read-only) and cost J for durations h (M,)
+        (NaN without ``with_cost``).
 
         ``fit = (R, g)`` adds a per-segment quadratic data term ``x_k^T R_k x_k - 2 g_k . x_k``
         (R (M, 2s, 2s), g (M, 2s, d)) to the objective (same band structure); the returned
@@ -318,7 +320,7 @@ class _System:
             z, info = _PBTRS(cb, rhs * sc[:, None], lower=0)
             x[self.free_idx] = z * sc[:, None]
         xk = self.windows(x)
-        cost = float(np.einsum("mad,mad->", xk, Q @ xk))
+        cost = float(np.einsum("mad,mad->", xk, Q @ xk)) if with_cost else math.nan
         x.setflags(write=False)  # its windows are cached
         self._windows = (x, xk)
         return x, cost
@@ -879,12 +881,14 @@ class _Planner:
         #: the per-waypoint yaw channel's banded system (same structure at every build)
         self._yaw_systems: dict[str, _System] = {}
 
-    def solve(self, h: FloatArray) -> tuple[FloatArray, float]:
+    def solve(self, h: FloatArray, with_cost: bool = True) -> tuple[FloatArray, float]:
         self.solves += 1
-        return self.system.solve(h)
+        return self.system.solve(h, with_cost=with_cost)
 
-    def build(self, h: FloatArray) -> tuple[PiecewiseBezier, float]:
-        x, cost = self.solve(h)
+    def build(self, h: FloatArray, with_cost: bool = True) -> tuple[PiecewiseBezier, float]:
+        """The trajectory (with its yaw channel) for durations h and its cost J (NaN without
+        ``with_cost``)."""
+        x, cost = self.solve(h, with_cost)
         cp = self.system.control_points(x, h)
         traj = PiecewiseBezier.from_control_points(cp, h)
         yaw_traj = _yaw_channel(
@@ -928,7 +932,7 @@ class _Planner:
 
     def position(self, h: FloatArray) -> PiecewiseBezier:
         """The position trajectory (no yaw channel) for durations h."""
-        x, _ = self.solve(h)
+        x, _ = self.solve(h, with_cost=False)
         return PiecewiseBezier.from_control_points(self.system.control_points(x, h), h)
 
     # ------------------------------------------------------------------ rover allocation
@@ -1060,7 +1064,7 @@ class _Planner:
         without it, on the dense ``limits.SAMPLES_PER_SEGMENT`` ones: a pass that only needs
         to know where to stretch skips the dense sampling, a feasible verdict is always the
         dense check's."""
-        traj, _ = self.build(h)
+        traj, _ = self.build(h, with_cost=False)
         m = h.shape[0]
         if coarse:
             worst, per_seg = self._ratio_of(
@@ -1222,7 +1226,7 @@ class _Planner:
         m = h.shape[0]
         if self.homogeneous:
             # coarse samples for the bisection; the feasibility pass re-checks densely
-            traj, _ = self.build(h)
+            traj, _ = self.build(h, with_cost=False)
             base = segment_samples(traj, limits, BISECTION_SAMPLES_PER_SEGMENT)
             if isinstance(limits, Limits):
                 per_sample = (
