@@ -811,11 +811,14 @@ def refine_iterations(segments: int, budget: float = REFINE_WORK_BUDGET) -> int:
 
 def _warm_iterations(bad: NDArray[np.bool_]) -> int:
     """Iteration cap of the warm-started refinement after splitting the segments flagged in
-    `bad`: the work budget in proportion to the share of segments split
-    (``REFINE_WARM_GAIN``), at least ``REFINE_WARM_FLOOR``."""
+    `bad`: all ``REFINE_MAXITER`` while the split plan is within the full work budget, else
+    the budget in proportion to the share of segments split (``REFINE_WARM_GAIN``), at least
+    ``REFINE_WARM_FLOOR``."""
+    new_segments = bad.shape[0] + 2 * int(np.count_nonzero(bad))
+    if refine_iterations(new_segments) >= REFINE_MAXITER:
+        return REFINE_MAXITER  # within the full budget anyway: every iteration
     frac = float(np.count_nonzero(bad)) / max(bad.shape[0], 1)
     budget = max(REFINE_WARM_FLOOR, REFINE_WORK_BUDGET * min(1.0, REFINE_WARM_GAIN * frac))
-    new_segments = bad.shape[0] + 2 * int(np.count_nonzero(bad))
     return refine_iterations(new_segments, budget)
 
 
