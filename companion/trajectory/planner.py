@@ -120,9 +120,9 @@ REFINE_WORK_BUDGET = 13_500
 REFINE_MIN_ITER = 10
 
 
-#: Warm-started refinement after a corridor split: the work budget times this multiple of
-#: the share of segments split, at least REFINE_WARM_FLOOR (plans of up to 150 segments
-#: keep every iteration).
+#: Warm-started refinement after a corridor split of a plan over the full work budget: the
+#: budget times this multiple of the share of segments split, at least REFINE_WARM_FLOOR
+#: (plans within the budget keep every iteration, see ``_warm_iterations``).
 REFINE_WARM_GAIN = 3.0
 REFINE_WARM_FLOOR = 6_750
 #: yaw="velocity": heading samples per segment and smoothing time as a fraction of the median
@@ -143,6 +143,7 @@ BODY_RATE_JERK_PROXY = 0.8
 #: LOCAL_STRETCH_FINISH (worst limit ratio) a uniform scaling by the excess ends it.
 LOCAL_STRETCH_PASSES = 25
 LOCAL_STRETCH_FINISH = 1.01
+#: Uniform rescalings by the remaining excess tried when finishing a local stretch.
 LOCAL_STRETCH_FINISH_TRIES = 3
 #: Slack passes after the saturation (multirotor): segments whose worst limit ratio is below
 #: SHRINK_SLACK are shortened by max(ratio, SHRINK_MIN_FACTOR) per pass.
@@ -930,7 +931,7 @@ class _Planner:
         the refined durations of a coarser joint set, a split segment's duration shared by its
         pieces); the objective (its weights and box) stays the one set by the trapezoid guess,
         only the starting point changes. ``maxiter``: iteration cap (default
-        ``REFINE_MAXITER``)."""
+        :func:`refine_iterations` of the number of segments)."""
         return self._refine(self._initial_guess(limits), limits, params, start, maxiter)
 
     def position(self, h: FloatArray) -> PiecewiseBezier:
