@@ -33,7 +33,7 @@ from companion.trajectory.bound import (
     time_optimal_duration,
     time_optimal_profile,
 )
-from companion.trajectory.planner import point_segment_distance, velocity_heading
+from companion.trajectory.planner import segment_distances, velocity_heading
 
 _log = logging.getLogger("companion.schedule")
 
@@ -409,13 +409,13 @@ def _segment_caps(traj: PiecewiseBezier, pts: FloatArray, caps: FloatArray) -> F
     mid = traj.evaluate(traj.breaks[:-1] + 0.5 * traj.durations, 0)
     d = pts.shape[1] if mid.shape[1] >= pts.shape[1] else mid.shape[1]
     mid, legs = mid[:, :d], pts[:, :d]
-    best = np.full(mid.shape[0], np.inf)
     out = np.full(mid.shape[0], float(np.max(caps)))
-    for a, b, c in zip(legs[:-1], legs[1:], caps, strict=True):
-        dist = point_segment_distance(mid, a, b)
-        closer = dist < best
-        best[closer] = dist[closer]
-        out[closer] = c
+    # all midpoints against all legs, in blocks of about 2^18 pairs; the first nearest leg
+    step = max(1, (1 << 18) // max(len(legs) - 1, 1))
+    for i in range(0, mid.shape[0], step):
+        dist = segment_distances(mid[i:i + step, None, :], legs[None, :-1], legs[None, 1:])
+        if dist.shape[1]:
+            out[i:i + step] = caps[np.argmin(dist, axis=1)]
     return out
 
 

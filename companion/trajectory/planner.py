@@ -36,8 +36,19 @@ durations: the maxima come from the critical points of each segment's polynomial
 rate scale by 1/k and lateral acceleration by 1/k^2 (``_Planner._rover_stretch``), so the
 result always exists and meets every limit.
 
-Cost (100 waypoints, 297 segments, all multirotor limits): about 55 fixed-duration solves, each
-with one penalty evaluation of 8 samples per segment. All samples of all segments are evaluated
+Corridor (``corridor_m``, multirotor). The segments that leave the corridor are split in three
+on their leg; the split is decided on the refinement's durations (before the saturation, which
+rescales them mostly uniformly and so keeps the path's shape), and the refinement of the new
+joint set is warm-started from the previous durations (a split segment's duration shared by
+its pieces), for as many iterations as the share of split segments calls for
+(``_warm_iterations``); the saturation then runs once, and a path that still leaves the
+corridor after it is split and re-allocated again (warm-started).
+
+Cost. One refinement is capped at ``REFINE_WORK_BUDGET`` iterations x segments (plans of up to
+300 segments get the full ``REFINE_MAXITER``). The feasibility passes look at 16 samples per
+segment first and at the dense ``limits.SAMPLES_PER_SEGMENT`` only when those pass. 100
+waypoints, 297 segments, all multirotor limits: about 55 fixed-duration solves, each with one
+penalty evaluation of 8 samples per segment. All samples of all segments are evaluated
 with one matrix product per step (no per-segment Python loops, no multi-threaded BLAS), and the
 body rate goes through the flatness map only at samples where a cheap attitude-free upper bound
 (``limits._body_rate_bound``) comes within the margin of the limit. See BENCHMARKS.md
@@ -101,10 +112,25 @@ ROVER_ALLOCATION_PIECES = 1
 #: the uniform scaling again; kept only while the total duration drops.
 ROVER_LOCAL_PASSES = 6
 REFINE_FTOL = 1e-5
+#: Work cap of one multirotor refinement: iterations x segments (each iteration costs a
+#: banded solve and a penalty evaluation per segment). Plans of up to
+#: REFINE_WORK_BUDGET / REFINE_MAXITER segments get REFINE_MAXITER iterations; larger ones
+#: fewer, at least REFINE_MIN_ITER (planning time stays bounded on long missions).
+REFINE_WORK_BUDGET = 13_500
+REFINE_MIN_ITER = 10
+
+
+#: Warm-started refinement after a corridor split of a plan over the full work budget: the
+#: budget times this multiple of the share of segments split, at least REFINE_WARM_FLOOR
+#: (plans within the budget keep every iteration, see ``_warm_iterations``).
+REFINE_WARM_GAIN = 3.0
+REFINE_WARM_FLOOR = 6_750
 #: yaw="velocity": heading samples per segment and smoothing time as a fraction of the median
 #: segment duration (see ``_heading_fit``).
 HEADING_SAMPLES_PER_SEGMENT = 16
 VELOCITY_YAW_SMOOTHING = 0.1
+#: Samples per segment of the feasibility passes' first look (see ``_Planner._max_ratio``).
+COARSE_SAMPLES_PER_SEGMENT = 16
 #: Samples per segment while bisecting the common time scale (final checks use more).
 BISECTION_SAMPLES_PER_SEGMENT = 16
 #: The multirotor feasibility pass stretches the offending segments only while the worst
@@ -117,6 +143,8 @@ BODY_RATE_JERK_PROXY = 0.8
 #: LOCAL_STRETCH_FINISH (worst limit ratio) a uniform scaling by the excess ends it.
 LOCAL_STRETCH_PASSES = 25
 LOCAL_STRETCH_FINISH = 1.01
+#: Uniform rescalings by the remaining excess tried when finishing a local stretch.
+LOCAL_STRETCH_FINISH_TRIES = 3
 #: Slack passes after the saturation (multirotor): segments whose worst limit ratio is below
 #: SHRINK_SLACK are shortened by max(ratio, SHRINK_MIN_FACTOR) per pass.
 SHRINK_PASSES = 6
@@ -246,8 +274,10 @@ class _System:
         self,
         h: FloatArray,
         fit: tuple[FloatArray, FloatArray] | None = None,
+        with_cost: bool = True,
     ) -> tuple[FloatArray, float]:
-        """Joint derivatives x (n_joints * s, d, read-only) and cost J for durations h (M,).
+        """Joint derivatives x (n_joints * s, d, read-only) and cost J for durations h (M,)
+        (NaN without ``with_cost``).
 
         ``fit = (R, g)`` adds a per-segment quadratic data term ``x_k^T R_k x_k - 2 g_k . x_k``
         (R (M, 2s, 2s), g (M, 2s, d)) to the objective (same band structure); the returned
@@ -291,7 +321,7 @@ class _System:
             z, info = _PBTRS(cb, rhs * sc[:, None], lower=0)
             x[self.free_idx] = z * sc[:, None]
         xk = self.windows(x)
-        cost = float(np.einsum("mad,mad->", xk, Q @ xk))
+        cost = float(np.einsum("mad,mad->", xk, Q @ xk)) if with_cost else math.nan
         x.setflags(write=False)  # its windows are cached
         self._windows = (x, xk)
         return x, cost
@@ -774,6 +804,25 @@ class PlanResult:
     solves: int
 
 
+def refine_iterations(segments: int, budget: float = REFINE_WORK_BUDGET) -> int:
+    """L-BFGS iteration cap of a multirotor refinement over `segments` segments with the work
+    `budget` (iterations x segments)."""
+    return max(REFINE_MIN_ITER, min(REFINE_MAXITER, int(budget) // max(segments, 1)))
+
+
+def _warm_iterations(bad: NDArray[np.bool_]) -> int:
+    """Iteration cap of the warm-started refinement after splitting the segments flagged in
+    `bad`: all ``REFINE_MAXITER`` while the split plan is within the full work budget, else
+    the budget in proportion to the share of segments split (``REFINE_WARM_GAIN``), at least
+    ``REFINE_WARM_FLOOR``."""
+    new_segments = bad.shape[0] + 2 * int(np.count_nonzero(bad))
+    if refine_iterations(new_segments) >= REFINE_MAXITER:
+        return REFINE_MAXITER  # within the full budget anyway: every iteration
+    frac = float(np.count_nonzero(bad)) / max(bad.shape[0], 1)
+    budget = max(REFINE_WARM_FLOOR, REFINE_WORK_BUDGET * min(1.0, REFINE_WARM_GAIN * frac))
+    return refine_iterations(new_segments, budget)
+
+
 def _stretch_factors(per_seg: FloatArray) -> FloatArray:
     """Duration factors of one feasibility pass: each segment over a limit grows by its ratio
     (at most 1.5), its neighbours by 0.2 %."""
@@ -828,32 +877,67 @@ class _Planner:
         self.yaw = yaw
         self.yaw_wp = yaw_wp
         self.solves = 0
+        #: (samples per segment, smallest uniform stretch factor) of the last ratio check
+        self._stretch_floor: tuple[int, float] = (0, 0.0)
+        #: lower bound of the uniform scaling factor of the durations the last local stretch
+        #: started from (0 when unknown)
+        self._uniform_floor = 0.0
+        #: the per-waypoint yaw channel's banded system (same structure at every build)
+        self._yaw_systems: dict[str, _System] = {}
 
-    def solve(self, h: FloatArray) -> tuple[FloatArray, float]:
+    def solve(self, h: FloatArray, with_cost: bool = True) -> tuple[FloatArray, float]:
         self.solves += 1
-        return self.system.solve(h)
+        return self.system.solve(h, with_cost=with_cost)
 
-    def build(self, h: FloatArray) -> tuple[PiecewiseBezier, float]:
-        x, cost = self.solve(h)
+    def build(self, h: FloatArray, with_cost: bool = True) -> tuple[PiecewiseBezier, float]:
+        """The trajectory (with its yaw channel) for durations h and its cost J (NaN without
+        ``with_cost``)."""
+        x, cost = self.solve(h, with_cost)
         cp = self.system.control_points(x, h)
         traj = PiecewiseBezier.from_control_points(cp, h)
-        yaw_traj = _yaw_channel(traj, self.is_waypoint, h, self.s, self.yaw, self.yaw_wp)
+        yaw_traj = _yaw_channel(
+            traj, self.is_waypoint, h, self.s, self.yaw, self.yaw_wp, self._yaw_systems
+        )
         if yaw_traj is not None:
             traj = traj.with_yaw(yaw_traj)
         return traj, cost
 
     # ------------------------------------------------------------------ allocation
-    def allocate(self, limits: Limits | RoverLimits, params: Any) -> FloatArray:
-        """Durations (s) per segment: trapezoid guess, penalised refinement, saturation."""
-        joints = self.joints
+    def allocate(
+        self, limits: Limits | RoverLimits, params: Any, start: FloatArray | None = None
+    ) -> FloatArray:
+        """Durations (s) per segment: trapezoid guess, penalised refinement, saturation.
+        ``start`` (multirotor): warm start of the refinement (see :meth:`refined`)."""
+        if isinstance(limits, RoverLimits):
+            return self._allocate_rover(self._initial_guess(limits), limits)
+        return self._saturate(self.refined(limits, params, start), limits, params)
+
+    def _initial_guess(self, limits: Limits | RoverLimits) -> FloatArray:
+        """Trapezoidal-profile durations along the joints (s), see
+        :func:`_polyline_profile_durations`."""
         vmax = limits.max_speed_m_s
         amax = limits.max_lat_acc_m_s2 if isinstance(limits, RoverLimits) else limits.max_acc_m_s2
         seg_vmax = None if self.speed_scale is None else vmax * self.speed_scale
-        h0 = _polyline_profile_durations(joints, self.is_waypoint, vmax, amax, seg_vmax)
-        if isinstance(limits, RoverLimits):
-            return self._allocate_rover(h0, limits)
-        h = self._refine(h0, limits, params)
-        return self._saturate(h, limits, params)
+        return _polyline_profile_durations(self.joints, self.is_waypoint, vmax, amax, seg_vmax)
+
+    def refined(
+        self,
+        limits: Limits,
+        params: Any,
+        start: FloatArray | None = None,
+        maxiter: int | None = None,
+    ) -> FloatArray:
+        """The refinement's durations (s), before the saturation. ``start``: a warm start (e.g.
+        the refined durations of a coarser joint set, a split segment's duration shared by its
+        pieces); the objective (its weights and box) stays the one set by the trapezoid guess,
+        only the starting point changes. ``maxiter``: iteration cap (default
+        :func:`refine_iterations` of the number of segments)."""
+        return self._refine(self._initial_guess(limits), limits, params, start, maxiter)
+
+    def position(self, h: FloatArray) -> PiecewiseBezier:
+        """The position trajectory (no yaw channel) for durations h."""
+        x, _ = self.solve(h, with_cost=False)
+        return PiecewiseBezier.from_control_points(self.system.control_points(x, h), h)
 
     # ------------------------------------------------------------------ rover allocation
     def _rover_stretch(self, h: FloatArray, limits: RoverLimits) -> FloatArray:
@@ -926,15 +1010,23 @@ class _Planner:
             dtype=np.float64,
         )
 
-    def _refine(self, h0: FloatArray, limits: Limits | RoverLimits, params: Any) -> FloatArray:
+    def _refine(
+        self,
+        h0: FloatArray,
+        limits: Limits | RoverLimits,
+        params: Any,
+        start: FloatArray | None = None,
+        maxiter: int | None = None,
+    ) -> FloatArray:
         """Minimise ``sum(h) + rho J(h) + w P(h)`` over log-durations (projected L-BFGS) and the
         analytic gradient (envelope theorem for J, adjoint of the banded system for the
         sampled limit penalty P). rho is set relative to the initial guess (small: time
         dominates, the penalty keeps the limits). Rover: w = 0 (no P), see
-        ``_allocate_rover``."""
+        ``_allocate_rover``. ``start``: start the search there instead of at h0 (clipped to
+        the box around h0)."""
         _, j0 = self.solve(h0)
         if not np.isfinite(j0) or j0 <= 0.0:
-            return h0
+            return h0 if start is None else start
         t0 = float(h0.sum())
         rho = REFINE_RHO * t0 / ((2 * self.s - 1) * j0)
         rover = isinstance(limits, RoverLimits)
@@ -943,7 +1035,8 @@ class _Planner:
         )
         lz = np.log(h0)
         weight = REFINE_PENALTY_WEIGHT
-        maxiter = ROVER_REFINE_MAXITER if rover else REFINE_MAXITER
+        if maxiter is None:
+            maxiter = ROVER_REFINE_MAXITER if rover else refine_iterations(h0.shape[0])
 
         def fun(z: FloatArray) -> tuple[float, Callable[[], FloatArray]]:
             h = np.exp(z)
@@ -961,16 +1054,30 @@ class _Planner:
 
             return float(h.sum() + rho * j + weight * p) / t0, grad
 
-        z = _projected_lbfgs(fun, lz, lz - 3.0, lz + 3.0, maxiter, ftol=REFINE_FTOL)
+        z0 = lz if start is None else np.log(np.maximum(start, 1e-300))
+        z = _projected_lbfgs(fun, z0, lz - 3.0, lz + 3.0, maxiter, ftol=REFINE_FTOL)
         return np.exp(z)
 
     def _max_ratio(
-        self, h: FloatArray, limits: Limits | RoverLimits, params: Any
+        self, h: FloatArray, limits: Limits | RoverLimits, params: Any, coarse: bool = False
     ) -> tuple[float, FloatArray]:
-        """Largest value/limit ratio (with margin) over the trajectory and per segment."""
-        traj, _ = self.build(h)
+        """Largest value/limit ratio (with margin) over the trajectory and per segment.
+
+        ``coarse``: first on ``COARSE_SAMPLES_PER_SEGMENT`` samples per segment, returned when
+        they already exceed a limit (a sampled excess is an excess); otherwise, as always
+        without it, on the dense ``limits.SAMPLES_PER_SEGMENT`` ones: a pass that only needs
+        to know where to stretch skips the dense sampling, a feasible verdict is always the
+        dense check's."""
+        traj, _ = self.build(h, with_cost=False)
+        m = h.shape[0]
+        if coarse:
+            worst, per_seg = self._ratio_of(
+                segment_samples(traj, limits, COARSE_SAMPLES_PER_SEGMENT), m, limits, params
+            )
+            if worst > 1.0:
+                return worst, per_seg
         smp = segment_samples(traj, limits)
-        return self._ratio_of(smp, h.shape[0], limits, params)
+        return self._ratio_of(smp, m, limits, params)
 
     def _scale(self) -> FloatArray | float:
         """Per-segment speed scale (M,), or 1.0 without per-segment caps."""
@@ -994,6 +1101,16 @@ class _Planner:
                 / ALLOCATION_MARGIN
             )
         per_seg = np.max(np.stack(list(ratios.values())), axis=0)
+        # the smallest uniform stretch these samples could pass with: speeds fall as 1 / k,
+        # accelerations as 1 / k^2, jerks as 1 / k^3 (see _uniform_scale's lower bound)
+        powers = {"speed": 1.0, "vel_axes": 1.0, "acc": 2.0, "acc_axes": 2.0, "jerk": 3.0}
+        self._stretch_floor = (
+            smp.vel.shape[0] // max(m, 1),
+            max(
+                (float(np.max(ratios[k])) ** (1.0 / p) for k, p in powers.items() if k in ratios),
+                default=0.0,
+            ),
+        )
         return float(np.max(per_seg)), per_seg
 
     def _saturate(self, h: FloatArray, limits: Limits | RoverLimits, params: Any) -> FloatArray:
@@ -1002,14 +1119,21 @@ class _Planner:
         limit is still exceeded (feasibility pass). Multirotor: first try stretching only
         the segments over a limit (a tight corner then slows only its own neighbourhood); kept
         when it ends feasible and shorter than the uniform scaling."""
-        local = self._local_stretch(h, limits, params) if isinstance(limits, Limits) else None
+        local = None
+        floor = 0.0
+        if isinstance(limits, Limits):
+            local = self._local_stretch(h, limits, params)
+            floor = self._uniform_floor
+        if local is not None and float(local.sum()) < float(h.sum()) * floor:
+            # the uniform scaling cannot beat it: its factor is at least `floor`
+            return local
         h_uniform = h = h * self._uniform_scale(h, limits, params)
         if local is not None and float(local.sum()) < float(h.sum()):
             return local
         # feasibility pass on the real trajectory (re-solved, not scaled)
         best = math.inf  # the smallest worst ratio seen
         for _ in range(30):
-            worst, per_seg = self._max_ratio(h, limits, params)
+            worst, per_seg = self._max_ratio(h, limits, params, coarse=True)
             if worst <= 1.0:
                 return self._shrink(h, per_seg, limits, params)
             best = min(best, worst)
@@ -1023,7 +1147,7 @@ class _Planner:
         h = h_uniform
         for _ in range(60):
             h = h * 1.02
-            worst, per_seg = self._max_ratio(h, limits, params)
+            worst, per_seg = self._max_ratio(h, limits, params, coarse=True)
             if worst <= 1.0:
                 return self._shrink(h, per_seg, limits, params)
         raise ValueError("time allocation could not satisfy the limits (check their values)")
@@ -1034,8 +1158,15 @@ class _Planner:
         """Stretch only the segments over a limit (and their neighbours a little) until the
         plan is feasible; None if that does not converge within ``LOCAL_STRETCH_PASSES``."""
         best = math.inf
-        for _ in range(LOCAL_STRETCH_PASSES):
-            worst, per_seg = self._max_ratio(h, limits, params)
+        self._uniform_floor = 0.0
+        for npass in range(LOCAL_STRETCH_PASSES):
+            worst, per_seg = self._max_ratio(h, limits, params, coarse=True)
+            if npass == 0 and self.homogeneous and self._stretch_floor[0] == (
+                BISECTION_SAMPLES_PER_SEGMENT
+            ):
+                # the samples of the uniform scaling's bisection (same grid): the factor it
+                # finds is at least the floor of their speed, acceleration and jerk ratios
+                self._uniform_floor = self._stretch_floor[1]
             if worst <= 1.0:
                 return h
             best = min(best, worst)
@@ -1043,10 +1174,20 @@ class _Planner:
                 return None  # the path balloons between unequal segments: scale uniformly
             if worst < LOCAL_STRETCH_FINISH:
                 # a few segments just over: a uniform scaling by the excess finishes it (the
-                # local passes can circle around such small excesses for many passes)
-                done = h * (worst * 1.001)
-                if self._max_ratio(done, limits, params)[0] <= 1.0:
-                    return done
+                # local passes can circle around such small excesses for many passes); the
+                # excess from the dense samples (the coarse look can miss part of it)
+                # (a scaling that leaves a small excess is scaled again by it)
+                worst, per_seg = self._max_ratio(h, limits, params)
+                if worst <= 1.0:
+                    return h
+                done, w = h, worst
+                for _ in range(LOCAL_STRETCH_FINISH_TRIES):
+                    done = done * (w * 1.001)
+                    w = self._max_ratio(done, limits, params)[0]
+                    if w <= 1.0:
+                        return done
+                    if w >= LOCAL_STRETCH_FINISH:
+                        break
             bad = per_seg > 1.0
             grow = np.where(bad, np.sqrt(np.minimum(per_seg, 2.25)) * 1.002, 1.0)
             spread = np.where(bad, np.sqrt(grow), 1.0)
@@ -1070,7 +1211,7 @@ class _Planner:
                 break
             cand = best_h * np.where(slack, np.maximum(per_seg, SHRINK_MIN_FACTOR), 1.0)
             for _ in range(8):
-                worst, per_seg_c = self._max_ratio(cand, limits, params)
+                worst, per_seg_c = self._max_ratio(cand, limits, params, coarse=True)
                 if worst <= 1.0:
                     break
                 cand = cand * _stretch_factors(per_seg_c)
@@ -1089,7 +1230,7 @@ class _Planner:
         m = h.shape[0]
         if self.homogeneous:
             # coarse samples for the bisection; the feasibility pass re-checks densely
-            traj, _ = self.build(h)
+            traj, _ = self.build(h, with_cost=False)
             base = segment_samples(traj, limits, BISECTION_SAMPLES_PER_SEGMENT)
             if isinstance(limits, Limits):
                 per_sample = (
@@ -1157,9 +1298,16 @@ def _solve_1d(
     value_mask: NDArray[np.bool_] | None = None,
     mask_extra: NDArray[np.bool_] | None = None,
     vals_extra: FloatArray | None = None,
+    cache: dict[str, _System] | None = None,
 ) -> PiecewiseBezier:
     """1-D minimum-derivative channel through ``values`` at the joints where ``value_mask``
-    (default: all), at rest at both ends, plus extra fixed derivatives."""
+    (default: all), at rest at both ends, plus extra fixed derivatives. ``cache``: holds the
+    banded system under "1d" between calls with the same values, masks and number of joints
+    (the durations may change)."""
+    if cache is not None and "1d" in cache:
+        sys_c = cache["1d"]
+        x, _ = sys_c.solve(h)
+        return PiecewiseBezier.from_control_points(sys_c.control_points(x, h), h)
     n_j = values.shape[0]
     mask = np.zeros((n_j, s), dtype=bool)
     vals = np.zeros((n_j, s, 1))
@@ -1171,6 +1319,8 @@ def _solve_1d(
         mask |= mask_extra
         vals[mask_extra] = vals_extra[mask_extra]
     sys_ = _System(mask, vals, s)
+    if cache is not None:
+        cache["1d"] = sys_
     x, _ = sys_.solve(h)
     return PiecewiseBezier.from_control_points(sys_.control_points(x, h), h)
 
@@ -1224,7 +1374,10 @@ def _yaw_channel(
     s: int,
     yaw: YawSpec,
     yaw_wp: FloatArray | None,
+    cache: dict[str, _System] | None = None,
 ) -> PiecewiseBezier | None:
+    """The yaw channel of `traj` (durations h) for the yaw spec; ``cache`` (one per joint set
+    and yaw spec) keeps the per-waypoint channel's banded system between calls."""
     if yaw is None:
         return None
     m = h.shape[0]
@@ -1235,9 +1388,11 @@ def _yaw_channel(
     if yaw_wp.shape[0] == 1:
         cp = np.full((m, 2 * s, 1), float(yaw_wp[0]))
         return PiecewiseBezier.from_control_points(cp, h)
+    if cache is not None and "1d" in cache:
+        return _solve_1d(np.zeros(m + 1), h, s, cache=cache)  # the cached system has the values
     values = np.zeros(m + 1)
     values[is_waypoint] = _unwrap_sequence(yaw_wp)
-    return _solve_1d(values, h, s, is_waypoint)
+    return _solve_1d(values, h, s, is_waypoint, cache=cache)
 
 
 # =========================================================================== public API
@@ -1247,57 +1402,166 @@ CORRIDOR_PASSES = 6
 CORRIDOR_SAMPLES_PER_SEGMENT = 24
 
 
-def _plan_joints(
-    wp: FloatArray,
+@dataclass(frozen=True)
+class _Problem:
+    """What stays fixed while joints are added on the legs: the waypoints `wp`, the half order
+    `s`, the start / end / interior derivative specs, the yaw spec, the per-leg speed caps and
+    the limits."""
+
+    wp: FloatArray
+    s: int
+    start: dict[int, FloatArray | None]
+    end: dict[int, FloatArray | None]
+    interior: dict[int, dict[int, FloatArray | None]]
+    yaw: YawSpec
+    yaw_wp: FloatArray | None
+    caps: FloatArray | None
+    limits: Limits | RoverLimits | None
+
+    def planner(
+        self, fracs: list[list[float]]
+    ) -> tuple[_Planner, NDArray[np.intp], NDArray[np.bool_]]:
+        """The planner with extra joints on each straight leg at the fractions `fracs[leg]`
+        (each list starts with 0): (planner, leg of each segment, which joints are
+        waypoints)."""
+        wp = self.wp
+        d = wp.shape[1]
+        pts: list[FloatArray] = []
+        seg_leg: list[int] = []
+        for leg, f in enumerate(fracs):
+            fa = np.asarray(f, dtype=np.float64)
+            pts.append(wp[leg][None, :] + fa[:, None] * (wp[leg + 1] - wp[leg])[None, :])
+            seg_leg += [leg] * len(f)
+        joints = np.concatenate([*pts, wp[-1:]]).reshape(-1, d)
+        is_waypoint = np.zeros(joints.shape[0], dtype=bool)
+        starts = np.concatenate([[0], np.cumsum([len(f) for f in fracs])]).astype(np.intp)
+        is_waypoint[starts] = True
+        interior_j = {int(starts[idx]): spec for idx, spec in self.interior.items()}
+        seg_leg_a = np.asarray(seg_leg, dtype=np.intp)
+        scale: FloatArray | None = None
+        caps, limits = self.caps, self.limits
+        if caps is not None and limits is not None and caps.shape[0] == len(fracs):
+            scale = np.minimum(caps / limits.max_speed_m_s, 1.0)[seg_leg_a]
+        planner = _Planner(
+            joints, is_waypoint, self.s, self.start, self.end, interior_j, self.yaw,
+            self.yaw_wp, speed_scale=scale,
+        )
+        return planner, seg_leg_a, is_waypoint
+
+    def plan(
+        self, fracs: list[list[float]], params: Any, h_in: FloatArray | None
+    ) -> tuple[_Planner, PiecewiseBezier, float, NDArray[np.intp], NDArray[np.bool_]]:
+        """Plan with the joints of :meth:`planner` (durations `h_in`, or allocated under the
+        limits): (planner, trajectory, cost, leg of each segment, which joints are
+        waypoints)."""
+        planner, seg_leg_a, is_waypoint = self.planner(fracs)
+        if h_in is None:
+            assert self.limits is not None
+            h = planner.allocate(self.limits, params)
+        else:
+            h = h_in
+        traj, cost = planner.build(h)
+        return planner, traj, cost, seg_leg_a, is_waypoint
+
+
+def _split_breaches(
     fracs: list[list[float]],
-    s: int,
-    start_spec: dict[int, FloatArray | None],
-    end_spec: dict[int, FloatArray | None],
-    interior: dict[int, dict[int, FloatArray | None]],
-    yaw: YawSpec,
-    yaw_wp: FloatArray | None,
-    caps: FloatArray | None,
-    limits: Limits | RoverLimits | None,
+    seg_leg: NDArray[np.intp],
+    bad: NDArray[np.bool_],
+    h: FloatArray | None = None,
+) -> tuple[list[list[float]], FloatArray | None]:
+    """Split each segment flagged in `bad` (M,) in three equal pieces of its leg: the new joint
+    fractions per leg and, given the segments' durations `h` (M,) [s], durations for the new
+    segments (a split segment's duration shared equally by its pieces: a warm start)."""
+    fracs = [list(f) for f in fracs]
+    first = np.searchsorted(seg_leg, np.arange(len(fracs)))  # each leg's first segment
+    for sg in np.flatnonzero(bad).tolist():
+        leg = int(seg_leg[sg])
+        i_f = sg - int(first[leg])
+        f = fracs[leg]
+        lo = f[i_f]
+        hi = f[i_f + 1] if i_f + 1 < len(f) else 1.0
+        f.extend((lo + (hi - lo) / 3.0, lo + 2.0 * (hi - lo) / 3.0))
+    fracs = [sorted(f) for f in fracs]
+    if h is None:
+        return fracs, None
+    pieces = np.where(bad, 3, 1)
+    return fracs, np.repeat(h / pieces, pieces)
+
+
+def _plan_corridor(
+    problem: _Problem,
+    fracs: list[list[float]],
+    limits: Limits,
     params: Any,
-    h_in: FloatArray | None,
-) -> tuple[_Planner, PiecewiseBezier, float, NDArray[np.intp], NDArray[np.bool_]]:
-    """Plan through `wp` with extra joints on each straight leg at the fractions `fracs[leg]`
-    (each list starts with 0): (planner, trajectory, cost, leg of each segment, which joints
-    are waypoints)."""
-    d = wp.shape[1]
-    pts: list[FloatArray] = []
-    seg_leg: list[int] = []
-    for leg, f in enumerate(fracs):
-        fa = np.asarray(f, dtype=np.float64)
-        pts.append(wp[leg][None, :] + fa[:, None] * (wp[leg + 1] - wp[leg])[None, :])
-        seg_leg += [leg] * len(f)
-    joints = np.concatenate([*pts, wp[-1:]]).reshape(-1, d)
-    is_waypoint = np.zeros(joints.shape[0], dtype=bool)
-    starts = np.concatenate([[0], np.cumsum([len(f) for f in fracs])]).astype(np.intp)
-    is_waypoint[starts] = True
-    interior_j = {int(starts[idx]): spec for idx, spec in interior.items()}
-    seg_leg_a = np.asarray(seg_leg, dtype=np.intp)
-    scale: FloatArray | None = None
-    if caps is not None and limits is not None and caps.shape[0] == len(fracs):
-        scale = np.minimum(caps / limits.max_speed_m_s, 1.0)[seg_leg_a]
-    planner = _Planner(
-        joints, is_waypoint, s, start_spec, end_spec, interior_j, yaw, yaw_wp, speed_scale=scale
-    )
-    if h_in is None:
-        assert limits is not None
-        h = planner.allocate(limits, params)
-    else:
-        h = h_in
+    corridor_m: float,
+    acc_j: FloatArray,
+) -> tuple[_Planner, PiecewiseBezier, float, NDArray[np.intp], NDArray[np.bool_], int]:
+    """Multirotor time allocation with the corridor: (planner, trajectory, cost, leg of each
+    segment, waypoint joints, solves).
+
+    The corridor is refined on the refinement's durations, before the saturation (which
+    rescales them, mostly uniformly, so the path keeps its shape): each pass splits the
+    segments that leave the corridor and re-runs the refinement warm-started from the previous
+    durations, then the saturation runs once. Should the saturated path still leave the
+    corridor, the segments are split again and the allocation redone (warm-started), at most
+    ``CORRIDOR_PASSES`` times each; ValueError if it still leaves it."""
+    wp = problem.wp
+    planner_of = problem.planner
+
+    def breaches(traj: PiecewiseBezier, seg_leg: NDArray[np.intp]) -> NDArray[np.bool_]:
+        return _corridor_breaches(traj, wp, seg_leg, corridor_m, acc_j)
+
+    planner, seg_leg, is_wp = planner_of(fracs)
+    solves = 0
+    h = planner.refined(limits, params)
+    for _ in range(CORRIDOR_PASSES):
+        bad = breaches(planner.position(h), seg_leg)
+        if not bad.any():
+            break
+        fracs, h_split = _split_breaches(fracs, seg_leg, bad, h)
+        assert h_split is not None
+        solves += planner.solves
+        planner, seg_leg, is_wp = planner_of(fracs)
+        h = planner.refined(limits, params, h_split, maxiter=_warm_iterations(bad))
+    h = planner._saturate(h, limits, params)
     traj, cost = planner.build(h)
-    return planner, traj, cost, seg_leg_a, is_waypoint
+    for _ in range(CORRIDOR_PASSES):
+        bad = breaches(traj, seg_leg)
+        if not bad.any():
+            return planner, traj, cost, seg_leg, is_wp, solves + planner.solves
+        fracs, h_split = _split_breaches(fracs, seg_leg, bad, h)
+        solves += planner.solves
+        planner, seg_leg, is_wp = planner_of(fracs)
+        h = planner._saturate(
+            planner.refined(limits, params, h_split, maxiter=_warm_iterations(bad)),
+            limits, params,
+        )
+        traj, cost = planner.build(h)
+    if breaches(traj, seg_leg).any():
+        raise ValueError(
+            f"the planned path leaves the {corridor_m:g} m corridor around the legs after "
+            f"{CORRIDOR_PASSES} refinements (fly the legs rest to rest, or widen the corridor)"
+        )
+    return planner, traj, cost, seg_leg, is_wp, solves + planner.solves
+
+
+def segment_distances(p: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
+    """Distance [m] of points `p` to the segments `a`-`b`, all (..., d) and broadcast
+    together over the leading axes (projection clamped to the segment; a zero-length segment
+    is its point)."""
+    ab = b - a
+    den = np.einsum("...d,...d->...", ab, ab)
+    rel = p - a
+    t = np.einsum("...d,...d->...", rel, ab) / np.where(den > 0.0, den, 1.0)
+    t = np.where(den > 0.0, np.clip(t, 0.0, 1.0), 0.0)
+    diff = rel - t[..., None] * ab
+    return np.asarray(np.sqrt(np.einsum("...d,...d->...", diff, diff)), dtype=np.float64)
 
 
 def point_segment_distance(p: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
     """Distance (N,) of the points p (N, d) to the segment a-b [m]."""
-    ab = b - a
-    den = float(ab @ ab)
-    t = np.zeros(p.shape[0]) if den <= 0.0 else np.clip((p - a) @ ab / den, 0.0, 1.0)
-    return np.asarray(np.linalg.norm(p - (a + t[:, None] * ab), axis=1), dtype=np.float64)
+    return segment_distances(p, a[None, :], b[None, :])
 
 
 def corridor_deviation(
@@ -1305,23 +1569,24 @@ def corridor_deviation(
 ) -> FloatArray:
     """Corridor deviation (N,) [m] of `points` (N, d) flown on the waypoint legs `legs` (N,):
     distance to the nearest of that leg and its neighbours, or 0 inside a waypoint's
-    acceptance radius (corners may be cut or overshot there)."""
-    n_legs = waypoints.shape[0] - 1
-    dev = np.full(points.shape[0], np.inf)
-    for leg in np.unique(legs):
-        sel = legs == leg
-        p = points[sel]
-        best = np.full(p.shape[0], np.inf)
-        for other in (leg - 1, leg, leg + 1):
-            if 0 <= other < n_legs:
-                best = np.minimum(
-                    best, point_segment_distance(p, waypoints[other], waypoints[other + 1])
-                )
-        for w in (leg, leg + 1):
-            near = np.linalg.norm(p - waypoints[w], axis=1) <= acceptance_m[w]
-            best[near] = 0.0
-        dev[sel] = best
-    return dev
+    acceptance radius (corners may be cut or overshot there). Vectorised over the points."""
+    p = np.asarray(points, dtype=np.float64)
+    wp = np.asarray(waypoints, dtype=np.float64)
+    legs = np.asarray(legs, dtype=np.intp)
+    n_legs = wp.shape[0] - 1
+    acc = np.asarray(acceptance_m, dtype=np.float64)
+    best = np.full(p.shape[0], np.inf)
+    for off in (-1, 0, 1):
+        other = legs + off
+        ok = (other >= 0) & (other < n_legs)
+        oc = np.clip(other, 0, max(n_legs - 1, 0))
+        dist = segment_distances(p, wp[oc], wp[oc + 1])
+        best = np.where(ok, np.minimum(best, dist), best)
+    for w in (legs, legs + 1):
+        diff = p - wp[w]
+        near = np.sqrt(np.einsum("ij,ij->i", diff, diff)) <= acc[w]
+        best[near] = 0.0
+    return np.asarray(best, dtype=np.float64)
 
 
 def _corridor_breaches(
@@ -1332,14 +1597,43 @@ def _corridor_breaches(
     acceptance_m: FloatArray,
 ) -> NDArray[np.bool_]:
     """Which segments (M,) leave the corridor (sampled ``CORRIDOR_SAMPLES_PER_SEGMENT`` per
-    segment)."""
+    segment at the midpoints of equal time steps): :func:`corridor_deviation` evaluated
+    segment-wise, all segments at once (one matrix product for the samples, each segment's
+    three candidate legs broadcast over its samples)."""
     n = CORRIDOR_SAMPLES_PER_SEGMENT
+    p = _segment_grid_points(traj, n)  # (M, n, d)
+    n_legs = wp.shape[0] - 1
+    cand = seg_leg[:, None] + np.array([-1, 0, 1])[None, :]  # this leg and its neighbours
+    ok = (cand >= 0) & (cand < n_legs)
+    cc = np.clip(cand, 0, max(n_legs - 1, 0))
+    dev = np.full(p.shape[:2], np.inf)
+    for k in range(3):
+        dist = segment_distances(p, wp[cc[:, k]][:, None, :], wp[cc[:, k] + 1][:, None, :])
+        np.minimum(dev, np.where(ok[:, k : k + 1], dist, np.inf), out=dev)
+    out = dev > corridor_m
+    for w in (seg_leg, seg_leg + 1):
+        dw = p - wp[w][:, None, :]
+        out &= ~(np.sqrt(np.einsum("mnd,mnd->mn", dw, dw)) <= acceptance_m[w][:, None])
+    return np.asarray(out.any(axis=1), dtype=np.bool_)
+
+
+@lru_cache(maxsize=8)
+def _midpoint_basis(degree: int, n: int) -> FloatArray:
+    """(n, degree + 1) Bernstein basis at the normalised times (k + 0.5) / n."""
     tau = (np.arange(n) + 0.5) / n
-    t = (traj.breaks[:-1, None] + tau[None, :] * traj.durations[:, None]).reshape(-1)
-    p = traj.evaluate(t, 0)
-    legs = np.repeat(seg_leg, n)
-    dev = corridor_deviation(p, wp, legs, acceptance_m)
-    return np.asarray((dev > corridor_m).reshape(-1, n).any(axis=1), dtype=np.bool_)
+    i = np.arange(degree + 1)
+    comb = np.array([math.comb(degree, int(k)) for k in i], dtype=np.float64)
+    out = comb[None, :] * tau[:, None] ** i[None, :] * (1.0 - tau[:, None]) ** (degree - i)[None, :]
+    out.setflags(write=False)
+    return out
+
+
+def _segment_grid_points(traj: PiecewiseBezier, n: int) -> FloatArray:
+    """Positions (M, n, d) of every segment at the normalised times (k + 0.5) / n."""
+    cp = traj.control_points
+    m, n1, d = cp.shape
+    vals = thin_matmul(_midpoint_basis(n1 - 1, n), cp.transpose(1, 0, 2).reshape(n1, m * d))
+    return np.ascontiguousarray(vals.reshape(n, m, d).transpose(1, 0, 2))
 
 
 #: Joints placed on a leg with a cruise part, at these multiples of the distance the
@@ -1448,8 +1742,10 @@ def plan(
       ``limits.max_speed_m_s``; used by the time allocation.
     - ``corridor_m`` (time allocation only): keep the path within this distance [m] of the
       straight legs, except inside a waypoint's ``acceptance_m`` (M,) radius [m] (default 0):
-      segments that leave it are split at a joint on their leg and the plan is redone (at
-      most ``CORRIDOR_PASSES`` times; ValueError if it still leaves it).
+      segments that leave it are split in three on their leg (multirotor: checked on the
+      refinement's durations, each pass warm-started from the previous ones, then one
+      saturation and a final check; at most ``CORRIDOR_PASSES`` passes before and after the
+      saturation; ValueError if it still leaves it).
     - ``pieces``: segments per waypoint leg. Default 1 with ``durations``; with time
       allocation ``ALLOCATION_PIECES`` (3) under :class:`Limits`: the extra joints lie on the
       straight leg between the waypoints (at 1/3 and 2/3), which keeps the path close to the
@@ -1726,28 +2022,24 @@ def plan_with_info(
                 if 0.0 < e < 1.0 and min(abs(e - x) for x in [*f, 1.0]) * lengths[leg] > 0.5:
                     f.append(float(e))
             fracs[leg] = sorted(f)
-    planner, traj, cost, seg_leg, is_waypoint = _plan_joints(
-        wp, fracs, s, start_spec, end_spec, interior, yaw, yaw_wp, caps_in, limits, params, h_in
-    )
-    solves = planner.solves
-    if acc_j is not None:
+    problem = _Problem(wp, s, start_spec, end_spec, interior, yaw, yaw_wp, caps_in, limits)
+    if acc_j is not None and h_in is None and isinstance(limits, Limits):
+        assert corridor_m is not None
+        planner, traj, cost, seg_leg, is_waypoint, solves = _plan_corridor(
+            problem, fracs, limits, params, float(corridor_m), acc_j
+        )
+    else:
+        planner, traj, cost, seg_leg, is_waypoint = problem.plan(fracs, params, h_in)
+        solves = planner.solves
+    if acc_j is not None and not isinstance(limits, Limits):
+        # rover: each refinement re-runs the (exact-extrema) allocation
         assert corridor_m is not None
         for _ in range(CORRIDOR_PASSES):
             bad = _corridor_breaches(traj, wp, seg_leg, float(corridor_m), acc_j)
             if not bad.any():
                 break
-            for sg in np.flatnonzero(bad).tolist():
-                leg = int(seg_leg[sg])
-                i_f = sg - int(np.flatnonzero(seg_leg == leg)[0])
-                f = fracs[leg]
-                lo = f[i_f]
-                hi = f[i_f + 1] if i_f + 1 < len(f) else 1.0
-                f.extend((lo + (hi - lo) / 3.0, lo + 2.0 * (hi - lo) / 3.0))
-            fracs = [sorted(f) for f in fracs]
-            planner, traj, cost, seg_leg, is_waypoint = _plan_joints(
-                wp, fracs, s, start_spec, end_spec, interior, yaw, yaw_wp, caps_in, limits,
-                params, h_in
-            )
+            fracs, _ = _split_breaches(fracs, seg_leg, bad)
+            planner, traj, cost, seg_leg, is_waypoint = problem.plan(fracs, params, h_in)
             solves += planner.solves
         else:
             if _corridor_breaches(traj, wp, seg_leg, float(corridor_m), acc_j).any():
