@@ -660,13 +660,21 @@ def _root_candidates(coef: FloatArray) -> FloatArray:
     r = np.clip(_P.polyroots(c).real, 0.0, 1.0)
     # Newton polish (near-double roots come out of the eigenvalue solver with ~sqrt(eps)
     # error); raw and polished both kept
-    dc = _P.polyder(c)
+    dc: FloatArray = np.asarray(_P.polyder(c), dtype=np.float64)
     x = r.copy()
-    for _ in range(6):
-        d = _P.polyval(x, dc)
-        step = np.where(d != 0.0, _P.polyval(x, c) / np.where(d != 0.0, d, 1.0), 0.0)
+    # 3 steps: the zoom around the best candidate in `rover_extrema` covers what is left
+    for _ in range(3):
+        d = _polyval01(x, dc)
+        step = np.where(d != 0.0, _polyval01(x, c) / np.where(d != 0.0, d, 1.0), 0.0)
         x = np.clip(x - step, 0.0, 1.0)
     return np.asarray(np.concatenate([r, x]), dtype=np.float64)
+
+
+def _polyval01(x: FloatArray, coef: FloatArray) -> FloatArray:
+    """The polynomial with ascending coefficients ``coef`` at ``x`` in [0, 1], as one
+    power-matrix product (numpy's ``polyval`` loops over the coefficients in Python, and this
+    runs thousands of times per rover plan; on [0, 1] the powers lose nothing)."""
+    return np.asarray(np.power.outer(x, np.arange(coef.shape[0])) @ coef, dtype=np.float64)
 
 
 #: Offsets (normalised time) around the best candidate evaluated as well, against root error.
@@ -728,8 +736,8 @@ def _rover_values(
 ) -> dict[str, FloatArray]:
     """Speed, yaw rate and lateral acceleration at normalised times tau of a segment of
     duration h with ``V^2`` and ``v x a`` given as polynomials in tau (ascending)."""
-    speed = np.sqrt(np.maximum(_P.polyval(tau, v2), 0.0)) / h  # m/s
-    ct = np.abs(_P.polyval(tau, c)) / h**3  # |v x a|, m^2/s^3
+    speed = np.sqrt(np.maximum(_polyval01(tau, v2), 0.0)) / h  # m/s
+    ct = np.abs(_polyval01(tau, c)) / h**3  # |v x a|, m^2/s^3
     # the edge roots sit on V = min speed up to round-off: keep them (conservative)
     ok = speed >= min_speed_m_s * (1.0 - 1e-9)
     sv = np.where(ok, speed, 1.0)

@@ -147,3 +147,15 @@ def test_rover_time_scaling_lowers_every_rover_quantity() -> None:
         assert w["speed"] == pytest.approx(base["speed"] / k, rel=1e-6)
         assert w["yaw_rate"] <= base["yaw_rate"] / k * (1 + 1e-6)
         assert w["lat_acc"] <= base["lat_acc"] / k**2 * (1 + 1e-6)
+
+
+def test_power_matrix_evaluation_matches_numpy_polyval() -> None:
+    from companion.trajectory.limits import _polyval01
+
+    rng = np.random.default_rng(3)
+    for deg in (0, 1, 5, 12, 24):
+        coef = rng.normal(size=deg + 1) * 10.0 ** rng.uniform(-3, 3, size=deg + 1)
+        x = np.concatenate([[0.0, 1.0], rng.uniform(0.0, 1.0, 50)])
+        want = np.polynomial.polynomial.polyval(x, coef)
+        assert np.allclose(_polyval01(x, coef), want, rtol=1e-12,
+                           atol=1e-12 * float(np.sum(np.abs(coef))))
