@@ -476,8 +476,8 @@ class AttitudeGains:
     (Lee 2011's alternative error function; small-angle behaviour unchanged).
     """
 
-    k_roll: float = 10.0
-    k_pitch: float = 10.0
+    k_roll: float = 4.0
+    k_pitch: float = 4.0
     k_yaw: float = 2.8
     max_rate_rp: float = math.radians(220.0)
     max_rate_yaw: float = math.radians(200.0)
@@ -542,6 +542,8 @@ class TrackingConfig:
     max_tilt_rad: float = math.radians(60.0)
     thrust_min: float = 0.08
     thrust_max: float = 1.0
+    feedback_rate_ff: bool = True
+    rates_separation: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_tilt_rad < math.radians(89.0):
@@ -641,7 +643,9 @@ class TrackingController:
         self._gain_lists = {
             rates: (g.kp().tolist(), g.kd().tolist(), g.ki().tolist(), g.i_max().tolist())
             for rates, g in ((False, config.gains),
-                             (True, rates_mode_gains(config.gains, config.attitude_gains)))
+                             (True, rates_mode_gains(config.gains, config.attitude_gains,
+                                                     config.rates_separation)
+                              if config.rates_separation > 0.0 else config.gains))
         }
         self._kp_l, self._kd_l, self._ki_l, self._imax_l = self._gain_lists[False]
         self._integ_l = [0.0, 0.0, 0.0]
@@ -891,6 +895,8 @@ class TrackingController:
             ra[2] + rj[2] * L + rs[2] * hL2 + kp[2] * e_p[2] + kd[2] * e_v[2] + integ[2],
         )
         j_ff = (rj[0] + rs[0] * L, rj[1] + rs[1] * L, rj[2] + rs[2] * L)
+        if rates and c.feedback_rate_ff and self._thrust_hist:
+            j_ff = self._feedback_jerk(j_ff, ra, e_p, e_v, vel)
 
         # 3. thrust vector t = m (g e3 - a) - D v with drag, saturation
         h = self.hover_thrust
@@ -944,6 +950,39 @@ class TrackingController:
         self._diag = (now, e_p, e_v, a_sat, tuple(integ), h, D, tau, sat,
                       "singular flatness point" if singular else "")
         return q_des, thrust, omega_ff, sat
+
+    def _feedback_jerk(
+        self,
+        j_ref: tuple[float, float, float],
+        a_ref: list[float],
+        e_p: tuple[float, float, float],
+        e_v: tuple[float, float, float],
+        vel: tuple[float, float, float],
+    ) -> tuple[float, float, float]:
+        """Time derivative of the commanded acceleration [m/s^3, NED]:
+        j_ref + kp e_v + kd (a_ref - a) + ki e_p, with the vehicle's acceleration `a` from its
+        (extrapolated) attitude and the last thrust command: a = g e3 - (u g / h) z_b - D v / m.
+        Fed to the flatness map in `rates` mode, its body rates carry the feedback part of the
+        desired attitude forward too, so the companion's P attitude loop only corrects what
+        the rate loop missed instead of lagging the position loop by 1/k_att."""
+        p = self.config.params
+        g0 = p.g
+        h = self.hover_thrust
+        u = self._thrust_hist[-1][1]
+        qw, qx, qy, qz = self._q_now
+        # body z axis (third column of C_eb) in NED
+        zx = 2.0 * (qx * qz + qw * qy)
+        zy = 2.0 * (qy * qz - qw * qx)
+        zz = 1.0 - 2.0 * (qx * qx + qy * qy)
+        f = u * g0 / h
+        dm = self.drag / p.mass
+        a = (-f * zx - dm * vel[0], -f * zy - dm * vel[1], g0 - f * zz - dm * vel[2])
+        kp, kd, ki = self._kp_l, self._kd_l, self._ki_l
+        return (
+            j_ref[0] + kp[0] * e_v[0] + kd[0] * (a_ref[0] - a[0]) + ki[0] * e_p[0],
+            j_ref[1] + kp[1] * e_v[1] + kd[1] * (a_ref[1] - a[1]) + ki[1] * e_p[1],
+            j_ref[2] + kp[2] * e_v[2] + kd[2] * (a_ref[2] - a[2]) + ki[2] * e_p[2],
+        )
 
     def _publish_diag(self, e_R: FloatArray | None, e_omega: FloatArray | None = None) -> None:
         """Diagnostics of this update (from `_diag`), built lazily by `last`."""
