@@ -476,8 +476,8 @@ class AttitudeGains:
     (Lee 2011's alternative error function; small-angle behaviour unchanged).
     """
 
-    k_roll: float = 4.0
-    k_pitch: float = 4.0
+    k_roll: float = 10.0
+    k_pitch: float = 10.0
     k_yaw: float = 2.8
     max_rate_rp: float = math.radians(220.0)
     max_rate_yaw: float = math.radians(200.0)
@@ -542,7 +542,7 @@ class TrackingConfig:
     max_tilt_rad: float = math.radians(60.0)
     thrust_min: float = 0.08
     thrust_max: float = 1.0
-    feedback_rate_ff: bool = True
+    feedback_rate_ff: bool = False
     rates_separation: float = 0.0
 
     def __post_init__(self) -> None:
