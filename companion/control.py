@@ -542,7 +542,7 @@ class TrackingConfig:
     max_tilt_rad: float = math.radians(60.0)
     thrust_min: float = 0.08
     thrust_max: float = 1.0
-    feedback_rate_ff: bool = False
+    feedback_rate_ff: float = 0.0
     rates_separation: float = 0.0
 
     def __post_init__(self) -> None:
@@ -895,8 +895,8 @@ class TrackingController:
             ra[2] + rj[2] * L + rs[2] * hL2 + kp[2] * e_p[2] + kd[2] * e_v[2] + integ[2],
         )
         j_ff = (rj[0] + rs[0] * L, rj[1] + rs[1] * L, rj[2] + rs[2] * L)
-        if rates and c.feedback_rate_ff and self._thrust_hist:
-            j_ff = self._feedback_jerk(j_ff, ra, e_p, e_v, vel)
+        if rates and c.feedback_rate_ff > 0.0 and self._thrust_hist:
+            j_ff = self._feedback_jerk(j_ff, ra, e_p, e_v, vel, c.feedback_rate_ff)
 
         # 3. thrust vector t = m (g e3 - a) - D v with drag, saturation
         h = self.hover_thrust
@@ -958,9 +958,10 @@ class TrackingController:
         e_p: tuple[float, float, float],
         e_v: tuple[float, float, float],
         vel: tuple[float, float, float],
+        share: float,
     ) -> tuple[float, float, float]:
-        """Time derivative of the commanded acceleration [m/s^3, NED]:
-        j_ref + kp e_v + kd (a_ref - a) + ki e_p, with the vehicle's acceleration `a` from its
+        """Time derivative of the commanded acceleration [m/s^3, NED], its feedback part
+        scaled by `share`: j_ref + share (kp e_v + kd (a_ref - a) + ki e_p), with the vehicle's acceleration `a` from its
         (extrapolated) attitude and the last thrust command: a = g e3 - (u g / h) z_b - D v / m.
         Fed to the flatness map in `rates` mode, its body rates carry the feedback part of the
         desired attitude forward too, so the companion's P attitude loop only corrects what
@@ -979,9 +980,9 @@ class TrackingController:
         a = (-f * zx - dm * vel[0], -f * zy - dm * vel[1], g0 - f * zz - dm * vel[2])
         kp, kd, ki = self._kp_l, self._kd_l, self._ki_l
         return (
-            j_ref[0] + kp[0] * e_v[0] + kd[0] * (a_ref[0] - a[0]) + ki[0] * e_p[0],
-            j_ref[1] + kp[1] * e_v[1] + kd[1] * (a_ref[1] - a[1]) + ki[1] * e_p[1],
-            j_ref[2] + kp[2] * e_v[2] + kd[2] * (a_ref[2] - a[2]) + ki[2] * e_p[2],
+            j_ref[0] + share * (kp[0] * e_v[0] + kd[0] * (a_ref[0] - a[0]) + ki[0] * e_p[0]),
+            j_ref[1] + share * (kp[1] * e_v[1] + kd[1] * (a_ref[1] - a[1]) + ki[1] * e_p[1]),
+            j_ref[2] + share * (kp[2] * e_v[2] + kd[2] * (a_ref[2] - a[2]) + ki[2] * e_p[2]),
         )
 
     def _publish_diag(self, e_R: FloatArray | None, e_omega: FloatArray | None = None) -> None:

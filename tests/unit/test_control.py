@@ -400,27 +400,27 @@ def test_rates_feedforward_is_the_derivative_of_the_commanded_attitude(drag: flo
     """Vehicle off the reference but flying exactly the commanded acceleration and attitude:
     the body-rate feed-forward of `rates` mode equals the rotation rate of the commanded
     attitude (central finite difference on SO(3) of `attitude` mode's q, scipy), feedback part
-    included; without `feedback_rate_ff` only the reference's part is fed forward."""
+    included (`feedback_rate_ff` 1); with 0 only the reference's part is fed forward."""
     p = _params(drag=drag)
     g = TrackingGains(ki_xy=0.0, ki_z=0.0)
     ref_of = _ref_moving()
     p0 = np.array([3.1, -0.05, -4.95])  # reference at t = 0: (3, 0, -5), (0, 3, 0) m/s
     v0 = np.array([0.2, 2.9, 0.05])
 
-    def cfg(ff: bool, k: float = 0.0) -> TrackingConfig:
+    def cfg(ff: float, k: float = 0.0) -> TrackingConfig:
         return TrackingConfig(params=p, gains=g, estimate_hover_thrust=False,
                               latency_compensation=False, attitude_lead_s=0.0,
                               drag_velocity="estimate", feedback_rate_ff=ff,
                               attitude_gains=AttitudeGains(k_roll=k, k_pitch=k, k_yaw=k))
 
     # the commanded acceleration at t = 0 (the vehicle flies it from here on)
-    probe = TrackingController(cfg(False))
+    probe = TrackingController(cfg(0.0))
     assert not probe.attitude(0.0, _est(0.0, p0, v0), ref_of(0.0)).saturated
     assert probe.last is not None
     a0 = probe.last.acc_cmd_ned
 
     def q_cmd(t: float) -> Rotation:
-        ctl = TrackingController(cfg(False))
+        ctl = TrackingController(cfg(0.0))
         est = _est(t, p0 + v0 * t + 0.5 * a0 * t * t, v0 + a0 * t, acc=a0)
         return _rot(ctl.attitude(t, est, ref_of(t)).q_wxyz)
 
@@ -428,14 +428,16 @@ def test_rates_feedforward_is_the_derivative_of_the_commanded_attitude(drag: flo
     q0 = q_cmd(0.0)
     w_fd = (q_cmd(-h).inv() * q_cmd(h)).as_rotvec() / (2 * h)  # body rates of q_cmd
 
-    def w_ff(ff: bool) -> np.ndarray:
+    def w_ff(ff: float) -> np.ndarray:
         ctl = TrackingController(cfg(ff))
         est = _est(0.0, p0, v0, _wxyz(q0))
         ctl.rates(0.0, est, ref_of(0.0))  # the thrust command the vehicle is flying
         return ctl.rates(0.0, est, ref_of(0.0)).omega_frd  # k = 0: pure feed-forward
 
-    np.testing.assert_allclose(w_ff(True), w_fd, atol=2e-3)
-    assert np.linalg.norm(w_ff(False) - w_fd) > 0.1
+    np.testing.assert_allclose(w_ff(1.0), w_fd, atol=2e-3)
+    assert np.linalg.norm(w_ff(0.0) - w_fd) > 0.1
+    # body rates are linear in the jerk at a given acceleration: a share feeds that share
+    np.testing.assert_allclose(w_ff(0.5), 0.5 * (w_ff(0.0) + w_ff(1.0)), atol=1e-9)
 
 
 def _ref_moving() -> object:
