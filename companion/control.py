@@ -552,6 +552,10 @@ class TrackingConfig:
             raise ValueError("thrust bounds must satisfy 0 <= min < max <= 1")
         if not 0.0 < self.params.hover_thrust < 1.0:
             raise ValueError("params.hover_thrust must be in (0, 1)")
+        if not 0.0 <= self.feedback_rate_ff <= 1.0:
+            raise ValueError("feedback_rate_ff must be in [0, 1]")
+        if not (math.isfinite(self.rates_separation) and self.rates_separation >= 0.0):
+            raise ValueError("rates_separation must be >= 0 (0: no cap)")
 
 
 @dataclass(frozen=True)

@@ -448,3 +448,38 @@ def _ref_moving() -> object:
                          np.array([-3 * c, -3 * s, 0.0]), np.array([3 * s, -3 * c, 0.0]),
                          np.array([3 * c, 3 * s, 0.0]), 0.2 * t, 0.2, 0.0)
     return ref
+
+
+@pytest.mark.parametrize("kw", [{"feedback_rate_ff": 1.5}, {"feedback_rate_ff": -0.1},
+                                {"feedback_rate_ff": math.nan}, {"rates_separation": -1.0},
+                                {"rates_separation": math.inf}])
+def test_config_refuses_bad_rates_mode_settings(kw: dict[str, float]) -> None:
+    with pytest.raises(ValueError):
+        TrackingConfig(params=_params(), **kw)  # type: ignore[arg-type]
+
+
+def test_rates_separation_caps_only_rates_mode() -> None:
+    """rates_separation > 0 flies rates mode with `rates_mode_gains` and attitude mode with the
+    configured gains; 0 (the default) flies both with the configured gains."""
+    att = AttitudeGains()
+    capped = rates_mode_gains(TrackingGains(), att, separation=2.5)
+    assert capped.kp_xy < TrackingGains().kp_xy  # the cap is active for the defaults
+
+    def run(cfg: TrackingConfig, mode: str) -> np.ndarray:
+        ctl = TrackingController(cfg)
+        est = _est(0.0, [0.3, -0.2, -5.0], [0.5, 0.1, 0.0])
+        ref = Reference(np.array([0.0, 0.0, -5.0]))
+        if mode == "rates":
+            ctl.rates(0.0, est, ref)
+        else:
+            ctl.attitude(0.0, est, ref)
+        assert ctl.last is not None
+        return ctl.last.acc_cmd_ned
+
+    def cfg(gains: TrackingGains | None = None, sep: float = 0.0) -> TrackingConfig:
+        return TrackingConfig(params=_params(), gains=gains or TrackingGains(), attitude_gains=att,
+                              estimate_hover_thrust=False, rates_separation=sep)
+
+    np.testing.assert_allclose(run(cfg(sep=2.5), "rates"), run(cfg(capped), "rates"))
+    np.testing.assert_allclose(run(cfg(sep=2.5), "attitude"), run(cfg(), "attitude"))
+    assert not np.allclose(run(cfg(sep=2.5), "rates"), run(cfg(), "rates"))
