@@ -494,7 +494,10 @@ def rates_mode_gains(gains: TrackingGains, attitude: AttitudeGains,
     Why 2.5: with kp_xy 20 and k_roll 6.5 the mock in lockstep flew the 2 m/s figure-8 in a
     limit cycle (tilt 33 deg instead of 15); with k_roll 10 and kp_xy 20 (separation 2.2) two
     of four real-time mock flights at 6 m/s oscillated (0.45 m); capped to kp_xy 16, none of
-    three did."""
+    three did. Re-measured uncapped: real PX4 SITL on a loaded machine flew the 2 m/s figure-8
+    in a 1.4-1.5 Hz oscillation (0.39 m RMS, 0.11 m on a quieter run), the real-time mock with
+    PX4-like estimate errors (`serve --estimator ekf2 --jitter 0.01`) oscillated at 1.5 Hz at
+    6 m/s (tilt 60 deg instead of 48) in 2 of 2 flights; capped it did not."""
     cap = min(attitude.k_roll, attitude.k_pitch) / separation
     wn = math.sqrt(gains.kp_xy)
     if wn <= cap:
@@ -523,6 +526,17 @@ class TrackingConfig:
         measured accelerations for the hover-thrust estimator [s].
     max_tilt_rad: tilt limit of the commanded thrust vector.
     thrust_min / thrust_max: normalised thrust bounds.
+    feedback_rate_ff: `rates` mode, share (0..1) of the feedback part of the commanded
+        acceleration's derivative (kp e_v + kd (a_ref - a) + ki e_p, `a` from the attitude) fed
+        to the flatness map as jerk, i.e. forward as body rates. 0 (default): only the
+        reference's jerk, the attitude loop lags the feedback by ~1/k_roll. 1: the commanded
+        attitude's full rotation rate; the loop's phase margin rises (linear model: 35 -> 52
+        deg at kp_xy 20, k_roll 10) but the gain on the measured tilt becomes k_roll + kd_xy,
+        which telemetry delay limits: on real PX4 SITL k_roll 10 with share 1 or 0.5
+        oscillated, share 1 with k_roll 4 flew 6 m/s better than attitude mode (0.108 m) and
+        2 m/s worse (0.153 m). Measurements: BENCHMARKS.md / the issue-12 notes.
+    rates_separation: `rates` mode flies `rates_mode_gains(gains, attitude_gains,
+        rates_separation)`; 0 flies the configured gains (no cap).
     """
 
     params: MultirotorParams
@@ -543,7 +557,7 @@ class TrackingConfig:
     thrust_min: float = 0.08
     thrust_max: float = 1.0
     feedback_rate_ff: float = 0.0
-    rates_separation: float = 0.0
+    rates_separation: float = 2.5
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_tilt_rad < math.radians(89.0):
@@ -964,12 +978,13 @@ class TrackingController:
         vel: tuple[float, float, float],
         share: float,
     ) -> tuple[float, float, float]:
-        """Time derivative of the commanded acceleration [m/s^3, NED], its feedback part
-        scaled by `share`: j_ref + share (kp e_v + kd (a_ref - a) + ki e_p), with the vehicle's acceleration `a` from its
-        (extrapolated) attitude and the last thrust command: a = g e3 - (u g / h) z_b - D v / m.
-        Fed to the flatness map in `rates` mode, its body rates carry the feedback part of the
-        desired attitude forward too, so the companion's P attitude loop only corrects what
-        the rate loop missed instead of lagging the position loop by 1/k_att."""
+        """Time derivative of the commanded acceleration [m/s^3, NED], its feedback part scaled
+        by `share`: j_ref + share (kp e_v + kd (a_ref - a) + ki e_p). The vehicle's acceleration
+        `a` comes from its (extrapolated) attitude and the last thrust command,
+        a = g e3 - (u g / h) z_b - D v / m, not from differentiated velocities. Fed to the
+        flatness map in `rates` mode, the body rates then carry the commanded attitude's own
+        rotation forward (share 1: exactly; tests/unit/test_control.py checks it against finite
+        differences), so the P attitude loop only corrects what the rate loop missed."""
         p = self.config.params
         g0 = p.g
         h = self.hover_thrust

@@ -411,6 +411,7 @@ def test_rates_feedforward_is_the_derivative_of_the_commanded_attitude(drag: flo
         return TrackingConfig(params=p, gains=g, estimate_hover_thrust=False,
                               latency_compensation=False, attitude_lead_s=0.0,
                               drag_velocity="estimate", feedback_rate_ff=ff,
+                              rates_separation=0.0,  # the same gains in both modes
                               attitude_gains=AttitudeGains(k_roll=k, k_pitch=k, k_yaw=k))
 
     # the commanded acceleration at t = 0 (the vehicle flies it from here on)
@@ -460,7 +461,7 @@ def test_config_refuses_bad_rates_mode_settings(kw: dict[str, float]) -> None:
 
 def test_rates_separation_caps_only_rates_mode() -> None:
     """rates_separation > 0 flies rates mode with `rates_mode_gains` and attitude mode with the
-    configured gains; 0 (the default) flies both with the configured gains."""
+    configured gains; 0 flies both with the configured gains."""
     att = AttitudeGains()
     capped = rates_mode_gains(TrackingGains(), att, separation=2.5)
     assert capped.kp_xy < TrackingGains().kp_xy  # the cap is active for the defaults
