@@ -19,7 +19,8 @@ Multirotor pipeline (`TrackingController`):
    estimated hover thrust) and the feed-forward body rates.
 5. `attitude` mode sends q + thrust + yaw-rate feed-forward; `rates` mode closes the attitude
    loop here with a geometric SO(3) controller (Lee et al.) whose feed-forward is the flatness
-   body rate, and sends body rates + thrust.
+   body rate (of the reference's jerk plus a share of the feedback's derivative,
+   `feedback_rate_ff`), and sends body rates + thrust.
 
 Bad input (non-finite or stale telemetry, singular flatness) never produces NaN: the output falls
 back to a level hover at the current heading with the hover-thrust estimate and is flagged
@@ -486,18 +487,20 @@ class AttitudeGains:
 
 def rates_mode_gains(gains: TrackingGains, attitude: AttitudeGains,
                      separation: float = 2.5) -> TrackingGains:
-    """Position gains used in `rates` mode: the horizontal loop's natural frequency
-    sqrt(kp_xy) [rad/s] is capped at min(k_roll, k_pitch) / `separation`, so the companion's own
-    attitude loop (which `attitude` mode leaves to PX4's faster one) stays that much quicker
-    than the position loop it serves (cascade separation). The damping ratio is kept (kd_xy
-    scales with the frequency) and ki_xy scales with its cube; vertical gains are untouched.
-    Why 2.5: with kp_xy 20 and k_roll 6.5 the mock in lockstep flew the 2 m/s figure-8 in a
-    limit cycle (tilt 33 deg instead of 15); with k_roll 10 and kp_xy 20 (separation 2.2) two
-    of four real-time mock flights at 6 m/s oscillated (0.45 m); capped to kp_xy 16, none of
-    three did. Re-measured uncapped: real PX4 SITL on a loaded machine flew the 2 m/s figure-8
-    in a 1.4-1.5 Hz oscillation (0.39 m RMS, 0.11 m on a quieter run), the real-time mock with
-    PX4-like estimate errors (`serve --estimator ekf2 --jitter 0.01`) oscillated at 1.5 Hz at
-    6 m/s (tilt 60 deg instead of 48) in 2 of 2 flights; capped it did not."""
+    """Position gains for `rates` mode with `TrackingConfig.rates_separation` > 0 (the default was
+    2.5 until the feedback rate feed-forward, `feedback_rate_ff`, replaced the cap): the
+    horizontal loop's natural frequency sqrt(kp_xy) [rad/s] is capped at min(k_roll, k_pitch) /
+    `separation`, so the companion's own attitude loop (which `attitude` mode leaves to PX4's
+    faster one) stays that much quicker than the position loop it serves (cascade separation).
+    The damping ratio is kept (kd_xy scales with the frequency) and ki_xy scales with its cube;
+    vertical gains are untouched. Why 2.5: with kp_xy 20 and k_roll 6.5 the mock in lockstep
+    flew the 2 m/s figure-8 in a limit cycle (tilt 33 deg instead of 15); with k_roll 10 and
+    kp_xy 20 (separation 2.2) two of four real-time mock flights at 6 m/s oscillated (0.45 m);
+    capped to kp_xy 16, none of three did. Re-measured uncapped: real PX4 SITL on a loaded
+    machine flew the 2 m/s figure-8 in a 1.4-1.5 Hz oscillation (0.39 m RMS, 0.11 m on a quieter
+    run), the real-time mock with PX4-like estimate errors (`serve --estimator ekf2 --jitter
+    0.01`) oscillated at 1.5 Hz at 6 m/s (tilt 60 deg instead of 48) in 2 of 2 flights; capped,
+    or uncapped with `feedback_rate_ff` 0.25, it did not."""
     cap = min(attitude.k_roll, attitude.k_pitch) / separation
     wn = math.sqrt(gains.kp_xy)
     if wn <= cap:
@@ -528,15 +531,18 @@ class TrackingConfig:
     thrust_min / thrust_max: normalised thrust bounds.
     feedback_rate_ff: `rates` mode, share (0..1) of the feedback part of the commanded
         acceleration's derivative (kp e_v + kd (a_ref - a) + ki e_p, `a` from the attitude) fed
-        to the flatness map as jerk, i.e. forward as body rates. 0 (default): only the
-        reference's jerk, the attitude loop lags the feedback by ~1/k_roll. 1: the commanded
-        attitude's full rotation rate; the loop's phase margin rises (linear model: 35 -> 52
-        deg at kp_xy 20, k_roll 10) but the gain on the measured tilt becomes k_roll + kd_xy,
-        which telemetry delay limits: on real PX4 SITL k_roll 10 with share 1 or 0.5
-        oscillated, share 1 with k_roll 4 flew 6 m/s better than attitude mode (0.108 m) and
-        2 m/s worse (0.153 m). Measurements: BENCHMARKS.md / the issue-12 notes.
-    rates_separation: `rates` mode flies `rates_mode_gains(gains, attitude_gains,
-        rates_separation)`; 0 flies the configured gains (no cap).
+        to the flatness map as jerk, i.e. forward as body rates (0: the reference's jerk only;
+        the attitude loop then lags the feedback by ~1/k_roll). It buys the phase margin the
+        position loop would otherwise need a cap for, but puts k_roll + share * kd_xy on the
+        measured (delayed) tilt. 0.25 keeps that at ~12 with the default gains (linear model,
+        rate loop 20 ms: phase margin 42 deg, delay margin 59 ms, vs 39 deg / 62 ms for the
+        former cap kp_xy 16 and 35 deg / 55 ms uncapped without it). On real PX4 v1.16 SITL,
+        share 0.5 and 1 with k_roll 10 oscillated at 1.7-2 Hz; share 1 with k_roll 4 flew
+        6 m/s well (0.108 m) but 2 m/s badly (0.153 m). BENCHMARKS.md, "Tracking on real PX4:
+        where the error came from".
+    rates_separation: if > 0, `rates` mode flies `rates_mode_gains(gains, attitude_gains,
+        rates_separation)` (the cascade-separation cap, 2.5 before the feed-forward); 0 (the
+        default) flies the configured gains.
     """
 
     params: MultirotorParams
@@ -556,8 +562,8 @@ class TrackingConfig:
     max_tilt_rad: float = math.radians(60.0)
     thrust_min: float = 0.08
     thrust_max: float = 1.0
-    feedback_rate_ff: float = 0.0
-    rates_separation: float = 2.5
+    feedback_rate_ff: float = 0.25
+    rates_separation: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_tilt_rad < math.radians(89.0):
