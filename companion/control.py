@@ -19,7 +19,8 @@ Multirotor pipeline (`TrackingController`):
    estimated hover thrust) and the feed-forward body rates.
 5. `attitude` mode sends q + thrust + yaw-rate feed-forward; `rates` mode closes the attitude
    loop here with a geometric SO(3) controller (Lee et al.) whose feed-forward is the flatness
-   body rate, and sends body rates + thrust.
+   body rate (of the reference's jerk plus a share of the feedback's derivative,
+   `feedback_rate_ff`), and sends body rates + thrust.
 
 Bad input (non-finite or stale telemetry, singular flatness) never produces NaN: the output falls
 back to a level hover at the current heading with the hover-thrust estimate and is flagged
@@ -486,15 +487,20 @@ class AttitudeGains:
 
 def rates_mode_gains(gains: TrackingGains, attitude: AttitudeGains,
                      separation: float = 2.5) -> TrackingGains:
-    """Position gains used in `rates` mode: the horizontal loop's natural frequency
-    sqrt(kp_xy) [rad/s] is capped at min(k_roll, k_pitch) / `separation`, so the companion's own
-    attitude loop (which `attitude` mode leaves to PX4's faster one) stays that much quicker
-    than the position loop it serves (cascade separation). The damping ratio is kept (kd_xy
-    scales with the frequency) and ki_xy scales with its cube; vertical gains are untouched.
-    Why 2.5: with kp_xy 20 and k_roll 6.5 the mock in lockstep flew the 2 m/s figure-8 in a
-    limit cycle (tilt 33 deg instead of 15); with k_roll 10 and kp_xy 20 (separation 2.2) two
-    of four real-time mock flights at 6 m/s oscillated (0.45 m); capped to kp_xy 16, none of
-    three did."""
+    """Position gains for `rates` mode with `TrackingConfig.rates_separation` > 0 (the default was
+    2.5 until the feedback rate feed-forward, `feedback_rate_ff`, replaced the cap): the
+    horizontal loop's natural frequency sqrt(kp_xy) [rad/s] is capped at min(k_roll, k_pitch) /
+    `separation`, so the companion's own attitude loop (which `attitude` mode leaves to PX4's
+    faster one) stays that much quicker than the position loop it serves (cascade separation).
+    The damping ratio is kept (kd_xy scales with the frequency) and ki_xy scales with its cube;
+    vertical gains are untouched. Why 2.5: with kp_xy 20 and k_roll 6.5 the mock in lockstep
+    flew the 2 m/s figure-8 in a limit cycle (tilt 33 deg instead of 15); with k_roll 10 and
+    kp_xy 20 (separation 2.2) two of four real-time mock flights at 6 m/s oscillated (0.45 m);
+    capped to kp_xy 16, none of three did. Re-measured uncapped: real PX4 SITL on a loaded
+    machine flew the 2 m/s figure-8 in a 1.4-1.5 Hz oscillation (0.39 m RMS, 0.11 m on a quieter
+    run), the real-time mock with PX4-like estimate errors (`serve --estimator ekf2 --jitter
+    0.01`) oscillated at 1.5 Hz at 6 m/s (tilt 60 deg instead of 48) in 2 of 2 flights; capped,
+    or uncapped with `feedback_rate_ff` 0.25, it did not."""
     cap = min(attitude.k_roll, attitude.k_pitch) / separation
     wn = math.sqrt(gains.kp_xy)
     if wn <= cap:
@@ -523,6 +529,20 @@ class TrackingConfig:
         measured accelerations for the hover-thrust estimator [s].
     max_tilt_rad: tilt limit of the commanded thrust vector.
     thrust_min / thrust_max: normalised thrust bounds.
+    feedback_rate_ff: `rates` mode, share (0..1) of the feedback part of the commanded
+        acceleration's derivative (kp e_v + kd (a_ref - a) + ki e_p, `a` from the attitude) fed
+        to the flatness map as jerk, i.e. forward as body rates (0: the reference's jerk only;
+        the attitude loop then lags the feedback by ~1/k_roll). It buys the phase margin the
+        position loop would otherwise need a cap for, but puts k_roll + share * kd_xy on the
+        measured (delayed) tilt. 0.25 keeps that at ~12 with the default gains (linear model,
+        rate loop 20 ms: phase margin 42 deg, delay margin 59 ms, vs 39 deg / 62 ms for the
+        former cap kp_xy 16 and 35 deg / 55 ms uncapped without it). On real PX4 v1.16 SITL,
+        share 0.5 and 1 with k_roll 10 oscillated at 1.7-2 Hz; share 1 with k_roll 4 flew
+        6 m/s well (0.108 m) but 2 m/s badly (0.153 m). BENCHMARKS.md, "Tracking on real PX4:
+        where the error came from".
+    rates_separation: if > 0, `rates` mode flies `rates_mode_gains(gains, attitude_gains,
+        rates_separation)` (the cascade-separation cap, 2.5 before the feed-forward); 0 (the
+        default) flies the configured gains.
     """
 
     params: MultirotorParams
@@ -542,6 +562,8 @@ class TrackingConfig:
     max_tilt_rad: float = math.radians(60.0)
     thrust_min: float = 0.08
     thrust_max: float = 1.0
+    feedback_rate_ff: float = 0.25
+    rates_separation: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_tilt_rad < math.radians(89.0):
@@ -550,6 +572,10 @@ class TrackingConfig:
             raise ValueError("thrust bounds must satisfy 0 <= min < max <= 1")
         if not 0.0 < self.params.hover_thrust < 1.0:
             raise ValueError("params.hover_thrust must be in (0, 1)")
+        if not 0.0 <= self.feedback_rate_ff <= 1.0:
+            raise ValueError("feedback_rate_ff must be in [0, 1]")
+        if not (math.isfinite(self.rates_separation) and self.rates_separation >= 0.0):
+            raise ValueError("rates_separation must be >= 0 (0: no cap)")
 
 
 @dataclass(frozen=True)
@@ -641,7 +667,9 @@ class TrackingController:
         self._gain_lists = {
             rates: (g.kp().tolist(), g.kd().tolist(), g.ki().tolist(), g.i_max().tolist())
             for rates, g in ((False, config.gains),
-                             (True, rates_mode_gains(config.gains, config.attitude_gains)))
+                             (True, rates_mode_gains(config.gains, config.attitude_gains,
+                                                     config.rates_separation)
+                              if config.rates_separation > 0.0 else config.gains))
         }
         self._kp_l, self._kd_l, self._ki_l, self._imax_l = self._gain_lists[False]
         self._integ_l = [0.0, 0.0, 0.0]
@@ -891,6 +919,8 @@ class TrackingController:
             ra[2] + rj[2] * L + rs[2] * hL2 + kp[2] * e_p[2] + kd[2] * e_v[2] + integ[2],
         )
         j_ff = (rj[0] + rs[0] * L, rj[1] + rs[1] * L, rj[2] + rs[2] * L)
+        if rates and c.feedback_rate_ff > 0.0 and self._thrust_hist:
+            j_ff = self._feedback_jerk(j_ff, ra, e_p, e_v, vel, c.feedback_rate_ff)
 
         # 3. thrust vector t = m (g e3 - a) - D v with drag, saturation
         h = self.hover_thrust
@@ -944,6 +974,41 @@ class TrackingController:
         self._diag = (now, e_p, e_v, a_sat, tuple(integ), h, D, tau, sat,
                       "singular flatness point" if singular else "")
         return q_des, thrust, omega_ff, sat
+
+    def _feedback_jerk(
+        self,
+        j_ref: tuple[float, float, float],
+        a_ref: list[float],
+        e_p: tuple[float, float, float],
+        e_v: tuple[float, float, float],
+        vel: tuple[float, float, float],
+        share: float,
+    ) -> tuple[float, float, float]:
+        """Time derivative of the commanded acceleration [m/s^3, NED], its feedback part scaled
+        by `share`: j_ref + share (kp e_v + kd (a_ref - a) + ki e_p). The vehicle's acceleration
+        `a` comes from its (extrapolated) attitude and the last thrust command,
+        a = g e3 - (u g / h) z_b - D v / m, not from differentiated velocities. Fed to the
+        flatness map in `rates` mode, the body rates then carry the commanded attitude's own
+        rotation forward (share 1: exactly; tests/unit/test_control.py checks it against finite
+        differences), so the P attitude loop only corrects what the rate loop missed."""
+        p = self.config.params
+        g0 = p.g
+        h = self.hover_thrust
+        u = self._thrust_hist[-1][1]
+        qw, qx, qy, qz = self._q_now
+        # body z axis (third column of C_eb) in NED
+        zx = 2.0 * (qx * qz + qw * qy)
+        zy = 2.0 * (qy * qz - qw * qx)
+        zz = 1.0 - 2.0 * (qx * qx + qy * qy)
+        f = u * g0 / h
+        dm = self.drag / p.mass
+        a = (-f * zx - dm * vel[0], -f * zy - dm * vel[1], g0 - f * zz - dm * vel[2])
+        kp, kd, ki = self._kp_l, self._kd_l, self._ki_l
+        return (
+            j_ref[0] + share * (kp[0] * e_v[0] + kd[0] * (a_ref[0] - a[0]) + ki[0] * e_p[0]),
+            j_ref[1] + share * (kp[1] * e_v[1] + kd[1] * (a_ref[1] - a[1]) + ki[1] * e_p[1]),
+            j_ref[2] + share * (kp[2] * e_v[2] + kd[2] * (a_ref[2] - a[2]) + ki[2] * e_p[2]),
+        )
 
     def _publish_diag(self, e_R: FloatArray | None, e_omega: FloatArray | None = None) -> None:
         """Diagnostics of this update (from `_diag`), built lazily by `last`."""

@@ -393,3 +393,94 @@ def test_rates_mode_gains_keep_the_attitude_loop_faster(kp: float, k_att: float,
         assert r.kd_xy / (2.0 * wn_r) == pytest.approx(g.kd_xy / (2.0 * wn))
         assert r.ki_xy / wn_r**3 == pytest.approx(g.ki_xy / wn**3)
     assert (r.kp_z, r.kd_z, r.ki_z) == (g.kp_z, g.kd_z, g.ki_z)
+
+
+@pytest.mark.parametrize("drag", [0.0, 1.0])
+def test_rates_feedforward_is_the_derivative_of_the_commanded_attitude(drag: float) -> None:
+    """Vehicle off the reference but flying exactly the commanded acceleration and attitude:
+    the body-rate feed-forward of `rates` mode equals the rotation rate of the commanded
+    attitude (central finite difference on SO(3) of `attitude` mode's q, scipy), feedback part
+    included (`feedback_rate_ff` 1); with 0 only the reference's part is fed forward."""
+    p = _params(drag=drag)
+    g = TrackingGains(ki_xy=0.0, ki_z=0.0)
+    ref_of = _ref_moving()
+    p0 = np.array([3.1, -0.05, -4.95])  # reference at t = 0: (3, 0, -5), (0, 3, 0) m/s
+    v0 = np.array([0.2, 2.9, 0.05])
+
+    def cfg(ff: float, k: float = 0.0) -> TrackingConfig:
+        return TrackingConfig(params=p, gains=g, estimate_hover_thrust=False,
+                              latency_compensation=False, attitude_lead_s=0.0,
+                              drag_velocity="estimate", feedback_rate_ff=ff,
+                              rates_separation=0.0,  # the same gains in both modes
+                              attitude_gains=AttitudeGains(k_roll=k, k_pitch=k, k_yaw=k))
+
+    # the commanded acceleration at t = 0 (the vehicle flies it from here on)
+    probe = TrackingController(cfg(0.0))
+    assert not probe.attitude(0.0, _est(0.0, p0, v0), ref_of(0.0)).saturated
+    assert probe.last is not None
+    a0 = probe.last.acc_cmd_ned
+
+    def q_cmd(t: float) -> Rotation:
+        ctl = TrackingController(cfg(0.0))
+        est = _est(t, p0 + v0 * t + 0.5 * a0 * t * t, v0 + a0 * t, acc=a0)
+        return _rot(ctl.attitude(t, est, ref_of(t)).q_wxyz)
+
+    h = 1e-4
+    q0 = q_cmd(0.0)
+    w_fd = (q_cmd(-h).inv() * q_cmd(h)).as_rotvec() / (2 * h)  # body rates of q_cmd
+
+    def w_ff(ff: float) -> np.ndarray:
+        ctl = TrackingController(cfg(ff))
+        est = _est(0.0, p0, v0, _wxyz(q0))
+        ctl.rates(0.0, est, ref_of(0.0))  # the thrust command the vehicle is flying
+        return ctl.rates(0.0, est, ref_of(0.0)).omega_frd  # k = 0: pure feed-forward
+
+    np.testing.assert_allclose(w_ff(1.0), w_fd, atol=2e-3)
+    assert np.linalg.norm(w_ff(0.0) - w_fd) > 0.1
+    # body rates are linear in the jerk at a given acceleration: a share feeds that share
+    np.testing.assert_allclose(w_ff(0.5), 0.5 * (w_ff(0.0) + w_ff(1.0)), atol=1e-9)
+
+
+def _ref_moving() -> object:
+    """A curved reference (circle of radius 3 m at 1 rad/s, yaw following) as a function of t."""
+    def ref(t: float) -> Reference:
+        c, s = math.cos(t), math.sin(t)
+        return Reference(np.array([3 * c, 3 * s, -5.0]), np.array([-3 * s, 3 * c, 0.0]),
+                         np.array([-3 * c, -3 * s, 0.0]), np.array([3 * s, -3 * c, 0.0]),
+                         np.array([3 * c, 3 * s, 0.0]), 0.2 * t, 0.2, 0.0)
+    return ref
+
+
+@pytest.mark.parametrize("kw", [{"feedback_rate_ff": 1.5}, {"feedback_rate_ff": -0.1},
+                                {"feedback_rate_ff": math.nan}, {"rates_separation": -1.0},
+                                {"rates_separation": math.inf}])
+def test_config_refuses_bad_rates_mode_settings(kw: dict[str, float]) -> None:
+    with pytest.raises(ValueError):
+        TrackingConfig(params=_params(), **kw)  # type: ignore[arg-type]
+
+
+def test_rates_separation_caps_only_rates_mode() -> None:
+    """rates_separation > 0 flies rates mode with `rates_mode_gains` and attitude mode with the
+    configured gains; 0 flies both with the configured gains."""
+    att = AttitudeGains()
+    capped = rates_mode_gains(TrackingGains(), att, separation=2.5)
+    assert capped.kp_xy < TrackingGains().kp_xy  # the cap is active for the defaults
+
+    def run(cfg: TrackingConfig, mode: str) -> np.ndarray:
+        ctl = TrackingController(cfg)
+        est = _est(0.0, [0.3, -0.2, -5.0], [0.5, 0.1, 0.0])
+        ref = Reference(np.array([0.0, 0.0, -5.0]))
+        if mode == "rates":
+            ctl.rates(0.0, est, ref)
+        else:
+            ctl.attitude(0.0, est, ref)
+        assert ctl.last is not None
+        return ctl.last.acc_cmd_ned
+
+    def cfg(gains: TrackingGains | None = None, sep: float = 0.0) -> TrackingConfig:
+        return TrackingConfig(params=_params(), gains=gains or TrackingGains(), attitude_gains=att,
+                              estimate_hover_thrust=False, rates_separation=sep)
+
+    np.testing.assert_allclose(run(cfg(sep=2.5), "rates"), run(cfg(capped), "rates"))
+    np.testing.assert_allclose(run(cfg(sep=2.5), "attitude"), run(cfg(), "attitude"))
+    assert not np.allclose(run(cfg(sep=2.5), "rates"), run(cfg(), "rates"))
