@@ -456,16 +456,21 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                 landing = not rover and planned.final_action in ("land", "rtl")
                 land_speed = (px4.params.MPC_LAND_SPEED if px4 is not None
                               else Px4PlanningParams().MPC_LAND_SPEED)
+                td: Touchdown | None = None
+                if touchdown and landing and planned.schedule is not None:
+                    # take over where the plan's last descent stops cruising (no stop 0.5 m up)
+                    t_td, v_td = planned.schedule.final_descent_cruise(land_speed)
+                    td = Touchdown(t_td - planned.t_off_s, descent_m_s=land_speed, v0_m_s=v_td)
                 source = TrackingSource(
                     ref, mode, vf.params,  # type: ignore[arg-type]
                     tracking=(vf.tracking_config(math.radians(50.0))
                               if mode in ("attitude", "rates") else None),
-                    touchdown=(Touchdown(planned.duration_s, descent_m_s=land_speed)
-                               if touchdown and landing else None))
+                    touchdown=td)
                 rec = loop.create_task(record())
                 started = loop.time()
                 flown = await v.fly(mode=mode, setpoint_source=source,
-                                    duration_s=planned.duration_s, arm=fly_takeoff,
+                                    duration_s=planned.duration_s if td is None else td.from_s,
+                                    arm=fly_takeoff,
                                     end_action=("touchdown" if source.touchdown is not None
                                                 else "land" if landing else "hold"))
                 ended = loop.time()

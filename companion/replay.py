@@ -343,8 +343,11 @@ class Flight:
         # attitude and rates mode land a quad themselves (as `fly` does): the plan ends
         # TOUCHDOWN_FROM_M above the ground (`prepare_mission`), then the source descends until
         # PX4 detects the landing, and the companion disarms
-        self.touchdown = (Touchdown(schedule.duration_s, descent_m_s=schedule.px4.MPC_LAND_SPEED)
-                          if self_lands(config, schedule.final_action) else None)
+        self.touchdown: Touchdown | None = None
+        if self_lands(config, schedule.final_action):
+            land_speed = schedule.px4.MPC_LAND_SPEED
+            t_td, v_td = schedule.final_descent_cruise(land_speed)
+            self.touchdown = Touchdown(t_td, descent_m_s=land_speed, v0_m_s=v_td)
         self.source = TrackingSource(self._reference, mode, config.params,
                                      touchdown=self.touchdown)
         self.setpoints_sent = 0
@@ -466,13 +469,14 @@ class Flight:
     def _touchdown_step(self, now: float) -> None:
         """After the plan of a self-landing flight: disarm (still streaming) once PX4 reports
         the vehicle on the ground; PX4's LAND after TOUCHDOWN_TIMEOUT_S without it."""
-        late = now - self.t_fly0 - self.schedule.duration_s
+        assert self.touchdown is not None
+        late = now - self.t_fly0 - self.touchdown.from_s
         if late < 0.0 or self.disarm_sent:
             return
         ext = self.link.telemetry.extended
         if ext is not None and ext.landed_state == 1:
             # the plan ended at its start: what follows is the touchdown, not plan tracking
-            self.log.fly_t1 = self.t_fly0 + self.schedule.duration_s
+            self.log.fly_t1 = self.t_fly0 + self.touchdown.from_s
             self.link.disarm(now)
             self.disarm_sent = True
         elif late >= TOUCHDOWN_TIMEOUT_S:

@@ -212,6 +212,28 @@ class Schedule:
         """Flight-plan phase at schedule time `t`."""
         return self._piece_at(t).phase
 
+    def final_descent_cruise(self, speed_m_s: float, step_s: float = 0.02) -> tuple[float, float]:
+        """Where the final landing descent stops cruising: (schedule time [s], descent speed
+        [m/s] there), the last time the plan still descends at >= 95 % of `speed_m_s`
+        (MPC_LAND_SPEED) before it slows to its stop; (duration_s, 0.0) when the plan does
+        not end in such a descent. A vehicle landing itself continues straight down from
+        there instead of stopping above the ground first."""
+        last = self.pieces[-1]
+        if last.kind != "traj" or last.phase != "land" or last.traj is None:
+            return self.duration_s, 0.0
+        t = np.arange(last.duration_s, -1e-9, -step_s)
+        v = last.traj.evaluate(t, 1)
+        if v.shape[1] < 3:
+            return self.duration_s, 0.0
+        cruising = v[:, 2] >= 0.95 * speed_m_s
+        level = np.hypot(v[:, 0], v[:, 1]) <= 0.1
+        if not cruising.any():
+            return self.duration_s, 0.0
+        k = int(np.argmax(cruising))  # the first from the end
+        if not level[: k + 1].all():
+            return self.duration_s, 0.0
+        return last.t0_s + float(t[k]), float(v[k, 2])
+
     def sample(self, t: FloatArray) -> FloatArray:
         """Planned positions (N, 3) NED at times `t` [s] (vectorised over trajectory pieces)."""
         t = np.asarray(t, dtype=np.float64)

@@ -147,8 +147,10 @@ class Touchdown:
     """How a source lands the vehicle itself once its reference has ended (a plan that ends
     at rest just above the ground), instead of handing over to PX4's LAND.
 
-    From reference time `from_s` [s] the reference descends straight down, accelerating at
-    `accel_m_s2` to `descent_m_s` (PX4's MPC_LAND_SPEED) [m/s]. Ground contact is what PX4's
+    From reference time `from_s` [s] the reference descends straight down from where it was,
+    starting at `v0_m_s` (the plan's own descent speed there: the touchdown may take over a
+    descent that is still cruising) and changing at `accel_m_s2` to `descent_m_s` (PX4's
+    MPC_LAND_SPEED) [m/s]. Ground contact is what PX4's
     land detector calls "hit ground": after the ramp-in, the vehicle is not descending
     (|vz| < `still_m_s`) while the reference is more than `gap_m` [m] below it, for
     `contact_s` [s]; `still_m_s` is PX4's own LNDMC_Z_VEL_MAX (EKF2's vertical speed jitters
@@ -160,6 +162,7 @@ class Touchdown:
 
     from_s: float
     descent_m_s: float = 0.7
+    v0_m_s: float = 0.0
     accel_m_s2: float = 1.0
     still_m_s: float = 0.25
     gap_m: float = 0.2
@@ -173,22 +176,25 @@ class Touchdown:
                 raise ValueError(f"Touchdown.{name} must be a positive number, got {v}")
         if not math.isfinite(self.from_s):
             raise ValueError(f"Touchdown.from_s must be finite, got {self.from_s}")
+        if not (math.isfinite(self.v0_m_s) and self.v0_m_s >= 0.0):
+            raise ValueError(f"Touchdown.v0_m_s must be >= 0, got {self.v0_m_s}")
 
     def offset(self, tau: float) -> tuple[float, float, float]:
-        """Distance below the end point [m], descent speed [m/s] and acceleration [m/s^2]
+        """Distance below the start point [m], descent speed [m/s] and acceleration [m/s^2]
         `tau` [s] after `from_s`."""
+        v0, v = self.v0_m_s, self.descent_m_s
         if tau <= 0.0:
-            return 0.0, 0.0, 0.0
-        a, v = self.accel_m_s2, self.descent_m_s
-        t_ramp = v / a
+            return 0.0, v0, 0.0
+        a = self.accel_m_s2 if v >= v0 else -self.accel_m_s2
+        t_ramp = self.ramp_in_s
         if tau < t_ramp:
-            return 0.5 * a * tau * tau, a * tau, a
-        return 0.5 * v * t_ramp + v * (tau - t_ramp), v, 0.0
+            return v0 * tau + 0.5 * a * tau * tau, v0 + a * tau, a
+        return v0 * t_ramp + 0.5 * a * t_ramp * t_ramp + v * (tau - t_ramp), v, 0.0
 
     @property
     def ramp_in_s(self) -> float:
         """Time from `from_s` until the descent reaches its speed [s]."""
-        return self.descent_m_s / self.accel_m_s2
+        return abs(self.descent_m_s - self.v0_m_s) / self.accel_m_s2
 
 
 def _level_q(q_wxyz: np.ndarray) -> tuple[float, float, float, float]:

@@ -34,8 +34,9 @@ def snap(now: float, z: float, vz: float, landed_state: int = 2) -> TelemetrySna
         now_s=now)
 
 
-def test_descent_offset_is_continuous_and_its_own_derivative() -> None:
-    td = Touchdown(0.0, descent_m_s=0.7, accel_m_s2=1.0)
+@pytest.mark.parametrize("v0", [0.0, 0.669, 1.2])
+def test_descent_offset_is_continuous_and_its_own_derivative(v0: float) -> None:
+    td = Touchdown(0.0, descent_m_s=0.7, v0_m_s=v0, accel_m_s2=1.0)
     ts = np.linspace(0.0, 3.0, 3001)
     z = np.array([td.offset(t)[0] for t in ts])
     v = np.array([td.offset(t)[1] for t in ts])
@@ -46,8 +47,36 @@ def test_descent_offset_is_continuous_and_its_own_derivative() -> None:
     inner = np.abs(ts - td.ramp_in_s) > 2 * dt  # away from the acceleration's step
     assert np.allclose(np.gradient(v, dt)[inner][1:-1], a[inner][1:-1], atol=1e-6)
     assert v[-1] == pytest.approx(0.7) and a[-1] == 0.0 and z[0] == 0.0
+    assert v[0] == v0  # takes over the plan's descent speed without a jump
     with pytest.raises(ValueError):
         Touchdown(0.0, descent_m_s=0.0)
+    with pytest.raises(ValueError):
+        Touchdown(0.0, v0_m_s=-0.1)
+
+
+def test_touchdown_takes_over_where_the_plan_stops_cruising_down() -> None:
+    """`Schedule.final_descent_cruise`: at the returned time the plan descends at >= 95 % of
+    MPC_LAND_SPEED, straight down, and from there on to its end it only slows (the stop 0.5 m
+    above the ground the touchdown replaces)."""
+    from pathlib import Path
+
+    from companion.config import VehicleFile
+    from companion.mission import load_mission, mission_to_flight_plan
+    from companion.schedule import build_schedule
+
+    vf = VehicleFile()
+    root = Path(__file__).resolve().parents[2]
+    for name in ("tests/data/missions/square_8ms.plan", "tests/data/missions/px4_short.plan"):
+        fp = mission_to_flight_plan(load_mission(root / name))
+        sched = build_schedule(fp, vf.params, vf.limits, handover_height_m=0.5)
+        t, v = sched.final_descent_cruise(0.7)
+        assert sched.duration_s - 2.0 < t < sched.duration_s
+        r = sched.reference(t)
+        assert r.vel_ned[2] == pytest.approx(v) and v >= 0.95 * 0.7
+        assert math.hypot(r.vel_ned[0], r.vel_ned[1]) < 0.1
+        after = [sched.reference(x).vel_ned[2] for x in np.linspace(t + 0.02, sched.duration_s, 40)]
+        assert max(after) < 0.95 * 0.7
+        assert after[-1] == pytest.approx(0.0, abs=1e-6)
 
 
 @pytest.mark.parametrize("mode", ["attitude", "rates"])
