@@ -584,9 +584,8 @@ def mock_table(rows: list[dict[str, Any]], corridor_m: float, bound_name: str) -
 
 
 def fly_report_worst(closest: list[float | None], plan: Path) -> float:
-    """Worst closest approach [m] in `fly`'s own report.json (its plan anchored where PX4's
-    takeoff ended), the landing point left out: that report stops at the handover to NAV_LAND
-    1 m above it."""
+    """Worst closest approach [m] in `fly`'s own report.json (in its plan's frame), the landing
+    point left out: that report stops where the plan's descent ends above it."""
     from companion.mission import load_mission
 
     fp = mission_to_flight_plan(load_mission(plan))
@@ -630,8 +629,8 @@ def px4_table(px4: dict[str, Any]) -> str:
              "| worst waypoint closest approach, truth (HIL_STATE_QUATERNION) [m] | "
              f"{cell('companion', 'truth', 'max_closest_m', '.2f')} | "
              f"{cell('auto_mission', 'truth', 'max_closest_m', '.2f')} |",
-             "| worst waypoint but the landing point, `fly`'s own report (its plan anchored "
-             "where PX4's takeoff ended, not at the mission's home) [m] | "
+             "| worst waypoint but the landing point, `fly`'s own report (in its plan's frame) "
+             "[m] | "
              f"{cell('companion', 'fly_report_worst_m', None, '.2f')} | - |",
              "| max deviation from the legs, estimate [m] | "
              f"{cell('companion', 'estimate', 'max_dev_m', '.2f')} | "
@@ -700,10 +699,10 @@ def section(title: str, argv: str, mock: list[dict[str, Any]] | None,
             "### Real PX4 v1.16 SITL (SIH quad, default parameters, real time): "
             f"{entry['mission']}\n\n{reused}Each flight on a fresh PX4 ({entry['date']}); armed "
             "time from the flight's .tlog (arm COMMAND_ACK to the first disarmed HEARTBEAT, "
-            "+-1 s); waypoints placed at PX4's HOME_POSITION. The companion's `fly` plans "
-            "relative to where PX4's takeoff ended, so against the mission's waypoints it also "
-            "carries the takeoff's horizontal drift (its first waypoint, the takeoff point, shows "
-            "it); `fly`'s own report measures in that shifted frame.\n\n" + px4_table(entry))
+            "+-1 s); waypoints placed at PX4's HOME_POSITION. The companion's `fly` flies "
+            "the takeoff itself and plans from where the vehicle stood (before 2026-11-26: from "
+            "where PX4's NAV_TAKEOFF ended, carrying its drift), lands itself in attitude mode "
+            "and disarms once PX4 reports it on the ground.\n\n" + px4_table(entry))
     if planning is not None:
         parts.append("### Planning time\n\n" + planning_text(planning))
     return "\n".join(parts)
