@@ -400,9 +400,10 @@ async def fly(opts: FlyOptions, console: Console) -> int:
         # a multicopter mission from the ground: the plan flies the takeoff too, armed in
         # OFFBOARD (PX4's NAV_TAKEOFF spool-up and the switch after it cost ~5 s)
         fly_takeoff = mission is not None and not rover and not v.is_armed
-        # attitude and rates mode land the vehicle themselves: the plan ends TOUCHDOWN_FROM_M
-        # above the ground, then descends at MPC_LAND_SPEED until PX4 sees the landing (PX4's
-        # LAND crawls the last metre at MPC_LAND_CRWL and takes ~4 s to detect it)
+        # attitude and rates mode land the vehicle themselves: the plan's descent ends
+        # TOUCHDOWN_FROM_M up, a Touchdown takes over where it stops cruising and descends at
+        # MPC_LAND_SPEED until PX4 sees the landing (PX4's LAND crawls the last metre at
+        # MPC_LAND_CRWL and took ~4 s to detect it)
         touchdown = mission is not None and not rover and mode in ("attitude", "rates")
         planned = await asyncio.to_thread(
             plan_flight, opts, inputs, rover, None if px4 is None else px4.params, fly_takeoff,

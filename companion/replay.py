@@ -8,8 +8,9 @@ timestamp + raw MAVLink frame), readable by pymavlink, MAVExplorer and QGroundCo
 
 The companion side follows PX4's offboard protocol exactly as on a real vehicle: wait for a
 healthy vehicle, stream setpoints for 0.5 s (priming), switch to OFFBOARD, arm, fly the planned
-schedule, then hand over to PX4's NAV_LAND (or Hold for a loiter ending) and disarm once PX4
-reports the vehicle on the ground (as `fly` does).
+schedule, then land as `fly` does: in attitude and rates mode touch down itself
+(`companion.tracking.Touchdown`), in position mode hand over to PX4's NAV_LAND (a loiter ending:
+Hold), and disarm once PX4 reports the vehicle on the ground.
 """
 
 from __future__ import annotations
@@ -340,9 +341,9 @@ class Flight:
         self.t_fly0 = math.nan
         self.origin = np.zeros(3)
         mode: SetpointMode = "rover" if config.vehicle == "rover" else config.mode
-        # attitude and rates mode land a quad themselves (as `fly` does): the plan ends
-        # TOUCHDOWN_FROM_M above the ground (`prepare_mission`), then the source descends until
-        # PX4 detects the landing, and the companion disarms
+        # attitude and rates mode land a quad themselves (as `fly` does): the plan's descent
+        # ends TOUCHDOWN_FROM_M up (`prepare_mission`); the touchdown takes over where it stops
+        # cruising and descends until PX4 detects the landing, then the companion disarms
         self.touchdown: Touchdown | None = None
         if self_lands(config, schedule.final_action):
             land_speed = schedule.px4.MPC_LAND_SPEED
@@ -471,15 +472,15 @@ class Flight:
         the vehicle on the ground; PX4's LAND after TOUCHDOWN_TIMEOUT_S without it."""
         assert self.touchdown is not None
         late = now - self.t_fly0 - self.touchdown.from_s
-        if late < 0.0 or self.disarm_sent:
+        if late < 0.0:
             return
         ext = self.link.telemetry.extended
-        if ext is not None and ext.landed_state == 1:
-            # the plan ended at its start: what follows is the touchdown, not plan tracking
+        if not self.disarm_sent and ext is not None and ext.landed_state == 1:
+            # tracking metrics end where the touchdown began (it is not plan tracking)
             self.log.fly_t1 = self.t_fly0 + self.touchdown.from_s
             self.link.disarm(now)
             self.disarm_sent = True
-        elif late >= TOUCHDOWN_TIMEOUT_S:
+        elif late >= TOUCHDOWN_TIMEOUT_S:  # no landing seen, or the disarm refused
             self._handover(now)
 
     def _handover(self, now: float) -> None:

@@ -343,3 +343,36 @@ async def test_land_waits_for_px4_disarm_when_the_disarm_is_refused(
         assert not v.is_armed
     assert len([x for x in commands(script, 400) if x.param1 == 0.0]) == 1
     assert fake.custom_mode == custom_mode_of(FlightMode.LAND)
+
+
+async def test_touchdown_without_a_detected_landing_hands_over_to_land(
+        px4: tuple[Script, int, FakePx4]) -> None:
+    script, port, fake = px4
+    script.landed_state = 2  # PX4 never reports the landing
+    cfg = VehicleConfig(connect_timeout_s=5.0, armable_timeout_s=2.0, rate_hz=50.0,
+                        touchdown_timeout_s=0.5)
+    async with Vehicle.connect(f"udpout://127.0.0.1:{port}", config=cfg) as v:
+        await v.arm()
+        t0 = time.monotonic()
+        await v.fly(setpoint_source=lambda t, tel: PositionSetpoint(pos_ned=(1.0, 2.0, -3.0)),
+                    duration_s=0.3, end_action="touchdown")
+        assert time.monotonic() - t0 >= 0.3 + 0.5
+        assert fake.custom_mode == custom_mode_of(FlightMode.LAND) and fake.armed
+    assert not [x for x in commands(script, 400) if x.param1 == 0.0]  # never disarmed in air
+
+
+async def test_touchdown_disarms_once_on_ground_while_still_streaming(
+        px4: tuple[Script, int, FakePx4]) -> None:
+    script, port, fake = px4
+    script.landed_state = 1  # on ground by the end of the trajectory
+    async with Vehicle.connect(f"udpout://127.0.0.1:{port}", config=CFG) as v:
+        await v.arm()
+        await v.fly(setpoint_source=lambda t, tel: PositionSetpoint(pos_ned=(1.0, 2.0, -3.0)),
+                    duration_s=0.3, end_action="touchdown")
+        assert not fake.armed and not v.is_armed
+    disarm = [x for x in commands(script, 400) if x.param1 == 0.0]
+    assert len(disarm) == 1
+    sps = [x for x in script.received if x.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
+    i_disarm = script.received.index(disarm[0])
+    assert any(script.received.index(sp) > i_disarm for sp in sps)  # streamed through it
+    assert not mode_requests(script, 4)  # no LAND or Hold request
