@@ -73,6 +73,24 @@ async def run_mock(*extra: str, speed: float = 1.0,
         await stop_process(proc)
 
 
+async def run_companion(*args: str, timeout_s: float, what: str) -> tuple[int, str]:
+    """Run `python -m companion ARGS` to completion (killed after `timeout_s`); returns its
+    exit code and its combined output."""
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "companion", *args,
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
+    )
+    try:
+        output, _ = await bounded(proc.communicate(), timeout_s, what)
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            with contextlib.suppress(Exception):
+                await proc.wait()
+    assert proc.returncode is not None
+    return proc.returncode, output.decode(errors="replace")
+
+
 async def stop_process(proc: asyncio.subprocess.Process) -> None:
     """SIGTERM, then SIGKILL after 5 s; waits until the process is gone."""
     if proc.returncode is None:

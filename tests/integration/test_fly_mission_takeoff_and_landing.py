@@ -19,16 +19,13 @@
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
-import sys
 from pathlib import Path
 from typing import Any
 
 import pytest
 from pymavlink import mavutil
 
-from tests.integration.conftest import bounded, run_mock
+from tests.integration.conftest import run_companion, run_mock
 from tests.integration.test_lossy_link_mission_passes_waypoints import haversine_m, waypoints
 
 MISSION = Path(__file__).parents[1] / "data" / "missions" / "px4_short.plan"
@@ -50,20 +47,11 @@ async def test_mission_takes_off_in_offboard_and_disarms_on_landing(tmp_path: Pa
                                                                    mode: str) -> None:
     tlog = tmp_path / "mission.tlog"
     async with run_mock("--estimator-ready", "0.5") as mock:
-        comp = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "companion", "fly", str(MISSION), "--mode", mode,
+        code, text = await run_companion(
+            "fly", str(MISSION), "--mode", mode,
             "--connect", f"udpin://127.0.0.1:{mock.client_port}", "--log", str(tlog),
-            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
-        )
-        try:
-            output, _ = await bounded(comp.communicate(), 90.0, "the mission flight")
-        finally:
-            if comp.returncode is None:
-                comp.kill()
-                with contextlib.suppress(Exception):
-                    await comp.wait()
-        text = output.decode(errors="replace")
-        assert comp.returncode == 0, text[-3000:]
+            timeout_s=90.0, what="the mission flight")
+        assert code == 0, text[-3000:]
 
     first_setpoint = offboard_disarmed = arm_sent = armed_at = None
     land_request = on_ground_after_flight = disarm_sent = disarmed_at = None

@@ -9,16 +9,13 @@ the mission file's own coordinates, read here with `json` and compared with a ha
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import json
 import math
-import sys
 from pathlib import Path
 
 from pymavlink import mavutil
 
-from tests.integration.conftest import bounded, run_mock
+from tests.integration.conftest import run_companion, run_mock
 
 MISSION = Path(__file__).parents[1] / "data" / "missions" / "square_15m.plan"
 EARTH_RADIUS_M = 6_371_008.8  # IUGG mean radius
@@ -52,20 +49,11 @@ async def test_square_mission_with_loss_and_latency_passes_every_waypoint(
     async with run_mock(
         "--estimator-ready", "0.5", "--loss", "10", "--latency", "0.05", "--seed", "6"
     ) as mock:
-        comp = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "companion", "fly", str(MISSION),
+        code, text = await run_companion(
+            "fly", str(MISSION),
             "--connect", f"udpin://127.0.0.1:{mock.client_port}", "--log", str(tlog),
-            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
-        )
-        try:
-            output, _ = await bounded(comp.communicate(), 90.0, "the lossy mission flight")
-        finally:
-            if comp.returncode is None:
-                comp.kill()
-                with contextlib.suppress(Exception):
-                    await comp.wait()
-        text = output.decode(errors="replace")
-        assert comp.returncode == 0, text[-3000:]
+            timeout_s=90.0, what="the lossy mission flight")
+        assert code == 0, text[-3000:]
 
     wps = waypoints(MISSION)
     assert len(wps) == 4
