@@ -461,11 +461,18 @@ class Flight:
         if ph == Phase.WAIT_DISARM:
             if not armed:
                 self._go(Phase.DONE, now)
-            elif self.config.vehicle == "quad" and not self.disarm_sent:
-                ext = tel.extended
-                if ext is not None and ext.landed_state == 1:  # on ground: disarm, as `fly`
-                    self.link.disarm(now)
-                    self.disarm_sent = True
+            elif self.config.vehicle == "quad":
+                self._disarm_on_ground(now)
+
+    def _disarm_on_ground(self, now: float) -> bool:
+        """Send the DISARM once, when PX4 reports the vehicle on the ground (as `fly` does);
+        True when it was sent now."""
+        ext = self.link.telemetry.extended
+        if self.disarm_sent or ext is None or ext.landed_state != 1:
+            return False
+        self.link.disarm(now)
+        self.disarm_sent = True
+        return True
 
     def _touchdown_step(self, now: float) -> None:
         """After the plan of a self-landing flight: disarm (still streaming) once PX4 reports
@@ -474,12 +481,9 @@ class Flight:
         late = now - self.t_fly0 - self.touchdown.from_s
         if late < 0.0:
             return
-        ext = self.link.telemetry.extended
-        if not self.disarm_sent and ext is not None and ext.landed_state == 1:
+        if self._disarm_on_ground(now):
             # tracking metrics end where the touchdown began (it is not plan tracking)
             self.log.fly_t1 = self.t_fly0 + self.touchdown.from_s
-            self.link.disarm(now)
-            self.disarm_sent = True
         elif late >= TOUCHDOWN_TIMEOUT_S:  # no landing seen, or the disarm refused
             self._handover(now)
 
