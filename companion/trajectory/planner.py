@@ -232,6 +232,8 @@ class _System:
         self._factor: tuple[FloatArray, FloatArray] | None = None
         self._last: tuple[FloatArray, FloatArray, FloatArray] | None = None  # h, hp, Q
         self._windows: tuple[FloatArray, FloatArray] | None = None  # x, windows(x)
+        #: the last solve without a data term: (h, x, cost or NaN)
+        self._solved: tuple[FloatArray, FloatArray, float] | None = None
 
     def _prepare(self, h: FloatArray) -> tuple[FloatArray, FloatArray]:
         """(hp, Q) for durations h: hp = h^o (M, 2s), Q_k = h^(1-2s) S Qt S, S = diag(hp)."""
@@ -282,6 +284,17 @@ class _System:
         ``fit = (R, g)`` adds a per-segment quadratic data term ``x_k^T R_k x_k - 2 g_k . x_k``
         (R (M, 2s, 2s), g (M, 2s, d)) to the objective (same band structure); the returned
         cost is the derivative cost J alone."""
+        last = self._solved
+        if fit is None and last is not None and last[0].shape == h.shape and (
+            np.array_equal(last[0], h)
+        ):
+            # the same durations as the last solve (e.g. the refinement's result, checked
+            # again): the same solution; its factorisation is still the current one
+            x, cost = last[1], last[2]
+            if with_cost and math.isnan(cost):
+                cost = self.cost(x, h)
+                self._solved = (last[0], x, cost)
+            return x, cost if with_cost else math.nan
         d = self.d
         _, Q = self._prepare(h)
         A = Q if fit is None else Q + fit[0]
@@ -324,7 +337,14 @@ class _System:
         cost = float(np.einsum("mad,mad->", xk, Q @ xk)) if with_cost else math.nan
         x.setflags(write=False)  # its windows are cached
         self._windows = (x, xk)
+        self._solved = None if fit is not None else (h.copy(), x, cost)
         return x, cost
+
+    def cost(self, x: FloatArray, h: FloatArray) -> float:
+        """Cost J of the joint derivatives x (as :meth:`solve` returns) for durations h."""
+        _, Q = self._prepare(h)
+        xk = self.windows(x)
+        return float(np.einsum("mad,mad->", xk, Q @ xk))
 
     def adjoint(self, g_full: FloatArray) -> FloatArray:
         """lambda = A^-1 g_F for the last factorised system, scattered to all joint
@@ -884,6 +904,9 @@ class _Planner:
         self._uniform_floor = 0.0
         #: the per-waypoint yaw channel's banded system (same structure at every build)
         self._yaw_systems: dict[str, _System] = {}
+        #: the last :meth:`build`: (durations, trajectory, cost or NaN); the saturation's
+        #: checks and the final build often ask for the same durations again
+        self._built: tuple[FloatArray, PiecewiseBezier, float] | None = None
 
     def solve(self, h: FloatArray, with_cost: bool = True) -> tuple[FloatArray, float]:
         self.solves += 1
@@ -891,7 +914,13 @@ class _Planner:
 
     def build(self, h: FloatArray, with_cost: bool = True) -> tuple[PiecewiseBezier, float]:
         """The trajectory (with its yaw channel) for durations h and its cost J (NaN without
-        ``with_cost``)."""
+        ``with_cost``). The last build is reused for equal durations (same result)."""
+        built = self._built
+        if built is not None and built[0].shape == h.shape and np.array_equal(built[0], h):
+            if not with_cost:
+                return built[1], math.nan
+            _, cost = self.solve(h)  # the system's last solve: no new factorisation
+            return built[1], cost
         x, cost = self.solve(h, with_cost)
         cp = self.system.control_points(x, h)
         traj = PiecewiseBezier.from_control_points(cp, h)
@@ -900,6 +929,7 @@ class _Planner:
         )
         if yaw_traj is not None:
             traj = traj.with_yaw(yaw_traj)
+        self._built = (h.copy(), traj, cost)
         return traj, cost
 
     # ------------------------------------------------------------------ allocation
@@ -1385,7 +1415,8 @@ def _yaw_channel(
         return _heading_fit(traj, s)
     if yaw_wp is None:
         raise AssertionError("per-waypoint yaw missing")  # pragma: no cover
-    if yaw_wp.shape[0] == 1:
+    if yaw_wp.shape[0] == 1 or bool(np.all(yaw_wp == yaw_wp[0])):
+        # one heading (or the same at every waypoint): the minimum-snap channel is constant
         cp = np.full((m, 2 * s, 1), float(yaw_wp[0]))
         return PiecewiseBezier.from_control_points(cp, h)
     if cache is not None and "1d" in cache:
