@@ -330,19 +330,17 @@ def _grid_derivatives(
 ) -> list[FloatArray]:
     """Derivatives of the given orders at ``per_segment`` evenly spaced times of every segment
     (both ends included, each end from its own segment), shape (M * per_segment, d) each, in
-    the order of :func:`_sample_times`. One matrix product for all orders and segments."""
+    the order of :func:`_sample_times`. One stacked matrix product per order, straight into
+    the segment-major layout (no transposed copy of the samples)."""
     cp = traj.control_points
     m, n1, d = cp.shape
-    W = np.vstack([_grid_matrix(n1 - 1, per_segment, r) for r in orders])
-    cpt = cp.transpose(1, 0, 2).reshape(n1, m * d)
-    vals = thin_matmul(W, cpt).reshape(len(orders), per_segment, m, d)
     inv_h = 1.0 / traj.durations
     out = []
-    for i, r in enumerate(orders):
-        v = vals[i].transpose(1, 0, 2)
+    for r in orders:
+        v = np.matmul(_grid_matrix(n1 - 1, per_segment, r), cp)  # (M, per_segment, d)
         if r:
-            v = v * (inv_h**r)[:, None, None]
-        out.append(np.ascontiguousarray(v).reshape(m * per_segment, d))
+            v *= (inv_h**r)[:, None, None]
+        out.append(v.reshape(m * per_segment, d))
     return out
 
 
