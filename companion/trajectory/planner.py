@@ -182,6 +182,42 @@ def _basis(s: int) -> tuple[FloatArray, FloatArray]:
     return H, Qt
 
 
+def _pair_sources(
+    target: NDArray[np.intp], source: NDArray[np.intp], n_targets: int, pad: int
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """For ``np.bincount(target, weights=v[source])`` with at most two terms per target: the
+    first and second source of each target in input order (``pad``, the index of an appended
+    zero, where there is none), see :func:`_pair_sum`."""
+    first = np.full(n_targets, pad, dtype=np.intp)
+    second = np.full(n_targets, pad, dtype=np.intp)
+    order = np.argsort(target, kind="stable")
+    t_sorted = target[order]
+    src_sorted = source[order]
+    new = np.ones(t_sorted.shape[0], dtype=bool)
+    new[1:] = t_sorted[1:] != t_sorted[:-1]
+    first[t_sorted[new]] = src_sorted[new]
+    rest = ~new
+    if rest.any():
+        again = np.zeros(t_sorted.shape[0], dtype=bool)
+        again[1:] = rest[1:] & rest[:-1]
+        if again.any():
+            raise AssertionError("a band entry with more than two terms")  # pragma: no cover
+        second[t_sorted[rest]] = src_sorted[rest]
+    return first, second
+
+
+def _pair_sum(v: FloatArray, src: tuple[NDArray[np.intp], NDArray[np.intp]]) -> FloatArray:
+    """``v.reshape(-1)[first] + v.reshape(-1)[second]`` with a zero appended to v (equal to
+    the ``np.bincount`` sum of at most two terms)."""
+    flat = np.concatenate([v.reshape(-1), _ZERO])
+    out: FloatArray = flat[src[0]]
+    out += flat[src[1]]
+    return out
+
+
+_ZERO = np.zeros(1)
+
+
 class _System:
     """Banded minimum-derivative system for a fixed structure (which joint derivatives are
     fixed); ``solve(h)`` can be called repeatedly with new durations."""
@@ -224,6 +260,16 @@ class _System:
         self.free_idx = np.flatnonzero(free)
         self.free_rows_idx = np.flatnonzero(self.free_rows.reshape(-1))
         self.band_take = np.flatnonzero(mask.reshape(-1))
+        # the same sums as np.bincount over (band_flat, band_take) and (rhs_index, free rows)
+        # as two gathers and one addition: every entry has at most two terms (a joint is shared
+        # by two segments), and (0 + a) + b == a + b exactly
+        self._band_src = _pair_sources(
+            self.band_flat, self.band_take, (self.u + 1) * self.nf, self.m * 4 * s * s
+        )
+        rhs_src = (self.free_rows_idx[:, None] * self.d + np.arange(self.d)[None, :]).reshape(-1)
+        self._rhs_src = _pair_sources(
+            self.rhs_index, rhs_src, self.nf * self.d, self.m * 2 * s * self.d
+        )
         # exponent index of each Q entry: h^(1-2s+o_a+o_b), exponents 1-2s .. -1
         self.expo_idx = (self.expo - (1.0 - 2.0 * s)).astype(np.intp)
         # band storage entry (r, j) holds A[j - (u - r), j]: row index per entry for scaling
@@ -302,19 +348,8 @@ class _System:
         if self.nf:
             xk = self.windows(x)
             yk = A @ xk if fit is None else A @ xk - fit[1]
-            yf = yk.reshape(-1, d)[self.free_rows_idx]
-            rhs = -np.bincount(
-                self.rhs_index, weights=yf.reshape(-1), minlength=self.nf * d
-            ).reshape(self.nf, d)
-            ab = (
-                np.bincount(
-                    self.band_flat,
-                    weights=A.reshape(-1)[self.band_take],
-                    minlength=(self.u + 1) * self.nf,
-                )
-                .reshape(self.nf, self.u + 1)
-                .T
-            )
+            rhs = -_pair_sum(yk, self._rhs_src).reshape(self.nf, d)
+            ab = _pair_sum(A, self._band_src).reshape(self.nf, self.u + 1).T
             # Jacobi scaling for conditioning across very different durations
             diag = ab[self.u]
             if np.any(diag <= 0.0):
@@ -1240,12 +1275,19 @@ class _Planner:
             if not slack.any():
                 break
             cand = best_h * np.where(slack, np.maximum(per_seg, SHRINK_MIN_FACTOR), 1.0)
+            lowest = math.inf
             for _ in range(8):
                 worst, per_seg_c = self._max_ratio(cand, limits, params, coarse=True)
                 if worst <= 1.0:
                     break
+                lowest = min(lowest, worst)
+                if worst > LOCAL_STRETCH_GIVE_UP * lowest:
+                    # the stretched candidate balloons (as in the feasibility pass): give up
+                    # this shrink instead of spending the remaining checks on it
+                    worst = math.inf
+                    break
                 cand = cand * _stretch_factors(per_seg_c)
-            else:
+            if worst > 1.0:
                 break
             total = float(cand.sum())
             if total >= best_t * (1.0 - 1e-3):
