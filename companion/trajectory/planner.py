@@ -939,6 +939,8 @@ class _Planner:
         self._uniform_floor = 0.0
         #: the per-waypoint yaw channel's banded system (same structure at every build)
         self._yaw_systems: dict[str, _System] = {}
+        #: the durations and dense samples of the last dense :meth:`_max_ratio`
+        self._dense: tuple[FloatArray, Any] | None = None
         #: the last :meth:`build`: (durations, trajectory, cost or NaN); the saturation's
         #: checks and the final build often ask for the same durations again
         self._built: tuple[FloatArray, PiecewiseBezier, float] | None = None
@@ -1142,7 +1144,29 @@ class _Planner:
             if worst > 1.0:
                 return worst, per_seg
         smp = segment_samples(traj, limits)
+        self._dense = (h.copy(), smp)
         return self._ratio_of(smp, m, limits, params)
+
+    def _scaled_ratio(
+        self, h: FloatArray, limits: Limits | RoverLimits, params: Any
+    ) -> Callable[[float], float] | None:
+        """The dense check's worst ratio of the durations ``alpha * h`` as a function of
+        alpha, from the dense samples of the last :meth:`_max_ratio` of h (no new solve:
+        scaling every duration by alpha time-scales the optimum when the problem is
+        homogeneous); None when that does not apply."""
+        dense = self._dense
+        if (
+            not self.homogeneous
+            or not isinstance(limits, Limits)
+            or dense is None
+            or dense[0].shape != h.shape
+            or not np.array_equal(dense[0], h)
+        ):
+            return None
+        smp = dense[1]
+        per = smp.vel.shape[0] // max(h.shape[0], 1)
+        scale = None if self.speed_scale is None else np.repeat(self.speed_scale, per)
+        return TimeScaledRatio(smp, limits, params, ALLOCATION_MARGIN, speed_scale=scale)
 
     def _scale(self) -> FloatArray | float:
         """Per-segment speed scale (M,), or 1.0 without per-segment caps."""
@@ -1246,9 +1270,17 @@ class _Planner:
                 if worst <= 1.0:
                     return h
                 done, w = h, worst
+                # a uniform scaling: the dense samples of h time-scaled (no re-solve)
+                scaled = self._scaled_ratio(h, limits, params)
+                alpha = 1.0
                 for _ in range(LOCAL_STRETCH_FINISH_TRIES):
                     done = done * (w * 1.001)
-                    w = self._max_ratio(done, limits, params)[0]
+                    alpha *= w * 1.001
+                    w = (
+                        scaled(alpha)
+                        if scaled is not None
+                        else self._max_ratio(done, limits, params)[0]
+                    )
                     if w <= 1.0:
                         return done
                     if w >= LOCAL_STRETCH_FINISH:
@@ -1277,6 +1309,10 @@ class _Planner:
             cand = best_h * np.where(slack, np.maximum(per_seg, SHRINK_MIN_FACTOR), 1.0)
             lowest = math.inf
             for _ in range(8):
+                if float(cand.sum()) >= best_t * (1.0 - 1e-3):
+                    # stretching only lengthens it: it can no longer be kept
+                    worst = math.inf
+                    break
                 worst, per_seg_c = self._max_ratio(cand, limits, params, coarse=True)
                 if worst <= 1.0:
                     break
