@@ -1740,9 +1740,7 @@ def _midpoint_basis(degree: int, n: int) -> FloatArray:
 def _segment_grid_points(traj: PiecewiseBezier, n: int) -> FloatArray:
     """Positions (M, n, d) of every segment at the normalised times (k + 0.5) / n."""
     cp = traj.control_points
-    m, n1, d = cp.shape
-    vals = thin_matmul(_midpoint_basis(n1 - 1, n), cp.transpose(1, 0, 2).reshape(n1, m * d))
-    return np.ascontiguousarray(vals.reshape(n, m, d).transpose(1, 0, 2))
+    return np.asarray(np.matmul(_midpoint_basis(cp.shape[1] - 1, n), cp), dtype=np.float64)
 
 
 #: Joints placed on a leg with a cruise part, at these multiples of the distance the
