@@ -609,6 +609,18 @@ def _projected_lbfgs(
     return np.asarray(x, dtype=np.float64)
 
 
+def _component_sum(terms: list[FloatArray]) -> FloatArray:
+    """Sum of the per-component arrays ``terms`` in the order ``np.einsum`` sums a contiguous
+    axis of that length (3: ``(t0 + t2) + t1``), so that a component-major layout gives the
+    same values as the former component-minor ``einsum``."""
+    if len(terms) == 3:
+        return terms[0] + terms[2] + terms[1]
+    out = terms[0]
+    for t in terms[1:]:
+        out = out + t
+    return out
+
+
 class _Penalty:
     """Sampled smooth penalty ``P = sum_k h_k / n sum_j max(0, g)^3`` of the limit violations
     ``g`` (dimensionless, > 0 when violated) of speed, acceleration, jerk, tilt and thrust, with
@@ -686,30 +698,36 @@ class _Penalty:
     def _violations(
         self, d_all: FloatArray, grad: bool = True
     ) -> tuple[FloatArray, FloatArray | None]:
-        """Per-sample penalty phi (n, M) from the sampled derivatives d_all (R, n, M, d) and,
-        if ``grad``, dphi/d(d_all) (shape of d_all; None when nothing is violated)."""
-        n, m = d_all.shape[1], d_all.shape[2]
-        # speed, acceleration, jerk: all orders at once (rows without a limit never active)
-        g_kin = np.einsum("rnmd,rnmd->rnm", d_all, d_all)
+        """Per-sample penalty phi (n, M) from the sampled derivatives d_all (R, n, d, M: the
+        components of all segments contiguous) and, if ``grad``, dphi/d(d_all) (shape of d_all;
+        None when nothing is violated). Sums over the d components are formed as
+        ``(x0 + x2) + x1``, the order np.einsum uses on a contiguous (..., 3) axis."""
+        n, m = d_all.shape[1], d_all.shape[3]
+        dim = d_all.shape[2]
+        sq = d_all * d_all
+        g_kin = _component_sum([sq[:, :, k] for k in range(dim)])
         g_kin *= self.kin_inv_lim2
         g_kin -= 1.0
         active = bool(g_kin.max() > 0.0)
-        g_all: FloatArray | None = None
+        g_all = None
         if active:
             pos = np.maximum(g_kin, 0.0)
             w = pos * pos
-            phi = np.einsum("rnm,rnm->nm", w, pos)
+            wp = w * pos
+            phi = wp[0]
+            for r in range(1, wp.shape[0]):
+                phi = phi + wp[r]
             if grad:
                 w *= 6.0 * self.kin_inv_lim2
-                g_all = d_all * w[:, :, :, None]
+                g_all = d_all * w[:, :, None, :]
         else:
             phi = np.zeros((n, m))
-        for row, (h2, up2, dn2) in self.axis_terms if d_all.shape[3] == 3 else ():
-            # per-axis limits: |x_xy|^2 / L_h^2 - 1 and x_z^2 / L_up|down^2 - 1
+        for row, (h2, up2, dn2) in self.axis_terms if dim == 3 else ():
             vec = d_all[row]
-            inv_z = np.where(vec[:, :, 2] < 0.0, 1.0 / up2, 1.0 / dn2)
-            g_h = (vec[:, :, 0] ** 2 + vec[:, :, 1] ** 2) / h2 - 1.0
-            g_z = vec[:, :, 2] ** 2 * inv_z - 1.0
+            vx, vy, vz = vec[:, 0], vec[:, 1], vec[:, 2]
+            inv_z = np.where(vz < 0.0, 1.0 / up2, 1.0 / dn2)
+            g_h = (vx ** 2 + vy ** 2) / h2 - 1.0
+            g_z = vz ** 2 * inv_z - 1.0
             for g, axes, inv in ((g_h, (0, 1), 1.0 / h2), (g_z, (2,), inv_z)):
                 if not g.max() > 0.0:
                     continue
@@ -721,7 +739,7 @@ class _Penalty:
                 if g_all is None:
                     g_all = np.zeros_like(d_all)
                 for ax in axes:
-                    g_all[row, :, :, ax] += 6.0 * w * inv * vec[:, :, ax]
+                    g_all[row, :, ax] += 6.0 * w * inv * vec[:, ax]
         if not self.dyn_terms:
             return phi, g_all
         i1, i2 = self.orders.index(1), self.orders.index(2)
@@ -731,13 +749,13 @@ class _Penalty:
         tv = -mass * d_all[i2]
         if drag:
             tv -= drag * d_all[i1]
-        tv[:, :, 2] += mg
-        dsum: FloatArray | None = None  # sum over the thrust terms of dphi/dt
-        t2: FloatArray | None = None
+        tv[:, 2] += mg
+        dsum = None
+        t2 = None
         for name, lim2 in self.dyn_terms:
             if name == "tilt":
-                tz = np.maximum(tv[:, :, 2], 1e-3 * mg)
-                hor = tv[:, :, 0] ** 2 + tv[:, :, 1] ** 2
+                tz = np.maximum(tv[:, 2], 1e-3 * mg)
+                hor = tv[:, 0] ** 2 + tv[:, 1] ** 2
                 inv = 1.0 / (lim2 * tz * tz)
                 g = hor * inv - 1.0
                 if not g.max() > 0.0:
@@ -750,12 +768,12 @@ class _Penalty:
                 w *= 6.0 * inv
                 if dsum is None:
                     dsum = np.zeros_like(tv)
-                dsum[:, :, 0] += w * tv[:, :, 0]
-                dsum[:, :, 1] += w * tv[:, :, 1]
-                dsum[:, :, 2] -= w * hor / tz
+                dsum[:, 0] += w * tv[:, 0]
+                dsum[:, 1] += w * tv[:, 1]
+                dsum[:, 2] -= w * hor / tz
             else:
                 if t2 is None:
-                    t2 = np.einsum("ijk,ijk->ij", tv, tv)
+                    t2 = _component_sum([tv[:, k] * tv[:, k] for k in range(tv.shape[1])])
                 sign = 1.0 if name == "max_thrust" else -1.0
                 g = sign * (t2 / lim2 - 1.0)
                 if not g.max() > 0.0:
@@ -768,7 +786,7 @@ class _Penalty:
                 w *= sign * 6.0 / lim2
                 if dsum is None:
                     dsum = np.zeros_like(tv)
-                dsum += w[:, :, None] * tv
+                dsum += w[:, None, :] * tv
         if dsum is not None:
             if g_all is None:
                 g_all = np.zeros_like(d_all)
@@ -778,17 +796,20 @@ class _Penalty:
         return phi, g_all
 
     def sampled(self, x: FloatArray, h: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """(d_all (R, n, M, d) sampled derivatives, zt, ihp) at the optimum x(h)."""
+        """(d_all (R, n, d, M) sampled derivatives, zs (M, 2s, d) scaled joint derivatives,
+        ihp) at the optimum x(h). The samples are component-major (each component of all
+        segments contiguous) for the element-wise penalty terms."""
         sysm = self.system
         s = sysm.s
         xk = sysm.windows(x)
         m, d = xk.shape[0], xk.shape[2]
         hp = sysm.powers(h, 0)
-        zt = (xk * hp[:, :, None]).transpose(1, 0, 2).reshape(2 * s, m * d)
+        zs = xk * hp[:, :, None]
+        zt = zs.transpose(1, 2, 0).reshape(2 * s, d * m)
         ihp = (1.0 / h)[None, :] ** self.order_pow  # (R, M)
-        d_all = thin_matmul(self.W_all, zt).reshape(len(self.orders), self.n, m, d)
-        d_all *= ihp[:, None, :, None]
-        return d_all, zt, ihp
+        d_all = thin_matmul(self.W_all, zt).reshape(len(self.orders), self.n, d, m)
+        d_all *= ihp[:, None, None, :]
+        return d_all, zs, ihp
 
     def value(self, x: FloatArray, h: FloatArray) -> tuple[float, Any]:
         """Penalty P at the optimum x(h), and the state :meth:`gradient` needs."""
@@ -807,25 +828,27 @@ class _Penalty:
         ``dqx``: ``system.dq_x(x, h)`` if already computed (shared with ``cost_grad``)."""
         if state is None:
             return np.zeros(h.shape[0])
-        phis, g_all, zt, ihp = state
+        phis, g_all, zs, ihp = state
         sysm = self.system
         s = sysm.s
         n = self.n
-        m, d = g_all.shape[2], g_all.shape[3]
+        d, m = g_all.shape[2], g_all.shape[3]
         hp = sysm.powers(h, 0)
         inv_h = 1.0 / h
         dh = phis / n
         # back-projection: U = sum_r W_r^T G_r h^-r, V = sum_r r W_r^T G_r h^-r
-        g_all *= (ihp * (h / n)[None, :])[:, None, :, None]
-        gt = g_all.reshape(len(self.orders) * n, m * d)
-        U = thin_matmul(self.W_all_T, gt).reshape(2 * s, m, d)
-        V = thin_matmul(self.W_all_rT, gt).reshape(2 * s, m, d)
-        zt3 = zt.reshape(2 * s, m, d)
-        dh += np.einsum("amd,amd->m", zt3, sysm.o[:, None, None] * U - V) * inv_h
-        U *= hp.T[:, :, None]  # dP/dx per segment window, (2s, M, d)
+        g_all *= (ihp * (h / n)[None, :])[:, None, None, :]
+        gt = g_all.reshape(len(self.orders) * n, d * m)
+        U = thin_matmul(self.W_all_T, gt).reshape(2 * s, d, m)
+        V = thin_matmul(self.W_all_rT, gt).reshape(2 * s, d, m)
+        # (2s, M, d) contiguous for the per-segment sum (the einsum's summation order)
+        zt3 = np.ascontiguousarray(zs.transpose(1, 0, 2))
+        uv = np.ascontiguousarray((sysm.o[:, None, None] * U - V).transpose(0, 2, 1))
+        dh += np.einsum("amd,amd->m", zt3, uv) * inv_h
+        U *= hp.T[:, None, :]  # dP/dx per segment window, (2s, d, M)
         g_full = np.zeros_like(x)
-        g_full[: m * s] += U[:s].transpose(1, 0, 2).reshape(-1, d)
-        g_full[s:] += U[s:].transpose(1, 0, 2).reshape(-1, d)
+        g_full[: m * s] += U[:s].transpose(2, 0, 1).reshape(-1, d)
+        g_full[s:] += U[s:].transpose(2, 0, 1).reshape(-1, d)
         lam = sysm.adjoint(g_full)
         if dqx is None:
             dqx = sysm.dq_x(x, h)
