@@ -1735,18 +1735,27 @@ def _corridor_breaches(
     n = CORRIDOR_SAMPLES_PER_SEGMENT
     p = _segment_grid_points(traj, n)  # (M, n, d)
     n_legs = wp.shape[0] - 1
-    cand = seg_leg[:, None] + np.array([-1, 0, 1])[None, :]  # this leg and its neighbours
-    ok = (cand >= 0) & (cand < n_legs)
-    cc = np.clip(cand, 0, max(n_legs - 1, 0))
-    dev = np.full(p.shape[:2], np.inf)
-    for k in range(3):
-        dist = segment_distances(p, wp[cc[:, k]][:, None, :], wp[cc[:, k] + 1][:, None, :])
-        np.minimum(dev, np.where(ok[:, k : k + 1], dist, np.inf), out=dev)
+    # the segment's own leg first: a sample within the corridor of it is within the corridor,
+    # so the neighbouring legs and the acceptance radii are looked at only for the segments
+    # with a sample outside it (the same verdict as taking the minimum over all three)
+    dev = segment_distances(p, wp[seg_leg][:, None, :], wp[seg_leg + 1][:, None, :])
+    rows = np.flatnonzero((dev > corridor_m).any(axis=1))
+    result = np.zeros(seg_leg.shape[0], dtype=np.bool_)
+    if rows.shape[0] == 0:
+        return result
+    p, dev, legs = p[rows], dev[rows], seg_leg[rows]
+    for step in (-1, 1):  # the neighbouring legs
+        cand = legs + step
+        ok = (cand >= 0) & (cand < n_legs)
+        cc = np.clip(cand, 0, max(n_legs - 1, 0))
+        dist = segment_distances(p, wp[cc][:, None, :], wp[cc + 1][:, None, :])
+        np.minimum(dev, np.where(ok[:, None], dist, np.inf), out=dev)
     out = dev > corridor_m
-    for w in (seg_leg, seg_leg + 1):
+    for w in (legs, legs + 1):
         dw = p - wp[w][:, None, :]
         out &= ~(np.sqrt(np.einsum("mnd,mnd->mn", dw, dw)) <= acceptance_m[w][:, None])
-    return np.asarray(out.any(axis=1), dtype=np.bool_)
+    result[rows] = out.any(axis=1)
+    return result
 
 
 @lru_cache(maxsize=8)
