@@ -275,6 +275,14 @@ class _System:
         # band storage entry (r, j) holds A[j - (u - r), j]: row index per entry for scaling
         band_i = np.arange(self.nf)[None, :] - (self.u - np.arange(self.u + 1))[:, None]
         self.band_i = np.clip(band_i, 0, max(self.nf - 1, 0))
+        # the fixed part x0 per segment window, restricted to the window columns it is not
+        # zero in (positions, fixed boundary derivatives)
+        x0_windows = np.concatenate(
+            [self.x0[:-s].reshape(self.m, s, self.d), self.x0[s:].reshape(self.m, s, self.d)],
+            axis=1,
+        )
+        self._x0_cols = np.flatnonzero(np.any(x0_windows != 0.0, axis=(0, 2)))
+        self._x0_windows = np.ascontiguousarray(x0_windows[:, self._x0_cols, :])
         self._factor: tuple[FloatArray, FloatArray] | None = None
         self._last: tuple[FloatArray, FloatArray, FloatArray] | None = None  # h, hp, Q
         self._windows: tuple[FloatArray, FloatArray] | None = None  # x, windows(x)
@@ -346,8 +354,12 @@ class _System:
         A = Q if fit is None else Q + fit[0]
         x = self.x0.copy()
         if self.nf:
-            xk = self.windows(x)
-            yk = A @ xk if fit is None else A @ xk - fit[1]
+            # A x0 per segment from the window columns where x0 is not zero (the zero terms
+            # add nothing: the same sums)
+            cols = self._x0_cols
+            yk = np.matmul(A[:, :, cols], self._x0_windows)
+            if fit is not None:
+                yk -= fit[1]
             rhs = -_pair_sum(yk, self._rhs_src).reshape(self.nf, d)
             ab = _pair_sum(A, self._band_src).reshape(self.nf, self.u + 1).T
             # Jacobi scaling for conditioning across very different durations
