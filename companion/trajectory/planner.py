@@ -258,6 +258,8 @@ class _System:
         rows = fa[self.free_rows]
         self.rhs_index = (rows[:, None] * self.d + np.arange(self.d)[None, :]).reshape(-1)
         self.free_idx = np.flatnonzero(free)
+        # flat indices of the free rows' entries (a 1-D scatter is several times faster)
+        self._free_flat = (self.free_idx[:, None] * self.d + np.arange(self.d)[None, :]).reshape(-1)
         self.free_rows_idx = np.flatnonzero(self.free_rows.reshape(-1))
         self.band_take = np.flatnonzero(mask.reshape(-1))
         # the same sums as np.bincount over (band_flat, band_take) and (rhs_index, free rows)
@@ -379,7 +381,7 @@ class _System:
                 )
             self._factor = (cb, sc)
             z, info = _PBTRS(cb, rhs * sc[:, None], lower=0)
-            x[self.free_idx] = z * sc[:, None]
+            x.reshape(-1)[self._free_flat] = (z * sc[:, None]).reshape(-1)
         xk = self.windows(x)
         cost = float(np.einsum("mad,mad->", xk, Q @ xk)) if with_cost else math.nan
         x.setflags(write=False)  # its windows are cached
@@ -399,8 +401,8 @@ class _System:
         lam = np.zeros_like(g_full)
         if self.nf and self._factor is not None:
             cb, sc = self._factor
-            z, _ = _PBTRS(cb, g_full[self.free_idx] * sc[:, None], lower=0)
-            lam[self.free_idx] = z * sc[:, None]
+            z, _ = _PBTRS(cb, np.take(g_full, self.free_idx, axis=0) * sc[:, None], lower=0)
+            lam.reshape(-1)[self._free_flat] = (z * sc[:, None]).reshape(-1)
         return lam
 
     def dq(self, h: FloatArray) -> FloatArray:
