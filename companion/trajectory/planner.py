@@ -1696,13 +1696,18 @@ def segment_distances(p: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray
     """Distance [m] of points `p` to the segments `a`-`b`, all (..., d) and broadcast
     together over the leading axes (projection clamped to the segment; a zero-length segment
     is its point)."""
-    ab = b - a
-    den = np.einsum("...d,...d->...", ab, ab)
-    rel = p - a
-    t = np.einsum("...d,...d->...", rel, ab) / np.where(den > 0.0, den, 1.0)
+    # component by component (contiguous arrays instead of a short last axis; the sums in
+    # np.einsum's order, see _component_sum: the same values)
+    dim = p.shape[-1]
+    ab = [b[..., k] - a[..., k] for k in range(dim)]
+    rel = [p[..., k] - a[..., k] for k in range(dim)]
+    den = _component_sum([x * x for x in ab])
+    t = _component_sum([r * x for r, x in zip(rel, ab, strict=True)]) / np.where(
+        den > 0.0, den, 1.0
+    )
     t = np.where(den > 0.0, np.clip(t, 0.0, 1.0), 0.0)
-    diff = rel - t[..., None] * ab
-    return np.asarray(np.sqrt(np.einsum("...d,...d->...", diff, diff)), dtype=np.float64)
+    diff = [r - t * x for r, x in zip(rel, ab, strict=True)]
+    return np.asarray(np.sqrt(_component_sum([x * x for x in diff])), dtype=np.float64)
 
 
 def point_segment_distance(p: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
