@@ -357,15 +357,16 @@ def segment_samples(
     orders = (1, 2, 3, 4) if need_snap else (1, 2, 3) if need_jerk else (1, 2)
     ders = _grid_derivatives(traj, per_segment, orders)
     n = traj.num_segments * per_segment
-    ycp = None if traj.yaw is None else traj.yaw.control_points
-    if ycp is None or not ycp.size or bool(np.all(ycp == ycp.flat[0])):
+    ytraj = traj.yaw
+    ycp = None if ytraj is None else ytraj.control_points
+    if ytraj is None or ycp is None or not ycp.size or bool(np.all(ycp == ycp.flat[0])):
         # no yaw channel, or a constant one (e.g. one heading for the whole plan)
         z = np.zeros(n)
         yaw = z if ycp is None or not ycp.size else np.full(n, float(ycp.flat[0]))
         yaw_rate, yaw_acc = z, z
     else:
         yaw, yaw_rate, yaw_acc = (
-            y[:, 0] for y in _grid_derivatives(traj.yaw, per_segment, (0, 1, 2))
+            y[:, 0] for y in _grid_derivatives(ytraj, per_segment, (0, 1, 2))
         )
     return _Samples(
         ders[0],
