@@ -737,11 +737,10 @@ class _Penalty:
         else:
             phi = np.zeros((n, m))
         for row, (h2, up2, dn2) in self.axis_terms if dim == 3 else ():
-            vec = d_all[row]
-            vx, vy, vz = vec[:, 0], vec[:, 1], vec[:, 2]
-            inv_z = np.where(vz < 0.0, 1.0 / up2, 1.0 / dn2)
-            g_h = (vx ** 2 + vy ** 2) / h2 - 1.0
-            g_z = vz ** 2 * inv_z - 1.0
+            vec, vsq = d_all[row], sq[row]  # components and their squares, (n, 3, M)
+            inv_z = np.where(vec[:, 2] < 0.0, 1.0 / up2, 1.0 / dn2)
+            g_h = (vsq[:, 0] + vsq[:, 1]) / h2 - 1.0
+            g_z = vsq[:, 2] * inv_z - 1.0
             for g, axes, inv in ((g_h, (0, 1), 1.0 / h2), (g_z, (2,), inv_z)):
                 if not g.max() > 0.0:
                     continue
@@ -752,8 +751,9 @@ class _Penalty:
                     continue
                 if g_all is None:
                     g_all = np.zeros_like(d_all)
+                w6 = 6.0 * w * inv
                 for ax in axes:
-                    g_all[row, :, ax] += 6.0 * w * inv * vec[:, ax]
+                    g_all[row, :, ax] += w6 * vec[:, ax]
         if not self.dyn_terms:
             return phi, g_all
         i1, i2 = self.orders.index(1), self.orders.index(2)
@@ -766,10 +766,13 @@ class _Penalty:
         tv[:, 2] += mg
         dsum = None
         t2 = None
+        tsq = None  # squared thrust components
         for name, lim2 in self.dyn_terms:
+            if tsq is None:
+                tsq = tv * tv
             if name == "tilt":
                 tz = np.maximum(tv[:, 2], 1e-3 * mg)
-                hor = tv[:, 0] ** 2 + tv[:, 1] ** 2
+                hor = tsq[:, 0] + tsq[:, 1]
                 inv = 1.0 / (lim2 * tz * tz)
                 g = hor * inv - 1.0
                 if not g.max() > 0.0:
@@ -787,7 +790,7 @@ class _Penalty:
                 dsum[:, 2] -= w * hor / tz
             else:
                 if t2 is None:
-                    t2 = _component_sum([tv[:, k] * tv[:, k] for k in range(tv.shape[1])])
+                    t2 = _component_sum([tsq[:, k] for k in range(tv.shape[1])])
                 sign = 1.0 if name == "max_thrust" else -1.0
                 g = sign * (t2 / lim2 - 1.0)
                 if not g.max() > 0.0:
@@ -810,7 +813,7 @@ class _Penalty:
         return phi, g_all
 
     def sampled(self, x: FloatArray, h: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """(d_all (R, n, d, M) sampled derivatives, zs (M, 2s, d) scaled joint derivatives,
+        """(d_all (R, n, d, M) sampled derivatives, zs (2s, d, M) scaled joint derivatives,
         ihp) at the optimum x(h). The samples are component-major (each component of all
         segments contiguous) for the element-wise penalty terms."""
         sysm = self.system
@@ -818,10 +821,11 @@ class _Penalty:
         xk = sysm.windows(x)
         m, d = xk.shape[0], xk.shape[2]
         hp = sysm.powers(h, 0)
-        zs = xk * hp[:, :, None]
-        zt = zs.transpose(1, 2, 0).reshape(2 * s, d * m)
+        zs = np.ascontiguousarray((xk * hp[:, :, None]).transpose(1, 2, 0))  # (2s, d, M)
         ihp = (1.0 / h)[None, :] ** self.order_pow  # (R, M)
-        d_all = thin_matmul(self.W_all, zt).reshape(len(self.orders), self.n, d, m)
+        d_all = thin_matmul(self.W_all, zs.reshape(2 * s, d * m)).reshape(
+            len(self.orders), self.n, d, m
+        )
         d_all *= ihp[:, None, None, :]
         return d_all, zs, ihp
 
@@ -855,10 +859,14 @@ class _Penalty:
         gt = g_all.reshape(len(self.orders) * n, d * m)
         U = thin_matmul(self.W_all_T, gt).reshape(2 * s, d, m)
         V = thin_matmul(self.W_all_rT, gt).reshape(2 * s, d, m)
-        # (2s, M, d) contiguous for the per-segment sum (the einsum's summation order)
-        zt3 = np.ascontiguousarray(zs.transpose(1, 0, 2))
-        uv = np.ascontiguousarray((sysm.o[:, None, None] * U - V).transpose(0, 2, 1))
-        dh += np.einsum("amd,amd->m", zt3, uv) * inv_h
+        # sum over the inputs a and components of zs * (o U - V), in the order of the former
+        # np.einsum("amd,amd->m") (components as in _component_sum, then a in turn)
+        prod = zs * (sysm.o[:, None, None] * U - V)  # (2s, d, M)
+        per_a = _component_sum([prod[:, k] for k in range(d)])
+        acc = per_a[0]
+        for a in range(1, per_a.shape[0]):
+            acc = acc + per_a[a]
+        dh += acc * inv_h
         U *= hp.T[:, None, :]  # dP/dx per segment window, (2s, d, M)
         g_full = np.zeros_like(x)
         g_full[: m * s] += U[:s].transpose(2, 0, 1).reshape(-1, d)
