@@ -184,13 +184,23 @@ def _validate(traj: PiecewiseBezier, limits: Limits | RoverLimits, params: Any) 
 
 
 def _thrust_vectors(vel: FloatArray, acc: FloatArray, params: Any) -> FloatArray:
-    """Thrust vector t = m (g e3 - a) - D v (N), NED, shape (N, 3)."""
+    """Thrust vector t = m (g e3 - a) - D v (N), NED, shape (N, 3), read-only (the last one is
+    reused for the same arrays: the limit metrics and the body-rate bound of one set of
+    samples both need it)."""
+    last = _TV_LAST[0]
+    if last is not None and last[0] is vel and last[1] is acc and last[2] is params:
+        return last[3]
     m = float(params.mass)
     g = float(params.g)
     drag = float(getattr(params, "drag", 0.0))
     tv = -m * acc - drag * vel
     tv[:, 2] += m * g
+    tv.setflags(write=False)
+    _TV_LAST[0] = (vel, acc, params, tv)
     return tv
+
+
+_TV_LAST: list[tuple[FloatArray, FloatArray, Any, FloatArray] | None] = [None]
 
 
 @dataclass(frozen=True)
