@@ -381,13 +381,37 @@ async def _steps_flight(ep: H.Endpoint, folder: Path, fig8: bool) -> dict[str, f
                 flights[mode] = await H.fly_on(v, mode, ref8, figure8_seconds(FIG8_SPEED))
     out = analyse_steps(tlog, ep.target_system)
     if flights:
-        data = H.read_flight_tlog(tlog, ep.target_system)
-        for mode, fl in flights.items():
-            def lap2(t: float) -> bool:
-                return 2 * math.pi <= figure8_reference(t, FIG8_SPEED)[1] < 4 * math.pi
+        (folder / FIG8_RECORD).write_text(json.dumps({m: {
+            "t0_unix": fl.t0_unix, "duration_s": fl.duration_s,
+            "origin_ned": [float(c) for c in fl.origin_ned]} for m, fl in flights.items()}))
+        out.update(analyse_fig8(tlog, ep.target_system))
+    return out
 
-            err = H.horizontal_errors(data.lpos_t, data.lpos[:, :3], fl, lap2)
-            out[f"fig8_{mode}"] = H.rms_max(err)[0]
+
+FIG8_RECORD = "fig8_flights.json"  # per steps folder: when each figure-8 began, where
+
+
+def analyse_fig8(tlog: Path, sysid: int) -> dict[str, float]:
+    """Lap-2 RMS of each figure-8 recorded next to `tlog` (FIG8_RECORD), from the tlog's
+    LOCAL_POSITION_NED at its mapped sample times; {} without a record."""
+    rec = tlog.parent / FIG8_RECORD
+    if not rec.exists():
+        return {}
+    data = H.read_flight_tlog(tlog, sysid)
+    out: dict[str, float] = {}
+
+    def lap2(t: float) -> bool:
+        return 2 * math.pi <= figure8_reference(t, FIG8_SPEED)[1] < 4 * math.pi
+
+    def ref8(t: float) -> Reference:
+        return figure8_reference(t, FIG8_SPEED)[0]
+
+    for mode, r in json.loads(rec.read_text()).items():
+        r0 = ref8(0.0).pos_ned
+        ref = H.shifted(ref8, r["origin_ned"][0] - r0[0], r["origin_ned"][1] - r0[1])
+        fl = H.Flight(tlog, r["t0_unix"], r["duration_s"], ref, np.array(r["origin_ned"]))
+        err = H.horizontal_errors(data.lpos_t, data.lpos[:, :3], fl, lap2)
+        out[f"fig8_{mode}"] = H.rms_max(err)[0]
     return out
 
 
@@ -558,8 +582,9 @@ def _write(text: str, argv: str, wall_s: float, repeat: int, reused: list[dict[s
 
 
 def reanalyse(path: Path) -> int:
-    """Recompute the step figures of the run saved in `path` from its tlogs (the figure-8 and
-    mission figures are kept) and rewrite it."""
+    """Recompute the step and figure-8 figures of the run saved in `path` from its tlogs (the
+    mission figures are kept; figure-8 figures of flights without a FIG8_RECORD are dropped)
+    and rewrite it."""
     old = json.loads(path.read_text())
     for target, figs in old["steps"].items():
         sysid = None
@@ -572,10 +597,18 @@ def reanalyse(path: Path) -> int:
                         break
                 conn.close()
                 sysid = 1 if m is None else m.get_srcSystem()
-            for k, v in analyse_steps(tlog, sysid).items():
+            fig8 = analyse_fig8(tlog, sysid)
+            if not fig8 and i == 0 and any(f"fig8_{m}" in figs for m in FIG8_MODES):
+                print(f"{tlog}: no {FIG8_RECORD}: its figure-8 figures are dropped (measured "
+                      "with an older analysis, cannot be recomputed)")
+            if i == 0:
+                for m in FIG8_MODES:
+                    figs.pop(f"fig8_{m}", None)
+            for k, v in {**analyse_steps(tlog, sysid), **fig8}.items():
                 vals = figs.setdefault(k, [])
+                vals[len(vals):] = [math.nan] * (i - len(vals))  # flights without the figure
                 vals[i:i + 1] = [v]
-        for k in [k for k in figs if k not in {*ROW_KEYS, *(f"fig8_{m}" for m in FIG8_MODES)}]:
+        for k in [k for k in figs if k not in ROW_KEYS]:
             del figs[k]  # figures of an older analysis
     old["reanalysed"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     path.write_text(json.dumps(old, indent=1))
@@ -593,6 +626,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mission-timeout", type=float, default=150.0,
                     help="bound of one mission, armed [s]")
     ap.add_argument("--no-figure8", action="store_true", help="skip the figure-8 flights")
+    ap.add_argument("--figure8-flights", type=int, default=1, metavar="N",
+                    help="fly the figure-8s after the steps of the first N repeats (median)")
     ap.add_argument("--out", default="bench_out/fidelity", help="folder for tlogs and logs")
     ap.add_argument("--mock-estimator", choices=("ideal", "ekf2"), default="ekf2",
                     help="`sitl_mock serve --estimator` of the mock flights (default ekf2: "
@@ -604,7 +639,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="also save the raw figures as JSON (default: OUT/fidelity.json)")
     ap.add_argument("--reuse", action="append", default=[], metavar="TARGET=JSON",
                     help="take TARGET's figures (mock or px4) from an earlier run's JSON "
-                         "instead of flying it again (the BENCHMARKS.md section says so)")
+                         "instead of flying it again (the BENCHMARKS.md section says so; "
+                         "repeatable: several runs of one target are pooled)")
     ap.add_argument("--write", action="store_true",
                     help="put the table into BENCHMARKS.md (needs both targets)")
     args = ap.parse_args(argv)
@@ -623,7 +659,9 @@ def main(argv: list[str] | None = None) -> int:
         if tgt not in H.TARGETS or not path:
             ap.error(f"--reuse wants mock=JSON or px4=JSON, got {item!r}")
         old = json.loads(Path(path).read_text())
-        results[tgt], missions[tgt] = old["steps"][tgt], old["missions"][tgt]
+        for k, vals in old["steps"][tgt].items():  # several runs of one target: pooled
+            results.setdefault(tgt, {}).setdefault(k, []).extend(vals)
+        missions.setdefault(tgt, {}).update(old["missions"][tgt])
         reused.append({"target": tgt, "date": old["date"], "command": old["command"],
                        "wall_s": old["wall_s"]})
         if tgt == "mock":
@@ -633,7 +671,8 @@ def main(argv: list[str] | None = None) -> int:
     for i in range(args.repeat):
         for target in flown:
             try:
-                m = run_steps(target, out, i, fig8=(i == 0 and not args.no_figure8))
+                m = run_steps(target, out, i,
+                              fig8=(i < args.figure8_flights and not args.no_figure8))
             except Exception as exc:  # one failed flight must not lose the whole run
                 print(f"{target:5s} steps #{i}: FAILED {type(exc).__name__}: {exc}", flush=True)
                 traceback.print_exc()
