@@ -8,22 +8,26 @@ Stimuli (one flight per repeat and target, after takeoff to 5 m; times from OFFB
   rise time 10-90 % and peak / step of LOCAL_POSITION_NED north;
 - 15 deg roll step from hover in attitude mode (SET_ATTITUDE_TARGET q + thrust
   MPC_THR_HOVER / cos 15 deg): rise time 10-90 % and peak / step of ATTITUDE roll;
-- body-rate step, roll rate 60 deg/s (SET_ATTITUDE_TARGET body rates + thrust) for 0.25 s:
-  rise time 10-90 % of ATTITUDE rollspeed, and the setpoint-to-telemetry latency: from sending
-  the first step setpoint to receiving the first ATTITUDE whose roll rate moved by 5 % of the
-  step (link, autopilot loops, motor lag and the stream period all included);
+- body-rate step, roll rate 60 deg/s (SET_ATTITUDE_TARGET body rates + thrust) for 0.25 s after
+  RATE_HOLD_S of zero-rate setpoints, then -60 deg/s for 0.25 s, zero rates again: time to 50 %
+  and peak of ATTITUDE rollspeed, time from the reversal until it crosses zero;
+- the setpoint-to-telemetry latency: from sending the first roll-step setpoint to receiving the
+  first ATTITUDE whose roll moved by 5 % of the step (link, autopilot loops, motor lag and the
+  stream period all included);
 - thrust step, level attitude, thrust MPC_THR_HOVER + 0.1 for 0.5 s: peak vertical acceleration
   (derivative of LOCAL_POSITION_NED vz) and the time from the step to 63 % of that peak;
 - hover jitter: OFFBOARD position hold for 25 s, RMS horizontal distance of the estimate from
   the hold point over the last 20 s;
-- then (first repeat only) the figure-8 of bench_tracking.py at 6 m/s in each setpoint mode
-  (position + vel + acc, attitude, rates; companion `TrackingSource`), lap-2 RMS error from the
-  estimate.
+- then (the first --figure8-flights repeats, default 1) the figure-8 of bench_tracking.py at
+  6 m/s in each setpoint mode (position + vel + acc, attitude, rates; companion
+  `TrackingSource`), lap-2 RMS error from the estimate.
+Sample times (time_boot_ms) are mapped to the local clock by `api_harness.clock_map` (lower
+envelope of receive - boot time), the same for both targets; the latency row uses receive times.
 Missions: each bundled .plan uploaded with `Vehicle.mission.upload`, arm (in Hold), AUTO.MISSION;
 the armed time runs from the arm COMMAND_ACK to the first HEARTBEAT showing disarmed (1 Hz:
 +-1 s), bounded by --mission-timeout.
 
-Table: median over --repeat flights per target, ratio mock / PX4 - 1, within the issue's bound
+Table: median over the flights per target, ratio mock / PX4 - 1, within the issue's bound
 (25 %, figure-8 35 %). PX4 runs in real time (PX4_SIM_SPEED_FACTOR is not used: the companion
 keeps wall-clock time, see ../shared/px4_sitl/README); the mock too (`--speed 1`).
 
@@ -87,6 +91,11 @@ BOUND = 0.25
 BOUND_FIG8 = 0.35
 FIG8_SPEED = 6.0
 FIG8_MODES = ("position", "attitude", "rates")
+# zero body-rate setpoints before and after the rate steps: PX4 v1.16's commander republishes
+# vehicle_control_mode at 2 Hz (or on a status change), so a switch between attitude and rates
+# setpoints takes effect 0-0.5 s late (a phase the bench does not control); after 1 s of zero
+# rates the steps see the rate loop alone
+RATE_HOLD_S = 1.0
 
 
 # ----------------------------------------------------------------------------- stimulus
@@ -98,7 +107,7 @@ class Phase:
 
     name: str
     duration_s: float
-    kind: str  # hold | step_north | level | roll | rate_pos | rate_neg | thrust
+    kind: str  # hold | step_north | level | roll | rate_zero | rate_pos | rate_neg | thrust
 
 
 PHASES: tuple[Phase, ...] = (
@@ -110,8 +119,10 @@ PHASES: tuple[Phase, ...] = (
     Phase("att_back", 1.0, "level"),
     Phase("hold2", 6.5, "hold"),
     Phase("rate_level", 1.0, "level"),
+    Phase("rate_zero", RATE_HOLD_S, "rate_zero"),
     Phase("rate_step", 0.25, "rate_pos"),
     Phase("rate_back", 0.25, "rate_neg"),
+    Phase("rate_zero2", RATE_HOLD_S, "rate_zero"),
     Phase("rate_level2", 1.0, "level"),
     Phase("hold3", 6.5, "hold"),
     Phase("thr_level", 1.0, "level"),
@@ -158,8 +169,9 @@ class StepSequence:
         if ph.kind == "roll":
             r = math.radians(ROLL_STEP_DEG)
             return AttitudeSetpoint(_q_euler(r, 0.0, self.yaw), HOVER_THRUST / math.cos(r))
-        if ph.kind in ("rate_pos", "rate_neg"):
-            w = math.radians(RATE_STEP_DPS) * (1.0 if ph.kind == "rate_pos" else -1.0)
+        if ph.kind in ("rate_zero", "rate_pos", "rate_neg"):
+            w = math.radians(RATE_STEP_DPS) * {"rate_zero": 0.0, "rate_pos": 1.0,
+                                                "rate_neg": -1.0}[ph.kind]
             return RatesSetpoint((w, 0.0, 0.0), HOVER_THRUST)
         return AttitudeSetpoint(level, HOVER_THRUST + THRUST_STEP)
 
@@ -273,6 +285,8 @@ def _kind(m: Any, p0: tuple[float, float, float]) -> str:
             return "hold"
         return "step_north" if abs(m.x - p0[0] - POS_STEP_M) < 1e-3 else ""
     if m.type_mask & 128:  # attitude ignored: body rates
+        if m.body_roll_rate == 0.0:
+            return "rate_zero"
         return "rate_pos" if m.body_roll_rate > 0.0 else "rate_neg"
     w, x, y, z = m.q
     roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
@@ -332,9 +346,8 @@ def analyse_steps(tlog: Path, sysid: int) -> dict[str, float]:
     w = math.radians(RATE_STEP_DPS)
     p = smooth(s.rollspeed)
     _rise, out["rate_peak"] = step_metrics(s.att_t, p, st["rate_step"], st["rate_back"], w)
-    # the 0.25 s step is too short for PX4's rate loop to reach 90 %: time to 50 % instead
-    # (it follows a switch from attitude to rates setpoints); then the reversal to -60 deg/s
-    # in rates mode, no switch: time until the rate crosses zero
+    # from zero-rate setpoints (rates mode for RATE_HOLD_S already): time to 50 % of the step,
+    # then the reversal to -60 deg/s: time until the rate crosses zero
     out["rate_t50"] = crossing(s.att_t, p / w, 0.5, st["rate_step"]) - st["rate_step"]
     out["rate_rev"] = crossing(s.att_t, -p / w, 0.0, st["rate_back"]) - st["rate_back"]
     out["latency"] = first_response(s.att_recv, s.roll, st["att_step"], r)
@@ -353,7 +366,7 @@ def analyse_steps(tlog: Path, sysid: int) -> dict[str, float]:
     sel = (s.lp_t >= j0) & (s.lp_t <= st["jitter"] + PHASES[-1].duration_s)
     e = np.hypot(s.lp[sel, 0] - p0[0], s.lp[sel, 1] - p0[1])
     out["jitter"] = float(np.sqrt(np.mean(e**2))) if len(e) else math.nan
-    pre = (s.att_t >= st["rate_level"]) & (s.att_t < st["rate_step"])
+    pre = (s.att_t >= st["rate_level"]) & (s.att_t < st["rate_zero"])
     out["gyro_noise"] = float(np.std(s.rollspeed[pre] - smooth(s.rollspeed, 9)[pre]))
     return out
 
@@ -379,13 +392,11 @@ async def _steps_flight(ep: H.Endpoint, folder: Path, fig8: bool) -> dict[str, f
                     return figure8_reference(t, FIG8_SPEED, alt_m=-float(pos.pos_ned[2]))[0]
 
                 flights[mode] = await H.fly_on(v, mode, ref8, figure8_seconds(FIG8_SPEED))
-    out = analyse_steps(tlog, ep.target_system)
-    if flights:
+    if flights:  # first: --reanalyse needs it
         (folder / FIG8_RECORD).write_text(json.dumps({m: {
             "t0_unix": fl.t0_unix, "duration_s": fl.duration_s,
             "origin_ned": [float(c) for c in fl.origin_ned]} for m, fl in flights.items()}))
-        out.update(analyse_fig8(tlog, ep.target_system))
-    return out
+    return {**analyse_steps(tlog, ep.target_system), **analyse_fig8(tlog, ep.target_system)}
 
 
 FIG8_RECORD = "fig8_flights.json"  # per steps folder: when each figure-8 began, where
@@ -477,8 +488,8 @@ def run_mission(target: str, out: Path, name: str, timeout_s: float) -> float:
 ROWS: tuple[tuple[str, str, float], ...] = (
     ("att_rise", f"attitude step {ROLL_STEP_DEG:g} deg roll: rise time 10-90 % [s]", BOUND),
     ("att_peak", f"attitude step {ROLL_STEP_DEG:g} deg roll: peak / step", BOUND),
-    ("rate_t50", f"body-rate step {RATE_STEP_DPS:g} deg/s right after attitude setpoints: "
-     "time to 50 % [s]", BOUND),
+    ("rate_t50", f"body-rate step {RATE_STEP_DPS:g} deg/s from zero-rate setpoints: time to "
+     "50 % [s]", BOUND),
     ("rate_rev", f"body-rate reversal +{RATE_STEP_DPS:g} -> -{RATE_STEP_DPS:g} deg/s: time to "
      "zero [s]", BOUND),
     ("rate_peak", f"body-rate step {RATE_STEP_DPS:g} deg/s: peak / step within 0.25 s",
@@ -547,8 +558,16 @@ def table(results: dict[str, dict[str, list[float]]], missions: dict[str, dict[s
 SECTION = "Mock fidelity against real PX4 SITL"
 
 
-def _write(text: str, argv: str, wall_s: float, repeat: int, reused: list[dict[str, Any]],
-           mock_args: str) -> None:
+def _flights(results: dict[str, dict[str, list[float]]], key: str) -> str:
+    """How many flights gave row `key`, per target ("3 (mock) / 2 (PX4)")."""
+    n = {t: sum(math.isfinite(v) for v in results.get(t, {}).get(key, [])) for t in H.TARGETS}
+    if n["mock"] == n["px4"]:
+        return f"{n['mock']} flight{'s' if n['mock'] != 1 else ''} per target"
+    return f"{n['mock']} (mock) / {n['px4']} (PX4) flights"
+
+
+def _write(text: str, argv: str, wall_s: float, results: dict[str, dict[str, list[float]]],
+           reused: list[dict[str, Any]], mock_args: str) -> None:
     from benchmarks_md import write_section
 
     runs = {(r["date"], r["command"]) for r in reused}
@@ -573,9 +592,11 @@ def _write(text: str, argv: str, wall_s: float, repeat: int, reused: list[dict[s
         "quadrotor, default parameters), each flight on a fresh autopilot, flown through the "
         "companion's `Vehicle` and measured from the autopilot's own telemetry in the .tlog "
         "(ATTITUDE 100 Hz, LOCAL_POSITION_NED 30 Hz; see the docstring of "
-        "bench/bench_fidelity.py for the exact stimuli). Step rows: median of "
-        f"{repeat} flights per target (range in brackets); figure-8 and missions: one flight "
-        "each. Bound: the issue's 25 % (figure-8 35 %) on mock / PX4 - 1.\n\n"
+        "bench/bench_fidelity.py for the exact stimuli; sample times mapped to the local clock "
+        "by the lower envelope of receive - boot time, bench/api_harness.py `clock_map`). Step "
+        f"rows: median of {_flights(results, 'att_rise')} (range in brackets); figure-8: median "
+        f"of {_flights(results, 'fig8_rates')}; missions: one flight each. Bound: the issue's "
+        "25 % (figure-8 35 %) on mock / PX4 - 1.\n\n"
         f"{text}\n"
     )
     write_section(SECTION, body)
@@ -703,7 +724,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.write:
         if set(results) != set(H.TARGETS):
             ap.error("--write needs both targets (--target mock px4, or --reuse-px4)")
-        _write(text, argv_s, wall, args.repeat, reused, mock_desc)
+        _write(text, argv_s, wall, results, reused, mock_desc)
     return 0
 
 
