@@ -231,6 +231,8 @@ class TlogData:
     att_rpy: FloatArray  # (K, 3) roll pitch yaw [rad] (ATTITUDE)
     att_rates: FloatArray  # (K, 3) body rates [rad/s]
     extra: dict[str, list[Any]]
+    lpos_recv: FloatArray = field(default_factory=lambda: np.zeros(0))  # receive times
+    lpos_boot: FloatArray = field(default_factory=lambda: np.zeros(0))  # time_boot [s]
 
 
 def clock_map(boot_s: FloatArray, recv_s: FloatArray, block_s: float = 0.25) -> FloatArray:
@@ -297,7 +299,8 @@ def read_flight_tlog(path: Path, target_system: int, keep: tuple[str, ...] = ())
         truth_t = h[:, 0]
     ata = np.array(att, dtype=float).reshape(-1, 8)
     return TlogData(clock_map(lpa[:, 1], lpa[:, 0]), lpa[:, 2:8], truth_t, truth,
-                    clock_map(ata[:, 1], ata[:, 0]), ata[:, 2:5], ata[:, 5:8], extra)
+                    clock_map(ata[:, 1], ata[:, 0]), ata[:, 2:5], ata[:, 5:8], extra,
+                    lpa[:, 0], lpa[:, 1])
 
 
 def horizontal_errors(t_unix: FloatArray, pos: FloatArray, flight: Flight,

@@ -70,6 +70,7 @@ from companion.mavlink.setpoints import (  # noqa: E402
     RatesSetpoint,
     SetpointCommand,
 )
+from companion.tracking import SampleClock  # noqa: E402
 
 FloatArray = npt.NDArray[np.float64]
 REPO = BENCH.parent
@@ -417,12 +418,22 @@ def analyse_fig8(tlog: Path, sysid: int) -> dict[str, float]:
     def ref8(t: float) -> Reference:
         return figure8_reference(t, FIG8_SPEED)[0]
 
+    recv, boot = data.lpos_recv, data.lpos_boot
+    worst = 0.0
     for mode, r in json.loads(rec.read_text()).items():
         r0 = ref8(0.0).pos_ned
         ref = H.shifted(ref8, r["origin_ned"][0] - r0[0], r["origin_ned"][1] - r0[1])
         fl = H.Flight(tlog, r["t0_unix"], r["duration_s"], ref, np.array(r["origin_ned"]))
         err = H.horizontal_errors(data.lpos_t, data.lpos[:, :3], fl, lap2)
         out[f"fig8_{mode}"] = H.rms_max(err)[0]
+        # the companion places each estimate on its own clock with a fresh SampleClock per
+        # flight: replay it on the same samples and compare with the bench's mapping
+        sc = SampleClock()
+        sel = np.flatnonzero((recv >= fl.t0_unix) & (recv <= fl.t0_unix + fl.duration_s))
+        for i in sel:
+            off = sc.local_time(float(boot[i]), float(recv[i])) - float(data.lpos_t[i])
+            worst = max(worst, abs(off))
+    out["fig8_clock_ms"] = 1e3 * worst
     return out
 
 
@@ -507,6 +518,8 @@ ROWS: tuple[tuple[str, str, float], ...] = (
     ("gyro_noise", "roll-rate noise in ATTITUDE at hover (std above 90 ms) [rad/s]", BOUND),
     *((f"fig8_{m}", f"figure-8 {FIG8_SPEED:g} m/s lap 2, {m}: RMS (estimate) [m]", BOUND_FIG8)
       for m in FIG8_MODES),
+    ("fig8_clock_ms", "figure-8: worst error of the companion's sample clock (its SampleClock "
+     "replayed vs the bench's clock_map), not judged [ms]", math.nan),
 )
 
 
@@ -543,14 +556,15 @@ def table(results: dict[str, dict[str, list[float]]], missions: dict[str, dict[s
         if not mf and not pf:
             continue
         ratio = verdict = "-"
-        if mf and pf and float(np.median(pf)) != 0.0:
+        if mf and pf and float(np.median(pf)) != 0.0 and math.isfinite(bound):
             d = float(np.median(mf)) / float(np.median(pf)) - 1.0
             ratio = f"{d:+.0%}"
             judged += 1
             ok = abs(d) <= bound
             within += ok
             verdict = "yes" if ok else "no"
-        lines.append(f"| {label} | {_cell(mv)} | {_cell(pv)} | {ratio} | {bound:.0%} | "
+        bound_s = f"{bound:.0%}" if math.isfinite(bound) else "-"
+        lines.append(f"| {label} | {_cell(mv)} | {_cell(pv)} | {ratio} | {bound_s} | "
                      f"{verdict} |")
     return "\n".join(lines), within, judged
 
