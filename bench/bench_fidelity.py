@@ -3,7 +3,8 @@
 through the companion's public API (`Vehicle`), each flight on a fresh autopilot
 (`api_harness.launch`), measured from the autopilot's own telemetry in the flight's .tlog.
 
-Stimuli (one flight per repeat and target, after takeoff to 5 m; times from OFFBOARD start):
+Stimuli (one flight per repeat and target, after takeoff to 5 m; times from OFFBOARD start; the
+mock's flight i runs `serve --seed i`):
 - 5 m position step north in OFFBOARD position mode (SET_POSITION_TARGET_LOCAL_NED):
   rise time 10-90 % and peak / step of LOCAL_POSITION_NED north;
 - 15 deg roll step from hover in attitude mode (SET_ATTITUDE_TARGET q + thrust
@@ -480,7 +481,8 @@ def run_steps(target: str, out: Path, idx: int, fig8: bool) -> dict[str, float]:
     """The step flight on a fresh autopilot of kind `target`."""
     folder = out / f"{target}-steps-{idx}"
     shutil.rmtree(folder, ignore_errors=True)  # tlogs append: start afresh
-    with H.launch(target, folder, mock_args=MOCK_ARGS) as ep:
+    # each mock flight its own random realisation (estimator errors, gyro noise), as PX4's differ
+    with H.launch(target, folder, mock_args=(*MOCK_ARGS, "--seed", str(idx))) as ep:
         budget = sum(p.duration_s for p in PHASES) + 90.0 + (80.0 if fig8 else 0.0)
         return asyncio.run(_bounded(_steps_flight(ep, folder, fig8), budget))
 
@@ -602,7 +604,8 @@ def _write(text: str, argv: str, wall_s: float, results: dict[str, dict[str, lis
                 f"(`{r['command']}`, {r['wall_s'] / 60:.0f} min)" for r in reused) + ".\n\n")
     body = (
         f"## {SECTION}\n\n" + head
-        + f"The same stimuli on `sitl_mock serve {mock_args}` and on real PX4 v1.16.0 SITL (SIH "
+        + f"The same stimuli on `sitl_mock serve {mock_args}` (flight i with `--seed i`) and on "
+        "real PX4 v1.16.0 SITL (SIH "
         "quadrotor, default parameters), each flight on a fresh autopilot, flown through the "
         "companion's `Vehicle` and measured from the autopilot's own telemetry in the .tlog "
         "(ATTITUDE 100 Hz, LOCAL_POSITION_NED 30 Hz; see the docstring of "
