@@ -671,8 +671,7 @@ def axis_ratios(
     MPC_Z_VEL_MAX_UP), descent / MPC_Z_VEL_MAX_DN; acceleration: horizontal /
     MPC_ACC_HOR_MAX, up / MPC_ACC_UP_MAX, down / MPC_ACC_DOWN_MAX)."""
     t = np.linspace(0.0, traj.duration, max(64, 32 * traj.num_segments))
-    v = traj.evaluate(t, 1)
-    a = traj.evaluate(t, 2)
+    v, a = traj.evaluate_orders(t, (1, 2))
     up = px4.MPC_Z_VEL_MAX_UP if climb_m_s is None else climb_m_s
     r_vel = max(
         float(np.max(np.hypot(v[:, 0], v[:, 1]))) / px4.MPC_XY_VEL_MAX,

@@ -1315,6 +1315,9 @@ class Autopilot:
             self._ob_loss_t = None
         if mode == Mode.AUTO_TAKEOFF:
             self._takeoff_done = False
+        if prev not in AUTO_MODES or mode not in AUTO_MODES:
+            # PX4 activates another flight task: an AUTO trajectory restarts at the vehicle
+            self.nav.forget_reference()
         self._enter_mode(mode)
 
     def _enter_mode(self, mode: Mode) -> None:

@@ -136,6 +136,13 @@ class Navigator:
             return
         self._start(state, (x, y, self.home_ned[2] - self._rtl_alt), _NAN, 0.0, "rtl_climb")
 
+    def forget_reference(self) -> None:
+        """Start the next command's reference at the vehicle (PX4 resets its AUTO trajectory
+        when the AUTO flight task is activated, e.g. on entering Hold from OFFBOARD)."""
+        self._ref_pos = None
+        self._ref_vel = [0.0, 0.0, 0.0]
+        self._ref_acc = [0.0, 0.0, 0.0]
+
     # ------------------------------------------------------------------ internals
     def _stop_point(self, state: VehicleState) -> Vec3:
         """Where the vehicle stops when braking at MPC_ACC_HOR from its current velocity."""
@@ -181,8 +188,25 @@ class Navigator:
     def _ref_z(self) -> float:
         return self._ref_pos[2] if self._ref_pos is not None else 0.0
 
+    def _time_stretch(self, state: VehicleState) -> float:
+        """Fraction of `dt` the reference advances by (PX4's PositionSmoothing): while the vehicle
+        is behind the reference, 1 - (horizontal distance / MPC_XY_ERR_MAX), down to 0, so the
+        reference waits for a vehicle that cannot keep up (drag, tilt); 1 when the vehicle is
+        ahead of it. The reference's velocity stays the feed-forward. Multicopters only."""
+        emax = self._p["MPC_XY_ERR_MAX"]
+        ref = self._ref_pos
+        if self.ground_vehicle or ref is None or not emax > 0.0:
+            return 1.0
+        ex, ey = ref[0] - state.pos_ned[0], ref[1] - state.pos_ned[1]
+        if ex * self._ref_vel[0] + ey * self._ref_vel[1] < 0.0:
+            return 1.0
+        return 1.0 - min(math.hypot(ex, ey) / emax, 1.0)
+
     def _advance_ref(self, dt: float) -> None:
-        """Move the reference toward the goal with speed and acceleration limits."""
+        """Move the reference toward the goal with speed and acceleration limits (`dt` [s] of
+        reference time; 0 holds it)."""
+        if not dt > 0.0:
+            return
         p = self._p
         ref = self._ref_pos
         assert ref is not None
@@ -288,7 +312,14 @@ class Navigator:
         return self._yaw_hold
 
     def _land_speed(self, height_m: float) -> float:
+        """Descent speed [m/s] at `height_m` above home (PX4 FlightTaskAuto land): MPC_Z_VEL_MAX_DN
+        above MPC_LAND_ALT1, MPC_LAND_SPEED below MPC_LAND_ALT2, linear in between, and
+        MPC_LAND_CRWL below MPC_LAND_ALT3 while the distance sensor (SIH's, range
+        SIH_DISTSNSR_MIN..SIH_DISTSNSR_MAX over flat ground at home height) sees the ground."""
         p = self._p
+        if (p["SIH_DISTSNSR_MIN"] <= height_m <= p["SIH_DISTSNSR_MAX"]
+                and height_m <= p["MPC_LAND_ALT3"]):
+            return p["MPC_LAND_CRWL"]
         slow, fast = p["MPC_LAND_SPEED"], max(p["MPC_Z_VEL_MAX_DN"], p["MPC_LAND_SPEED"])
         alt1, alt2 = p["MPC_LAND_ALT1"], p["MPC_LAND_ALT2"]
         if height_m <= alt2:
@@ -318,7 +349,7 @@ class Navigator:
             self._ref_vel = list(state.vel_ned)
         if self.phase in ("land", "landed") and not self.ground_vehicle:
             return self._update_land(state)
-        self._advance_ref(dt)
+        self._advance_ref(dt * self._time_stretch(state))
         ref = self._ref_pos
         gx, gy, gz = self._goal
         px, py, pz = state.pos_ned

@@ -223,6 +223,25 @@ PARAMS.update(
     }
 )
 
+# Appended for PX4's AUTO trajectory (PositionSmoothing): the reference waits for a vehicle that
+# lags behind it by up to MPC_XY_ERR_MAX (PX4 name, default and range).
+PARAMS.update(
+    {
+        "MPC_XY_ERR_MAX": ParamSpec(
+            2.0, False, "horizontal lag behind the AUTO reference at which it stops advancing [m]"
+        ),
+        # PX4's landing near the ground: the crawl below MPC_LAND_ALT3 needs a distance sensor,
+        # which SIH simulates (downward, flat ground); the land detector's three stages
+        "MPC_LAND_ALT3": ParamSpec(1.0, False, "height below which AUTO landing crawls [m]"),
+        "MPC_LAND_CRWL": ParamSpec(0.3, False, "AUTO landing crawl speed [m/s]"),
+        "SIH_DISTSNSR_MIN": ParamSpec(0.0, False, "distance sensor minimum range [m]"),
+        "SIH_DISTSNSR_MAX": ParamSpec(100.0, False, "distance sensor maximum range [m]"),
+        "LNDMC_TRIG_TIME": ParamSpec(
+            1.0, False, "land detection time (3 stages: contact, maybe landed, landed) [s]"
+        ),
+    }
+)
+
 # Accepted values: PX4 v1.16 parameter metadata (min, max, enumerated values; the build's
 # etc/extras/parameters.json, checked by tests/unit/test_sitl_param_ranges.py) for every parameter
 # PX4 has. `_MOCK_RANGES` below replaces or completes a range where PX4 gives none or PX4's would
@@ -258,6 +277,12 @@ PX4_RANGES: dict[str, tuple[float | None, float | None, tuple[int, ...]]] = {
     "MPC_Z_VEL_I_ACC": (0.2, 3.0, ()),
     "MPC_Z_VEL_D_ACC": (0.0, 2.0, ()),
     "MPC_JERK_AUTO": (1.0, 80.0, ()),
+    "MPC_XY_ERR_MAX": (0.1, 10.0, ()),
+    "MPC_LAND_ALT3": (0.0, 122.0, ()),
+    "MPC_LAND_CRWL": (0.1, None, ()),
+    "SIH_DISTSNSR_MIN": (0.0, 10.0, ()),
+    "SIH_DISTSNSR_MAX": (0.0, 1000.0, ()),
+    "LNDMC_TRIG_TIME": (0.1, 10.0, ()),
     "MC_ROLL_P": (0.0, 12.0, ()),
     "MC_PITCH_P": (0.0, 12.0, ()),
     "MC_YAW_P": (0.0, 5.0, ()),
@@ -311,6 +336,7 @@ _MOCK_RANGES: dict[str, tuple[float, float]] = {
     "MIS_TAKEOFF_ALT": (0.0, 10_000.0),  # GF_MAX_VER_DIST's maximum
     "RTL_RETURN_ALT": (0.0, 10_000.0),
     "MPC_LAND_SPEED": (0.6, 4.0),  # MPC_Z_VEL_MAX_DN's maximum
+    "MPC_LAND_CRWL": (0.1, 4.0),
     "MC_ROLLRATE_I": (0.0, 10.0),
     "MC_PITCHRATE_I": (0.0, 10.0),
     "MC_YAWRATE_I": (0.0, 10.0),

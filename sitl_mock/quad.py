@@ -51,7 +51,6 @@ GUST_PERIOD_S = 0.02  # the gust process is updated at 50 Hz (held in between)
 MAX_STEP_S = 1.0 / 250.0  # longer steps are split (integration always at >= 250 Hz)
 ATT_LOOP_PERIOD_S = 0.004
 RATE_LOOP_PERIOD_S = 0.002  # rate loop at <= 500 Hz (every physics step below 500 Hz)
-LAND_DETECT_TIME_S = 0.5
 #: Rate [Hz] at which a change of the offboard attitude-target kind (attitude <-> body rates)
 #: reaches the controllers. PX4 v1.16: the commander republishes vehicle_control_mode "at 2 Hz or
 #: immediately when changed" (Commander::run: 500 ms since the last vehicle_status publish, a
@@ -70,8 +69,9 @@ SIH_IMU_PERIOD_S = 0.004
 SIH_GYRO_NOISE = (0.14, 0.07, 0.03)
 #: Touching the ground while the position controller asks for more than this descent rate
 #: [m/s] is "ground contact" (PX4's land detector stage): the thrust is cut (see
-#: `_control_position`); the land detector uses the same threshold.
-GROUND_CONTACT_DESCENT_M_S = 0.3
+#: `_control_position`); the land detector uses the same threshold. Half of PX4's landing crawl
+#: (MPC_LAND_CRWL 0.3 m/s), so an AUTO landing that crawls onto the ground is detected.
+GROUND_CONTACT_DESCENT_M_S = 0.15
 _SPLIT_ABOVE_S = MAX_STEP_S + 1e-12
 _RATE_TICK_S = RATE_LOOP_PERIOD_S - 1e-9
 
@@ -144,6 +144,7 @@ class Quadrotor:
         "_izz_m_iyy",
         "_kdv",
         "_kdw",
+        "_land_detect_s",
         "_land_timer",
         "_landed",
         "_last_mode",
@@ -184,6 +185,7 @@ class Quadrotor:
         "_thrust_sp",
         "_tko_state",
         "_tmax",
+        "_touched",
         "_u",
         "_vx",
         "_vy",
@@ -230,6 +232,7 @@ class Quadrotor:
         self._wx = self._wy = self._wz = 0.0
         self._u: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # rotor thrust 0..1
         self._on_ground = True
+        self._touched = False
         self._wind: Vec3 = (0.0, 0.0, 0.0)  # steady wind + gust, what the physics sees
         self._wind_base: Vec3 = (0.0, 0.0, 0.0)
         self._gust: Vec3 = (0.0, 0.0, 0.0)
@@ -415,6 +418,7 @@ class Quadrotor:
         self._qw, self._qx, self._qy, self._qz = (float(c) / n for c in q_wxyz)
         self._wx, self._wy, self._wz = (float(c) for c in omega_frd)
         self._on_ground = self._pz >= 0.0 and self._vz >= 0.0
+        self._touched = False
         if motors is not None:
             m = float(motors)
             self._u = (m, m, m, m)
@@ -444,6 +448,8 @@ class Quadrotor:
         self._lpitch = p["SIH_L_PITCH"]
         self._kdv = p["SIH_KDV"]
         self._kdw = p["SIH_KDW"]
+        # PX4's land detector: ground contact, maybe landed and landed each hold for a third
+        self._land_detect_s = p["LNDMC_TRIG_TIME"]
         # products/differences used every physics step (same evaluation order as written out)
         self._lroll_t = self._lroll * self._tmax
         self._lpitch_t = self._lpitch * self._tmax
@@ -549,7 +555,7 @@ class Quadrotor:
             or (self._last_mode == "pos" and self._pvc.vel_sp[2] > GROUND_CONTACT_DESCENT_M_S)
         ):
             self._land_timer += dt
-            if self._land_timer >= LAND_DETECT_TIME_S or self._idle:
+            if self._land_timer >= self._land_detect_s or self._idle:
                 self._landed = True
         else:
             self._land_timer = 0.0
@@ -686,7 +692,10 @@ class Quadrotor:
                 body_z, thrust = self._pvc.update(
                     g, dtc, pos, vel, (self._ax, self._ay, self._az), tgt, up_limit, st == FLIGHT
                 )
-                if self._on_ground and self._pvc.vel_sp[2] > GROUND_CONTACT_DESCENT_M_S:
+                # a touch since the last tick counts too: a descent that meets the ground
+                # between two ticks and bounces off must not be missed
+                touched, self._touched = self._touched or self._on_ground, False
+                if touched and self._pvc.vel_sp[2] > GROUND_CONTACT_DESCENT_M_S:
                     # ground contact while descending (PX4 limit_thrust_during_landing): zero
                     # thrust, level at the current yaw, no integrator windup; otherwise the
                     # controller keeps fighting wind or drift on the ground and the vehicle
@@ -910,6 +919,7 @@ class Quadrotor:
             qw, qx, qy, qz = math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw)
             px, py = self._px, self._py
             self._on_ground = True
+            self._touched = True
         else:
             self._on_ground = False
         inv = self._invdt

@@ -184,13 +184,23 @@ def _validate(traj: PiecewiseBezier, limits: Limits | RoverLimits, params: Any) 
 
 
 def _thrust_vectors(vel: FloatArray, acc: FloatArray, params: Any) -> FloatArray:
-    """Thrust vector t = m (g e3 - a) - D v (N), NED, shape (N, 3)."""
+    """Thrust vector t = m (g e3 - a) - D v (N), NED, shape (N, 3), read-only (the last one is
+    reused for the same arrays: the limit metrics and the body-rate bound of one set of
+    samples both need it)."""
+    last = _TV_LAST[0]
+    if last is not None and last[0] is vel and last[1] is acc and last[2] is params:
+        return last[3]
     m = float(params.mass)
     g = float(params.g)
     drag = float(getattr(params, "drag", 0.0))
     tv = -m * acc - drag * vel
     tv[:, 2] += m * g
+    tv.setflags(write=False)
+    _TV_LAST[0] = (vel, acc, params, tv)
     return tv
+
+
+_TV_LAST: list[tuple[FloatArray, FloatArray, Any, FloatArray] | None] = [None]
 
 
 @dataclass(frozen=True)
@@ -330,19 +340,17 @@ def _grid_derivatives(
 ) -> list[FloatArray]:
     """Derivatives of the given orders at ``per_segment`` evenly spaced times of every segment
     (both ends included, each end from its own segment), shape (M * per_segment, d) each, in
-    the order of :func:`_sample_times`. One matrix product for all orders and segments."""
+    the order of :func:`_sample_times`. One stacked matrix product per order, straight into
+    the segment-major layout (no transposed copy of the samples)."""
     cp = traj.control_points
     m, n1, d = cp.shape
-    W = np.vstack([_grid_matrix(n1 - 1, per_segment, r) for r in orders])
-    cpt = cp.transpose(1, 0, 2).reshape(n1, m * d)
-    vals = thin_matmul(W, cpt).reshape(len(orders), per_segment, m, d)
     inv_h = 1.0 / traj.durations
     out = []
-    for i, r in enumerate(orders):
-        v = vals[i].transpose(1, 0, 2)
+    for r in orders:
+        v = np.matmul(_grid_matrix(n1 - 1, per_segment, r), cp)  # (M, per_segment, d)
         if r:
-            v = v * (inv_h**r)[:, None, None]
-        out.append(np.ascontiguousarray(v).reshape(m * per_segment, d))
+            v *= (inv_h**r)[:, None, None]
+        out.append(v.reshape(m * per_segment, d))
     return out
 
 
@@ -359,12 +367,16 @@ def segment_samples(
     orders = (1, 2, 3, 4) if need_snap else (1, 2, 3) if need_jerk else (1, 2)
     ders = _grid_derivatives(traj, per_segment, orders)
     n = traj.num_segments * per_segment
-    if traj.yaw is None:
+    ytraj = traj.yaw
+    ycp = None if ytraj is None else ytraj.control_points
+    if ytraj is None or ycp is None or not ycp.size or bool(np.all(ycp == ycp.flat[0])):
+        # no yaw channel, or a constant one (e.g. one heading for the whole plan)
         z = np.zeros(n)
-        yaw, yaw_rate, yaw_acc = z, z, z
+        yaw = z if ycp is None or not ycp.size else np.full(n, float(ycp.flat[0]))
+        yaw_rate, yaw_acc = z, z
     else:
         yaw, yaw_rate, yaw_acc = (
-            y[:, 0] for y in _grid_derivatives(traj.yaw, per_segment, (0, 1, 2))
+            y[:, 0] for y in _grid_derivatives(ytraj, per_segment, (0, 1, 2))
         )
     return _Samples(
         ders[0],

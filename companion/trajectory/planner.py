@@ -182,6 +182,42 @@ def _basis(s: int) -> tuple[FloatArray, FloatArray]:
     return H, Qt
 
 
+def _pair_sources(
+    target: NDArray[np.intp], source: NDArray[np.intp], n_targets: int, pad: int
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """For ``np.bincount(target, weights=v[source])`` with at most two terms per target: the
+    first and second source of each target in input order (``pad``, the index of an appended
+    zero, where there is none), see :func:`_pair_sum`."""
+    first = np.full(n_targets, pad, dtype=np.intp)
+    second = np.full(n_targets, pad, dtype=np.intp)
+    order = np.argsort(target, kind="stable")
+    t_sorted = target[order]
+    src_sorted = source[order]
+    new = np.ones(t_sorted.shape[0], dtype=bool)
+    new[1:] = t_sorted[1:] != t_sorted[:-1]
+    first[t_sorted[new]] = src_sorted[new]
+    rest = ~new
+    if rest.any():
+        again = np.zeros(t_sorted.shape[0], dtype=bool)
+        again[1:] = rest[1:] & rest[:-1]
+        if again.any():
+            raise AssertionError("a band entry with more than two terms")  # pragma: no cover
+        second[t_sorted[rest]] = src_sorted[rest]
+    return first, second
+
+
+def _pair_sum(v: FloatArray, src: tuple[NDArray[np.intp], NDArray[np.intp]]) -> FloatArray:
+    """``v.reshape(-1)[first] + v.reshape(-1)[second]`` with a zero appended to v (equal to
+    the ``np.bincount`` sum of at most two terms)."""
+    flat = np.concatenate([v.reshape(-1), _ZERO])
+    out: FloatArray = flat[src[0]]
+    out += flat[src[1]]
+    return out
+
+
+_ZERO = np.zeros(1)
+
+
 class _System:
     """Banded minimum-derivative system for a fixed structure (which joint derivatives are
     fixed); ``solve(h)`` can be called repeatedly with new durations."""
@@ -222,16 +258,38 @@ class _System:
         rows = fa[self.free_rows]
         self.rhs_index = (rows[:, None] * self.d + np.arange(self.d)[None, :]).reshape(-1)
         self.free_idx = np.flatnonzero(free)
+        # flat indices of the free rows' entries (a 1-D scatter is several times faster)
+        self._free_flat = (self.free_idx[:, None] * self.d + np.arange(self.d)[None, :]).reshape(-1)
         self.free_rows_idx = np.flatnonzero(self.free_rows.reshape(-1))
         self.band_take = np.flatnonzero(mask.reshape(-1))
+        # the same sums as np.bincount over (band_flat, band_take) and (rhs_index, free rows)
+        # as two gathers and one addition: every entry has at most two terms (a joint is shared
+        # by two segments), and (0 + a) + b == a + b exactly
+        self._band_src = _pair_sources(
+            self.band_flat, self.band_take, (self.u + 1) * self.nf, self.m * 4 * s * s
+        )
+        rhs_src = (self.free_rows_idx[:, None] * self.d + np.arange(self.d)[None, :]).reshape(-1)
+        self._rhs_src = _pair_sources(
+            self.rhs_index, rhs_src, self.nf * self.d, self.m * 2 * s * self.d
+        )
         # exponent index of each Q entry: h^(1-2s+o_a+o_b), exponents 1-2s .. -1
         self.expo_idx = (self.expo - (1.0 - 2.0 * s)).astype(np.intp)
         # band storage entry (r, j) holds A[j - (u - r), j]: row index per entry for scaling
         band_i = np.arange(self.nf)[None, :] - (self.u - np.arange(self.u + 1))[:, None]
         self.band_i = np.clip(band_i, 0, max(self.nf - 1, 0))
+        # the fixed part x0 per segment window, restricted to the window columns it is not
+        # zero in (positions, fixed boundary derivatives)
+        x0_windows = np.concatenate(
+            [self.x0[:-s].reshape(self.m, s, self.d), self.x0[s:].reshape(self.m, s, self.d)],
+            axis=1,
+        )
+        self._x0_cols = np.flatnonzero(np.any(x0_windows != 0.0, axis=(0, 2)))
+        self._x0_windows = np.ascontiguousarray(x0_windows[:, self._x0_cols, :])
         self._factor: tuple[FloatArray, FloatArray] | None = None
         self._last: tuple[FloatArray, FloatArray, FloatArray] | None = None  # h, hp, Q
         self._windows: tuple[FloatArray, FloatArray] | None = None  # x, windows(x)
+        #: the last solve without a data term: (h, x, cost or NaN)
+        self._solved: tuple[FloatArray, FloatArray, float] | None = None
 
     def _prepare(self, h: FloatArray) -> tuple[FloatArray, FloatArray]:
         """(hp, Q) for durations h: hp = h^o (M, 2s), Q_k = h^(1-2s) S Qt S, S = diag(hp)."""
@@ -282,26 +340,30 @@ class _System:
         ``fit = (R, g)`` adds a per-segment quadratic data term ``x_k^T R_k x_k - 2 g_k . x_k``
         (R (M, 2s, 2s), g (M, 2s, d)) to the objective (same band structure); the returned
         cost is the derivative cost J alone."""
+        last = self._solved
+        if fit is None and last is not None and last[0].shape == h.shape and (
+            np.array_equal(last[0], h)
+        ):
+            # the same durations as the last solve (e.g. the refinement's result, checked
+            # again): the same solution; its factorisation is still the current one
+            x, cost = last[1], last[2]
+            if with_cost and math.isnan(cost):
+                cost = self.cost(x, h)
+                self._solved = (last[0], x, cost)
+            return x, cost if with_cost else math.nan
         d = self.d
         _, Q = self._prepare(h)
         A = Q if fit is None else Q + fit[0]
         x = self.x0.copy()
         if self.nf:
-            xk = self.windows(x)
-            yk = A @ xk if fit is None else A @ xk - fit[1]
-            yf = yk.reshape(-1, d)[self.free_rows_idx]
-            rhs = -np.bincount(
-                self.rhs_index, weights=yf.reshape(-1), minlength=self.nf * d
-            ).reshape(self.nf, d)
-            ab = (
-                np.bincount(
-                    self.band_flat,
-                    weights=A.reshape(-1)[self.band_take],
-                    minlength=(self.u + 1) * self.nf,
-                )
-                .reshape(self.nf, self.u + 1)
-                .T
-            )
+            # A x0 per segment from the window columns where x0 is not zero (the zero terms
+            # add nothing: the same sums)
+            cols = self._x0_cols
+            yk = np.matmul(A[:, :, cols], self._x0_windows)
+            if fit is not None:
+                yk -= fit[1]
+            rhs = -_pair_sum(yk, self._rhs_src).reshape(self.nf, d)
+            ab = _pair_sum(A, self._band_src).reshape(self.nf, self.u + 1).T
             # Jacobi scaling for conditioning across very different durations
             diag = ab[self.u]
             if np.any(diag <= 0.0):
@@ -319,12 +381,19 @@ class _System:
                 )
             self._factor = (cb, sc)
             z, info = _PBTRS(cb, rhs * sc[:, None], lower=0)
-            x[self.free_idx] = z * sc[:, None]
+            x.reshape(-1)[self._free_flat] = (z * sc[:, None]).reshape(-1)
         xk = self.windows(x)
         cost = float(np.einsum("mad,mad->", xk, Q @ xk)) if with_cost else math.nan
         x.setflags(write=False)  # its windows are cached
         self._windows = (x, xk)
+        self._solved = None if fit is not None else (h.copy(), x, cost)
         return x, cost
+
+    def cost(self, x: FloatArray, h: FloatArray) -> float:
+        """Cost J of the joint derivatives x (as :meth:`solve` returns) for durations h."""
+        _, Q = self._prepare(h)
+        xk = self.windows(x)
+        return float(np.einsum("mad,mad->", xk, Q @ xk))
 
     def adjoint(self, g_full: FloatArray) -> FloatArray:
         """lambda = A^-1 g_F for the last factorised system, scattered to all joint
@@ -332,8 +401,8 @@ class _System:
         lam = np.zeros_like(g_full)
         if self.nf and self._factor is not None:
             cb, sc = self._factor
-            z, _ = _PBTRS(cb, g_full[self.free_idx] * sc[:, None], lower=0)
-            lam[self.free_idx] = z * sc[:, None]
+            z, _ = _PBTRS(cb, np.take(g_full, self.free_idx, axis=0) * sc[:, None], lower=0)
+            lam.reshape(-1)[self._free_flat] = (z * sc[:, None]).reshape(-1)
         return lam
 
     def dq(self, h: FloatArray) -> FloatArray:
@@ -554,6 +623,18 @@ def _projected_lbfgs(
     return np.asarray(x, dtype=np.float64)
 
 
+def _component_sum(terms: list[FloatArray]) -> FloatArray:
+    """Sum of the per-component arrays ``terms`` in the order ``np.einsum`` sums a contiguous
+    axis of that length (3: ``(t0 + t2) + t1``), so that a component-major layout gives the
+    same values as the former component-minor ``einsum``."""
+    if len(terms) == 3:
+        return terms[0] + terms[2] + terms[1]
+    out = terms[0]
+    for t in terms[1:]:
+        out = out + t
+    return out
+
+
 class _Penalty:
     """Sampled smooth penalty ``P = sum_k h_k / n sum_j max(0, g)^3`` of the limit violations
     ``g`` (dimensionless, > 0 when violated) of speed, acceleration, jerk, tilt and thrust, with
@@ -631,30 +712,35 @@ class _Penalty:
     def _violations(
         self, d_all: FloatArray, grad: bool = True
     ) -> tuple[FloatArray, FloatArray | None]:
-        """Per-sample penalty phi (n, M) from the sampled derivatives d_all (R, n, M, d) and,
-        if ``grad``, dphi/d(d_all) (shape of d_all; None when nothing is violated)."""
-        n, m = d_all.shape[1], d_all.shape[2]
-        # speed, acceleration, jerk: all orders at once (rows without a limit never active)
-        g_kin = np.einsum("rnmd,rnmd->rnm", d_all, d_all)
+        """Per-sample penalty phi (n, M) from the sampled derivatives d_all (R, n, d, M: the
+        components of all segments contiguous) and, if ``grad``, dphi/d(d_all) (shape of d_all;
+        None when nothing is violated). Sums over the d components are formed as
+        ``(x0 + x2) + x1``, the order np.einsum uses on a contiguous (..., 3) axis."""
+        n, m = d_all.shape[1], d_all.shape[3]
+        dim = d_all.shape[2]
+        sq = d_all * d_all
+        g_kin = _component_sum([sq[:, :, k] for k in range(dim)])
         g_kin *= self.kin_inv_lim2
         g_kin -= 1.0
         active = bool(g_kin.max() > 0.0)
-        g_all: FloatArray | None = None
+        g_all = None
         if active:
             pos = np.maximum(g_kin, 0.0)
             w = pos * pos
-            phi = np.einsum("rnm,rnm->nm", w, pos)
+            wp = w * pos
+            phi = wp[0]
+            for r in range(1, wp.shape[0]):
+                phi = phi + wp[r]
             if grad:
                 w *= 6.0 * self.kin_inv_lim2
-                g_all = d_all * w[:, :, :, None]
+                g_all = d_all * w[:, :, None, :]
         else:
             phi = np.zeros((n, m))
-        for row, (h2, up2, dn2) in self.axis_terms if d_all.shape[3] == 3 else ():
-            # per-axis limits: |x_xy|^2 / L_h^2 - 1 and x_z^2 / L_up|down^2 - 1
-            vec = d_all[row]
-            inv_z = np.where(vec[:, :, 2] < 0.0, 1.0 / up2, 1.0 / dn2)
-            g_h = (vec[:, :, 0] ** 2 + vec[:, :, 1] ** 2) / h2 - 1.0
-            g_z = vec[:, :, 2] ** 2 * inv_z - 1.0
+        for row, (h2, up2, dn2) in self.axis_terms if dim == 3 else ():
+            vec, vsq = d_all[row], sq[row]  # components and their squares, (n, 3, M)
+            inv_z = np.where(vec[:, 2] < 0.0, 1.0 / up2, 1.0 / dn2)
+            g_h = (vsq[:, 0] + vsq[:, 1]) / h2 - 1.0
+            g_z = vsq[:, 2] * inv_z - 1.0
             for g, axes, inv in ((g_h, (0, 1), 1.0 / h2), (g_z, (2,), inv_z)):
                 if not g.max() > 0.0:
                     continue
@@ -665,8 +751,9 @@ class _Penalty:
                     continue
                 if g_all is None:
                     g_all = np.zeros_like(d_all)
+                w6 = 6.0 * w * inv
                 for ax in axes:
-                    g_all[row, :, :, ax] += 6.0 * w * inv * vec[:, :, ax]
+                    g_all[row, :, ax] += w6 * vec[:, ax]
         if not self.dyn_terms:
             return phi, g_all
         i1, i2 = self.orders.index(1), self.orders.index(2)
@@ -676,13 +763,16 @@ class _Penalty:
         tv = -mass * d_all[i2]
         if drag:
             tv -= drag * d_all[i1]
-        tv[:, :, 2] += mg
-        dsum: FloatArray | None = None  # sum over the thrust terms of dphi/dt
-        t2: FloatArray | None = None
+        tv[:, 2] += mg
+        dsum = None
+        t2 = None
+        tsq = None  # squared thrust components
         for name, lim2 in self.dyn_terms:
+            if tsq is None:
+                tsq = tv * tv
             if name == "tilt":
-                tz = np.maximum(tv[:, :, 2], 1e-3 * mg)
-                hor = tv[:, :, 0] ** 2 + tv[:, :, 1] ** 2
+                tz = np.maximum(tv[:, 2], 1e-3 * mg)
+                hor = tsq[:, 0] + tsq[:, 1]
                 inv = 1.0 / (lim2 * tz * tz)
                 g = hor * inv - 1.0
                 if not g.max() > 0.0:
@@ -695,12 +785,12 @@ class _Penalty:
                 w *= 6.0 * inv
                 if dsum is None:
                     dsum = np.zeros_like(tv)
-                dsum[:, :, 0] += w * tv[:, :, 0]
-                dsum[:, :, 1] += w * tv[:, :, 1]
-                dsum[:, :, 2] -= w * hor / tz
+                dsum[:, 0] += w * tv[:, 0]
+                dsum[:, 1] += w * tv[:, 1]
+                dsum[:, 2] -= w * hor / tz
             else:
                 if t2 is None:
-                    t2 = np.einsum("ijk,ijk->ij", tv, tv)
+                    t2 = _component_sum([tsq[:, k] for k in range(tv.shape[1])])
                 sign = 1.0 if name == "max_thrust" else -1.0
                 g = sign * (t2 / lim2 - 1.0)
                 if not g.max() > 0.0:
@@ -713,7 +803,7 @@ class _Penalty:
                 w *= sign * 6.0 / lim2
                 if dsum is None:
                     dsum = np.zeros_like(tv)
-                dsum += w[:, :, None] * tv
+                dsum += w[:, None, :] * tv
         if dsum is not None:
             if g_all is None:
                 g_all = np.zeros_like(d_all)
@@ -723,17 +813,21 @@ class _Penalty:
         return phi, g_all
 
     def sampled(self, x: FloatArray, h: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """(d_all (R, n, M, d) sampled derivatives, zt, ihp) at the optimum x(h)."""
+        """(d_all (R, n, d, M) sampled derivatives, zs (2s, d, M) scaled joint derivatives,
+        ihp) at the optimum x(h). The samples are component-major (each component of all
+        segments contiguous) for the element-wise penalty terms."""
         sysm = self.system
         s = sysm.s
         xk = sysm.windows(x)
         m, d = xk.shape[0], xk.shape[2]
         hp = sysm.powers(h, 0)
-        zt = (xk * hp[:, :, None]).transpose(1, 0, 2).reshape(2 * s, m * d)
+        zs = np.ascontiguousarray((xk * hp[:, :, None]).transpose(1, 2, 0))  # (2s, d, M)
         ihp = (1.0 / h)[None, :] ** self.order_pow  # (R, M)
-        d_all = thin_matmul(self.W_all, zt).reshape(len(self.orders), self.n, m, d)
-        d_all *= ihp[:, None, :, None]
-        return d_all, zt, ihp
+        d_all = thin_matmul(self.W_all, zs.reshape(2 * s, d * m)).reshape(
+            len(self.orders), self.n, d, m
+        )
+        d_all *= ihp[:, None, None, :]
+        return d_all, zs, ihp
 
     def value(self, x: FloatArray, h: FloatArray) -> tuple[float, Any]:
         """Penalty P at the optimum x(h), and the state :meth:`gradient` needs."""
@@ -752,25 +846,31 @@ class _Penalty:
         ``dqx``: ``system.dq_x(x, h)`` if already computed (shared with ``cost_grad``)."""
         if state is None:
             return np.zeros(h.shape[0])
-        phis, g_all, zt, ihp = state
+        phis, g_all, zs, ihp = state
         sysm = self.system
         s = sysm.s
         n = self.n
-        m, d = g_all.shape[2], g_all.shape[3]
+        d, m = g_all.shape[2], g_all.shape[3]
         hp = sysm.powers(h, 0)
         inv_h = 1.0 / h
         dh = phis / n
         # back-projection: U = sum_r W_r^T G_r h^-r, V = sum_r r W_r^T G_r h^-r
-        g_all *= (ihp * (h / n)[None, :])[:, None, :, None]
-        gt = g_all.reshape(len(self.orders) * n, m * d)
-        U = thin_matmul(self.W_all_T, gt).reshape(2 * s, m, d)
-        V = thin_matmul(self.W_all_rT, gt).reshape(2 * s, m, d)
-        zt3 = zt.reshape(2 * s, m, d)
-        dh += np.einsum("amd,amd->m", zt3, sysm.o[:, None, None] * U - V) * inv_h
-        U *= hp.T[:, :, None]  # dP/dx per segment window, (2s, M, d)
+        g_all *= (ihp * (h / n)[None, :])[:, None, None, :]
+        gt = g_all.reshape(len(self.orders) * n, d * m)
+        U = thin_matmul(self.W_all_T, gt).reshape(2 * s, d, m)
+        V = thin_matmul(self.W_all_rT, gt).reshape(2 * s, d, m)
+        # sum over the inputs a and components of zs * (o U - V), in the order of the former
+        # np.einsum("amd,amd->m") (components as in _component_sum, then a in turn)
+        prod = zs * (sysm.o[:, None, None] * U - V)  # (2s, d, M)
+        per_a = _component_sum([prod[:, k] for k in range(d)])
+        acc = per_a[0]
+        for a in range(1, per_a.shape[0]):
+            acc = acc + per_a[a]
+        dh += acc * inv_h
+        U *= hp.T[:, None, :]  # dP/dx per segment window, (2s, d, M)
         g_full = np.zeros_like(x)
-        g_full[: m * s] += U[:s].transpose(1, 0, 2).reshape(-1, d)
-        g_full[s:] += U[s:].transpose(1, 0, 2).reshape(-1, d)
+        g_full[: m * s] += U[:s].transpose(2, 0, 1).reshape(-1, d)
+        g_full[s:] += U[s:].transpose(2, 0, 1).reshape(-1, d)
         lam = sysm.adjoint(g_full)
         if dqx is None:
             dqx = sysm.dq_x(x, h)
@@ -884,6 +984,11 @@ class _Planner:
         self._uniform_floor = 0.0
         #: the per-waypoint yaw channel's banded system (same structure at every build)
         self._yaw_systems: dict[str, _System] = {}
+        #: the durations and dense samples of the last dense :meth:`_max_ratio`
+        self._dense: tuple[FloatArray, Any] | None = None
+        #: the last :meth:`build`: (durations, trajectory, cost or NaN); the saturation's
+        #: checks and the final build often ask for the same durations again
+        self._built: tuple[FloatArray, PiecewiseBezier, float] | None = None
 
     def solve(self, h: FloatArray, with_cost: bool = True) -> tuple[FloatArray, float]:
         self.solves += 1
@@ -891,7 +996,13 @@ class _Planner:
 
     def build(self, h: FloatArray, with_cost: bool = True) -> tuple[PiecewiseBezier, float]:
         """The trajectory (with its yaw channel) for durations h and its cost J (NaN without
-        ``with_cost``)."""
+        ``with_cost``). The last build is reused for equal durations (same result)."""
+        built = self._built
+        if built is not None and built[0].shape == h.shape and np.array_equal(built[0], h):
+            if not with_cost:
+                return built[1], math.nan
+            _, cost = self.solve(h)  # the system's last solve: no new factorisation
+            return built[1], cost
         x, cost = self.solve(h, with_cost)
         cp = self.system.control_points(x, h)
         traj = PiecewiseBezier.from_control_points(cp, h)
@@ -900,6 +1011,7 @@ class _Planner:
         )
         if yaw_traj is not None:
             traj = traj.with_yaw(yaw_traj)
+        self._built = (h.copy(), traj, cost)
         return traj, cost
 
     # ------------------------------------------------------------------ allocation
@@ -1077,7 +1189,29 @@ class _Planner:
             if worst > 1.0:
                 return worst, per_seg
         smp = segment_samples(traj, limits)
+        self._dense = (h.copy(), smp)
         return self._ratio_of(smp, m, limits, params)
+
+    def _scaled_ratio(
+        self, h: FloatArray, limits: Limits | RoverLimits, params: Any
+    ) -> Callable[[float], float] | None:
+        """The dense check's worst ratio of the durations ``alpha * h`` as a function of
+        alpha, from the dense samples of the last :meth:`_max_ratio` of h (no new solve:
+        scaling every duration by alpha time-scales the optimum when the problem is
+        homogeneous); None when that does not apply."""
+        dense = self._dense
+        if (
+            not self.homogeneous
+            or not isinstance(limits, Limits)
+            or dense is None
+            or dense[0].shape != h.shape
+            or not np.array_equal(dense[0], h)
+        ):
+            return None
+        smp = dense[1]
+        per = smp.vel.shape[0] // max(h.shape[0], 1)
+        scale = None if self.speed_scale is None else np.repeat(self.speed_scale, per)
+        return TimeScaledRatio(smp, limits, params, ALLOCATION_MARGIN, speed_scale=scale)
 
     def _scale(self) -> FloatArray | float:
         """Per-segment speed scale (M,), or 1.0 without per-segment caps."""
@@ -1181,9 +1315,17 @@ class _Planner:
                 if worst <= 1.0:
                     return h
                 done, w = h, worst
+                # a uniform scaling: the dense samples of h time-scaled (no re-solve)
+                scaled = self._scaled_ratio(h, limits, params)
+                alpha = 1.0
                 for _ in range(LOCAL_STRETCH_FINISH_TRIES):
                     done = done * (w * 1.001)
-                    w = self._max_ratio(done, limits, params)[0]
+                    alpha *= w * 1.001
+                    w = (
+                        scaled(alpha)
+                        if scaled is not None
+                        else self._max_ratio(done, limits, params)[0]
+                    )
                     if w <= 1.0:
                         return done
                     if w >= LOCAL_STRETCH_FINISH:
@@ -1210,12 +1352,23 @@ class _Planner:
             if not slack.any():
                 break
             cand = best_h * np.where(slack, np.maximum(per_seg, SHRINK_MIN_FACTOR), 1.0)
+            lowest = math.inf
             for _ in range(8):
+                if float(cand.sum()) >= best_t * (1.0 - 1e-3):
+                    # stretching only lengthens it: it can no longer be kept
+                    worst = math.inf
+                    break
                 worst, per_seg_c = self._max_ratio(cand, limits, params, coarse=True)
                 if worst <= 1.0:
                     break
+                lowest = min(lowest, worst)
+                if worst > LOCAL_STRETCH_GIVE_UP * lowest:
+                    # the stretched candidate balloons (as in the feasibility pass): give up
+                    # this shrink instead of spending the remaining checks on it
+                    worst = math.inf
+                    break
                 cand = cand * _stretch_factors(per_seg_c)
-            else:
+            if worst > 1.0:
                 break
             total = float(cand.sum())
             if total >= best_t * (1.0 - 1e-3):
@@ -1385,7 +1538,8 @@ def _yaw_channel(
         return _heading_fit(traj, s)
     if yaw_wp is None:
         raise AssertionError("per-waypoint yaw missing")  # pragma: no cover
-    if yaw_wp.shape[0] == 1:
+    if yaw_wp.shape[0] == 1 or bool(np.all(yaw_wp == yaw_wp[0])):
+        # one heading (or the same at every waypoint): the minimum-snap channel is constant
         cp = np.full((m, 2 * s, 1), float(yaw_wp[0]))
         return PiecewiseBezier.from_control_points(cp, h)
     if cache is not None and "1d" in cache:
@@ -1550,13 +1704,18 @@ def segment_distances(p: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray
     """Distance [m] of points `p` to the segments `a`-`b`, all (..., d) and broadcast
     together over the leading axes (projection clamped to the segment; a zero-length segment
     is its point)."""
-    ab = b - a
-    den = np.einsum("...d,...d->...", ab, ab)
-    rel = p - a
-    t = np.einsum("...d,...d->...", rel, ab) / np.where(den > 0.0, den, 1.0)
+    # component by component (contiguous arrays instead of a short last axis; the sums in
+    # np.einsum's order, see _component_sum: the same values)
+    dim = p.shape[-1]
+    ab = [b[..., k] - a[..., k] for k in range(dim)]
+    rel = [p[..., k] - a[..., k] for k in range(dim)]
+    den = _component_sum([x * x for x in ab])
+    t = _component_sum([r * x for r, x in zip(rel, ab, strict=True)]) / np.where(
+        den > 0.0, den, 1.0
+    )
     t = np.where(den > 0.0, np.clip(t, 0.0, 1.0), 0.0)
-    diff = rel - t[..., None] * ab
-    return np.asarray(np.sqrt(np.einsum("...d,...d->...", diff, diff)), dtype=np.float64)
+    diff = [r - t * x for r, x in zip(rel, ab, strict=True)]
+    return np.asarray(np.sqrt(_component_sum([x * x for x in diff])), dtype=np.float64)
 
 
 def point_segment_distance(p: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
@@ -1603,18 +1762,27 @@ def _corridor_breaches(
     n = CORRIDOR_SAMPLES_PER_SEGMENT
     p = _segment_grid_points(traj, n)  # (M, n, d)
     n_legs = wp.shape[0] - 1
-    cand = seg_leg[:, None] + np.array([-1, 0, 1])[None, :]  # this leg and its neighbours
-    ok = (cand >= 0) & (cand < n_legs)
-    cc = np.clip(cand, 0, max(n_legs - 1, 0))
-    dev = np.full(p.shape[:2], np.inf)
-    for k in range(3):
-        dist = segment_distances(p, wp[cc[:, k]][:, None, :], wp[cc[:, k] + 1][:, None, :])
-        np.minimum(dev, np.where(ok[:, k : k + 1], dist, np.inf), out=dev)
+    # the segment's own leg first: a sample within the corridor of it is within the corridor,
+    # so the neighbouring legs and the acceptance radii are looked at only for the segments
+    # with a sample outside it (the same verdict as taking the minimum over all three)
+    dev = segment_distances(p, wp[seg_leg][:, None, :], wp[seg_leg + 1][:, None, :])
+    rows = np.flatnonzero((dev > corridor_m).any(axis=1))
+    result = np.zeros(seg_leg.shape[0], dtype=np.bool_)
+    if rows.shape[0] == 0:
+        return result
+    p, dev, legs = p[rows], dev[rows], seg_leg[rows]
+    for step in (-1, 1):  # the neighbouring legs
+        cand = legs + step
+        ok = (cand >= 0) & (cand < n_legs)
+        cc = np.clip(cand, 0, max(n_legs - 1, 0))
+        dist = segment_distances(p, wp[cc][:, None, :], wp[cc + 1][:, None, :])
+        np.minimum(dev, np.where(ok[:, None], dist, np.inf), out=dev)
     out = dev > corridor_m
-    for w in (seg_leg, seg_leg + 1):
+    for w in (legs, legs + 1):
         dw = p - wp[w][:, None, :]
         out &= ~(np.sqrt(np.einsum("mnd,mnd->mn", dw, dw)) <= acceptance_m[w][:, None])
-    return np.asarray(out.any(axis=1), dtype=np.bool_)
+    result[rows] = out.any(axis=1)
+    return result
 
 
 @lru_cache(maxsize=8)
@@ -1631,9 +1799,7 @@ def _midpoint_basis(degree: int, n: int) -> FloatArray:
 def _segment_grid_points(traj: PiecewiseBezier, n: int) -> FloatArray:
     """Positions (M, n, d) of every segment at the normalised times (k + 0.5) / n."""
     cp = traj.control_points
-    m, n1, d = cp.shape
-    vals = thin_matmul(_midpoint_basis(n1 - 1, n), cp.transpose(1, 0, 2).reshape(n1, m * d))
-    return np.ascontiguousarray(vals.reshape(n, m, d).transpose(1, 0, 2))
+    return np.asarray(np.matmul(_midpoint_basis(cp.shape[1] - 1, n), cp), dtype=np.float64)
 
 
 #: Joints placed on a leg with a cruise part, at these multiples of the distance the

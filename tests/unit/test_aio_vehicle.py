@@ -35,6 +35,9 @@ class Script:
     touchdown_s: float = 0.3  # after a LAND request: landed_state 1 (on ground) this much later
     auto_disarm_s: float | None = None  # after touchdown: PX4's COM_DISARM_LAND (None: never)
     send_position: bool = True
+    # acknowledge a disarm only once a setpoint arrived after it (a stream that stops when the
+    # disarm is sent then never sees its ACK)
+    disarm_ack_after_setpoint: bool = False
     received: list[Any] = field(default_factory=list)
 
 
@@ -51,6 +54,7 @@ class FakePx4(asyncio.DatagramProtocol):
         self.tr: Any = None
         self.armed = False
         self.custom_mode = custom_mode_of(FlightMode.HOLD)
+        self.held_disarm: Any = None
 
     def connection_made(self, transport: Any) -> None:
         self.tr = transport
@@ -65,10 +69,15 @@ class FakePx4(asyncio.DatagramProtocol):
             self.s.received.append(msg)
             if msg.get_type() == "COMMAND_LONG":
                 self.on_command(msg)
+            elif self.held_disarm is not None and msg.get_type().startswith("SET_"):
+                held, self.held_disarm = self.held_disarm, None
+                self.on_command(held, hold=False)
 
-    def on_command(self, c: Any) -> None:
+    def on_command(self, c: Any, hold: bool = True) -> None:
         loop = asyncio.get_running_loop()
-        if c.command == 400:
+        if c.command == 400 and c.param1 == 0 and hold and self.s.disarm_ack_after_setpoint:
+            self.held_disarm = c
+        elif c.command == 400:
             result = self.s.arm_result if c.param1 == 1 else self.s.disarm_result
             self.send(m.MAVLink_command_ack_message(400, result, 0, 0, 1, 191))
             if result == 0:
@@ -365,6 +374,7 @@ async def test_touchdown_disarms_once_on_ground_while_still_streaming(
         px4: tuple[Script, int, FakePx4]) -> None:
     script, port, fake = px4
     script.landed_state = 1  # on ground by the end of the trajectory
+    script.disarm_ack_after_setpoint = True
     async with Vehicle.connect(f"udpout://127.0.0.1:{port}", config=CFG) as v:
         await v.arm()
         await v.fly(setpoint_source=lambda t, tel: PositionSetpoint(pos_ned=(1.0, 2.0, -3.0)),

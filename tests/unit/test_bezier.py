@@ -263,3 +263,24 @@ def test_hull_bounds_per_segment() -> None:
     for k, seg in enumerate(pw.segments):
         t = np.linspace(0.0, seg.duration, 500)
         assert bounds[k] >= np.max(np.linalg.norm(seg.evaluate(t, 1), axis=1)) - 1e-12
+
+
+def test_evaluate_orders_matches_power_basis_oracle_and_evaluate() -> None:
+    # several orders at once (shared segment lookup): each equals evaluate(t, order) and the
+    # numpy.polynomial derivative of the segment's Bernstein polynomial, ends and joints included
+    cps = RNG.normal(size=(5, 8, 3))
+    h = RNG.uniform(0.3, 2.5, size=5)
+    traj = PiecewiseBezier.from_control_points(cps, h)
+    t = np.concatenate([np.linspace(-0.5, traj.duration + 0.5, 211), traj.breaks])
+    orders = (0, 1, 2, 4, 9)
+    got = traj.evaluate_orders(t, orders)
+    tc = np.clip(t, 0.0, traj.duration)
+    seg = np.clip(np.searchsorted(traj.breaks, tc, side="right") - 1, 0, 4)
+    for r, vals in zip(orders, got, strict=True):
+        assert vals.shape == (t.shape[0], 3)
+        np.testing.assert_array_equal(vals, traj.evaluate(t, r))
+        polys = [_bernstein_polys(cps[k], float(h[k])) for k in range(5)]
+        want = np.array([[polys[k][dim].deriv(r)(tc[i] - traj.breaks[k]) if r else
+                          polys[k][dim](tc[i] - traj.breaks[k]) for dim in range(3)]
+                         for i, k in enumerate(seg)])
+        np.testing.assert_allclose(vals, want, rtol=1e-9, atol=1e-9 * max(1.0, np.abs(want).max()))

@@ -189,3 +189,30 @@ def test_coarse_feasibility_look_gives_the_dense_verdict(seed: int) -> None:
         if dense[0] > 1.0 and coarse[0] <= 1.0:
             pytest.fail("coarse look called an infeasible plan feasible")
     assert seen == {True, False}  # both verdicts exercised
+
+
+def _scalar_distance(p: list[float], a: list[float], b: list[float]) -> float:
+    """Point-segment distance with Python floats: nearest point a + t (b - a), t in [0, 1]."""
+    ab = [y - x for x, y in zip(a, b, strict=True)]
+    den = sum(v * v for v in ab)
+    t = 0.0 if den == 0.0 else sum((pi - ai) * v for pi, ai, v in zip(p, a, ab, strict=True)) / den
+    t = min(max(t, 0.0), 1.0)
+    return math.dist(p, [ai + t * v for ai, v in zip(a, ab, strict=True)])
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_segment_distances_broadcast_match_scalar_projection(dim: int) -> None:
+    # points (5, 1, d) against segments (1, 4, d), one of zero length: every pair equals the
+    # textbook projection (clamped to the segment; a zero-length segment is its point)
+    from companion.trajectory.planner import segment_distances
+
+    rng = np.random.default_rng(7 + dim)
+    p = rng.normal(size=(5, 1, dim)) * 20.0
+    a = rng.normal(size=(1, 4, dim)) * 20.0
+    b = rng.normal(size=(1, 4, dim)) * 20.0
+    b[0, 2] = a[0, 2]
+    got = segment_distances(p, a, b)
+    assert got.shape == (5, 4)
+    for i, j in itertools.product(range(5), range(4)):
+        want = _scalar_distance(p[i, 0].tolist(), a[0, j].tolist(), b[0, j].tolist())
+        assert got[i, j] == pytest.approx(want, rel=1e-12, abs=1e-9)
