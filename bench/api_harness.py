@@ -6,7 +6,8 @@ are flown by the same code in the same run.
 
 Metrics come from the .tlog (receive times in Unix seconds), from the autopilot's own messages:
 - estimate: LOCAL_POSITION_NED, placed at its sample time (time_boot_ms mapped to the local
-  clock by `clock_map`: without the link latency, with the autopilot clock's drift);
+  clock by `clock_map`: the lower envelope of receive - boot time, without the link latency,
+  following the autopilot clock's drift);
 - truth: HIL_STATE_QUATERNION (PX4 SITL streams the simulator's state on request; the mock has
   no estimator, its estimate is the truth), projected to PX4's local frame through
   HOME_POSITION (geodetic + local position of home).
@@ -230,33 +231,31 @@ class TlogData:
     att_rpy: FloatArray  # (K, 3) roll pitch yaw [rad] (ATTITUDE)
     att_rates: FloatArray  # (K, 3) body rates [rad/s]
     extra: dict[str, list[Any]]
+    lpos_recv: FloatArray = field(default_factory=lambda: np.zeros(0))  # receive times
+    lpos_boot: FloatArray = field(default_factory=lambda: np.zeros(0))  # time_boot [s]
 
 
-def clock_map(boot_s: FloatArray, recv_s: FloatArray) -> FloatArray:
-    """Local times of samples stamped `boot_s` (the autopilot's clock) received at `recv_s`:
-    the offset recv - boot as a line fitted below the per-second minima (Theil-Sen slope),
-    as `companion.tracking.SampleClock` does online. PX4 SITL's clock drifts 0.73 % against
-    ours: a constant offset would misplace the end of a 30 s flight by 0.2 s."""
+def clock_map(boot_s: FloatArray, recv_s: FloatArray, block_s: float = 0.25) -> FloatArray:
+    """Local times of samples stamped `boot_s` (the autopilot's clock) received at `recv_s`.
+
+    Each sample gives recv - boot = offset + link delay (delay >= 0). The offset is taken as the
+    lower envelope of recv - boot: the smallest value in each `block_s` of boot time, linearly
+    interpolated between those samples (constant beyond the first/last). Local, because real
+    PX4 SITL's offset does not follow a line: its lockstep clock (SIH steps 4 ms of simulated
+    time, then sleeps; simulator_sih `lockstep_loop`) falls behind ours by ~0.7-1.1 % on
+    average and by more whenever the host is busy, so a line fitted below the whole flight's
+    minima sat 16 ms (median; 4-29 ms) below the offset PX4's own TIMESYNC replies give in a
+    220 s flight, moving every PX4 sample 16 ms early. The envelope agrees with TIMESYNC within
+    the 4 ms lockstep step (PX4 and the mock). Assumes some sample of each block met (nearly)
+    no delay: true on loopback, where telemetry leaves within a step of its sample."""
     if len(boot_s) == 0:
         return boot_s
     off = recv_s - boot_s
-    blk = np.floor(boot_s).astype(np.int64)
-    xs, ys = [], []
-    for b in np.unique(blk):
-        i = np.flatnonzero(blk == b)
-        j = i[np.argmin(off[i])]
-        xs.append(boot_s[j])
-        ys.append(off[j])
-    x, y = np.array(xs), np.array(ys)
-    slope = 0.0
-    if len(x) >= 3:
-        dx = x[None, :] - x[:, None]
-        dy = y[None, :] - y[:, None]
-        ok = dx >= 2.0
-        if np.any(ok):
-            slope = float(np.median(dy[ok] / dx[ok]))
-    a = float(np.min(y - slope * x))
-    return boot_s + a + slope * boot_s
+    blk = np.floor(boot_s / block_s).astype(np.int64)
+    order = np.lexsort((off, blk))  # by block, then offset: the first of each block is its min
+    first = order[np.r_[True, blk[order][1:] != blk[order][:-1]]]
+    first = first[np.argsort(boot_s[first], kind="stable")]
+    return boot_s + np.interp(boot_s, boot_s[first], off[first])
 
 
 def read_flight_tlog(path: Path, target_system: int, keep: tuple[str, ...] = ()) -> TlogData:
@@ -300,7 +299,8 @@ def read_flight_tlog(path: Path, target_system: int, keep: tuple[str, ...] = ())
         truth_t = h[:, 0]
     ata = np.array(att, dtype=float).reshape(-1, 8)
     return TlogData(clock_map(lpa[:, 1], lpa[:, 0]), lpa[:, 2:8], truth_t, truth,
-                    clock_map(ata[:, 1], ata[:, 0]), ata[:, 2:5], ata[:, 5:8], extra)
+                    clock_map(ata[:, 1], ata[:, 0]), ata[:, 2:5], ata[:, 5:8], extra,
+                    lpa[:, 0], lpa[:, 1])
 
 
 def horizontal_errors(t_unix: FloatArray, pos: FloatArray, flight: Flight,

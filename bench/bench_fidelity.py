@@ -3,27 +3,32 @@
 through the companion's public API (`Vehicle`), each flight on a fresh autopilot
 (`api_harness.launch`), measured from the autopilot's own telemetry in the flight's .tlog.
 
-Stimuli (one flight per repeat and target, after takeoff to 5 m; times from OFFBOARD start):
+Stimuli (one flight per repeat and target, after takeoff to 5 m; times from OFFBOARD start; the
+mock's flight i runs `serve --seed i`):
 - 5 m position step north in OFFBOARD position mode (SET_POSITION_TARGET_LOCAL_NED):
   rise time 10-90 % and peak / step of LOCAL_POSITION_NED north;
 - 15 deg roll step from hover in attitude mode (SET_ATTITUDE_TARGET q + thrust
   MPC_THR_HOVER / cos 15 deg): rise time 10-90 % and peak / step of ATTITUDE roll;
-- body-rate step, roll rate 60 deg/s (SET_ATTITUDE_TARGET body rates + thrust) for 0.25 s:
-  rise time 10-90 % of ATTITUDE rollspeed, and the setpoint-to-telemetry latency: from sending
-  the first step setpoint to receiving the first ATTITUDE whose roll rate moved by 5 % of the
-  step (link, autopilot loops, motor lag and the stream period all included);
+- body-rate step, roll rate 60 deg/s (SET_ATTITUDE_TARGET body rates + thrust) for 0.25 s after
+  RATE_HOLD_S of zero-rate setpoints, then -60 deg/s for 0.25 s, zero rates again: time to 50 %
+  and peak of ATTITUDE rollspeed, time from the reversal until it crosses zero;
+- the setpoint-to-telemetry latency: from sending the first roll-step setpoint to receiving the
+  first ATTITUDE whose roll moved by 5 % of the step (link, autopilot loops, motor lag and the
+  stream period all included);
 - thrust step, level attitude, thrust MPC_THR_HOVER + 0.1 for 0.5 s: peak vertical acceleration
   (derivative of LOCAL_POSITION_NED vz) and the time from the step to 63 % of that peak;
 - hover jitter: OFFBOARD position hold for 25 s, RMS horizontal distance of the estimate from
   the hold point over the last 20 s;
-- then (first repeat only) the figure-8 of bench_tracking.py at 6 m/s in each setpoint mode
-  (position + vel + acc, attitude, rates; companion `TrackingSource`), lap-2 RMS error from the
-  estimate.
+- then (the first --figure8-flights repeats, default 1) the figure-8 of bench_tracking.py at
+  6 m/s in each setpoint mode (position + vel + acc, attitude, rates; companion
+  `TrackingSource`), lap-2 RMS error from the estimate.
+Sample times (time_boot_ms) are mapped to the local clock by `api_harness.clock_map` (lower
+envelope of receive - boot time), the same for both targets; the latency row uses receive times.
 Missions: each bundled .plan uploaded with `Vehicle.mission.upload`, arm (in Hold), AUTO.MISSION;
 the armed time runs from the arm COMMAND_ACK to the first HEARTBEAT showing disarmed (1 Hz:
 +-1 s), bounded by --mission-timeout.
 
-Table: median over --repeat flights per target, ratio mock / PX4 - 1, within the issue's bound
+Table: median over the flights per target, ratio mock / PX4 - 1, within the issue's bound
 (25 %, figure-8 35 %). PX4 runs in real time (PX4_SIM_SPEED_FACTOR is not used: the companion
 keeps wall-clock time, see ../shared/px4_sitl/README); the mock too (`--speed 1`).
 
@@ -66,6 +71,7 @@ from companion.mavlink.setpoints import (  # noqa: E402
     RatesSetpoint,
     SetpointCommand,
 )
+from companion.tracking import SampleClock  # noqa: E402
 
 FloatArray = npt.NDArray[np.float64]
 REPO = BENCH.parent
@@ -87,6 +93,11 @@ BOUND = 0.25
 BOUND_FIG8 = 0.35
 FIG8_SPEED = 6.0
 FIG8_MODES = ("position", "attitude", "rates")
+# zero body-rate setpoints before and after the rate steps: PX4 v1.16's commander republishes
+# vehicle_control_mode at 2 Hz (or on a status change), so a switch between attitude and rates
+# setpoints takes effect 0-0.5 s late (a phase the bench does not control); after 1 s of zero
+# rates the steps see the rate loop alone
+RATE_HOLD_S = 1.0
 
 
 # ----------------------------------------------------------------------------- stimulus
@@ -98,7 +109,7 @@ class Phase:
 
     name: str
     duration_s: float
-    kind: str  # hold | step_north | level | roll | rate_pos | rate_neg | thrust
+    kind: str  # hold | step_north | level | roll | rate_zero | rate_pos | rate_neg | thrust
 
 
 PHASES: tuple[Phase, ...] = (
@@ -110,8 +121,10 @@ PHASES: tuple[Phase, ...] = (
     Phase("att_back", 1.0, "level"),
     Phase("hold2", 6.5, "hold"),
     Phase("rate_level", 1.0, "level"),
+    Phase("rate_zero", RATE_HOLD_S, "rate_zero"),
     Phase("rate_step", 0.25, "rate_pos"),
     Phase("rate_back", 0.25, "rate_neg"),
+    Phase("rate_zero2", RATE_HOLD_S, "rate_zero"),
     Phase("rate_level2", 1.0, "level"),
     Phase("hold3", 6.5, "hold"),
     Phase("thr_level", 1.0, "level"),
@@ -158,8 +171,9 @@ class StepSequence:
         if ph.kind == "roll":
             r = math.radians(ROLL_STEP_DEG)
             return AttitudeSetpoint(_q_euler(r, 0.0, self.yaw), HOVER_THRUST / math.cos(r))
-        if ph.kind in ("rate_pos", "rate_neg"):
-            w = math.radians(RATE_STEP_DPS) * (1.0 if ph.kind == "rate_pos" else -1.0)
+        if ph.kind in ("rate_zero", "rate_pos", "rate_neg"):
+            w = math.radians(RATE_STEP_DPS) * {"rate_zero": 0.0, "rate_pos": 1.0,
+                                                "rate_neg": -1.0}[ph.kind]
             return RatesSetpoint((w, 0.0, 0.0), HOVER_THRUST)
         return AttitudeSetpoint(level, HOVER_THRUST + THRUST_STEP)
 
@@ -273,6 +287,8 @@ def _kind(m: Any, p0: tuple[float, float, float]) -> str:
             return "hold"
         return "step_north" if abs(m.x - p0[0] - POS_STEP_M) < 1e-3 else ""
     if m.type_mask & 128:  # attitude ignored: body rates
+        if m.body_roll_rate == 0.0:
+            return "rate_zero"
         return "rate_pos" if m.body_roll_rate > 0.0 else "rate_neg"
     w, x, y, z = m.q
     roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
@@ -332,9 +348,8 @@ def analyse_steps(tlog: Path, sysid: int) -> dict[str, float]:
     w = math.radians(RATE_STEP_DPS)
     p = smooth(s.rollspeed)
     _rise, out["rate_peak"] = step_metrics(s.att_t, p, st["rate_step"], st["rate_back"], w)
-    # the 0.25 s step is too short for PX4's rate loop to reach 90 %: time to 50 % instead
-    # (it follows a switch from attitude to rates setpoints); then the reversal to -60 deg/s
-    # in rates mode, no switch: time until the rate crosses zero
+    # from zero-rate setpoints (rates mode for RATE_HOLD_S already): time to 50 % of the step,
+    # then the reversal to -60 deg/s: time until the rate crosses zero
     out["rate_t50"] = crossing(s.att_t, p / w, 0.5, st["rate_step"]) - st["rate_step"]
     out["rate_rev"] = crossing(s.att_t, -p / w, 0.0, st["rate_back"]) - st["rate_back"]
     out["latency"] = first_response(s.att_recv, s.roll, st["att_step"], r)
@@ -353,7 +368,7 @@ def analyse_steps(tlog: Path, sysid: int) -> dict[str, float]:
     sel = (s.lp_t >= j0) & (s.lp_t <= st["jitter"] + PHASES[-1].duration_s)
     e = np.hypot(s.lp[sel, 0] - p0[0], s.lp[sel, 1] - p0[1])
     out["jitter"] = float(np.sqrt(np.mean(e**2))) if len(e) else math.nan
-    pre = (s.att_t >= st["rate_level"]) & (s.att_t < st["rate_step"])
+    pre = (s.att_t >= st["rate_level"]) & (s.att_t < st["rate_zero"])
     out["gyro_noise"] = float(np.std(s.rollspeed[pre] - smooth(s.rollspeed, 9)[pre]))
     return out
 
@@ -379,15 +394,47 @@ async def _steps_flight(ep: H.Endpoint, folder: Path, fig8: bool) -> dict[str, f
                     return figure8_reference(t, FIG8_SPEED, alt_m=-float(pos.pos_ned[2]))[0]
 
                 flights[mode] = await H.fly_on(v, mode, ref8, figure8_seconds(FIG8_SPEED))
-    out = analyse_steps(tlog, ep.target_system)
-    if flights:
-        data = H.read_flight_tlog(tlog, ep.target_system)
-        for mode, fl in flights.items():
-            def lap2(t: float) -> bool:
-                return 2 * math.pi <= figure8_reference(t, FIG8_SPEED)[1] < 4 * math.pi
+    if flights:  # first: --reanalyse needs it
+        (folder / FIG8_RECORD).write_text(json.dumps({m: {
+            "t0_unix": fl.t0_unix, "duration_s": fl.duration_s,
+            "origin_ned": [float(c) for c in fl.origin_ned]} for m, fl in flights.items()}))
+    return {**analyse_steps(tlog, ep.target_system), **analyse_fig8(tlog, ep.target_system)}
 
-            err = H.horizontal_errors(data.lpos_t, data.lpos[:, :3], fl, lap2)
-            out[f"fig8_{mode}"] = H.rms_max(err)[0]
+
+FIG8_RECORD = "fig8_flights.json"  # per steps folder: when each figure-8 began, where
+
+
+def analyse_fig8(tlog: Path, sysid: int) -> dict[str, float]:
+    """Lap-2 RMS of each figure-8 recorded next to `tlog` (FIG8_RECORD), from the tlog's
+    LOCAL_POSITION_NED at its mapped sample times; {} without a record."""
+    rec = tlog.parent / FIG8_RECORD
+    if not rec.exists():
+        return {}
+    data = H.read_flight_tlog(tlog, sysid)
+    out: dict[str, float] = {}
+
+    def lap2(t: float) -> bool:
+        return 2 * math.pi <= figure8_reference(t, FIG8_SPEED)[1] < 4 * math.pi
+
+    def ref8(t: float) -> Reference:
+        return figure8_reference(t, FIG8_SPEED)[0]
+
+    recv, boot = data.lpos_recv, data.lpos_boot
+    worst = 0.0
+    for mode, r in json.loads(rec.read_text()).items():
+        r0 = ref8(0.0).pos_ned
+        ref = H.shifted(ref8, r["origin_ned"][0] - r0[0], r["origin_ned"][1] - r0[1])
+        fl = H.Flight(tlog, r["t0_unix"], r["duration_s"], ref, np.array(r["origin_ned"]))
+        err = H.horizontal_errors(data.lpos_t, data.lpos[:, :3], fl, lap2)
+        out[f"fig8_{mode}"] = H.rms_max(err)[0]
+        # the companion places each estimate on its own clock with a fresh SampleClock per
+        # flight: replay it on the same samples and compare with the bench's mapping
+        sc = SampleClock()
+        sel = np.flatnonzero((recv >= fl.t0_unix) & (recv <= fl.t0_unix + fl.duration_s))
+        for i in sel:
+            off = sc.local_time(float(boot[i]), float(recv[i])) - float(data.lpos_t[i])
+            worst = max(worst, abs(off))
+    out["fig8_clock_ms"] = 1e3 * worst
     return out
 
 
@@ -434,7 +481,8 @@ def run_steps(target: str, out: Path, idx: int, fig8: bool) -> dict[str, float]:
     """The step flight on a fresh autopilot of kind `target`."""
     folder = out / f"{target}-steps-{idx}"
     shutil.rmtree(folder, ignore_errors=True)  # tlogs append: start afresh
-    with H.launch(target, folder, mock_args=MOCK_ARGS) as ep:
+    # each mock flight its own random realisation (estimator errors, gyro noise), as PX4's differ
+    with H.launch(target, folder, mock_args=(*MOCK_ARGS, "--seed", str(idx))) as ep:
         budget = sum(p.duration_s for p in PHASES) + 90.0 + (80.0 if fig8 else 0.0)
         return asyncio.run(_bounded(_steps_flight(ep, folder, fig8), budget))
 
@@ -453,8 +501,8 @@ def run_mission(target: str, out: Path, name: str, timeout_s: float) -> float:
 ROWS: tuple[tuple[str, str, float], ...] = (
     ("att_rise", f"attitude step {ROLL_STEP_DEG:g} deg roll: rise time 10-90 % [s]", BOUND),
     ("att_peak", f"attitude step {ROLL_STEP_DEG:g} deg roll: peak / step", BOUND),
-    ("rate_t50", f"body-rate step {RATE_STEP_DPS:g} deg/s right after attitude setpoints: "
-     "time to 50 % [s]", BOUND),
+    ("rate_t50", f"body-rate step {RATE_STEP_DPS:g} deg/s from zero-rate setpoints: time to "
+     "50 % [s]", BOUND),
     ("rate_rev", f"body-rate reversal +{RATE_STEP_DPS:g} -> -{RATE_STEP_DPS:g} deg/s: time to "
      "zero [s]", BOUND),
     ("rate_peak", f"body-rate step {RATE_STEP_DPS:g} deg/s: peak / step within 0.25 s",
@@ -472,6 +520,8 @@ ROWS: tuple[tuple[str, str, float], ...] = (
     ("gyro_noise", "roll-rate noise in ATTITUDE at hover (std above 90 ms) [rad/s]", BOUND),
     *((f"fig8_{m}", f"figure-8 {FIG8_SPEED:g} m/s lap 2, {m}: RMS (estimate) [m]", BOUND_FIG8)
       for m in FIG8_MODES),
+    ("fig8_clock_ms", "figure-8: worst error of the companion's sample clock (its SampleClock "
+     "replayed vs the bench's clock_map), not judged [ms]", math.nan),
 )
 
 
@@ -508,14 +558,15 @@ def table(results: dict[str, dict[str, list[float]]], missions: dict[str, dict[s
         if not mf and not pf:
             continue
         ratio = verdict = "-"
-        if mf and pf and float(np.median(pf)) != 0.0:
+        if mf and pf and float(np.median(pf)) != 0.0 and math.isfinite(bound):
             d = float(np.median(mf)) / float(np.median(pf)) - 1.0
             ratio = f"{d:+.0%}"
             judged += 1
             ok = abs(d) <= bound
             within += ok
             verdict = "yes" if ok else "no"
-        lines.append(f"| {label} | {_cell(mv)} | {_cell(pv)} | {ratio} | {bound:.0%} | "
+        bound_s = f"{bound:.0%}" if math.isfinite(bound) else "-"
+        lines.append(f"| {label} | {_cell(mv)} | {_cell(pv)} | {ratio} | {bound_s} | "
                      f"{verdict} |")
     return "\n".join(lines), within, judged
 
@@ -523,8 +574,16 @@ def table(results: dict[str, dict[str, list[float]]], missions: dict[str, dict[s
 SECTION = "Mock fidelity against real PX4 SITL"
 
 
-def _write(text: str, argv: str, wall_s: float, repeat: int, reused: list[dict[str, Any]],
-           mock_args: str) -> None:
+def _flights(results: dict[str, dict[str, list[float]]], key: str) -> str:
+    """How many flights gave row `key`, per target ("3 (mock) / 2 (PX4)")."""
+    n = {t: sum(math.isfinite(v) for v in results.get(t, {}).get(key, [])) for t in H.TARGETS}
+    if n["mock"] == n["px4"]:
+        return f"{n['mock']} flight{'s' if n['mock'] != 1 else ''} per target"
+    return f"{n['mock']} (mock) / {n['px4']} (PX4) flights"
+
+
+def _write(text: str, argv: str, wall_s: float, results: dict[str, dict[str, list[float]]],
+           reused: list[dict[str, Any]], mock_args: str) -> None:
     from benchmarks_md import write_section
 
     runs = {(r["date"], r["command"]) for r in reused}
@@ -545,21 +604,25 @@ def _write(text: str, argv: str, wall_s: float, repeat: int, reused: list[dict[s
                 f"(`{r['command']}`, {r['wall_s'] / 60:.0f} min)" for r in reused) + ".\n\n")
     body = (
         f"## {SECTION}\n\n" + head
-        + f"The same stimuli on `sitl_mock serve {mock_args}` and on real PX4 v1.16.0 SITL (SIH "
+        + f"The same stimuli on `sitl_mock serve {mock_args}` (flight i with `--seed i`) and on "
+        "real PX4 v1.16.0 SITL (SIH "
         "quadrotor, default parameters), each flight on a fresh autopilot, flown through the "
         "companion's `Vehicle` and measured from the autopilot's own telemetry in the .tlog "
         "(ATTITUDE 100 Hz, LOCAL_POSITION_NED 30 Hz; see the docstring of "
-        "bench/bench_fidelity.py for the exact stimuli). Step rows: median of "
-        f"{repeat} flights per target (range in brackets); figure-8 and missions: one flight "
-        "each. Bound: the issue's 25 % (figure-8 35 %) on mock / PX4 - 1.\n\n"
+        "bench/bench_fidelity.py for the exact stimuli; sample times mapped to the local clock "
+        "by the lower envelope of receive - boot time, bench/api_harness.py `clock_map`). Step "
+        f"rows: median of {_flights(results, 'att_rise')} (range in brackets); figure-8: median "
+        f"of {_flights(results, 'fig8_rates')}; missions: one flight each. Bound: the issue's "
+        "25 % (figure-8 35 %) on mock / PX4 - 1.\n\n"
         f"{text}\n"
     )
     write_section(SECTION, body)
 
 
 def reanalyse(path: Path) -> int:
-    """Recompute the step figures of the run saved in `path` from its tlogs (the figure-8 and
-    mission figures are kept) and rewrite it."""
+    """Recompute the step and figure-8 figures of the run saved in `path` from its tlogs (the
+    mission figures are kept; figure-8 figures of flights without a FIG8_RECORD are dropped)
+    and rewrite it."""
     old = json.loads(path.read_text())
     for target, figs in old["steps"].items():
         sysid = None
@@ -572,10 +635,18 @@ def reanalyse(path: Path) -> int:
                         break
                 conn.close()
                 sysid = 1 if m is None else m.get_srcSystem()
-            for k, v in analyse_steps(tlog, sysid).items():
+            fig8 = analyse_fig8(tlog, sysid)
+            if not fig8 and i == 0 and any(f"fig8_{m}" in figs for m in FIG8_MODES):
+                print(f"{tlog}: no {FIG8_RECORD}: its figure-8 figures are dropped (measured "
+                      "with an older analysis, cannot be recomputed)")
+            if i == 0:
+                for m in FIG8_MODES:
+                    figs.pop(f"fig8_{m}", None)
+            for k, v in {**analyse_steps(tlog, sysid), **fig8}.items():
                 vals = figs.setdefault(k, [])
+                vals[len(vals):] = [math.nan] * (i - len(vals))  # flights without the figure
                 vals[i:i + 1] = [v]
-        for k in [k for k in figs if k not in {*ROW_KEYS, *(f"fig8_{m}" for m in FIG8_MODES)}]:
+        for k in [k for k in figs if k not in ROW_KEYS]:
             del figs[k]  # figures of an older analysis
     old["reanalysed"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     path.write_text(json.dumps(old, indent=1))
@@ -593,6 +664,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mission-timeout", type=float, default=150.0,
                     help="bound of one mission, armed [s]")
     ap.add_argument("--no-figure8", action="store_true", help="skip the figure-8 flights")
+    ap.add_argument("--figure8-flights", type=int, default=1, metavar="N",
+                    help="fly the figure-8s after the steps of the first N repeats (median)")
     ap.add_argument("--out", default="bench_out/fidelity", help="folder for tlogs and logs")
     ap.add_argument("--mock-estimator", choices=("ideal", "ekf2"), default="ekf2",
                     help="`sitl_mock serve --estimator` of the mock flights (default ekf2: "
@@ -604,7 +677,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="also save the raw figures as JSON (default: OUT/fidelity.json)")
     ap.add_argument("--reuse", action="append", default=[], metavar="TARGET=JSON",
                     help="take TARGET's figures (mock or px4) from an earlier run's JSON "
-                         "instead of flying it again (the BENCHMARKS.md section says so)")
+                         "instead of flying it again (the BENCHMARKS.md section says so; "
+                         "repeatable: several runs of one target are pooled)")
     ap.add_argument("--write", action="store_true",
                     help="put the table into BENCHMARKS.md (needs both targets)")
     args = ap.parse_args(argv)
@@ -623,7 +697,9 @@ def main(argv: list[str] | None = None) -> int:
         if tgt not in H.TARGETS or not path:
             ap.error(f"--reuse wants mock=JSON or px4=JSON, got {item!r}")
         old = json.loads(Path(path).read_text())
-        results[tgt], missions[tgt] = old["steps"][tgt], old["missions"][tgt]
+        for k, vals in old["steps"][tgt].items():  # several runs of one target: pooled
+            results.setdefault(tgt, {}).setdefault(k, []).extend(vals)
+        missions.setdefault(tgt, {}).update(old["missions"][tgt])
         reused.append({"target": tgt, "date": old["date"], "command": old["command"],
                        "wall_s": old["wall_s"]})
         if tgt == "mock":
@@ -633,7 +709,8 @@ def main(argv: list[str] | None = None) -> int:
     for i in range(args.repeat):
         for target in flown:
             try:
-                m = run_steps(target, out, i, fig8=(i == 0 and not args.no_figure8))
+                m = run_steps(target, out, i,
+                              fig8=(i < args.figure8_flights and not args.no_figure8))
             except Exception as exc:  # one failed flight must not lose the whole run
                 print(f"{target:5s} steps #{i}: FAILED {type(exc).__name__}: {exc}", flush=True)
                 traceback.print_exc()
@@ -664,7 +741,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.write:
         if set(results) != set(H.TARGETS):
             ap.error("--write needs both targets (--target mock px4, or --reuse-px4)")
-        _write(text, argv_s, wall, args.repeat, reused, mock_desc)
+        _write(text, argv_s, wall, results, reused, mock_desc)
     return 0
 
 

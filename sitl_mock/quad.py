@@ -52,12 +52,14 @@ MAX_STEP_S = 1.0 / 250.0  # longer steps are split (integration always at >= 250
 ATT_LOOP_PERIOD_S = 0.004
 RATE_LOOP_PERIOD_S = 0.002  # rate loop at <= 500 Hz (every physics step below 500 Hz)
 #: Rate [Hz] at which a change of the offboard attitude-target kind (attitude <-> body rates)
-#: reaches the controllers. PX4: vehicle_control_mode is republished at 2 Hz or on a status
-#: change, and a changed offboard_control_mode is not one (Commander::offboardControlCheck); on
-#: PX4 v1.16 SITL the switch lands 0.06-0.16 s after the first setpoint of the new kind, at the
-#: same phase of a 100 ms cycle for both directions within a flight (the commander's 10 Hz
-#: health checks): modelled as a 10 Hz tick of the vehicle's clock
-CONTROL_MODE_RATE_HZ = 10.0
+#: reaches the controllers. PX4 v1.16: the commander republishes vehicle_control_mode "at 2 Hz or
+#: immediately when changed" (Commander::run: 500 ms since the last vehicle_status publish, a
+#: status change or a nav-state change), and a changed offboard_control_mode is not a status
+#: change (Commander::offboardControlCheck). Measured on PX4 v1.16 SITL: a 60 deg/s rates step
+#: right after attitude setpoints reached 50 % after 0.20-0.84 s (three flights), beyond what a
+#: 10 Hz cycle allows (<= ~0.15 s). The cycle restarts when attitude control is entered (PX4: the
+#: immediate publish of a nav-state change)
+CONTROL_MODE_RATE_HZ = 2.0
 #: SIH's sensor period in PX4 SITL (IMU_INTEG_RATE 250 Hz): its gyro noise is per sample of this
 #: period; the mock scales it to its rate-loop period so the noise density (and what the
 #: IMU_GYRO_CUTOFF filter lets through) does not depend on the physics rate
@@ -112,6 +114,7 @@ class Quadrotor:
         "_cm_att",
         "_cm_q",
         "_cm_rates",
+        "_cm_t0",
         "_cm_thrust",
         "_cm_tick",
         "_est",
@@ -211,9 +214,11 @@ class Quadrotor:
         self._att_q: Quat | None = None
         self._att_rates: Vec3 | None = None
         # control mode of attitude targets in effect: attitude control (True) or rates only,
-        # its 10 Hz tick, and the last setpoints of each kind (held across a pending switch)
+        # the tick of its cycle (CONTROL_MODE_RATE_HZ, from `_cm_t0`), and the last setpoints of
+        # each kind (held across a pending switch)
         self._cm_att = False
         self._cm_tick = -1
+        self._cm_t0 = 0.0
         self._cm_q: Quat | None = None
         self._cm_rates: Vec3 = (0.0, 0.0, 0.0)
         self._cm_thrust = 0.0
@@ -723,13 +728,14 @@ class Quadrotor:
             self._accept_attitude_target(tgt)
         q_in, r_in = self._att_q, self._att_rates
         want_att = q_in is not None and r_in is None  # else rates (zero if none given)
-        tick = int(self._t * CONTROL_MODE_RATE_HZ)
         if self._last_mode != "att":
             self._last_mode = "att"
             self._att_acc = math.inf
             self._rate_acc = math.inf
-            self._cm_att, self._cm_tick = want_att, tick  # entering: at once (see README)
-        elif tick != self._cm_tick:
+            self._cm_t0 = self._t
+            self._cm_att, self._cm_tick = want_att, 0  # entering: at once (see README)
+        tick = int((self._t - self._cm_t0) * CONTROL_MODE_RATE_HZ)
+        if tick != self._cm_tick:
             self._cm_att, self._cm_tick = want_att, tick
         self._last_pos_target = None
         self._idle = False
