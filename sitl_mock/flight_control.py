@@ -45,14 +45,30 @@ def quat_conj(q: Quat) -> Quat:
     return (q[0], -q[1], -q[2], -q[3])
 
 
+#: PX4's matrix::Quaternion::canonical() decides the sign by the first component whose magnitude
+#: exceeds the float epsilon (w, then x, y, z): a 180-degree rotation (w ~ 0) is not left to the
+#: sign of a rounding error
+QUAT_CANON_EPS = 1.1920929e-07
+
+
+def quat_canonical_sign(w: float, x: float, y: float, z: float) -> float:
+    """+1 or -1: the sign that makes (w, x, y, z) canonical in PX4's sense (see QUAT_CANON_EPS)."""
+    for c in (w, x, y, z):
+        if c > QUAT_CANON_EPS:
+            return 1.0
+        if c < -QUAT_CANON_EPS:
+            return -1.0
+    return 1.0
+
+
 def quat_normalize(q: Quat) -> Quat:
-    """Unit quaternion with non-negative w (canonical); identity if degenerate."""
+    """Unit quaternion, canonical as PX4's (w > 0, or the first clearly non-zero component > 0);
+    identity if degenerate."""
     w, x, y, z = q
     n = math.sqrt(w * w + x * x + y * y + z * z)
     if not n > 1e-12 or not _isfinite(n):
         return (1.0, 0.0, 0.0, 0.0)
-    if w < 0.0:
-        n = -n
+    n *= quat_canonical_sign(w / n, x / n, y / n, z / n)
     return (w / n, x / n, y / n, z / n)
 
 
@@ -429,8 +445,8 @@ def attitude_control(g: McGains, q: Quat, q_sp: Quat, yaw_rate_ff: float) -> Vec
         # q_mix = qr^-1 * q_sp (a pure yaw rotation up to rounding), canonical (w >= 0)
         mw = pw * sw + px * sx + py * sy + pz * sz
         mz = pw * sz - px * sy + py * sx - pz * sw
-        if mw < 0.0:
-            mw, mz = -mw, -mz
+        if mw < QUAT_CANON_EPS and (mw < -QUAT_CANON_EPS or mz < -QUAT_CANON_EPS):
+            mw, mz = -mw, -mz  # canonical (q_mix is a pure yaw: its x, y are rounding)
         mw = 1.0 if mw > 1.0 else mw
         mz = 1.0 if mz > 1.0 else -1.0 if mz < -1.0 else mz
         yw = g.yaw_w
@@ -446,8 +462,8 @@ def attitude_control(g: McGains, q: Quat, q_sp: Quat, yaw_rate_ff: float) -> Vec
     ey = qw * dy + qx * dz - qy * dw - qz * dx
     ez = qw * dz - qx * dy + qy * dx - qz * dw
     k = 2.0 / math.sqrt(ew * ew + ex * ex + ey * ey + ez * ez)
-    if ew < 0.0:
-        k = -k
+    if ew < QUAT_CANON_EPS * 2.0:  # the check is cheap; the sign rule on the normalised values
+        k *= quat_canonical_sign(ew * k * 0.5, ex * k * 0.5, ey * k * 0.5, ez * k * 0.5)
     ap = g.att_p
     r0 = ex * k * ap[0]
     r1 = ey * k * ap[1]
@@ -470,7 +486,9 @@ def attitude_control_reference(g: McGains, q: Quat, q_sp: Quat, yaw_rate_ff: flo
     ez = quat_body_z(q)
     ezd = quat_body_z(q_sp)
     qd_red = quat_from_two_vectors(ez, ezd)
-    if abs(qd_red[1]) > 1.0 - 1e-5 or abs(qd_red[2]) > 1.0 - 1e-5:
+    flipped = 1.0 + sum(a * b for a, b in zip(ez, ezd, strict=True)) < 1e-9
+    if flipped or abs(qd_red[1]) > 1.0 - 1e-5 or abs(qd_red[2]) > 1.0 - 1e-5:
+        # body z opposite to the desired one (any rotation axis would do): the full attitude
         qd = q_sp
     else:
         qd_red = quat_mul(qd_red, q)
