@@ -152,8 +152,10 @@ def run_lockstep(
     latency_s: float | None = None,
     start_pos: tuple[float, float, float] = (0.0, 0.0, -5.0),
     seed: int = 0,
+    drag_per_kg: float = 0.0,
 ) -> RunResult:
-    """Fly `reference` for `seconds` in lockstep with the mock quad in `mode` (see MODES).
+    """Fly `reference` for `seconds` in lockstep with the mock quad in `mode` (see MODES;
+    `drag_per_kg`: position_ff's drag feed-forward D/m, as `TrackingSource` sends it).
 
     Telemetry snapshots are taken every 1/telemetry_hz s and delivered `latency_s` later
     (default one telemetry period); setpoints are computed every 1/setpoint_hz s from the newest
@@ -192,7 +194,8 @@ def run_lockstep(
         if k % sp_every == 0:
             ref, phase = reference(t)
             if mode in ("position", "position_ff"):
-                pc = position_command(ref, feedforward=(mode == "position_ff"))
+                pc = position_command(ref, feedforward=(mode == "position_ff"),
+                                      drag_per_kg=drag_per_kg)
                 target = PositionTarget(
                     _v3(pc.pos_ned), _v3(pc.vel_ned), _v3(pc.acc_ned), pc.yaw, pc.yaw_rate
                 )
@@ -320,6 +323,7 @@ def run_mavlink_lockstep(
     setpoint_hz: float = 100.0,
     latency_s: float = 1.0 / 30.0,
     seed: int = 0,
+    drag_per_kg: float = 0.0,
 ) -> RunResult:
     """Like `run_lockstep`, through MAVLink with `sitl_mock.lockstep.LockstepSim`.
 
@@ -394,7 +398,8 @@ def run_mavlink_lockstep(
         ref, phase = reference(now - t0)
         thrust = math.nan
         if mode in ("position", "position_ff"):
-            cli.position(position_command(ref, feedforward=(mode == "position_ff")))
+            cli.position(position_command(ref, feedforward=(mode == "position_ff"),
+                                          drag_per_kg=drag_per_kg))
         elif latest is None:
             cli.position(hold)
         elif mode == "attitude":

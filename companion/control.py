@@ -397,13 +397,18 @@ class PositionCommand:
 
 
 def position_command(
-    ref: Reference, feedforward: bool = True, hold: StateEstimate | None = None
+    ref: Reference, feedforward: bool = True, hold: StateEstimate | None = None,
+    drag_per_kg: float = 0.0,
 ) -> PositionCommand:
     """`position` mode: the reference as a PX4 position setpoint (PX4 closes the loop).
 
     feedforward False sends position + yaw only (the naive baseline); True adds velocity,
-    acceleration and the yaw rate. A non-finite reference gives a flagged hold at `hold`'s
-    position and heading, or raises ValueError when no `hold` estimate is given.
+    acceleration and the yaw rate. `drag_per_kg` = D / m [1/s] (linear world-frame drag, MATH.md)
+    adds the acceleration that cancels the drag at the reference velocity, D v / m, to the
+    acceleration feed-forward: PX4 turns that feed-forward into thrust without a drag model, so
+    without it its velocity integral has to carry the drag (6 m/s^2 at 6 m/s on SIH) and the
+    vehicle lags. A non-finite reference gives a flagged hold at `hold`'s position and heading,
+    or raises ValueError when no `hold` estimate is given.
     """
     if not ref.is_finite():
         if hold is not None and hold.is_finite():
@@ -415,9 +420,8 @@ def position_command(
             )
         raise ValueError("reference is not finite; refusing to build a position setpoint")
     if feedforward:
-        return PositionCommand(
-            ref.pos_ned.copy(), ref.vel_ned.copy(), ref.acc_ned.copy(), ref.yaw, ref.yaw_rate
-        )
+        acc = ref.acc_ned + drag_per_kg * ref.vel_ned if drag_per_kg else ref.acc_ned.copy()
+        return PositionCommand(ref.pos_ned.copy(), ref.vel_ned.copy(), acc, ref.yaw, ref.yaw_rate)
     return PositionCommand(pos_ned=ref.pos_ned.copy(), yaw=ref.yaw)
 
 

@@ -256,6 +256,9 @@ class TrackingSource:
             cfg = tracking or TrackingConfig(params=params, max_tilt_rad=max_tilt_rad)  # type: ignore[arg-type]
             self.controller = TrackingController(cfg)
         self.rover = RoverController() if mode == "rover" else None
+        # position mode: the drag PX4 does not model goes into the acceleration feed-forward
+        known = params if params is not None else tracking.params if tracking is not None else None
+        self.drag_per_kg = known.drag / known.mass if known is not None else 0.0
         self._ref_key: float | None = None
         self._ref: Reference | None = None
         self.calls = 0
@@ -343,7 +346,8 @@ class TrackingSource:
 
     def position_setpoint(self, t_s: float) -> PositionSetpoint:
         """The reference as a PX4 position setpoint (also used for priming)."""
-        pc = position_command(self.ref(t_s), feedforward=t_s > 0.0)
+        pc = position_command(self.ref(t_s), feedforward=t_s > 0.0,
+                              drag_per_kg=self.drag_per_kg if self.mode == "position" else 0.0)
         return PositionSetpoint(
             pos_ned=_tuple3(pc.pos_ned),
             vel_ned=_tuple3(pc.vel_ned),
