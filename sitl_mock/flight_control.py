@@ -462,7 +462,7 @@ def attitude_control(g: McGains, q: Quat, q_sp: Quat, yaw_rate_ff: float) -> Vec
     ey = qw * dy + qx * dz - qy * dw - qz * dx
     ez = qw * dz - qx * dy + qy * dx - qz * dw
     k = 2.0 / math.sqrt(ew * ew + ex * ex + ey * ey + ez * ez)
-    if ew < QUAT_CANON_EPS * 2.0:  # the check is cheap; the sign rule on the normalised values
+    if ew < QUAT_CANON_EPS * 2.0:  # only a w near or below zero can need the sign flipped
         k *= quat_canonical_sign(ew * k * 0.5, ex * k * 0.5, ey * k * 0.5, ez * k * 0.5)
     ap = g.att_p
     r0 = ex * k * ap[0]
@@ -486,9 +486,9 @@ def attitude_control_reference(g: McGains, q: Quat, q_sp: Quat, yaw_rate_ff: flo
     ez = quat_body_z(q)
     ezd = quat_body_z(q_sp)
     qd_red = quat_from_two_vectors(ez, ezd)
-    flipped = 1.0 + sum(a * b for a, b in zip(ez, ezd, strict=True)) < 1e-9
+    flipped = qd_red[0] == 0.0  # quat_from_two_vectors' opposite case (an arbitrary axis)
     if flipped or abs(qd_red[1]) > 1.0 - 1e-5 or abs(qd_red[2]) > 1.0 - 1e-5:
-        # body z opposite to the desired one (any rotation axis would do): the full attitude
+        # body z opposite to the desired one: the full attitude
         qd = q_sp
     else:
         qd_red = quat_mul(qd_red, q)
