@@ -8,6 +8,7 @@ with `t_s` the reference time [s] and `telemetry.now_s` the local clock of the c
 
 from __future__ import annotations
 
+import itertools
 import math
 import statistics
 from collections import deque
@@ -44,25 +45,31 @@ class SampleClock:
     """Maps the vehicle's sample times (time_boot) to the local clock.
 
     Every sample gives `t_receive - t_boot = offset + latency`. The offset is not constant: the
-    autopilot's clock drifts against ours (PX4 SITL's lockstep clock runs 0.73 % slow on SIH,
-    a sliding minimum over 6.7 s of samples was 49 ms off at its end: 0.3 m at 6 m/s). So the
-    offset is modelled as a line `a + b t_boot`: the smallest offset of each `block_s` of boot
-    time (the sample that met the least latency), a robust slope through those of the last
-    `blocks` completed blocks (Theil-Sen, from three blocks on; before, b = 0), and the
-    intercept lowered until the line touches every block's minimum from below. Then
-    `t_boot + a + b t_boot` is the local time the sample was taken (up to the link's minimum
-    latency), which exposes the link latency to the controller's extrapolation where receive
-    times would hide it. A boot time that jumps back by more than
-    0.5 s (autopilot reboot) starts over.
+    autopilot's clock drifts against ours (PX4 SITL's lockstep clock runs ~0.7-1.1 % slow on
+    SIH, and more while the host is busy). So the offset is modelled as a line `a + b t_boot`:
+    the smallest offset of each `block_s` of boot time (the sample that met the least latency),
+    a robust slope through those of the last `blocks` completed blocks (Theil-Sen over pairs at
+    least two blocks apart, refitted when a block completes; before three blocks, b = 0), and
+    the intercept lowered until the line touches the minima of the newest `recent` blocks from
+    below. Then `t_boot + a + b t_boot` is the local time the sample was taken (up to the
+    link's minimum latency), which exposes the link latency to the controller's extrapolation
+    where receive times would hide it. Short blocks and a recent intercept let a fresh clock
+    settle within about a second and follow a lockstep clock that falls behind in bursts (a
+    line touching 20 s of one-second minima was up to 40-47 ms off on PX4 SITL in the first
+    seconds of a flight, these settings 8-9 ms). A boot time that jumps back by more than 0.5 s
+    (autopilot reboot) starts over.
     """
 
-    def __init__(self, block_s: float = 1.0, blocks: int = 20) -> None:
+    def __init__(self, block_s: float = 0.25, blocks: int = 80, recent: int = 8) -> None:
         if not (block_s > 0.0 and math.isfinite(block_s)):
             raise ValueError(f"block_s must be a positive number of seconds, got {block_s}")
         if blocks < 1:
             raise ValueError(f"blocks must be >= 1, got {blocks}")
+        if not 1 <= recent <= blocks:
+            raise ValueError(f"recent must be between 1 and blocks ({blocks}), got {recent}")
         self.block_s = block_s
         self._size = blocks
+        self._recent = recent
         # per block: [block index, boot time, offset] of its smallest offset
         self._blocks: deque[list[float]] = deque()
         self._a = 0.0  # intercept [s]
@@ -81,7 +88,8 @@ class SampleClock:
         if key != self._last_key:
             self._last_key = key
             self._add(t_boot_s, t_receive_s - t_boot_s)
-        return t_boot_s + self._a + self._b * t_boot_s
+        # never after its arrival (the fitted slope's noise could tilt the line that far)
+        return min(t_boot_s + self._a + self._b * t_boot_s, t_receive_s)
 
     def _add(self, boot: float, off: float) -> None:
         blocks = self._blocks
@@ -98,18 +106,22 @@ class SampleClock:
             blocks.append([idx, boot, off])
             if len(blocks) > self._size:
                 blocks.popleft()
-        self._fit()
+            self._fit_slope()
+        b = self._b
+        self._a = min(p[2] - b * p[1] for p in itertools.islice(
+            blocks, max(len(blocks) - self._recent, 0), None))
 
-    def _fit(self) -> None:
-        pts = self._blocks
-        done = list(pts)[:-1]  # the newest block may not have met its least latency yet
+    def _fit_slope(self) -> None:
+        done = list(self._blocks)[:-1]  # the newest block may not have met its least latency yet
+        if len(done) < 3:
+            return
         # Theil-Sen: the median of the pairwise slopes, so a block whose every sample was
         # delayed (a link hiccup) does not tilt the line
+        gap = 2.0 * self.block_s
         slopes = [(q[2] - p[2]) / (q[1] - p[1]) for i, p in enumerate(done) for q in done[i + 1:]
-                  if q[1] - p[1] >= 2.0 * self.block_s]
-        b = statistics.median(slopes) if len(done) >= 3 and slopes else self._b
-        self._b = b
-        self._a = min(p[2] - b * p[1] for p in pts)
+                  if q[1] - p[1] >= gap]
+        if slopes:
+            self._b = statistics.median(slopes)
 
 
 def estimate_from_telemetry(

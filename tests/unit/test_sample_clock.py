@@ -111,3 +111,34 @@ def test_one_delayed_block_does_not_tilt_the_drift() -> None:
     assert clock.drift == pytest.approx(0.0073, abs=3e-4)
     boot, rx, true = samples[-1]
     assert clock.local_time(boot, rx) == pytest.approx(true + 0.004, abs=1.5e-3)
+
+
+def test_a_fresh_clock_settles_within_a_second_under_drift() -> None:
+    # a flight starts with a fresh clock: 1 % drift (PX4 SITL's lockstep clock under load)
+    samples = simulated_link(0.01, 10.0, seed=5)
+    clock = SampleClock()
+    errors = [clock.local_time(boot, rx) - true - 0.004 for boot, rx, true in samples]
+    assert max(abs(e) for e in errors[30:]) < 3e-3  # after 1 s: 3 ms (10 ms of drift per s)
+
+
+def test_follows_a_clock_that_falls_behind_in_a_burst() -> None:
+    # the vehicle clock stalls for 50 ms at boot 22 s (a busy host holds SITL's lockstep
+    # back): every later sample's offset is 50 ms larger; a line touching all minima since
+    # the start would stay 50 ms early for as long as it remembers the old ones
+    base = simulated_link(0.0, 20.0, seed=7)
+    samples = [(b, rx + (0.05 if b >= 22.0 else 0.0), true + (0.05 if b >= 22.0 else 0.0))
+               for b, rx, true in base]
+    clock = SampleClock()
+    late = []
+    for boot, rx, true in samples:
+        err = clock.local_time(boot, rx) - true - 0.004
+        if boot >= 22.0 + 2.5:
+            late.append(err)
+    assert late and max(abs(e) for e in late) < 2e-3
+
+
+def test_rejects_a_recent_window_outside_the_blocks() -> None:
+    with pytest.raises(ValueError):
+        SampleClock(blocks=4, recent=5)
+    with pytest.raises(ValueError):
+        SampleClock(recent=0)
