@@ -21,7 +21,11 @@ mock's flight i runs `serve --seed i`):
   the hold point over the last 20 s;
 - then (the first --figure8-flights repeats, default 1) the figure-8 of bench_tracking.py at
   6 m/s in each setpoint mode (position + vel + acc, attitude, rates; companion
-  `TrackingSource`), lap-2 RMS error from the estimate.
+  `TrackingSource`), lap-2 RMS error from the estimate. Flight i first holds i x
+  FIG8_STAGGER_S longer: PX4 SITL's sensor noise is the same in every launch (EKF2's
+  estimate-minus-truth error of two launches correlates 0.99), so without it the repeats would
+  fly their figure-8s through the same stretch of estimator error, one sample of it counted
+  three times; the mock flights (seed i) are staggered the same way.
 Sample times (time_boot_ms) are mapped to the local clock by `api_harness.clock_map` (lower
 envelope of receive - boot time), the same for both targets; the latency row uses receive times.
 Missions: each bundled .plan uploaded with `Vehicle.mission.upload`, arm (in Hold), AUTO.MISSION;
@@ -93,6 +97,7 @@ BOUND = 0.25
 BOUND_FIG8 = 0.35
 FIG8_SPEED = 6.0
 FIG8_MODES = ("position", "attitude", "rates")
+FIG8_STAGGER_S = 7.0  # extra hold before flight i's figure-8s: i x this [s] (docstring)
 # zero body-rate setpoints before and after the rate steps: PX4 v1.16's commander republishes
 # vehicle_control_mode at 2 Hz (or on a status change), so a switch between attitude and rates
 # setpoints takes effect 0-0.5 s late (a phase the bench does not control); after 1 s of zero
@@ -376,8 +381,10 @@ def analyse_steps(tlog: Path, sysid: int) -> dict[str, float]:
 # ----------------------------------------------------------------------------- flights
 
 
-async def _steps_flight(ep: H.Endpoint, folder: Path, fig8: bool) -> dict[str, float]:
-    """One flight: the step sequence, then (fig8) the figure-8 per mode; metrics."""
+async def _steps_flight(ep: H.Endpoint, folder: Path, fig8: bool, stagger_s: float = 0.0
+                        ) -> dict[str, float]:
+    """One flight: the step sequence, then (fig8) a hold of `stagger_s` and the figure-8 per
+    mode; metrics."""
     tlog = folder / "flight.tlog"
     flights: dict[str, H.Flight] = {}
     async with H.airborne(ep, tlog=tlog) as v:
@@ -389,6 +396,7 @@ async def _steps_flight(ep: H.Endpoint, folder: Path, fig8: bool) -> dict[str, f
         seq = StepSequence(tuple(float(c) for c in pos.pos_ned), yaw)  # type: ignore[arg-type]
         await v.fly(mode="attitude", setpoint_source=seq, duration_s=seq.duration_s)
         if fig8:
+            await asyncio.sleep(stagger_s)  # a bench phase (the vehicle holds), not a sync
             for mode in FIG8_MODES:
                 def ref8(t: float) -> Reference:
                     return figure8_reference(t, FIG8_SPEED, alt_m=-float(pos.pos_ned[2]))[0]
@@ -484,7 +492,9 @@ def run_steps(target: str, out: Path, idx: int, fig8: bool) -> dict[str, float]:
     # each mock flight its own random realisation (estimator errors, gyro noise), as PX4's differ
     with H.launch(target, folder, mock_args=(*MOCK_ARGS, "--seed", str(idx))) as ep:
         budget = sum(p.duration_s for p in PHASES) + 90.0 + (80.0 if fig8 else 0.0)
-        return asyncio.run(_bounded(_steps_flight(ep, folder, fig8), budget))
+        budget += FIG8_STAGGER_S * idx if fig8 else 0.0
+        return asyncio.run(_bounded(_steps_flight(ep, folder, fig8, FIG8_STAGGER_S * idx),
+                                    budget))
 
 
 def run_mission(target: str, out: Path, name: str, timeout_s: float) -> float:
