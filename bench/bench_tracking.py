@@ -26,6 +26,7 @@ tests/integration/test_tracking_lockstep.py.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import shutil
 import sys
@@ -461,6 +462,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="API targets: modes to fly (default position attitude rates, plus the "
                          "hover floor 'hover')")
     ap.add_argument("--repeat", type=int, default=1, help="API targets: runs per cell")
+    ap.add_argument("--reuse", action="append", default=[], metavar="JSON",
+                    help="API targets: add the rows of an earlier run (its OUT/tracking.json) "
+                         "for targets this run does not fly, e.g. the mock beside a PX4 run")
     ap.add_argument("--request-hz", type=float, default=None,
                     help="API targets: request LOCAL_POSITION_NED and ATTITUDE_QUATERNION at "
                          "this rate (default: the autopilot's, 30/50 Hz on PX4)")
@@ -556,15 +560,26 @@ def _controller_factory(overrides: list[str]) -> Any:
     return factory
 
 
+#: Run i of a cell holds i x this long after the takeoff before it starts [s]: PX4 SITL's sensor
+#: noise is the same in every launch (bench_fidelity.py), so unstaggered repeats measure one
+#: stretch of EKF2's error again instead of another one.
+STAGGER_S = 7.0
+
+
 def _api_cell(target: str, mode: str, speed: float, out: Path, idx: int,
               ctl: list[str] | None = None, telemetry_hz: float | None = None
               ) -> dict[str, float]:
-    """One flight on a fresh autopilot; lap-2 (or hover) errors vs the estimate and the truth."""
+    """One flight on a fresh autopilot (run `idx` holds idx x STAGGER_S after the takeoff);
+    lap-2 (or hover) errors vs the estimate and the truth."""
     import asyncio
 
     import api_harness as H  # noqa: N812
 
     factory = _controller_factory(ctl or [])
+
+    async def stagger(_v: object) -> None:
+        await asyncio.sleep(STAGGER_S * idx)  # a hold of the bench (docstring), not a sync
+
     tag = f"{target}-{mode}-{speed:g}-{idx}"
     folder = out / tag
     shutil.rmtree(folder, ignore_errors=True)  # tlogs append: start each cell afresh
@@ -577,7 +592,7 @@ def _api_cell(target: str, mode: str, speed: float, out: Path, idx: int,
             fl = asyncio.run(H.fly_reference(
                 ep, "attitude" if mode == "hover" else "position",
                 lambda t: hold_ref(t)[0], duration, tlog=folder / "flight.tlog",
-                source_factory=factory, telemetry_hz=telemetry_hz))
+                source_factory=factory, telemetry_hz=telemetry_hz, before=stagger))
 
             def select(t: float) -> bool:
                 return t >= 5.0
@@ -589,7 +604,7 @@ def _api_cell(target: str, mode: str, speed: float, out: Path, idx: int,
             fl = asyncio.run(H.fly_reference(ep, mode, ref8, duration,
                                               tlog=folder / "flight.tlog",
                                               source_factory=factory,
-                                              telemetry_hz=telemetry_hz))
+                                              telemetry_hz=telemetry_hz, before=stagger))
             def select(t: float) -> bool:
                 return 2 * math.pi <= figure8_reference(t, speed)[1] < 4 * math.pi
 
@@ -639,19 +654,37 @@ def _api_main(args: argparse.Namespace) -> int:
                   f"truth RMS {agg['truth_rms']:.3f} max {agg['truth_max']:.3f} m", flush=True)
     wall = time.perf_counter() - t_start
     print(f"wall time {wall:.0f} s")
+    out.mkdir(parents=True, exist_ok=True)
+    record = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+              "argv": " ".join(sys.argv[1:]), "wall_s": wall, "repeat": args.repeat,
+              "rows": rows}
+    (out / "tracking.json").write_text(json.dumps(record))
+    repeats = {t: args.repeat for t in args.target}
+    reused = []
+    for path in args.reuse:
+        old = json.loads(Path(path).read_text())
+        keep = [r for r in old["rows"] if r[0] not in repeats]
+        if not keep:
+            continue
+        rows += [(t, m, float(v), a) for t, m, v, a in keep]
+        for t in dict.fromkeys(r[0] for r in keep):
+            repeats[t] = int(old["repeat"])
+        reused.append(f"`{old['argv']}` ({old['date']}, {old['wall_s'] / 60:.0f} min)")
+    targets = [t for t in ("mock", "px4") if t in repeats]
     if args.write:
-        table = _api_table(rows, args.target, args.repeat)
+        table = _api_table(rows, targets, repeats)
         print()
         print(table)
         if not args.ctl:  # tuning runs never overwrite the record of the defaults
-            _write_api_section(table, args, wall)
+            _write_api_section(table, args, wall, reused)
     return 0
 
 
 API_SECTION = "Tracking on real PX4 SITL (public API, side by side with the mock)"
 
 
-def _write_api_section(table: str, args: argparse.Namespace, wall_s: float) -> None:
+def _write_api_section(table: str, args: argparse.Namespace, wall_s: float,
+                       reused: list[str]) -> None:
     """Replace the API-target section of BENCHMARKS.md with this run's table."""
     from benchmarks_md import write_section
 
@@ -659,7 +692,8 @@ def _write_api_section(table: str, args: argparse.Namespace, wall_s: float) -> N
     text = (
         f"## {API_SECTION}\n\n"
         f"Command: `flock /tmp/ecca-px4-flights.lock .venv/bin/python bench/bench_tracking.py "
-        f"{argv}` ({wall_s / 60:.0f} min wall; real PX4 runs in real time).\n\n"
+        f"{argv}` ({wall_s / 60:.0f} min wall; real PX4 runs in real time)"
+        + "".join(f"; rows of another target from {r}" for r in reused) + ".\n\n"
         "Each cell starts a fresh autopilot (real PX4 v1.16.0 SITL, SIH quadrotor, default "
         "parameters, from `../shared/px4_sitl`; or `sitl_mock serve`) and flies it through the "
         "companion's public API: `Vehicle.connect`, arm, takeoff to 5 m, then `Vehicle.fly` with "
@@ -685,7 +719,7 @@ def _fmt(agg: dict[str, float] | None, key: str, lo: str = "", hi: str = "") -> 
 
 
 def _api_table(rows: list[tuple[str, str, float, dict[str, float]]], targets: list[str],
-               repeat: int) -> str:
+               repeats: dict[str, int]) -> str:
     """Markdown: one row per (mode, speed), estimate and truth errors per target."""
     label = {"position": "position + vel + acc", "attitude": "attitude (q + thrust)",
              "rates": "rates (body rates + thrust)", "hover": "hover, companion attitude mode",
@@ -703,7 +737,11 @@ def _api_table(rows: list[tuple[str, str, float, dict[str, float]]], targets: li
             a = by.get((t, m, v))
             cells += [_fmt(a, "rms", "rms_lo", "rms_hi"), _fmt(a, "max"), _fmt(a, "truth_rms")]
         lines.append("| " + " | ".join(cells) + " |")
-    note = f"median of {repeat} runs (range in brackets)" if repeat > 1 else "one run each"
+    note = "; ".join(
+        f"{'real PX4' if t == 'px4' else 'mock'}: "
+        + (f"median of {repeats[t]} runs (range in brackets; run i held i x {STAGGER_S:g} s "
+           "after the takeoff)" if repeats[t] > 1 else "one run per cell")
+        for t in targets)
     return "\n".join(lines) + f"\n\n({note}; lap 2 of the figure-8, hover: 30 s)"
 
 
