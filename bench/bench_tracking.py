@@ -648,6 +648,8 @@ def _api_main(args: argparse.Namespace) -> int:
             agg = {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
             agg["rms_lo"] = min(r["rms"] for r in runs)
             agg["rms_hi"] = max(r["rms"] for r in runs)
+            for i, r in enumerate(runs):  # each run's own figure, for paired comparisons
+                agg[f"rms_{i}"] = r["rms"]
             rows.append((target, mode, v, agg))
             print(f"{target:5s} {mode:9s} {v:4.1f} m/s  estimate RMS {agg['rms']:.3f} m "
                   f"(runs {agg['rms_lo']:.3f}-{agg['rms_hi']:.3f}) max {agg['max']:.3f} m | "
