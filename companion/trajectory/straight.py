@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from companion.trajectory.bezier import FloatArray, PiecewiseBezier, _monomial_matrix
+from companion.trajectory.bezier import FloatArray, PiecewiseBezier
 
 __all__ = [
     "LineLimits", "collinear_direction", "straight_profile", "straight_trajectory",
@@ -47,12 +47,16 @@ _SMOOTH_PEAK = 1.875
 _BISECT = 60
 #: Pieces shorter than this are dropped [s] (their motion is below round-off).
 _MIN_PIECE_S = 1e-9
+#: Speed changes below this are not ramped [m/s] (the speed steps by at most this much).
+_MIN_SPEED_STEP = 1e-6
 
 # ascending monomial coefficients (in x = t / T_j, x in [0, 1]) of the smoothstep and of its
 # first and second integrals (each from 0)
 _S = np.array([0.0, 0.0, 0.0, 10.0, -15.0, 6.0, 0.0, 0.0])
 _I1 = np.array([0.0, 0.0, 0.0, 0.0, 2.5, -3.0, 1.0, 0.0])
 _I2 = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.5, -0.5, 1.0 / 7.0])
+_TO_BERNSTEIN = np.array([[math.comb(i, k) / math.comb(DEGREE, k) if k <= i else 0.0
+                           for k in range(DEGREE + 1)] for i in range(DEGREE + 1)])
 
 
 @dataclass(frozen=True)
@@ -183,7 +187,7 @@ def _level_ramp(va: float, vb: float, levels: list[float], jerk: float) -> list[
             # plateau at levels[i - 1] until the next transition, centred on the share's end
             end = shares[i - 1] - (gains[i] if i == k else 0.5 * gains[i])
             t = (end - v) / acc[i]
-            if t < -1e-12:
+            if t < -1e-9:
                 return None
             if t > _MIN_PIECE_S:
                 piece, v = _plateau(v, acc[i], t)
@@ -195,9 +199,10 @@ def _level_ramp(va: float, vb: float, levels: list[float], jerk: float) -> list[
 
 
 def _ramp(va: float, vb: float, lim: LineLimits) -> list[_Piece]:
-    """Pieces from speed va to vb (s from 0 in each piece's own frame: see _chain)."""
-    if vb == va:
-        return []
+    """Pieces from speed va to vb, each with s = 0 at its start (:func:`_ramp_pieces` chains
+    them)."""
+    if abs(vb - va) <= _MIN_SPEED_STEP:
+        return []  # too small to ramp (its pieces would last nanoseconds)
     if vb < va:
         a, tj, tp = _ramp_shape(vb - va, lim.acc_down_m_s2, lim.jerk_m_s3)
         return _level_ramp_down(va, -a, tj, tp, lim.jerk_m_s3)
@@ -285,6 +290,9 @@ def straight_profile(
         if u[k] > u[k + 1]:
             vb, band = float(u[k + 1]), float(lengths[k])
             u[k] = _highest(lambda v: _ramp_dist(v, vb, lim) <= band, vb, float(u[k]))
+    for k in range(n):  # equal where a ramp between them would be skipped (see _ramp)
+        if abs(u[k + 1] - u[k]) <= _MIN_SPEED_STEP:
+            u[k + 1] = u[k] = min(u[k], u[k + 1])
     pieces: list[_Piece] = []
     s = 0.0
     for k in range(n):
@@ -292,6 +300,8 @@ def straight_profile(
         lo = max(va, vb)
         w = _highest(
             lambda x: _ramp_dist(va, x, lim) + _ramp_dist(x, vb, lim) <= band, lo, max(cap, lo))
+        if w - lo <= _MIN_SPEED_STEP:
+            w = lo
         up = _ramp_pieces(s, va, w, lim)
         s_up = s + _ramp_dist(va, w, lim)
         down_len = _ramp_dist(w, vb, lim)
@@ -313,7 +323,9 @@ def _bezier_points(coeffs_tau: FloatArray, h: float) -> FloatArray:
     c = np.zeros(DEGREE + 1)
     c[: len(coeffs_tau)] = coeffs_tau
     a = c * h ** np.arange(DEGREE + 1)  # in x = tau / h
-    return np.asarray(np.linalg.solve(_monomial_matrix(DEGREE), a), dtype=np.float64)
+    # monomial -> Bernstein: b_i = sum_{k <= i} C(i, k) / C(n, k) a_k (no solve: a straight
+    # piece gets exactly collinear points)
+    return np.asarray(_TO_BERNSTEIN @ a, dtype=np.float64)
 
 
 def straight_trajectory(
