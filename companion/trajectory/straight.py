@@ -113,7 +113,7 @@ def collinear_direction(points: ArrayLike, tol_m: float = 1e-6) -> FloatArray | 
         return None
     if not bool(np.all(np.diff(s) > tol_m)):
         return None
-    return u
+    return np.asarray(u, dtype=np.float64)
 
 
 def _ramp_shape(dv: float, acc: float, jerk: float) -> tuple[float, float, float]:
@@ -266,6 +266,19 @@ def _to_time(c_x: FloatArray, scale: float) -> FloatArray:
     return np.asarray(c_x / scale ** np.arange(len(c_x)), dtype=np.float64)
 
 
+def _fits(
+    va: float | None, vb: float | None, band: float, lim: LineLimits
+) -> Callable[[float], bool]:
+    """Whether speed x fits in a band of length `band` [m]: ramping from va to x and from x to
+    vb (a None end: no ramp on that side)."""
+
+    def fits(x: float) -> bool:
+        d = 0.0 if va is None else _ramp_dist(va, x, lim)
+        return d + (0.0 if vb is None else _ramp_dist(x, vb, lim)) <= band
+
+    return fits
+
+
 def straight_profile(
     lengths_m: ArrayLike, caps_m_s: ArrayLike, lim: LineLimits
 ) -> tuple[list[tuple[float, FloatArray]], float]:
@@ -284,12 +297,12 @@ def straight_profile(
     u[1:-1] = np.minimum(caps[:-1], caps[1:])
     for k in range(n):  # forward: reachable by speeding up inside band k
         if u[k + 1] > u[k]:
-            va, band = float(u[k]), float(lengths[k])
-            u[k + 1] = _highest(lambda v: _ramp_dist(va, v, lim) <= band, va, float(u[k + 1]))
+            u[k + 1] = _highest(_fits(float(u[k]), None, float(lengths[k]), lim), float(u[k]),
+                                float(u[k + 1]))
     for k in range(n - 1, -1, -1):  # backward: able to slow down inside band k
         if u[k] > u[k + 1]:
-            vb, band = float(u[k + 1]), float(lengths[k])
-            u[k] = _highest(lambda v: _ramp_dist(v, vb, lim) <= band, vb, float(u[k]))
+            u[k] = _highest(_fits(None, float(u[k + 1]), float(lengths[k]), lim),
+                            float(u[k + 1]), float(u[k]))
     for k in range(n):  # equal where a ramp between them would be skipped (see _ramp)
         if abs(u[k + 1] - u[k]) <= _MIN_SPEED_STEP:
             u[k + 1] = u[k] = min(u[k], u[k + 1])
@@ -298,8 +311,7 @@ def straight_profile(
     for k in range(n):
         va, vb, band, cap = float(u[k]), float(u[k + 1]), float(lengths[k]), float(caps[k])
         lo = max(va, vb)
-        w = _highest(
-            lambda x: _ramp_dist(va, x, lim) + _ramp_dist(x, vb, lim) <= band, lo, max(cap, lo))
+        w = _highest(_fits(va, vb, band, lim), lo, max(cap, lo))
         if w - lo <= _MIN_SPEED_STEP:
             w = lo
         up = _ramp_pieces(s, va, w, lim)
@@ -343,7 +355,7 @@ def straight_trajectory(
     if u is None:
         raise ValueError("the points are not on one straight line, in order")
     s_pts = (p - p[0]) @ u
-    pieces, total = straight_profile(np.diff(s_pts), caps_m_s, lim)
+    pieces, _ = straight_profile(np.diff(s_pts), caps_m_s, lim)
     h = np.array([d for d, _ in pieces])
     s_cp = np.stack([_bezier_points(c, d) for d, c in pieces])  # (K, DEGREE + 1)
     # the last control point of the last piece is the end of the line (round-off)

@@ -45,7 +45,7 @@ def test_one_band_is_just_above_the_time_optimal_trapezoid(
     traj = straight_trajectory([[0.0, 0.0, 0.0], [0.0, 0.0, -length]], [cap], lim)
     bound = _trapezoid_s(length, cap, a_up, a_dn)
     assert bound <= traj.duration <= bound + 0.6  # the jerk-limited ramps cost < 0.3 s each
-    t, p, v, a, j = _samples(traj)
+    _, p, v, a, j = _samples(traj)
     assert np.allclose(p[0], 0.0) and np.allclose(p[-1], [0.0, 0.0, -length], atol=1e-9)
     assert np.allclose(v[[0, -1]], 0.0, atol=1e-9) and np.allclose(a[[0, -1]], 0.0, atol=1e-9)
     assert np.max(np.linalg.norm(v, axis=1)) <= cap * (1 + 1e-9)
