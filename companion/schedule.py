@@ -3,9 +3,11 @@ stops, and holds. Pure (numpy + the planner); used by the replay and the `fly` c
 
 The vehicle starts on the ground at the plan's start point. Each stop-to-stop chunk of the
 flight plan (`companion.mission.split_flight_plan`) becomes one minimum-snap trajectory that
-starts and ends at rest; where the heading changes at a stop, an in-place yaw turn is inserted;
-a hold keeps the last point. For multirotors the final descent is cut `handover_height_m`
-above the touchdown point, where PX4's own landing (NAV_LAND) takes over.
+starts and ends at rest (a chunk on one straight line, e.g. a climb or a descent: the
+jerk-limited trapezoid along it, `companion.trajectory.straight`); where the heading changes
+at a stop, an in-place yaw turn is inserted; a hold keeps the last point. For multirotors the
+final descent is cut `handover_height_m` above the touchdown point, where PX4's own landing
+(NAV_LAND) takes over.
 """
 
 from __future__ import annotations
