@@ -138,3 +138,47 @@ def test_not_a_straight_line_or_a_reversal_is_refused() -> None:
         straight_profile([1.0], [0.0], LineLimits(1, 1, 1))
     with pytest.raises(ValueError):
         LineLimits(0.0, 1.0, 1.0)
+
+
+@pytest.mark.parametrize("name", ["square.plan", "survey.plan"])
+def test_climbs_and_descents_of_a_mission_fly_near_their_bound_within_px4_limits(
+    name: str,
+) -> None:
+    """The straight chunks of a mission (takeoff, RTL climb and return, final descent) take at
+    most 3 % + 0.5 s over the time-optimal bound of the same path (`trajectory.bound`, a
+    separate TOPP) and keep PX4's per-axis accelerations (finite differences of the
+    positions)."""
+    from pathlib import Path
+
+    from companion.config import VehicleFile
+    from companion.mission import load_mission, mission_to_flight_plan
+    from companion.schedule import build_schedule
+
+    root = Path(__file__).resolve().parents[2]
+    vf = VehicleFile()
+    fp = mission_to_flight_plan(load_mission(root / "examples" / "missions" / name))
+    sched = build_schedule(fp, vf.params, vf.limits)
+    px4 = fp.px4
+    straight = 0
+    for piece, bound in zip(sched.pieces, sched.piece_bounds_s(), strict=True):
+        if piece.kind != "traj" or piece.traj is None:
+            continue
+        ends = piece.traj.evaluate(np.array([0.0, piece.duration_s]), 0)
+        if collinear_direction(ends) is None or piece.traj.num_segments > 40:
+            continue
+        mid = np.asarray(piece.traj.evaluate(0.5 * piece.duration_s, 0)).reshape(-1)
+        if np.linalg.norm(np.cross(mid - ends[0], ends[1] - ends[0])) > 1e-6 * np.linalg.norm(
+                ends[1] - ends[0]) ** 2:
+            continue  # not on the straight line between its ends
+        straight += 1
+        # the jerk-limited ramps cost a few tenths of a second in all (the bound: infinite jerk)
+        assert bound <= piece.duration_s <= 1.03 * bound + 0.5, (piece.phase, piece.duration_s,
+                                                                bound)
+        dt = 0.005
+        t = np.arange(0.0, piece.duration_s, dt)
+        p = piece.traj.evaluate(t, 0)
+        acc = np.diff(p, 2, axis=0) / dt**2
+        assert np.max(np.hypot(acc[:, 0], acc[:, 1])) <= px4.MPC_ACC_HOR_MAX * 1.01
+        assert np.max(-acc[:, 2]) <= px4.MPC_ACC_UP_MAX * 1.01  # NED: up is -z
+        assert np.max(acc[:, 2]) <= px4.MPC_ACC_DOWN_MAX * 1.01
+    assert straight >= (2 if name == "square.plan" else 4)
