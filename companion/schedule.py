@@ -735,7 +735,10 @@ def _straight_chunk(
     line = LineLimits(acc_up_m_s2=along(climbing), acc_down_m_s2=min(along(not climbing), cap),
                       jerk_m_s3=STRAIGHT_JERK_M_S3, speedup_cap_m_s2=cap, drag_per_s=drag)
     caps = np.minimum(np.minimum(caps, lim.max_speed_m_s) * ALLOCATION_MARGIN, line.top_speed())
-    traj = straight_trajectory(pts, caps, line, yaw=spec)
+    try:
+        traj = straight_trajectory(pts, caps, line, yaw=spec)
+    except ValueError:  # e.g. no acceleration left at a cap: the minimum-snap planner decides
+        return None
     if isinstance(spec, tuple) and yaw_peak_rate(spec[0], spec[1], traj.duration) > (
             TURN_RATE_RAD_S):
         return None
