@@ -9,6 +9,12 @@ the input is interrupted and recorded as a hang) and the process's peak memory (
 than --memory-mb in one input is recorded). Crashing, slow and hanging inputs are written to
 OUT/TARGET/ with their traceback; a summary line (inputs, rate, findings, peak RSS) is printed
 every --report-s seconds and at the end, and written to OUT/TARGET/summary.json.
+
+The mission target plans through a bounded `PlanMemo` (--memo entries; targets.MissionTarget):
+a stop-to-stop piece whose exact planner input was planned before (by an earlier input, whose
+time was measured then) is served from it; the summary's "memo" says how many inputs planned
+and how many were served wholly from it, and every --memo-verify-th served input is planned
+again without it and must give the same schedule bit for bit.
 """
 
 from __future__ import annotations
