@@ -13,6 +13,7 @@ final descent is cut `handover_height_m` above the touchdown point, where PX4's 
 from __future__ import annotations
 
 import bisect
+import collections
 import dataclasses
 import functools
 import itertools
@@ -334,8 +335,11 @@ def build_schedule(
     *,
     initial_yaw: float = 0.0,
     handover_height_m: float = 1.0,
+    memo: PlanMemo | None = None,
 ) -> Schedule:
-    """Plan every chunk of `flight` and lay them on one clock (see the module docstring)."""
+    """Plan every chunk of `flight` and lay them on one clock (see the module docstring).
+    `memo`: serve a chunk whose planner input was planned before from there (:class:`PlanMemo`;
+    the schedule is the same as without it)."""
     limits = limits or VehicleLimits()
     rover = flight.vehicle == "rover"
     chunks = list(split_flight_plan(flight))
@@ -376,7 +380,9 @@ def build_schedule(
         if chunk.phase == "land" and not rover:
             pts, caps = _land_profile(pts, caps, flight.px4, float(flight.start_ned_m[2]))
         try:
-            traj = _plan_chunk(chunk, pts, params, limits, rover, yaw_spec, caps, flight.px4)
+            traj = _plan_chunk_memo(
+                memo, chunk, pts, params, limits, rover, yaw_spec, caps, flight.px4
+            )
         except ValueError as exc:
             if len(chunk.points_ned_m) <= 2:
                 leg = f"{np.round(pts[0], 1)} to {np.round(pts[-1], 1)} m"
@@ -573,6 +579,90 @@ def _rover_joints(pts: FloatArray, caps: FloatArray) -> tuple[FloatArray, FloatA
         out_p.append(b)
         out_c.append(float(cap))
     return np.array(out_p), np.array(out_c)
+
+
+class PlanMemo:
+    """Bounded memo of planned chunks for callers that schedule many near-identical flight
+    plans (the fuzz campaign: a mutation that leaves a stop-to-stop piece as it was).
+
+    The key is the chunk planner's exact complete input (every float by its bits, so 0.0 and
+    -0.0 differ and NaN matches only NaN; arrays by dtype, shape and bytes); the planner is
+    deterministic, so a served trajectory is the one planning would give (read-only arrays,
+    shared). Only successful plans are kept; the least recently used entry goes beyond
+    `max_entries`. ``planned`` / ``served`` count the chunks planned and served."""
+
+    def __init__(self, max_entries: int = 4096) -> None:
+        if max_entries < 1:
+            raise ValueError(f"max_entries must be >= 1, got {max_entries}")
+        self.max_entries = max_entries
+        self.planned = 0
+        self.served = 0
+        self._entries: collections.OrderedDict[object, PiecewiseBezier] = (
+            collections.OrderedDict()
+        )
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def get_or_plan(self, key: object, plan_fn: Callable[[], PiecewiseBezier]) -> PiecewiseBezier:
+        """The trajectory stored under `key` (see :func:`exact_key`), else ``plan_fn()``
+        stored."""
+        hit = self._entries.get(key)
+        if hit is not None:
+            self._entries.move_to_end(key)
+            self.served += 1
+            return hit
+        traj = plan_fn()
+        self.planned += 1
+        self._entries[key] = traj
+        if len(self._entries) > self.max_entries:
+            self._entries.popitem(last=False)
+        return traj
+
+
+def exact_key(value: object) -> object:
+    """A hashable key equal for two values only when they are the same bit for bit: floats by
+    their hex form (0.0 and -0.0 differ, NaN equals NaN), arrays by dtype, shape and bytes,
+    dataclasses by type and fields, sequences element-wise; str, int, bool and None as they
+    are. TypeError for anything else."""
+    if isinstance(value, float):
+        return ("f", value.hex())
+    if value is None or isinstance(value, (str, int, bool)):
+        return value
+    if isinstance(value, np.ndarray):
+        return ("a", value.dtype.str, value.shape, value.tobytes())
+    if isinstance(value, np.floating):
+        return ("f", float(value).hex())
+    if isinstance(value, (tuple, list)):
+        return (type(value).__name__, *(exact_key(v) for v in value))
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return (type(value).__qualname__,
+                *(exact_key(getattr(value, f.name)) for f in dataclasses.fields(value)))
+    raise TypeError(f"no exact key for {type(value).__name__}")
+
+
+def _plan_chunk_memo(
+    memo: PlanMemo | None,
+    chunk: FlightChunk,
+    pts: FloatArray,
+    params: MultirotorParams | None,
+    limits: VehicleLimits,
+    rover: bool,
+    yaw_spec: object,
+    caps: FloatArray,
+    px4: Px4PlanningParams,
+) -> PiecewiseBezier:
+    """:func:`_plan_chunk`, through `memo` when one is given (keyed on everything
+    `_plan_chunk` reads: of the chunk its acceptance radii, point count and phase)."""
+
+    def run() -> PiecewiseBezier:
+        return _plan_chunk(chunk, pts, params, limits, rover, yaw_spec, caps, px4)
+
+    if memo is None:
+        return run()
+    key = exact_key((chunk.acceptance_radius_m, len(chunk.points_ned_m), chunk.phase, pts,
+                     params, limits, rover, yaw_spec, caps, px4))
+    return memo.get_or_plan(key, run)
 
 
 def _plan_chunk(

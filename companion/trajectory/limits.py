@@ -652,9 +652,75 @@ def check(
 
 
 # --------------------------------------------------------------------------- rover extrema
-_P = np.polynomial.polynomial
 #: Evenly spaced normalised times added to the critical points (robustness against root error).
 _ROVER_GRID = np.linspace(0.0, 1.0, 17)
+
+
+#: Powers 0, 1, 2, ... as floats (derivatives and power matrices of the polynomials below).
+_POWERS = np.arange(64, dtype=np.float64)
+
+
+# Lean equivalents of numpy.polynomial's polyder / polymul / polysub / polyadd / polyroots
+# for 1-D float64 coefficient arrays (ascending): the same floating-point operations in the
+# same order, so the same bits, without the wrappers' argument handling (which dominated
+# the rover allocation's time: thousands of tiny polynomials per plan).
+def _trim(c: FloatArray) -> FloatArray:
+    """Trailing exact zeros dropped, at least one coefficient kept (``polyutils.trimseq``)."""
+    if c.shape[0] == 0 or c[-1] != 0:
+        return c
+    nz = np.flatnonzero(c)
+    return c[: int(nz[-1]) + 1] if nz.shape[0] else c[:1]
+
+
+def _pder(c: FloatArray) -> FloatArray:
+    """First derivative (``polyder``: coefficient j times j)."""
+    n = c.shape[0]
+    if n <= 1:
+        return np.asarray(c[:1] * 0, dtype=np.float64)
+    return np.asarray(c[1:] * _POWERS[1:n], dtype=np.float64)
+
+
+def _pmul(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Product (``polymul``)."""
+    return _trim(np.asarray(np.convolve(_trim(a), _trim(b)), dtype=np.float64))
+
+
+def _psub(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Difference a - b (``polysub``; the same operations as its padded in-place form)."""
+    a, b = _trim(a), _trim(b)
+    if a.shape[0] > b.shape[0]:
+        r = a.copy()
+        r[: b.shape[0]] -= b
+    else:
+        r = -b
+        r[: a.shape[0]] += a
+    return _trim(r)
+
+
+def _padd(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Sum (``polyadd``)."""
+    a, b = _trim(a), _trim(b)
+    if a.shape[0] > b.shape[0]:
+        r = a.copy()
+        r[: b.shape[0]] += b
+    else:
+        r = b.copy()
+        r[: a.shape[0]] += a
+    return _trim(r)
+
+
+def _proots(c: FloatArray) -> NDArray[np.complex128] | FloatArray:
+    """Roots, sorted, of the polynomial ``c`` whose last coefficient is non-zero and which
+    has at least two (``polyroots``: eigenvalues of the companion matrix)."""
+    n = c.shape[0] - 1
+    if n == 1:
+        return np.array([-c[0] / c[1]])
+    mat = np.zeros((n, n), dtype=np.float64)
+    mat.reshape(-1)[n :: n + 1] = 1
+    mat[:, -1] -= c[:-1] / c[-1]
+    r = np.linalg.eigvals(mat)
+    r.sort()
+    return r
 
 
 def _root_candidates(coef: FloatArray) -> FloatArray:
@@ -669,10 +735,10 @@ def _root_candidates(coef: FloatArray) -> FloatArray:
     c = coef[: int(keep[-1]) + 1] / scale
     if c.shape[0] < 2:
         return np.zeros(0)
-    r = np.clip(_P.polyroots(c).real, 0.0, 1.0)
+    r = np.clip(_proots(c).real, 0.0, 1.0)
     # Newton polish (near-double roots come out of the eigenvalue solver with ~sqrt(eps)
     # error); raw and polished both kept
-    dc: FloatArray = np.asarray(_P.polyder(c), dtype=np.float64)
+    dc = _pder(c)
     x = r.copy()
     # 3 steps: the zoom around the best candidate in `rover_extrema` covers what is left
     for _ in range(3):
@@ -686,7 +752,7 @@ def _polyval01(x: FloatArray, coef: FloatArray) -> FloatArray:
     """The polynomial with ascending coefficients ``coef`` at ``x`` in [0, 1], as one
     power-matrix product (numpy's ``polyval`` loops over the coefficients in Python, and this
     runs thousands of times per rover plan; on [0, 1] the powers lose nothing)."""
-    return np.asarray(np.power.outer(x, np.arange(coef.shape[0])) @ coef, dtype=np.float64)
+    return np.asarray(np.power.outer(x, _POWERS[: coef.shape[0]]) @ coef, dtype=np.float64)
 
 
 #: Offsets (normalised time) around the best candidate evaluated as well, against root error.
@@ -716,14 +782,15 @@ def rover_extrema(
     out = {nm: (np.zeros(cp.shape[0]), np.zeros(cp.shape[0])) for nm in names}
     for k in range(cp.shape[0]):
         h = float(traj.durations[k])
-        vx, vy = _P.polyder(mono[k, :, 0]), _P.polyder(mono[k, :, 1])
-        ax, ay = _P.polyder(vx), _P.polyder(vy)
-        c: FloatArray = np.asarray(_P.polysub(_P.polymul(vx, ay), _P.polymul(vy, ax)))
-        v2: FloatArray = np.asarray(_P.polyadd(_P.polymul(vx, vx), _P.polymul(vy, vy)))
-        dv2, dc = _P.polyder(v2), _P.polyder(c)
+        vx, vy = _pder(mono[k, :, 0]), _pder(mono[k, :, 1])
+        ax, ay = _pder(vx), _pder(vy)
+        c = _psub(_pmul(vx, ay), _pmul(vy, ax))
+        v2 = _padd(_pmul(vx, vx), _pmul(vy, vy))
+        dv2, dc = _pder(v2), _pder(c)
+        dc_v2, c_dv2 = _pmul(dc, v2), _pmul(c, dv2)
         cands = [_ROVER_GRID, _root_candidates(dv2)]
-        cands.append(_root_candidates(_P.polysub(_P.polymul(dc, v2), _P.polymul(c, dv2))))
-        cands.append(_root_candidates(_P.polysub(2.0 * _P.polymul(dc, v2), _P.polymul(c, dv2))))
+        cands.append(_root_candidates(_psub(dc_v2, c_dv2)))
+        cands.append(_root_candidates(_psub(2.0 * dc_v2, c_dv2)))
         edge = v2.copy()
         edge[0] -= (min_speed_m_s * h) ** 2
         cands.append(_root_candidates(edge))

@@ -9,6 +9,12 @@ the input is interrupted and recorded as a hang) and the process's peak memory (
 than --memory-mb in one input is recorded). Crashing, slow and hanging inputs are written to
 OUT/TARGET/ with their traceback; a summary line (inputs, rate, findings, peak RSS) is printed
 every --report-s seconds and at the end, and written to OUT/TARGET/summary.json.
+
+The mission target plans through a bounded `PlanMemo` (--memo entries; targets.MissionTarget):
+a stop-to-stop piece whose exact planner input was planned before (by an earlier input, whose
+time was measured then) is served from it; the summary's "memo" says how many inputs planned
+and how many were served wholly from it, and every --memo-verify-th served input is planned
+again without it and must give the same schedule bit for bit.
 """
 
 from __future__ import annotations
@@ -78,22 +84,31 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def _targets() -> dict[str, tuple[Callable[[bytes], Any], list[bytes]]]:
+def _targets(memo_entries: int = 0, memo_verify: int = 100,
+             ) -> dict[str, tuple[Callable[[bytes], Any], list[bytes]]]:
     from tests.fuzz import corpus
-    from tests.fuzz.targets import LINK_CLASSES, LinkTarget, MockTarget, mission_target
+    from tests.fuzz.targets import (
+        LINK_CLASSES,
+        LinkTarget,
+        MissionTarget,
+        MockTarget,
+        mission_target,
+    )
 
     mock = MockTarget()
+    mission = (MissionTarget(memo_entries, memo_verify) if memo_entries > 0 else mission_target)
     return {
-        "mission": (mission_target, corpus.mission_seeds()),
+        "mission": (mission, corpus.mission_seeds()),
         "link": (LinkTarget(), corpus.datagram_seeds(len(LINK_CLASSES), 80)),
         "mock": (mock, corpus.datagram_seeds(len(mock.classes), len(mock.param_names))),
     }
 
 
 def run(target: str, inputs: int, seconds: float, seed: int, out: Path, slow_s: float,
-        hang_s: float, memory_mb: float, report_s: float) -> dict[str, Any]:
+        hang_s: float, memory_mb: float, report_s: float, memo: int = 0,
+        memo_verify: int = 100) -> dict[str, Any]:
     """Fuzz one target until `inputs` inputs or `seconds` seconds; returns the summary."""
-    fn, seeds = _targets()[target]
+    fn, seeds = _targets(memo, memo_verify)[target]
     rng = random.Random(seed)
     folder = out / target
     folder.mkdir(parents=True, exist_ok=True)
@@ -146,12 +161,14 @@ def run(target: str, inputs: int, seconds: float, seed: int, out: Path, slow_s: 
         now = time.perf_counter()
         if now - last_report >= report_s:
             last_report = now
-            _report(stats, now - t0, folder)
-    _report(stats, time.perf_counter() - t0, folder)
+            _report(stats, now - t0, folder, fn)
+    _report(stats, time.perf_counter() - t0, folder, fn)
     return stats
 
 
-def _report(stats: dict[str, Any], elapsed: float, folder: Path) -> None:
+def _report(stats: dict[str, Any], elapsed: float, folder: Path, fn: Any) -> None:
+    if hasattr(fn, "stats"):
+        stats["memo"] = fn.stats()
     stats["elapsed_s"] = round(elapsed, 1)
     stats["rate_per_s"] = round(stats["inputs"] / elapsed, 1) if elapsed > 0 else 0.0
     stats["peak_rss_mb"] = round(_peak_rss_mb(), 1)
@@ -172,12 +189,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--hang-s", type=float, default=30.0)
     ap.add_argument("--memory-mb", type=float, default=256.0)
     ap.add_argument("--report-s", type=float, default=60.0)
+    ap.add_argument("--memo", type=int, default=4096, metavar="ENTRIES",
+                    help="mission: planned chunks kept for reuse (0: plan every chunk)")
+    ap.add_argument("--memo-verify", type=int, default=100, metavar="N",
+                    help="mission: every N-th input served from the memo is also planned "
+                         "without it and must give the same schedule bit for bit (0: never)")
     a = ap.parse_args(argv)
     import logging
 
     logging.disable(logging.CRITICAL)  # the loaders' warnings are expected by the thousand
+    if a.memo < 0 or a.memo_verify < 0:
+        ap.error("--memo and --memo-verify must be >= 0")
     stats = run(a.target, a.inputs, a.seconds, a.seed, a.out, a.slow_s, a.hang_s, a.memory_mb,
-                a.report_s)
+                a.report_s, a.memo, a.memo_verify)
     return 1 if stats["crashes"] or stats["hangs"] else 0
 
 

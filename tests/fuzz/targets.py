@@ -4,6 +4,9 @@ raises only `Finding` for a broken property; the documented errors are part of n
 - `mission_target`: mission text -> loader -> upload frames -> flight plan (quad and rover) ->
   schedule; only `MissionError` (or the schedule's own ValueError naming the file) may come
   out, and whatever is accepted encodes as MISSION_ITEM_INT and gives finite references.
+  `MissionTarget` is the same with a `PlanMemo` kept across inputs (long campaigns: a chunk
+  whose exact planner input was planned before is served from it, counted, and every
+  `verify_every`-th input served from it is re-planned without it and compared bit for bit).
 - `LinkTarget`: datagrams into the companion's `VehicleLink` (parsed as UDP datagrams) on a
   fake clock; afterwards the link still recognises a valid HEARTBEAT and answers a TIMESYNC.
 - `MockTarget`: datagrams into one long-lived `sitl_mock` Autopilot (as a mock exposed to a
@@ -28,7 +31,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from companion.mavlink.link import LinkConfig, VehicleLink
 from companion.mission import MissionError, loads_mission, mission_to_flight_plan
-from companion.schedule import VehicleLimits, build_schedule
+from companion.schedule import PlanMemo, Schedule, VehicleLimits, build_schedule
 
 #: Mission expansion cap in the fuzz (planning costs ~5 ms per waypoint: 200 items stay ~1 s).
 FUZZ_MAX_ITEMS = 200
@@ -39,8 +42,10 @@ class Finding(AssertionError):
 
 
 # --------------------------------------------------------------------------------- mission
-def mission_target(data: bytes) -> str:
-    """Load, plan and schedule; returns "rejected", "not flyable" or "flown"."""
+def mission_target(data: bytes, memo: PlanMemo | None = None, verify: bool = False) -> str:
+    """Load, plan and schedule; returns "rejected", "not flyable" or "flown". ``memo``: plan
+    through it (see `MissionTarget`); ``verify``: also schedule without it and require the
+    same schedule bit for bit."""
     from companion.replay import DEFAULT_QUAD, mission_frames
 
     try:
@@ -57,8 +62,15 @@ def mission_target(data: bytes) -> str:
         try:
             plan = mission_to_flight_plan(mission, vehicle=vehicle,  # type: ignore[arg-type]
                                           max_items=FUZZ_MAX_ITEMS)
-            schedule = build_schedule(plan, None if vehicle == "rover" else DEFAULT_QUAD,
-                                      VehicleLimits())
+            params = None if vehicle == "rover" else DEFAULT_QUAD
+            schedule = build_schedule(plan, params, VehicleLimits(), memo=memo)
+            if verify and memo is not None:
+                try:
+                    fresh = build_schedule(plan, params, VehicleLimits())
+                except ValueError as exc:
+                    raise Finding(f"planned from the memo, but failed without it: {exc}") from exc
+                if not same_schedule(schedule, fresh):
+                    raise Finding("the memo served a schedule different from planning it")
         except MissionError as exc:
             _named(exc, "fuzz")
             continue
@@ -76,6 +88,61 @@ def mission_target(data: bytes) -> str:
                 raise Finding(f"non-finite reference at t={end * k / 4.0}: {values}")
         outcome = "flown"
     return outcome
+
+
+def same_schedule(a: Schedule, b: Schedule) -> bool:
+    """Two schedules equal bit for bit: every piece's timing, points and yaws, every
+    trajectory's (and yaw channel's) control points and durations, the waypoints."""
+
+    def arrays(s: Schedule) -> list[Any]:
+        out: list[Any] = [s.duration_s, s.waypoints_ned, s.acceptance_m, s.item_indices,
+                          s.final_action, s.vehicle]
+        for p in s.pieces:
+            out += [p.kind, p.t0_s, p.duration_s, p.phase, p.pos_ned, p.yaw0, p.yaw1,
+                    p.speed_caps]
+            for tr in (p.traj, p.turn, p.traj.yaw if p.traj is not None else None):
+                out += [None] if tr is None else [tr.control_points, tr.durations]
+        return out
+
+    from companion.schedule import exact_key
+
+    return exact_key(arrays(a)) == exact_key(arrays(b))
+
+
+class MissionTarget:
+    """`mission_target` through one bounded `PlanMemo` of `memo_entries` planned chunks kept
+    across inputs; counts the inputs whose chunks were all served from it ("from memo"), the
+    ones that planned at least one ("planned"), and the chunks of each kind."""
+
+    def __init__(self, memo_entries: int = 4096, verify_every: int = 100) -> None:
+        self.memo = PlanMemo(memo_entries)
+        self.verify_every = verify_every
+        self.inputs_planned = 0
+        self.inputs_from_memo = 0
+        self.verified = 0
+        self._with_hits = 0
+
+    def __call__(self, data: bytes) -> str:
+        planned, served = self.memo.planned, self.memo.served
+        # armed until an input served from the memo (at least one chunk) takes it
+        verify = self.verify_every > 0 and (self._with_hits + 1) % self.verify_every == 0
+        try:
+            return mission_target(data, self.memo, verify=verify)
+        finally:
+            if self.memo.planned > planned:
+                self.inputs_planned += 1
+            elif self.memo.served > served:
+                self.inputs_from_memo += 1
+            if self.memo.served > served:
+                self._with_hits += 1
+                self.verified += verify
+
+    def stats(self) -> dict[str, int]:
+        """Counts for the campaign's summary."""
+        return {"inputs_planned": self.inputs_planned, "inputs_from_memo": self.inputs_from_memo,
+                "chunks_planned": self.memo.planned, "chunks_from_memo": self.memo.served,
+                "verified_against_planning": self.verified, "entries": len(self.memo),
+                "max_entries": self.memo.max_entries}
 
 
 def _named(exc: MissionError, source: str) -> None:

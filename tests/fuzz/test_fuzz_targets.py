@@ -14,7 +14,14 @@ from hypothesis import strategies as st
 
 from tests.fuzz import corpus
 from tests.fuzz.campaign import mutate
-from tests.fuzz.targets import LINK_CLASSES, LinkTarget, MockTarget, mission_target
+from tests.fuzz.targets import (
+    LINK_CLASSES,
+    Finding,
+    LinkTarget,
+    MissionTarget,
+    MockTarget,
+    mission_target,
+)
 
 FUZZ = settings(max_examples=150, deadline=None, derandomize=False,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
@@ -72,6 +79,41 @@ def test_plans_with_extreme_item_values(data: st.DataObject) -> None:
     except (ValueError, OverflowError):
         return
     mission_target(text.encode())
+
+
+@pytest.fixture(scope="module")
+def memo_target() -> MissionTarget:
+    return MissionTarget(memo_entries=256, verify_every=1)
+
+
+@settings(max_examples=25, deadline=None, derandomize=False,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
+                                 HealthCheck.function_scoped_fixture])
+@given(seed=st.sampled_from(MISSION_SEEDS[:8]), rng=st.randoms(use_true_random=False))
+def test_mutated_missions_served_from_the_plan_memo_schedule_as_planned(
+    memo_target: MissionTarget, seed: bytes, rng: Any
+) -> None:
+    """The campaign's memo (verify_every=1): every input served from it, even in part, is
+    scheduled again without it and must come out the same bit for bit."""
+    memo_target(seed)
+    memo_target(mutate(seed, rng, MISSION_SEEDS))
+    stats = memo_target.stats()
+    assert stats["entries"] == min(stats["chunks_planned"], 256)
+
+
+def test_the_memo_check_finds_a_memo_that_serves_another_plan() -> None:
+    """The verification can fail: a memo whose entries were moved by 1 m is caught on the
+    next input served from it."""
+    target = MissionTarget(memo_entries=64, verify_every=1)
+    square = (corpus.ROOT / "examples" / "missions" / "square.plan").read_bytes()
+    assert target(square) == "flown"
+    entries = target.memo._entries
+    for key, traj in entries.items():
+        entries[key] = type(traj).from_control_points(traj.control_points + 1.0,
+                                                      traj.durations, traj.yaw)
+    with pytest.raises(Finding, match="memo served a schedule different"):
+        target(square)
+    assert target.stats()["inputs_from_memo"] == 1
 
 
 chunk_kinds = st.one_of(st.integers(0, 255), st.sampled_from([0, 0xF0, 0xFF]))

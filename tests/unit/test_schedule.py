@@ -12,7 +12,7 @@ import pytest
 
 from companion.flatness import MultirotorParams
 from companion.mission import load_mission, mission_to_flight_plan
-from companion.schedule import build_schedule
+from companion.schedule import PlanMemo, build_schedule, exact_key
 
 ROOT = Path(__file__).resolve().parents[2]
 PARAMS = MultirotorParams(mass=1.0, inertia=(0.025, 0.025, 0.03), drag=1.0)
@@ -159,3 +159,58 @@ def test_rover_cruises_its_straight_legs_between_the_turns() -> None:
     assert d.max() < 2.0  # one polynomial per leg bulged 7.6 m off the square
     for wp in sched.waypoints_ned[:, :2]:
         assert np.min(np.linalg.norm(pos - wp, axis=1)) < 0.05
+
+
+def _bits(s):  # type: ignore[no-untyped-def]
+    """Everything a schedule is made of, as bytes (two schedules equal bit for bit)."""
+    out = [np.float64(s.duration_s).tobytes(), s.waypoints_ned.tobytes()]
+    for p in s.pieces:
+        out += [p.kind.encode(), np.float64([p.t0_s, p.duration_s, p.yaw0, p.yaw1]).tobytes()]
+        for tr in (p.traj, p.turn, None if p.traj is None else p.traj.yaw):
+            if tr is not None:
+                out += [tr.control_points.tobytes(), tr.durations.tobytes()]
+    return out
+
+
+@pytest.mark.parametrize("name", ["square.plan", "hold_and_jump.plan"])
+def test_plan_memo_serves_the_schedule_that_planning_gives(name: str) -> None:
+    fp = mission_to_flight_plan(load_mission(ROOT / "examples" / "missions" / name))
+    planned = build_schedule(fp, PARAMS)
+    memo = PlanMemo()
+    first = build_schedule(fp, PARAMS, memo=memo)
+    n, chunks = memo.planned, memo.planned + memo.served  # a DO_JUMP repeats chunks
+    assert n >= 2 and len(memo) == n
+    second = build_schedule(fp, PARAMS, memo=memo)
+    assert memo.planned == n and memo.served == 2 * chunks - n
+    assert _bits(first) == _bits(planned) == _bits(second)
+
+
+def test_plan_memo_keeps_at_most_max_entries_and_replans_what_it_dropped() -> None:
+    fp = mission_to_flight_plan(load_mission(ROOT / "examples" / "missions" / "square.plan"))
+    memo = PlanMemo(max_entries=1)
+    first = build_schedule(fp, PARAMS, memo=memo)
+    n = memo.planned + memo.served
+    assert memo.planned >= 2 and len(memo) == 1
+    second = build_schedule(fp, PARAMS, memo=memo)
+    assert len(memo) == 1 and memo.planned + memo.served == 2 * n and memo.planned >= n + 2
+    assert _bits(first) == _bits(second)
+    with pytest.raises(ValueError):
+        PlanMemo(max_entries=0)
+
+
+def test_exact_key_tells_apart_what_float_equality_confuses() -> None:
+    assert 0.0 == -0.0 and exact_key(0.0) != exact_key(-0.0)
+    assert math.nan != math.nan and exact_key(math.nan) == exact_key(float("nan"))
+    a = np.array([1.0, 2.0])
+    assert exact_key(a) == exact_key(a.copy())
+    assert exact_key(a) != exact_key(a.astype(np.float32))
+    assert exact_key(a) != exact_key(a.reshape(2, 1))
+    assert exact_key((1.0, 2.0)) != exact_key([1.0, 2.0])
+    assert exact_key(PARAMS) == exact_key(MultirotorParams(mass=1.0,
+                                                           inertia=(0.025, 0.025, 0.03),
+                                                           drag=1.0))
+    assert exact_key(PARAMS) != exact_key(MultirotorParams(mass=1.0 + 1e-15,
+                                                           inertia=(0.025, 0.025, 0.03),
+                                                           drag=1.0))
+    with pytest.raises(TypeError):
+        exact_key(object())
