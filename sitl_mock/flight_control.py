@@ -543,9 +543,13 @@ class AngularVelocityFilter:
         """Steady state at body rates `rate` [rad/s] with zero angular acceleration."""
         self._prev = rate
         for d, c, v in ((self._dv, self._cv, rate), (self._da, self._ca, (0.0, 0.0, 0.0))):
-            den = 1.0 + c[3] + c[4]
+            # 1 + a1 + a2 equals b0 + b1 + b2 (unit DC gain); the b sum has no cancellation,
+            # which a cutoff far below the sample rate turns 1 + a1 + a2 into (0 at 1e-8 fs)
+            den = c[0] + c[1] + c[2]
             for i in range(3):
-                d[2 * i] = d[2 * i + 1] = v[i] / den
+                w = v[i] / den if den > 0.0 else math.inf
+                # not representable (a cutoff below ~1e-150 fs): start from the sample
+                d[2 * i] = d[2 * i + 1] = w if math.isfinite(w) else v[i]
 
     def update(self, raw: Vec3, dt: float, cutoff_hz: float, dcutoff_hz: float
                ) -> tuple[Vec3, Vec3]:

@@ -135,3 +135,24 @@ def test_switching_between_attitude_and_rates_takes_effect_at_the_control_mode_t
     assert helds.min() > 0.02 and helds.max() < period + 0.08
     assert np.ptp(helds) > 0.5 * period
     assert rises.max() > rises.min() + 0.03
+
+
+@pytest.mark.parametrize("cutoff_hz", [1e-3, 1e-6, 1e-9, 1e-12])
+def test_a_cutoff_far_below_the_sample_rate_keeps_a_steady_rate(cutoff_hz: float) -> None:
+    # such cutoffs come in by PARAM_SET (IMU_GYRO_CUTOFF, IMU_DGYRO_CUTOFF): 1 + a1 + a2 then
+    # cancels to (nearly) 0 in double precision, and the steady state must still be the input
+    f = AngularVelocityFilter()
+    f.update((0.5, -0.2, 0.1), 0.004, 40.0, 30.0)
+    for _ in range(20):
+        rates, accel = f.update((0.5, -0.2, 0.1), 0.004, cutoff_hz, cutoff_hz)
+        assert rates == pytest.approx((0.5, -0.2, 0.1), abs=1e-6)
+        assert accel == pytest.approx((0.0, 0.0, 0.0), abs=1e-6)
+
+
+@pytest.mark.parametrize("cutoff_hz", [1e-150, 1e-200, 5e-324])
+def test_an_unrepresentable_cutoff_gives_finite_rates(cutoff_hz: float) -> None:
+    f = AngularVelocityFilter()
+    f.update((0.5, -0.2, 0.1), 0.004, 40.0, 30.0)
+    for k in range(20):
+        rates, accel = f.update((0.5 + 0.01 * k, -0.2, 0.1), 0.004, cutoff_hz, cutoff_hz)
+        assert all(math.isfinite(v) for v in (*rates, *accel))
