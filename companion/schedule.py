@@ -372,9 +372,13 @@ def build_schedule(
         if chunk.phase == "land" and not rover:
             pts, caps = _land_profile(pts, caps, flight.px4, float(flight.start_ned_m[2]))
         try:
-            traj = _plan_chunk_memo(
-                memo, chunk, pts, params, limits, rover, yaw_spec, caps, flight.px4
-            )
+            run = functools.partial(_plan_chunk, chunk, pts, params, limits, rover, yaw_spec,
+                                    caps, flight.px4)
+            # the memo's key: everything `_plan_chunk` reads (of the chunk its acceptance
+            # radii, point count and phase)
+            traj = run() if memo is None else memo.get_or_plan(exact_key((
+                chunk.acceptance_radius_m, len(chunk.points_ned_m), chunk.phase, pts, params,
+                limits, rover, yaw_spec, caps, flight.px4)), run)
         except ValueError as exc:
             if len(chunk.points_ned_m) <= 2:
                 leg = f"{np.round(pts[0], 1)} to {np.round(pts[-1], 1)} m"
@@ -631,30 +635,6 @@ def exact_key(value: object) -> object:
         return (type(value).__qualname__,
                 *(exact_key(getattr(value, f.name)) for f in dataclasses.fields(value)))
     raise TypeError(f"no exact key for {type(value).__name__}")
-
-
-def _plan_chunk_memo(
-    memo: PlanMemo | None,
-    chunk: FlightChunk,
-    pts: FloatArray,
-    params: MultirotorParams | None,
-    limits: VehicleLimits,
-    rover: bool,
-    yaw_spec: object,
-    caps: FloatArray,
-    px4: Px4PlanningParams,
-) -> PiecewiseBezier:
-    """:func:`_plan_chunk`, through `memo` when one is given (keyed on everything
-    `_plan_chunk` reads: of the chunk its acceptance radii, point count and phase)."""
-
-    def run() -> PiecewiseBezier:
-        return _plan_chunk(chunk, pts, params, limits, rover, yaw_spec, caps, px4)
-
-    if memo is None:
-        return run()
-    key = exact_key((chunk.acceptance_radius_m, len(chunk.points_ned_m), chunk.phase, pts,
-                     params, limits, rover, yaw_spec, caps, px4))
-    return memo.get_or_plan(key, run)
 
 
 def _plan_chunk(

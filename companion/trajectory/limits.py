@@ -685,18 +685,6 @@ def _pmul(a: FloatArray, b: FloatArray) -> FloatArray:
     return _trim(np.asarray(np.convolve(_trim(a), _trim(b)), dtype=np.float64))
 
 
-def _psub(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Difference a - b (``polysub``; the same operations as its padded in-place form)."""
-    a, b = _trim(a), _trim(b)
-    if a.shape[0] > b.shape[0]:
-        r = a.copy()
-        r[: b.shape[0]] -= b
-    else:
-        r = -b
-        r[: a.shape[0]] += a
-    return _trim(r)
-
-
 def _padd(a: FloatArray, b: FloatArray) -> FloatArray:
     """Sum (``polyadd``)."""
     a, b = _trim(a), _trim(b)
@@ -707,6 +695,11 @@ def _padd(a: FloatArray, b: FloatArray) -> FloatArray:
         r = b.copy()
         r[: a.shape[0]] += a
     return _trim(r)
+
+
+def _psub(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Difference a - b (``polysub``: a + (-b) rounds exactly as a - b)."""
+    return _padd(a, -b)
 
 
 def _proots(c: FloatArray) -> NDArray[np.complex128] | FloatArray:
