@@ -3,9 +3,11 @@ stops, and holds. Pure (numpy + the planner); used by the replay and the `fly` c
 
 The vehicle starts on the ground at the plan's start point. Each stop-to-stop chunk of the
 flight plan (`companion.mission.split_flight_plan`) becomes one minimum-snap trajectory that
-starts and ends at rest; where the heading changes at a stop, an in-place yaw turn is inserted;
-a hold keeps the last point. For multirotors the final descent is cut `handover_height_m`
-above the touchdown point, where PX4's own landing (NAV_LAND) takes over.
+starts and ends at rest (a chunk on one straight line, e.g. a climb or a descent: the
+jerk-limited trapezoid along it, `companion.trajectory.straight`); where the heading changes
+at a stop, an in-place yaw turn is inserted; a hold keeps the last point. For multirotors the
+final descent is cut `handover_height_m` above the touchdown point, where PX4's own landing
+(NAV_LAND) takes over.
 """
 
 from __future__ import annotations
@@ -27,14 +29,20 @@ from companion.control import Reference, reference_of_arrays
 from companion.flatness import MultirotorParams
 from companion.mission import FlightChunk, FlightPlan, split_flight_plan
 from companion.px4_params import Px4PlanningParams
-from companion.trajectory import Limits, PiecewiseBezier, RoverLimits, hermite, plan
+from companion.trajectory import Limits, PiecewiseBezier, RoverLimits, check, hermite, plan
 from companion.trajectory.bezier import ScalarEvaluator
 from companion.trajectory.bound import (
     KinematicLimits,
     time_optimal_duration,
     time_optimal_profile,
 )
-from companion.trajectory.planner import segment_distances, velocity_heading
+from companion.trajectory.planner import ALLOCATION_MARGIN, segment_distances, velocity_heading
+from companion.trajectory.straight import (
+    LineLimits,
+    collinear_direction,
+    straight_trajectory,
+    yaw_peak_rate,
+)
 
 _log = logging.getLogger("companion.schedule")
 
@@ -471,7 +479,7 @@ def _legs(chunk: FlightChunk) -> list[FlightChunk]:
 
 #: Climb/descent speed steps between MPC_LAND_ALT1 and MPC_LAND_ALT2 (PX4 interpolates the
 #: descent rate linearly in height there; each step flies the lower end's rate).
-LAND_PROFILE_STEPS = 3
+LAND_PROFILE_STEPS = 8
 
 
 def time_optimal_bound_s(
@@ -689,6 +697,12 @@ def _plan_chunk(
     yaw: object = yaw_spec
     if isinstance(yaw_spec, Sequence) and not isinstance(yaw_spec, str):
         yaw = [float(v) for v in yaw_spec]
+    # a straight chunk at PX4's own accelerations (the vertical cap above is for the
+    # minimum-snap plans of climbs and descents)
+    straight = _straight_chunk(pts, caps, dataclasses.replace(lim, max_acc_m_s2=acc), params,
+                               px4, yaw, chunk.phase)
+    if straight is not None:
+        return straight
     with_corridor = (
         limits.corridor_m is not None and not vertical and len(pts) == len(chunk.points_ned_m)
     )
@@ -731,6 +745,89 @@ def _plan_chunk(
 
 #: Re-plans of a chunk that exceeds one of PX4's per-axis limits.
 AXIS_PASSES = 4
+
+#: Jerk along a straight chunk [m/s^3] (:mod:`companion.trajectory.straight`): a vertical
+#: speed change of 1.5 m/s takes 0.75 s, a horizontal one of 5 m/s 1.4 s; on a horizontal
+#: line the body rate stays near jerk / g (about 2 rad/s).
+STRAIGHT_JERK_M_S3 = 20.0
+#: Uniform stretches of a straight chunk over a tilt, thrust or body-rate limit (each 3 %)
+#: before it is left to the minimum-snap planner.
+STRAIGHT_STRETCHES = 20
+#: Share of the tilt limit's horizontal acceleration a straight chunk plans with.
+STRAIGHT_TILT_MARGIN = 0.97
+
+
+def _straight_chunk(
+    pts: FloatArray,
+    caps: FloatArray,
+    lim: Limits,
+    params: MultirotorParams | None,
+    px4: Px4PlanningParams,
+    yaw: object,
+    phase: str,
+) -> PiecewiseBezier | None:
+    """A multirotor chunk whose points lie on one straight line (a climb, a descent, a straight
+    leg) planned along the line (:func:`straight_trajectory`: within a few % of the
+    time-optimal bound instead of 10-15 % above it), or None when it is not one or its plan
+    would exceed a limit even when stretched (the minimum-snap planner then plans it)."""
+    u = collinear_direction(pts)
+    if u is None or len(u) != 3:
+        return None
+    spec: float | tuple[float, float]
+    if isinstance(yaw, float):
+        spec = yaw
+    elif isinstance(yaw, str) and yaw == "velocity" and math.hypot(u[0], u[1]) > 0.5:
+        spec = math.atan2(float(u[1]), float(u[0]))
+    elif isinstance(yaw, list) and len(yaw) >= 2 and (len(yaw) == 2 or all(
+            abs(v - yaw[0]) < 1e-9 for v in yaw)):
+        spec = (float(yaw[0]), float(yaw[-1]))
+    else:
+        return None
+    # the acceleration along the line that keeps every axis within PX4's limit (and the norm)
+    u_h, u_z = math.hypot(float(u[0]), float(u[1])), float(u[2])
+    axes = lim.max_acc_axes_m_s2 or (math.inf, math.inf, math.inf)
+
+    def along(pointing_up: bool) -> float:
+        a = lim.max_acc_m_s2
+        if u_h > 1e-9:
+            a = min(a, axes[0] / u_h)
+        if abs(u_z) > 1e-9:
+            a = min(a, (axes[1] if pointing_up else axes[2]) / abs(u_z))
+        return ALLOCATION_MARGIN * a
+
+    climbing = u_z < 0.0  # NED: speeding up along a climb accelerates upwards
+    cap, drag = math.inf, 0.0
+    if params is not None and lim.max_tilt_rad is not None and u_h > 1e-9:
+        # level flight: the thrust's horizontal part pays for the acceleration and the
+        # linear drag (D v / m), its vertical part for the weight
+        cap = STRAIGHT_TILT_MARGIN * params.g * math.tan(lim.max_tilt_rad) / u_h
+        drag = float(params.drag) / float(params.mass)
+    line = LineLimits(acc_up_m_s2=along(climbing), acc_down_m_s2=min(along(not climbing), cap),
+                      jerk_m_s3=STRAIGHT_JERK_M_S3, speedup_cap_m_s2=cap, drag_per_s=drag)
+    caps = np.minimum(np.minimum(caps, lim.max_speed_m_s) * ALLOCATION_MARGIN, line.top_speed())
+    try:
+        traj = straight_trajectory(pts, caps, line, yaw=spec)
+    except ValueError:  # e.g. no acceleration left at a cap: the minimum-snap planner decides
+        return None
+    if isinstance(spec, tuple) and yaw_peak_rate(spec[0], spec[1], traj.duration) > (
+            TURN_RATE_RAD_S):
+        return None
+    # tilt, thrust and body rate (horizontal lines, drag): stretch the time uniformly (the
+    # path stays; speed, acceleration and jerk only drop) until every limit holds
+    h = traj.durations
+    for k in range(STRAIGHT_STRETCHES + 1):
+        scale = 1.03 ** k
+        cand = traj if k == 0 else PiecewiseBezier.from_control_points(
+            traj.control_points, h * scale,
+            None if traj.yaw is None else PiecewiseBezier.from_control_points(
+                traj.yaw.control_points, h * scale))
+        if any(r.exceeded for r in check(cand, lim, params).values()):
+            continue
+        r_vel, r_acc = axis_ratios(cand, px4, climb_m_s=(
+            px4.MPC_TKO_SPEED if phase == "takeoff" else px4.MPC_Z_VEL_MAX_UP))
+        if r_vel <= 1.0 + 1e-3 and r_acc <= 1.0 + 1e-3:
+            return cand
+    return None
 
 
 def axis_ratios(
