@@ -353,6 +353,7 @@ class Flight:
                                      touchdown=self.touchdown)
         self.setpoints_sent = 0
         self.offboard_seen = False
+        self._armed_seen = False  # a HEARTBEAT showed armed (disarmed_t is after it)
         self.disarm_sent = False  # the DISARM sent once the landing was detected
 
     # -- per-tick -----------------------------------------------------------------------------
@@ -398,6 +399,10 @@ class Flight:
                         self._go(Phase.FLY, now)
                         self.t_fly0 = now
                         self.log.fly_t0 = now
+                        # armed from the accepted ARM, as PX4's AUTO.MISSION flight: the
+                        # HEARTBEAT (1 Hz) shows it up to 1 s later
+                        if self.log.armed_t is None or now < self.log.armed_t:
+                            self.log.armed_t = now
                         self.source.reset()
                     else:
                         self._go(Phase.ABORTED, now, f"arming refused: {ev.reason}")
@@ -408,9 +413,11 @@ class Flight:
         have_state = tel.position is not None and tel.attitude is not None
         mode = self.link.mode
         armed = self.link.armed
-        if self.log.armed_t is None and armed:
-            self.log.armed_t = now
-        if self.log.armed_t is not None and self.log.disarmed_t is None and not armed:
+        if armed:
+            self._armed_seen = True
+            if self.log.armed_t is None:
+                self.log.armed_t = now
+        elif self._armed_seen and self.log.disarmed_t is None:
             self.log.disarmed_t = now
         if mode == FlightMode.OFFBOARD:
             self.offboard_seen = True

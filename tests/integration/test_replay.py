@@ -167,6 +167,33 @@ def test_companion_lands_itself_and_disarms_once_px4_reports_on_ground(replayed:
     assert texts == ["Disarmed by external command"]
 
 
+def test_report_duration_runs_from_the_accepted_arm_to_the_disarmed_heartbeat(
+        replayed: Path) -> None:
+    """The report's armed time starts at the accepted ARM (COMMAND_ACK), as the AUTO.MISSION
+    flight it is compared with: the 1 Hz HEARTBEAT shows "armed" up to 1 s later, and starting
+    there cut the takeoff short (flown takeoff legs quicker than their time-optimal bound)."""
+    mlog = _open_tlog(str(replayed / "flight.tlog"))
+    ack_t = disarmed_t = None
+    armed_seen = False
+    while True:
+        m = mlog.recv_match(type=["COMMAND_ACK", "HEARTBEAT"])
+        if m is None:
+            break
+        if m.get_type() == "COMMAND_ACK":
+            if m.command == 400 and m.result == 0 and ack_t is None:
+                ack_t = m._timestamp
+        elif m.get_srcComponent() == 1 and m.type == 2:  # the quad's own heartbeat
+            armed = bool(m.base_mode & 128)
+            armed_seen = armed_seen or armed
+            if armed_seen and not armed and disarmed_t is None:
+                disarmed_t = m._timestamp
+    assert ack_t is not None and disarmed_t is not None
+    report = json.loads((replayed / "report.json").read_text())
+    assert report["duration_s"] == pytest.approx(disarmed_t - ack_t, abs=0.05)
+    takeoff = report["legs"][0]
+    assert takeoff["time_over_bound"] >= 1.0, takeoff  # rest on the ground until lift-off
+
+
 def test_report_and_plot(replayed: Path) -> None:
     import matplotlib.image as mpimg
 
