@@ -36,7 +36,12 @@ from companion.trajectory.bound import (
     time_optimal_duration,
     time_optimal_profile,
 )
-from companion.trajectory.planner import ALLOCATION_MARGIN, segment_distances, velocity_heading
+from companion.trajectory.planner import (
+    ALLOCATION_MARGIN,
+    corridor_deviation,
+    segment_distances,
+    velocity_heading,
+)
 from companion.trajectory.straight import (
     LineLimits,
     collinear_direction,
@@ -67,8 +72,11 @@ class VehicleLimits:
     """Multirotor: the planned path stays within this distance of the straight mission legs
     [m], except inside a waypoint's acceptance radius; None: no corridor."""
     rover_corridor_m: float | None = None
-    """The same for a rover; off by default: each refinement re-runs the rover's exact-extrema
-    allocation (seconds on a 14-waypoint mission)."""
+    """A rover planned with the planner's corridor refinement at this distance [m]; None (the
+    default): the rover's legs get joints (``ROVER_JOINT_PATTERNS``), and the first pattern
+    whose path keeps within ``corridor_m`` is flown, the refinement at ``corridor_m`` only if
+    none does (each refinement re-runs the rover's exact-extrema allocation: seconds on a
+    14-waypoint mission)."""
     rover_max_yaw_rate_rad_s: float = math.radians(60.0)
     rover_max_lat_acc_m_s2: float = 1.5
     rover_max_speed_m_s: float | None = None
@@ -565,24 +573,53 @@ def _land_profile(
 
 
 #: Joints a rover plan puts on each straight leg, as fractions of its length (where it stops
-#: accelerating and starts slowing for the next turn); legs shorter than ROVER_JOINT_MIN_M
-#: get none.
-ROVER_JOINT_FRACTIONS = (0.35, 0.65)
+#: accelerating and starts slowing for the next turn, and where the path is pinned to the leg
+#: before a corner); legs shorter than ROVER_JOINT_MIN_M get none. The patterns are tried in
+#: order and the first whose path keeps within the corridor is flown (see `_plan_chunk`).
+#: Fewer joints cruise longer but bulge more: on the rover square (30 m legs, 1 m corridor)
+#: the first fits at 5 m/s (41.3 s), the second at 2.7 and 1.2 m/s (53.9 / 120.9 s; the
+#: two-joint (0.35, 0.65) of before left the corridor at every speed).
+ROVER_JOINT_PATTERNS: tuple[tuple[float, ...], ...] = (
+    (0.3, 0.7),
+    (0.2, 0.4, 0.6, 0.8),
+    (0.25, 0.5, 0.75),
+    (0.15, 0.35, 0.65, 0.85),
+)
 ROVER_JOINT_MIN_M = 4.0
+#: Samples per segment of a rover plan's corridor check.
+ROVER_CORRIDOR_SAMPLES = 64
 
 
-def _rover_joints(pts: FloatArray, caps: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """`pts` with ROVER_JOINT_FRACTIONS joints on every leg of at least ROVER_JOINT_MIN_M, and
-    the speed cap of each new segment (its leg's)."""
+def _rover_joints(pts: FloatArray, caps: FloatArray, fractions: Sequence[float],
+                  ) -> tuple[FloatArray, FloatArray, NDArray[np.intp]]:
+    """`pts` with joints at `fractions` of every leg of at least ROVER_JOINT_MIN_M, the speed
+    cap of each new segment (its leg's), and the mission leg of each new segment."""
     out_p: list[FloatArray] = [pts[0]]
     out_c: list[float] = []
-    for a, b, cap in zip(pts[:-1], pts[1:], caps, strict=True):
+    out_l: list[int] = []
+    for k, (a, b, cap) in enumerate(zip(pts[:-1], pts[1:], caps, strict=True)):
         if float(np.linalg.norm(b[:2] - a[:2])) >= ROVER_JOINT_MIN_M:
-            out_p.extend(a + f * (b - a) for f in ROVER_JOINT_FRACTIONS)
-            out_c.extend([float(cap)] * len(ROVER_JOINT_FRACTIONS))
+            out_p.extend(a + f * (b - a) for f in fractions)
+            out_c.extend([float(cap)] * len(fractions))
+            out_l.extend([k] * len(fractions))
         out_p.append(b)
         out_c.append(float(cap))
-    return np.array(out_p), np.array(out_c)
+        out_l.append(k)
+    return np.array(out_p), np.array(out_c), np.array(out_l, dtype=np.intp)
+
+
+def _rover_corridor_ok(traj: PiecewiseBezier, pts: FloatArray, seg_leg: NDArray[np.intp],
+                       acceptance_m: Sequence[float], corridor_m: float) -> bool:
+    """Whether the rover path `traj` (one segment per entry of `seg_leg`) keeps within
+    `corridor_m` of the straight legs through `pts` (2D), outside the points' acceptance
+    radii, at ROVER_CORRIDOR_SAMPLES samples per segment (ends included)."""
+    n = ROVER_CORRIDOR_SAMPLES
+    starts = np.concatenate([[0.0], np.cumsum(traj.durations)[:-1]])
+    t = (starts[:, None] + traj.durations[:, None] * np.linspace(0.0, 1.0, n)[None, :])
+    p = traj.evaluate(t.reshape(-1), 0)
+    legs = np.repeat(seg_leg, n)
+    dev = corridor_deviation(p, pts[:, :2], legs, np.asarray(acceptance_m, dtype=np.float64))
+    return bool(np.all(dev <= corridor_m))
 
 
 class PlanMemo:
@@ -666,14 +703,25 @@ def _plan_chunk(
             max_yaw_rate_rad_s=limits.rover_max_yaw_rate_rad_s,
             max_lat_acc_m_s2=limits.rover_max_lat_acc_m_s2,
         )
-        corridor = limits.rover_corridor_m if len(pts) == len(chunk.points_ned_m) else None
+        whole = len(pts) == len(chunk.points_ned_m)
+        corridor = limits.rover_corridor_m if whole else None
         if corridor is None:
             # joints on the straight legs: one polynomial per leg has a bell-shaped speed
-            # profile (a 30 m leg at 2.7 m/s took 24 s); joints let it cruise between the turns
-            pts, caps = _rover_joints(pts, caps)
+            # profile (a 30 m leg at 2.7 m/s took 24 s) and bulges off the leg (7.6 m on the
+            # rover square); joints let it cruise between the turns and pin it to the legs.
+            # The first pattern whose path keeps within the corridor is flown; if none does,
+            # the planner's own corridor refinement (slower to plan) below.
+            check = limits.corridor_m if whole else None
+            for fractions in ROVER_JOINT_PATTERNS:
+                jp, jc, seg_leg = _rover_joints(pts, caps, fractions)
+                traj = plan(jp[:, :2], limits=lim, yaw="velocity", speed_caps=jc)
+                if check is None or _rover_corridor_ok(traj, pts, seg_leg,
+                                                       chunk.acceptance_radius_m, check):
+                    return traj
+            corridor = check
         return plan(
             pts[:, :2], limits=lim, yaw="velocity", speed_caps=caps, corridor_m=corridor,
-            acceptance_m=chunk.acceptance_radius_m if corridor is not None else None,
+            acceptance_m=chunk.acceptance_radius_m,
         )
     vertical = chunk.phase in ("takeoff", "land")
     hover_n = params.mass * params.g if params is not None else None
