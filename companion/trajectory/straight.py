@@ -178,6 +178,11 @@ def _level_ramp(va: float, vb: float, levels: list[float], jerk: float) -> list[
     k = len(levels)
     shares = [va + (vb - va) * (i + 1) / k for i in range(k)]
     acc = [0.0, *levels, 0.0]
+    for i in range(2, k + 1):
+        # levels equal up to round-off (both at the acceleration cap) are one level: their
+        # transition would last ~1e-16 s, and its polynomial's snap is round-off over h^4
+        if abs(acc[i] - acc[i - 1]) <= 1e-12 * max(1.0, abs(acc[i])):
+            acc[i] = acc[i - 1]
     gains = [0.5 * (acc[i] + acc[i + 1]) * _SMOOTH_PEAK * abs(acc[i + 1] - acc[i]) / jerk
              for i in range(k + 1)]
     out: list[_Piece] = []

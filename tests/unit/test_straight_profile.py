@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from companion.trajectory.straight import (
@@ -65,6 +65,19 @@ def test_one_band_is_just_above_the_time_optimal_trapezoid(
     direction=st.sampled_from([(1.0, 0.0, 0.0), (0.6, 0.8, 0.0), (0.0, 0.0, 1.0),
                                (0.0, 0.6, -0.8)]),
 )
+# found by the default test run: two speed-up levels both at a_up differed by round-off, and
+# their 6e-16 s transition had a snap of 90 m/s^4 at its end
+@example(lengths=[27.0], caps=[5.0, 1.0, 1.0, 1.0, 1.0, 1.0], a_up=1.2, a_dn=1.0, jerk=2.0,
+         drag=1.0, direction=(1.0, 0.0, 0.0))
+# and by a sweep of seeds: the rest at the end of a 129 m profile reads -1.1e-9 m/s (round-off)
+@example(lengths=[1.0, 1.8856892152541427, 7.209994162262571, 39.9737688669929,
+                  39.652724461001796, 39.29831486791157],
+         caps=[1.0, 1.0, 1.0, 1.0, 1.0, 0.30078125], a_up=1.0, a_dn=0.5,
+         jerk=29.652724461001796, drag=0.0, direction=(1.0, 0.0, 0.0))
+@example(lengths=[1.0, 23.0, 40.0, 10.0], caps=[1.0, 1.0, 1.0, 0.40625, 1.0, 1.0], a_up=1.0,
+         a_dn=2.734375, jerk=36.25, drag=0.0, direction=(1.0, 0.0, 0.0))
+@example(lengths=[1.0, 32.0, 29.5, 11.0, 1.0], caps=[1.0, 1.0, 2.0, 2.970703125, 1.91796875, 1.0],
+         a_up=1.0, a_dn=4.59375, jerk=37.8125, drag=0.0, direction=(1.0, 0.0, 0.0))
 def test_bands_caps_accelerations_and_continuity_hold(
     lengths: list[float], caps: list[float], a_up: float, a_dn: float, jerk: float,
     drag: float, direction: tuple[float, float, float],
@@ -81,8 +94,11 @@ def test_bands_caps_accelerations_and_continuity_hold(
     off = p - pts[0] - s[:, None] * u
     assert np.max(np.linalg.norm(off, axis=1)) < 1e-6  # on the line
     speed = v @ u
-    assert np.min(speed) >= -1e-9  # never backwards
-    assert abs(s[-1] - s_pts[-1]) < 1e-6 and abs(speed[-1]) < 1e-9 and abs(speed[0]) < 1e-12
+    # never backwards (round-off of the Bezier evaluation grows with the length: -1.1e-9 m/s
+    # at the end of a 129 m profile)
+    assert np.min(speed) >= -1e-9 * max(1.0, s_pts[-1])
+    assert abs(s[-1] - s_pts[-1]) < 1e-6 and abs(speed[-1]) < 1e-9 * max(1.0, s_pts[-1])
+    assert abs(speed[0]) < 1e-12
     # each band's cap holds inside it (the speed changes happen inside the faster band)
     band = np.clip(np.searchsorted(s_pts, s, side="right") - 1, 0, len(lengths) - 1)
     assert np.all(speed <= caps_b[band] * (1 + 1e-7) + 1e-9)
@@ -91,11 +107,19 @@ def test_bands_caps_accelerations_and_continuity_hold(
     # speeding up: at most the acceleration and what the tilt leaves beyond the drag
     allowed = np.minimum(a_up, cap_tilt - drag * speed)
     assert np.all(acc[up] <= allowed[up] * 1.02 + 1e-6)
-    assert np.all(-acc[~up] <= a_dn * (1 + 1e-7) + 1e-9)
+    # (the Bezier form of a millisecond piece carries round-off in its acceleration: 1.4 ms at
+    # -4.59375 m/s^2 samples at -4.5937655 at 52 m from the origin; the exact bound is checked
+    # on the profile's polynomials below)
+    assert np.all(-acc[~up] <= a_dn + 1e-4)
     assert np.max(np.abs(j @ u)) <= jerk * (1 + 1e-6)
     # derivatives up to snap are continuous at every joint (on the profile's polynomials: the
     # Bezier form of a millisecond piece amplifies round-off in its higher derivatives)
     pieces, _ = straight_profile(lengths, caps_b, lim)
+    for h0, c0 in pieces:
+        acc_p = np.polynomial.polynomial.polyval(
+            np.linspace(0.0, h0, 64), np.polynomial.polynomial.polyder(c0, 2))
+        assert np.all(-acc_p <= a_dn * (1 + 1e-9) + 1e-12)
+        assert np.all(acc_p <= a_up * (1 + 1e-9) + 1e-12)
     for (h0, c0), (_, c1) in itertools.pairwise(pieces):
         for order in range(5):
             d0 = np.polynomial.polynomial.polyder(c0, order)
