@@ -72,11 +72,12 @@ class VehicleLimits:
     """Multirotor: the planned path stays within this distance of the straight mission legs
     [m], except inside a waypoint's acceptance radius; None: no corridor."""
     rover_corridor_m: float | None = None
-    """A rover planned with the planner's corridor refinement at this distance [m]; None (the
-    default): the rover's legs get joints (``ROVER_JOINT_PATTERNS``), and the first pattern
-    whose path keeps within ``corridor_m`` is flown, the refinement at ``corridor_m`` only if
-    none does (each refinement re-runs the rover's exact-extrema allocation: seconds on a
-    14-waypoint mission)."""
+    """A rover planned with the planner's corridor refinement at this distance [m] (each
+    refinement re-runs the rover's exact-extrema allocation: seconds on a 14-waypoint mission);
+    None (the default): the rover's legs get joints (``ROVER_JOINT_PATTERNS``) and the first
+    pattern whose path keeps within ``corridor_m`` is flown; if none does (e.g. legs of
+    kilometres: the joints are fractions of a leg), the one closest to the legs, with a
+    warning."""
     rover_max_yaw_rate_rad_s: float = math.radians(60.0)
     rover_max_lat_acc_m_s2: float = 1.5
     rover_max_speed_m_s: float | None = None
@@ -578,12 +579,11 @@ def _land_profile(
 #: order and the first whose path keeps within the corridor is flown (see `_plan_chunk`).
 #: Fewer joints cruise longer but bulge more: on the rover square (30 m legs, 1 m corridor)
 #: the first fits at 5 m/s (41.3 s), the second at 2.7 and 1.2 m/s (53.9 / 120.9 s; the
-#: two-joint (0.35, 0.65) of before left the corridor at every speed).
+#: two-joint (0.35, 0.65) of before left the corridor at every speed). Two patterns only:
+#: each costs a rover allocation.
 ROVER_JOINT_PATTERNS: tuple[tuple[float, ...], ...] = (
     (0.3, 0.7),
     (0.2, 0.4, 0.6, 0.8),
-    (0.25, 0.5, 0.75),
-    (0.15, 0.35, 0.65, 0.85),
 )
 ROVER_JOINT_MIN_M = 4.0
 #: Samples per segment of a rover plan's corridor check.
@@ -608,18 +608,18 @@ def _rover_joints(pts: FloatArray, caps: FloatArray, fractions: Sequence[float],
     return np.array(out_p), np.array(out_c), np.array(out_l, dtype=np.intp)
 
 
-def _rover_corridor_ok(traj: PiecewiseBezier, pts: FloatArray, seg_leg: NDArray[np.intp],
-                       acceptance_m: Sequence[float], corridor_m: float) -> bool:
-    """Whether the rover path `traj` (one segment per entry of `seg_leg`) keeps within
-    `corridor_m` of the straight legs through `pts` (2D), outside the points' acceptance
-    radii, at ROVER_CORRIDOR_SAMPLES samples per segment (ends included)."""
+def _rover_corridor_deviation(traj: PiecewiseBezier, pts: FloatArray,
+                              seg_leg: NDArray[np.intp], acceptance_m: Sequence[float]) -> float:
+    """The largest distance [m] of the rover path `traj` (one segment per entry of `seg_leg`)
+    from the straight legs through `pts` (2D), outside the points' acceptance radii, at
+    ROVER_CORRIDOR_SAMPLES samples per segment (ends included)."""
     n = ROVER_CORRIDOR_SAMPLES
     starts = np.concatenate([[0.0], np.cumsum(traj.durations)[:-1]])
     t = (starts[:, None] + traj.durations[:, None] * np.linspace(0.0, 1.0, n)[None, :])
     p = traj.evaluate(t.reshape(-1), 0)
     legs = np.repeat(seg_leg, n)
     dev = corridor_deviation(p, pts[:, :2], legs, np.asarray(acceptance_m, dtype=np.float64))
-    return bool(np.all(dev <= corridor_m))
+    return float(np.max(dev))
 
 
 class PlanMemo:
@@ -712,13 +712,23 @@ def _plan_chunk(
             # The first pattern whose path keeps within the corridor is flown; if none does,
             # the planner's own corridor refinement (slower to plan) below.
             check = limits.corridor_m if whole else None
+            best: tuple[float, PiecewiseBezier] | None = None
             for fractions in ROVER_JOINT_PATTERNS:
                 jp, jc, seg_leg = _rover_joints(pts, caps, fractions)
                 traj = plan(jp[:, :2], limits=lim, yaw="velocity", speed_caps=jc)
-                if check is None or _rover_corridor_ok(traj, pts, seg_leg,
-                                                       chunk.acceptance_radius_m, check):
+                if check is None:
                     return traj
-            corridor = check
+                dev = _rover_corridor_deviation(traj, pts, seg_leg, chunk.acceptance_radius_m)
+                if dev <= check:
+                    return traj
+                if best is None or dev < best[0]:
+                    best = (dev, traj)
+            assert best is not None
+            _log.warning("the rover's path leaves the %g m corridor around the legs by up to "
+                         "%.1f m (legs of %.0f m at most; set VehicleLimits.rover_corridor_m "
+                         "to plan it inside, slower)", check, best[0],
+                         float(np.max(np.linalg.norm(np.diff(pts[:, :2], axis=0), axis=1))))
+            return best[1]
         return plan(
             pts[:, :2], limits=lim, yaw="velocity", speed_caps=caps, corridor_m=corridor,
             acceptance_m=chunk.acceptance_radius_m,
