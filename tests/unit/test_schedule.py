@@ -165,6 +165,33 @@ def test_rover_cruises_its_straight_legs_within_the_corridor(cap: float | None) 
         assert np.min(np.linalg.norm(pos - wp, axis=1)) < 0.05
 
 
+def test_rover_legs_too_long_for_the_joints_fly_the_closer_pattern_with_a_warning(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """The rover square scaled to 3 km legs: joints at fractions of a leg are hundreds of metres
+    apart, no pattern keeps the 1 m corridor; the plan is still made (the pattern closer to
+    the legs), passes every corner, and a warning says how far it leaves the corridor."""
+    import json
+
+    from companion.schedule import VehicleLimits
+
+    doc = json.loads((ROOT / "examples" / "missions" / "rover_square.plan").read_text())
+    lat0, lon0, _ = doc["mission"]["plannedHomePosition"]
+    for item in doc["mission"]["items"]:
+        item["params"][4] = lat0 + 100.0 * (item["params"][4] - lat0)
+        item["params"][5] = lon0 + 100.0 * (item["params"][5] - lon0)
+    path = tmp_path / "rover_3km.plan"
+    path.write_text(json.dumps(doc))
+    fp = mission_to_flight_plan(load_mission(path), vehicle="rover")
+    with caplog.at_level("WARNING", logger="companion.schedule"):
+        sched = build_schedule(fp, None, VehicleLimits(rover_max_speed_m_s=2.7))
+    msgs = [r.getMessage() for r in caplog.records if "corridor" in r.getMessage()]
+    assert len(msgs) == 1 and "leaves the 1 m corridor" in msgs[0], msgs
+    t = np.linspace(0.0, sched.duration_s, 200001)
+    pos = sched.sample(t)[:, :2]
+    for wp in sched.waypoints_ned[:, :2]:
+        assert np.min(np.linalg.norm(pos - wp, axis=1)) < 0.5
+
+
 def _bits(s):  # type: ignore[no-untyped-def]
     """Everything a schedule is made of, as bytes (two schedules equal bit for bit)."""
     out = [np.float64(s.duration_s).tobytes(), s.waypoints_ned.tobytes()]
