@@ -74,10 +74,10 @@ class VehicleLimits:
     rover_corridor_m: float | None = None
     """A rover planned with the planner's corridor refinement at this distance [m] (each
     refinement re-runs the rover's exact-extrema allocation: seconds on a 14-waypoint mission);
-    None (the default): the rover's legs get joints (``ROVER_JOINT_PATTERNS``) and the first
-    pattern whose path keeps within ``corridor_m`` is flown; if none does (e.g. legs of
-    kilometres: the joints are fractions of a leg), the one closest to the legs, with a
-    warning."""
+    None (the default): the rover's legs get joints (``ROVER_JOINT_PATTERNS``, the second only
+    on chunks of at most ``ROVER_RETRY_MAX_LEGS`` legs) and the first pattern whose path keeps
+    within ``corridor_m`` is flown; if none does (e.g. legs of kilometres: the joints are
+    fractions of a leg), the one closest to the legs, with a warning."""
     rover_max_yaw_rate_rad_s: float = math.radians(60.0)
     rover_max_lat_acc_m_s2: float = 1.5
     rover_max_speed_m_s: float | None = None
@@ -579,12 +579,14 @@ def _land_profile(
 #: order and the first whose path keeps within the corridor is flown (see `_plan_chunk`).
 #: Fewer joints cruise longer but bulge more: on the rover square (30 m legs, 1 m corridor)
 #: the first fits at 5 m/s (41.3 s), the second at 2.7 and 1.2 m/s (53.9 / 120.9 s; the
-#: two-joint (0.35, 0.65) of before left the corridor at every speed). Two patterns only:
-#: each costs a rover allocation.
+#: two-joint (0.35, 0.65) of before left the corridor at every speed). Each try costs a rover
+#: allocation (~30 ms per point: 1.8 s for the second pattern on 13 legs), so the second is
+#: tried only on chunks of at most ROVER_RETRY_MAX_LEGS legs.
 ROVER_JOINT_PATTERNS: tuple[tuple[float, ...], ...] = (
     (0.3, 0.7),
     (0.2, 0.4, 0.6, 0.8),
 )
+ROVER_RETRY_MAX_LEGS = 8
 ROVER_JOINT_MIN_M = 4.0
 #: Samples per segment of a rover plan's corridor check.
 ROVER_CORRIDOR_SAMPLES = 64
@@ -713,7 +715,9 @@ def _plan_chunk(
             # the planner's own corridor refinement (slower to plan) below.
             check = limits.corridor_m if whole else None
             best: tuple[float, PiecewiseBezier] | None = None
-            for fractions in ROVER_JOINT_PATTERNS:
+            tries = (ROVER_JOINT_PATTERNS if len(pts) - 1 <= ROVER_RETRY_MAX_LEGS
+                     else ROVER_JOINT_PATTERNS[:1])
+            for fractions in tries:
                 jp, jc, seg_leg = _rover_joints(pts, caps, fractions)
                 traj = plan(jp[:, :2], limits=lim, yaw="velocity", speed_caps=jc)
                 if check is None:
