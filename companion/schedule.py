@@ -712,7 +712,8 @@ def _plan_chunk(
             # profile (a 30 m leg at 2.7 m/s took 24 s) and bulges off the leg (7.6 m on the
             # rover square); joints let it cruise between the turns and pin it to the legs.
             # The first pattern whose path keeps within the corridor is flown; if none does,
-            # the planner's own corridor refinement (slower to plan) below.
+            # the closer one, with a warning (the planner's corridor refinement below is
+            # rover_corridor_m's: seconds per chunk).
             check = limits.corridor_m if whole else None
             best: tuple[float, PiecewiseBezier] | None = None
             tries = (ROVER_JOINT_PATTERNS if len(pts) - 1 <= ROVER_RETRY_MAX_LEGS
