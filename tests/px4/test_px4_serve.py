@@ -96,8 +96,13 @@ async def test_px4_serve_flies_pauses_resumes_and_lands(px4: Px4Sitl, tmp_path: 
             after = [s.pos_ned for s in gcs.track[i_resume:]]
             closest = min(dist_xy(p, WP2) for p in after)
             back = min(dist_xy(p, WP1) for p in after)
-            print(f"resume: closest to wp 2 {closest:.2f} m, to wp 1 {back:.2f} m")
-            assert closest < 1.5 and back > 1.0
+            # resumed from where it held, on to wp 2: never back toward wp 1 (the Hold comes
+            # 0.3 m or more past wp 1, as the ground station sees it; it held 0.87 m from wp 1
+            # once, so a fixed 1 m margin measured the pilot's timing, not the service)
+            held_from_wp1 = min(dist_xy(p, WP1) for p in held)
+            print(f"resume: closest to wp 2 {closest:.2f} m, to wp 1 {back:.2f} m "
+                  f"(held {held_from_wp1:.2f} m from it)")
+            assert closest < 1.5 and back > min(1.0, held_from_wp1 - 0.2)
             await gcs.wait_for(lambda: not gcs.armed, 40.0, "landing and disarm")
             assert dist_xy(gcs.track[-1].pos_ned, WP2) < 2.0
             ev = events(logs)
