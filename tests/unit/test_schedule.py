@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from companion.flatness import MultirotorParams
-from companion.mission import load_mission, mission_to_flight_plan
+from companion.mission import FlightPlan, load_mission, mission_to_flight_plan
 from companion.schedule import PlanMemo, build_schedule, exact_key
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -95,6 +95,23 @@ def test_turns_respect_the_turn_rate() -> None:
         assert np.allclose(s.reference(p.t0_s + 0.5 * p.duration_s).vel_ned, 0.0)
 
 
+def _off_legs(pos: np.ndarray, fp: FlightPlan) -> np.ndarray:
+    """Distance [m] of each sample of `pos` (N, 2 or 3) from the nearest straight leg of the
+    flight plan `fp` (start, waypoints), 0 within a waypoint's acceptance radius; the first
+    ``pos.shape[1]`` coordinates only (a rover's north and east)."""
+    d = pos.shape[1]
+    pts = np.array([fp.start_ned_m, *[w.pos_ned_m for w in fp.waypoints]])[:, :d]
+    best = np.full(len(pos), np.inf)
+    for a, b in itertools.pairwise(pts):
+        ab = b - a
+        f = np.clip((pos - a) @ ab / float(ab @ ab), 0.0, 1.0)
+        best = np.minimum(best, np.linalg.norm(pos - (a + f[:, None] * ab), axis=1))
+    for w in fp.waypoints:
+        best[np.linalg.norm(pos - np.asarray(w.pos_ned_m)[:d], axis=1)
+             <= w.acceptance_radius_m] = 0.0
+    return best
+
+
 def test_a_chunk_out_of_numerical_reach_is_still_flown_through_every_waypoint(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
@@ -116,14 +133,7 @@ def test_a_chunk_out_of_numerical_reach_is_still_flown_through_every_waypoint(
         for te in ends:
             assert np.linalg.norm(s.reference(te).vel_ned) < 1e-6
     # near the straight legs: within the corridor (1 m) or a waypoint's acceptance radius
-    pts = np.array([fp.start_ned_m, *[w.pos_ned_m for w in fp.waypoints]])
-    best = np.full(len(p), np.inf)
-    for a, b in itertools.pairwise(pts):
-        ab = b - a
-        f = np.clip((p - a) @ ab / float(ab @ ab), 0.0, 1.0)
-        best = np.minimum(best, np.linalg.norm(p - (a + f[:, None] * ab), axis=1))
-    for w in fp.waypoints:
-        best[np.linalg.norm(p - np.asarray(w.pos_ned_m), axis=1) <= w.acceptance_radius_m] = 0.0
+    best = _off_legs(p, fp)
     if fp.touchdown_ned_m is not None:
         best[np.hypot(p[:, 0] - fp.touchdown_ned_m[0], p[:, 1] - fp.touchdown_ned_m[1]) < 1.0] = 0
     assert float(best.max()) <= 1.0 + 1e-3
@@ -152,14 +162,7 @@ def test_rover_cruises_its_straight_legs_within_the_corridor(cap: float | None) 
     pos = sched.sample(t)[:, :2]
     speed = np.linalg.norm(np.diff(pos, axis=0), axis=1) / np.diff(t)
     assert 0.8 * top <= speed.max() <= top * 1.02
-    best = np.full(len(pos), np.inf)
-    for a, b in itertools.pairwise(pts):
-        ab = b - a
-        f = np.clip((pos - a) @ ab / float(ab @ ab), 0.0, 1.0)
-        best = np.minimum(best, np.linalg.norm(pos - (a + f[:, None] * ab), axis=1))
-    for w in fp.waypoints:
-        best[np.linalg.norm(pos - np.asarray(w.pos_ned_m)[:2], axis=1)
-             <= w.acceptance_radius_m] = 0.0
+    best = _off_legs(pos, fp)
     assert float(best.max()) <= 1.0 + 1e-3, float(best.max())
     for wp in sched.waypoints_ned[:, :2]:
         assert np.min(np.linalg.norm(pos - wp, axis=1)) < 0.05
