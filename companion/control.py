@@ -10,7 +10,12 @@ Multirotor pipeline (`TrackingController`):
    attitude with the body rates.
 2. Acceleration command `a = a_ref + Kp e_p + Kd e_v + Ki int(e_p)` (errors reference minus
    extrapolated estimate), optionally with the reference feed-forward shifted ahead by
-   `attitude_lead_s` in attitude mode (Taylor, compensates PX4's attitude-loop lag).
+   `attitude_lead_s` in attitude mode (compensates PX4's attitude-loop lag): the reference
+   sampled that much later when the caller passes it (`ahead`, what `TrackingSource` does),
+   else a Taylor step in jerk and snap. The sample is bounded by the plan's own acceleration
+   and jerk; the Taylor step multiplies the snap by lead^2 / 2, which on a jerk-limited
+   profile (snap spikes of ~1000 m/s^4 where a short speed ramp starts) made the thrust jump
+   by up to 0.6 between setpoints 10 ms apart.
 3. Thrust vector `t = m (g e3 - a) - D v` (drag feed-forward, D configured or estimated), then
    saturation: minimum upward thrust, tilt limit (horizontal part scaled down), maximum thrust
    with vertical priority; the integrator is frozen while saturated (anti-windup) and clamped.
@@ -526,9 +531,11 @@ class TrackingConfig:
     latency_compensation: extrapolate the last estimate to `now`.
     max_extrapolation_s: cap of the extrapolation horizon [s].
     stale_after_s: older telemetry -> hover fallback [s].
-    attitude_lead_s: in `attitude` mode the feed-forward is evaluated this far ahead (Taylor in
-        jerk/snap) to offset the lag of PX4's attitude loop (~1/MC_ROLL_P) [s]. `rates` mode
-        needs no lead: it feeds the flatness body rates forward instead.
+    attitude_lead_s: in `attitude` mode the feed-forward is evaluated this far ahead to offset
+        the lag of PX4's attitude loop (~1/MC_ROLL_P) [s]: the reference sampled at
+        now + lead when the caller passes it (`attitude(..., ahead=)`), else a Taylor step in
+        jerk and snap (fine on smooth references only). `rates` mode needs no lead: it feeds
+        the flatness body rates forward instead.
     thrust_delay_s: delay between a thrust command and its effect, used to pair commands with
         measured accelerations for the hover-thrust estimator [s].
     max_tilt_rad: tilt limit of the commanded thrust vector.
@@ -740,21 +747,25 @@ class TrackingController:
         return self._last_diag
 
     # -- public API ---------------------------------------------------------------------------
-    def attitude(self, now: float, est: StateEstimate, ref: Reference) -> AttitudeCommand:
-        """`attitude` mode setpoint at `now`: q + normalised thrust + yaw-rate feed-forward."""
-        out = self.attitude_values(now, est, ref)
+    def attitude(self, now: float, est: StateEstimate, ref: Reference,
+                 ahead: Reference | None = None) -> AttitudeCommand:
+        """`attitude` mode setpoint at `now`: q + normalised thrust + yaw-rate feed-forward.
+
+        `ahead`: the reference `config.attitude_lead_s` later (its acceleration, jerk and snap
+        are the lead feed-forward); None: a Taylor step from `ref` instead."""
+        out = self.attitude_values(now, est, ref, ahead)
         if isinstance(out, AttitudeCommand):
             return out
         q_des, thrust, rate_ff, sat = out
         return AttitudeCommand(np.array(q_des), thrust, rate_ff, saturated=sat)
 
     def attitude_values(
-        self, now: float, est: StateEstimate, ref: Reference
+        self, now: float, est: StateEstimate, ref: Reference, ahead: Reference | None = None
     ) -> tuple[tuple[float, float, float, float], float, float, bool] | AttitudeCommand:
         """`attitude` without building the command: a regular one as its plain floats
         `(q_wxyz, thrust_norm, yaw_rate_ff, saturated)`, a hover fallback as the (flagged)
         `AttitudeCommand`. Same state update as `attitude` (it is `attitude`'s core)."""
-        out = self._core(now, est, ref, self.config.attitude_lead_s)
+        out = self._core(now, est, ref, self.config.attitude_lead_s, ahead=ahead)
         if out is None:
             return self._fallback_attitude(now, est)
         q_des, thrust, _omega_ff, sat = out
@@ -851,10 +862,12 @@ class TrackingController:
             )
 
     def _core(
-        self, now: float, est: StateEstimate, ref: Reference, lead_s: float, rates: bool = False
+        self, now: float, est: StateEstimate, ref: Reference, lead_s: float, rates: bool = False,
+        ahead: Reference | None = None,
     ) -> tuple[tuple[float, float, float, float], float, tuple[float, float, float], bool] | None:
         """q_des, thrust_norm, omega_ff_frd, saturated; None -> fallback (see _fallback_reason).
-        `rates`: use the `rates_mode_gains` position gains."""
+        `rates`: use the `rates_mode_gains` position gains. `ahead`: the reference `lead_s`
+        later, whose acceleration, jerk and snap replace the Taylor step of the lead."""
         self._kp_l, self._kd_l, self._ki_l, self._imax_l = self._gain_lists[rates]
         c = self.config
         p = c.params
@@ -883,6 +896,13 @@ class TrackingController:
         if not all(map(isfinite, rp + rv + ra + rj + rs + [ref.yaw, ref.yaw_rate, ref.yaw_acc])):
             self._fallback_reason = "reference not finite"
             return None
+        if ahead is not None and lead_s > 0.0:
+            la, lj, ls = ahead.acc_ned.tolist(), ahead.jerk_ned.tolist(), ahead.snap_ned.tolist()
+            if not all(map(isfinite, la + lj + ls)):
+                self._fallback_reason = "reference not finite"
+                return None
+        else:
+            la = lj = ls = []
         age = now - est.t_s
         if age > c.stale_after_s:
             self._fallback_reason = f"telemetry stale ({age:.2f} s old)"
@@ -911,18 +931,25 @@ class TrackingController:
         )
 
         # 2. acceleration command
-        L = lead_s
-        hL2 = 0.5 * L * L
+        # the feed-forward: the reference's acceleration, jerk and snap `lead_s` ahead (sampled,
+        # or a Taylor step from now)
+        if la:
+            a_ff, j_ff, rs = (la[0], la[1], la[2]), (lj[0], lj[1], lj[2]), ls
+        else:
+            L = lead_s
+            hL2 = 0.5 * L * L
+            a_ff = (ra[0] + rj[0] * L + rs[0] * hL2, ra[1] + rj[1] * L + rs[1] * hL2,
+                    ra[2] + rj[2] * L + rs[2] * hL2)
+            j_ff = (rj[0] + rs[0] * L, rj[1] + rs[1] * L, rj[2] + rs[2] * L)
         kp, kd, integ = self._kp_l, self._kd_l, self._integ_l
         # (per component, written out: a comprehension costs a frame per call)
         e_p = (rp[0] - pos[0], rp[1] - pos[1], rp[2] - pos[2])
         e_v = (rv[0] - vel[0], rv[1] - vel[1], rv[2] - vel[2])
         a_cmd = (
-            ra[0] + rj[0] * L + rs[0] * hL2 + kp[0] * e_p[0] + kd[0] * e_v[0] + integ[0],
-            ra[1] + rj[1] * L + rs[1] * hL2 + kp[1] * e_p[1] + kd[1] * e_v[1] + integ[1],
-            ra[2] + rj[2] * L + rs[2] * hL2 + kp[2] * e_p[2] + kd[2] * e_v[2] + integ[2],
+            a_ff[0] + kp[0] * e_p[0] + kd[0] * e_v[0] + integ[0],
+            a_ff[1] + kp[1] * e_p[1] + kd[1] * e_v[1] + integ[1],
+            a_ff[2] + kp[2] * e_p[2] + kd[2] * e_v[2] + integ[2],
         )
-        j_ff = (rj[0] + rs[0] * L, rj[1] + rs[1] * L, rj[2] + rs[2] * L)
         if rates and c.feedback_rate_ff > 0.0 and self._thrust_hist:
             j_ff = self._feedback_jerk(j_ff, ra, e_p, e_v, vel, c.feedback_rate_ff)
 
@@ -977,6 +1004,7 @@ class TrackingController:
         thrust = min(max(thrust, c.thrust_min), c.thrust_max)
         self._diag = (now, e_p, e_v, a_sat, tuple(integ), h, D, tau, sat,
                       "singular flatness point" if singular else "")
+        self.last_q_des = q_des
         return q_des, thrust, omega_ff, sat
 
     def _feedback_jerk(
@@ -1119,6 +1147,8 @@ class TrackingController:
         str,
     ]
     _q_now: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    #: the attitude the last regular update steered to (w, x, y, z), body FRD -> NED
+    last_q_des: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
 
 
 # ----------------------------------------------------------------------------- rover

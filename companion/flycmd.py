@@ -30,7 +30,7 @@ from companion.fence_check import (
     sample_schedule,
     zone_masks,
 )
-from companion.flight_report import FloatArray, TrackRecorder
+from companion.flight_report import FloatArray, SetpointLimits, TrackRecorder
 from companion.legs import leg_figures, plan_bounds, plan_legs, worst_leg_text
 from companion.mavlink import FlightMode, LinkConfig
 from companion.mission import (
@@ -405,6 +405,10 @@ async def fly(opts: FlyOptions, console: Console) -> int:
         # MPC_LAND_SPEED until PX4 sees the landing (PX4's LAND crawls the last metre at
         # MPC_LAND_CRWL and took ~4 s to detect it)
         touchdown = mission is not None and not rover and mode in ("attitude", "rates")
+        if mode in ("attitude", "rates"):
+            refused = await v.stream_position_fast()
+            if refused is not None:
+                console.print(f"[yellow]{escape(refused)}[/yellow]")
         planned = await asyncio.to_thread(
             plan_flight, opts, inputs, rover, None if px4 is None else px4.params, fly_takeoff,
             TOUCHDOWN_FROM_M if touchdown else 1.0)
@@ -466,7 +470,9 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                     ref, mode, vf.params,  # type: ignore[arg-type]
                     tracking=(vf.tracking_config(math.radians(50.0))
                               if mode in ("attitude", "rates") else None),
-                    touchdown=td)
+                    touchdown=td,
+                    limits=SetpointLimits.of_px4(px4.params if px4 is not None
+                                                 else Px4PlanningParams()))
                 rec = loop.create_task(record())
                 started = loop.time()
                 flown = await v.fly(mode=mode, setpoint_source=source,
@@ -484,7 +490,10 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                 if px4 is not None:
                     report["px4_params"] = px4.as_report()
                 report.update(mission_figures(planned, recorder, origin, fence_shift))
-                report["result"] = breach_failure(report) or "ok"
+                report["setpoint_quality"] = source.quality.report()
+                bad = source.quality.failure()
+                report["result"] = breach_failure(report) or (
+                    f"setpoints: {bad}" if bad is not None else "ok")
                 if rover:
                     await v.disarm()
                 elif landing and v.is_armed:

@@ -337,7 +337,8 @@ def worst_leg_text(figures: Sequence[dict[str, Any]]) -> str:
     return (f"worst leg {w['leg']}: deviation max {_fmt(w['max_deviation_m'], '.2f')} m, "
             f"RMS {_fmt(w['rms_deviation_m'], '.2f')} m; speed mean "
             f"{_fmt(w['mean_speed_m_s'], '.1f')} / max {_fmt(w['max_speed_m_s'], '.1f')} "
-            f"(planned {_fmt(w['cruise_speed_m_s'], '.1f')}) m/s; time "
+            f"(mission {_fmt(w['cruise_speed_m_s'], '.1f')}, planned "
+            f"{_fmt(w.get('planned_max_speed_m_s'), '.1f')}) m/s; time "
             f"{_fmt(w['time_s'], '.1f')} s (bound {_fmt(w['bound_s'], '.1f')} s)")
 
 

@@ -53,6 +53,12 @@ class Px4PlanningParams:
     """Default (and minimum) takeoff height above home [m]."""
     MPC_THR_HOVER: float = 0.5
     """Hover thrust, normalised 0..1."""
+    MC_ROLLRATE_MAX: float = 220.0
+    """Roll rate limit [deg/s] (commanded body rates are held within it)."""
+    MC_PITCHRATE_MAX: float = 220.0
+    """Pitch rate limit [deg/s]."""
+    MC_YAWRATE_MAX: float = 200.0
+    """Yaw rate limit [deg/s]."""
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):

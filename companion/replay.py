@@ -36,7 +36,7 @@ from companion.aio.tlog import TlogWriter
 from companion.control import Reference
 from companion.fence_check import breach_report, flown_breaches, require_plan_inside, zone_masks
 from companion.flatness import MultirotorParams
-from companion.flight_report import closest_approach
+from companion.flight_report import SetpointLimits, closest_approach
 from companion.legs import leg_figures, plan_bounds, plan_legs
 from companion.mavlink.commands import CommandFinished
 from companion.mavlink.link import LinkConfig, VehicleLink
@@ -350,7 +350,8 @@ class Flight:
             t_td, v_td = schedule.final_descent_cruise(land_speed)
             self.touchdown = Touchdown(t_td, descent_m_s=land_speed, v0_m_s=v_td)
         self.source = TrackingSource(self._reference, mode, config.params,
-                                     touchdown=self.touchdown)
+                                     touchdown=self.touchdown,
+                                     limits=SetpointLimits.of_px4(schedule.px4))
         self.setpoints_sent = 0
         self.offboard_seen = False
         self._armed_seen = False  # a HEARTBEAT showed armed (disarmed_t is after it)
@@ -895,7 +896,7 @@ def prepare_mission(path: str | os.PathLike[str], config: ReplayConfig) -> Prepa
         handover_height_m=(TOUCHDOWN_FROM_M if self_lands(config, flight_plan.final_action)
                            else 1.0))
     require_plan_inside(flight_plan, schedule)
-    warnings = (*flight_plan.warnings, *px4.warnings)
+    warnings = (*flight_plan.warnings, *px4.warnings, *schedule.warnings)
     leg_bounds, bound = plan_bounds(flight_plan, schedule)
     return PreparedMission(src, mission, warnings, schedule, home, px4, flight_plan, leg_bounds,
                            bound)
@@ -978,7 +979,12 @@ def run_prepared(
     )
     if prep.px4 is not None:
         report["px4_params"] = prep.px4.as_report()
+    report["setpoint_quality"] = flight.source.quality.report()
     report["result"] = breach_result(report)
+    bad = flight.source.quality.failure()
+    if bad is not None and report["result"] == "ok":
+        report["result"] = f"setpoints: {bad}"
+
     report["ok"] = report_ok(report)
     if config.start_offset_ne_m != (0.0, 0.0):
         # the companion flew relative to where it stood; the mission's geodetic waypoints sit

@@ -53,6 +53,15 @@ _log = logging.getLogger("companion.schedule")
 
 FloatArray = NDArray[np.float64]
 
+#: Tilt the planner leaves below PX4's MPC_TILTMAX_AIR for the tracking feedback [deg] (the
+#: companion's commands are clamped at MPC_TILTMAX_AIR itself; at most half of it is kept).
+TILT_FEEDBACK_MARGIN_DEG = 10.0
+
+
+#: Largest vertical acceleration of a descent still called cruising [m/s^2] (where a vehicle
+#: landing itself leaves the plan: 0.05 m/s^2 is 0.0026 of normalised thrust at hover 0.5).
+CRUISE_ACC_M_S2 = 0.05
+
 #: Yaw rate used for in-place turns at stops [rad/s].
 TURN_RATE_RAD_S = math.radians(60.0)
 
@@ -83,6 +92,24 @@ class VehicleLimits:
     rover_max_speed_m_s: float | None = None
     """Cap on the rover's planned speed [m/s] (leave the controller headroom below the
     vehicle's top speed); None plans at the mission's leg speeds."""
+
+
+def planning_tilt_rad(limits: VehicleLimits, px4: Px4PlanningParams) -> float:
+    """The tilt limit plans are made with [rad]: the vehicle file's, at most MPC_TILTMAX_AIR
+    less TILT_FEEDBACK_MARGIN_DEG (and at least half of MPC_TILTMAX_AIR), so the feedback that
+    corrects tracking errors has room before the command clamp."""
+    air = px4.MPC_TILTMAX_AIR
+    return min(limits.max_tilt_rad, math.radians(max(air - TILT_FEEDBACK_MARGIN_DEG, 0.5 * air)))
+
+
+def level_speed_cap_m_s(params: MultirotorParams | None, limits: VehicleLimits,
+                        px4: Px4PlanningParams) -> float:
+    """The fastest steady level flight within the planning tilt [m/s]: the thrust's
+    horizontal part, m g tan(tilt), balances the linear drag D v (inf without drag or
+    parameters). With PX4 SIH's 1 kg and D = 1 N/(m/s) at 35 deg: 6.9 m/s."""
+    if params is None or params.drag <= 0.0:
+        return math.inf
+    return float(params.g * math.tan(planning_tilt_rad(limits, px4)) * params.mass / params.drag)
 
 
 @dataclass(frozen=True, eq=False)
@@ -131,6 +158,12 @@ class Schedule:
     final_action: str
     vehicle: str
     px4: Px4PlanningParams = dataclasses.field(default_factory=Px4PlanningParams)
+    level_speed_cap_m_s: float = math.inf
+    """The fastest level flight the plan allows [m/s] (:func:`level_speed_cap_m_s`); the
+    time-optimal bound respects it too."""
+    warnings: tuple[str, ...] = ()
+    """What the plan could not give the mission as asked (e.g. a speed item above the level
+    speed cap), each said once."""
 
     def bound_profile(self) -> tuple[FloatArray, FloatArray, FloatArray]:
         """The time-optimal traversal behind :meth:`piece_bounds_s`, piece after piece: times
@@ -159,7 +192,7 @@ class Schedule:
     def _bound_limits(self) -> KinematicLimits:
         px4 = self.px4
         return KinematicLimits(
-            max_speed_xy_m_s=px4.MPC_XY_VEL_MAX,
+            max_speed_xy_m_s=min(px4.MPC_XY_VEL_MAX, self.level_speed_cap_m_s),
             max_climb_m_s=px4.MPC_Z_VEL_MAX_UP,
             max_descent_m_s=px4.MPC_Z_VEL_MAX_DN,
             max_acc_xy_m_s2=px4.MPC_ACC_HOR_MAX,
@@ -233,9 +266,11 @@ class Schedule:
     def final_descent_cruise(self, speed_m_s: float, step_s: float = 0.02) -> tuple[float, float]:
         """Where the final landing descent stops cruising: (schedule time [s], descent speed
         [m/s] there), the last time the plan still descends at >= 95 % of `speed_m_s`
-        (MPC_LAND_SPEED) before it slows to its stop; (duration_s, 0.0) when the plan does
+        (MPC_LAND_SPEED) at a steady speed (vertical acceleration at most
+        CRUISE_ACC_M_S2) before it slows to its stop; (duration_s, 0.0) when the plan does
         not end in such a descent. A vehicle landing itself continues straight down from
-        there instead of stopping above the ground first."""
+        there instead of stopping above the ground first; cut inside the plan's slow-down
+        ramp, the reference's acceleration would step back to zero (a thrust step)."""
         last = self.pieces[-1]
         if last.kind != "traj" or last.phase != "land" or last.traj is None:
             return self.duration_s, 0.0
@@ -243,7 +278,8 @@ class Schedule:
         v = last.traj.evaluate(t, 1)
         if v.shape[1] < 3:
             return self.duration_s, 0.0
-        cruising = v[:, 2] >= 0.95 * speed_m_s
+        a = last.traj.evaluate(t, 2)
+        cruising = (v[:, 2] >= 0.95 * speed_m_s) & (np.abs(a[:, 2]) <= CRUISE_ACC_M_S2)
         level = np.hypot(v[:, 0], v[:, 1]) <= 0.1
         if not cruising.any():
             return self.duration_s, 0.0
@@ -357,6 +393,8 @@ def build_schedule(
     pieces: list[Piece] = []
     t = 0.0
     yaw = initial_yaw
+    v_level = math.inf if rover else level_speed_cap_m_s(params, limits, flight.px4)
+    too_fast: dict[float, list[int]] = {}  # asked speed -> items of the legs that asked it
     wps: list[FloatArray] = []
     acc: list[float] = []
     items: list[int | None] = []
@@ -386,6 +424,8 @@ def build_schedule(
                     yaw_spec = [float(v) for v in np.linspace(yaw, target, len(pts))]
                     y_start, y_end = yaw, target
         caps = _leg_speed_caps(chunk, pts, flight.px4, rover)
+        if math.isfinite(v_level):
+            _note_fast_legs(chunk, min(v_level, flight.px4.MPC_XY_VEL_MAX), too_fast)
         if chunk.phase == "land" and not rover:
             pts, caps = _land_profile(pts, caps, flight.px4, float(flight.start_ned_m[2]))
         try:
@@ -441,6 +481,19 @@ def build_schedule(
                 items.append(chunk.item_indices[k])
     if not pieces:
         raise ValueError(f"{flight.source}: nothing to fly (all points coincide)")
+    warnings: tuple[str, ...] = ()
+    if too_fast:
+        asked = ", ".join(f"{v:g}" for v in sorted(too_fast))
+        items_ = sorted({i for v in too_fast.values() for i in v})
+        fly_at = min(v_level, flight.px4.MPC_XY_VEL_MAX)
+        why = (f"the level speed its {math.degrees(planning_tilt_rad(limits, flight.px4)):.0f}"
+               f" deg planning tilt holds against its drag" if fly_at == v_level
+               else "PX4's MPC_XY_VEL_MAX")
+        text = (f"{flight.source}: mission speed {asked} m/s (legs to item "
+                f"{', '.join(map(str, items_))}) is above {why}: those legs fly at "
+                f"{fly_at:.1f} m/s")
+        _log.warning(text)
+        warnings = (text,)
     return Schedule(
         pieces=tuple(pieces),
         duration_s=t,
@@ -450,7 +503,25 @@ def build_schedule(
         final_action=flight.final_action,
         vehicle=flight.vehicle,
         px4=flight.px4,
+        level_speed_cap_m_s=v_level,
+        warnings=warnings,
     )
+
+
+def _note_fast_legs(chunk: FlightChunk, fly_at: float, out: dict[float, list[int]]) -> None:
+    """Add to `out` the horizontal legs of `chunk` whose mission speed is above `fly_at`
+    [m/s] (asked speed -> mission items the legs lead to)."""
+    pts = chunk.points_ned_m
+    for k, v in enumerate(chunk.leg_speed_m_s):
+        if k + 1 >= len(pts) or v <= fly_at * (1.0 + 1e-6):
+            continue
+        a, b = pts[k], pts[k + 1]
+        if math.hypot(b[0] - a[0], b[1] - a[1]) < 1.0:
+            continue
+        item = chunk.item_indices[k + 1]
+        out.setdefault(float(v), [])
+        if item is not None:
+            out[float(v)].append(item)
 
 
 def _segment_caps(traj: PiecewiseBezier, pts: FloatArray, caps: FloatArray) -> FloatArray:
@@ -750,10 +821,7 @@ def _plan_chunk(
             px4.MPC_TKO_SPEED if chunk.phase == "takeoff" else px4.MPC_Z_VEL_MAX_UP,
             px4.MPC_Z_VEL_MAX_DN,
         ),
-        max_tilt_rad=(
-            min(limits.max_tilt_rad, math.radians(px4.MPC_TILTMAX_AIR))
-            if params is not None else None
-        ),
+        max_tilt_rad=planning_tilt_rad(limits, px4) if params is not None else None,
         max_thrust_n=limits.max_thrust_ratio * hover_n if hover_n is not None else None,
         max_body_rate_rad_s=limits.max_body_rate_rad_s if params is not None else None,
     )
@@ -803,7 +871,12 @@ def _plan_chunk(
                 max_vel_axes_m_s=None if vax is None else (
                     vax[0] / r_vel, vax[1] / r_vel, vax[2] / r_vel),
             )
-    return traj.with_yaw(velocity_heading(traj)) if follow else traj
+    if not follow:
+        return traj
+    # the heading turns no faster than the planned body-rate limit (below PX4's MC_YAWRATE_MAX)
+    rate = None if lim.max_body_rate_rad_s is None else min(
+        lim.max_body_rate_rad_s, math.radians(px4.MC_YAWRATE_MAX))
+    return traj.with_yaw(velocity_heading(traj, rate))
 
 
 #: Re-plans of a chunk that exceeds one of PX4's per-axis limits.

@@ -198,6 +198,10 @@ class _Session:
             defaulted=list(r.defaulted))
         for w in r.warnings:
             self.events.write("px4_params_warning", why=w)
+        if self.opts.mode in ("attitude", "rates"):
+            refused = await self.v.stream_position_fast()
+            if refused is not None:
+                self.events.write("position_stream_refused", why=refused)
         return r.params
 
     def observe(self) -> Observation:

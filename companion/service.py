@@ -38,6 +38,7 @@ from numpy.typing import NDArray
 from companion.control import Reference, TrackingConfig
 from companion.fence_check import require_plan_inside
 from companion.flatness import MultirotorParams
+from companion.flight_report import SetpointLimits
 from companion.mavlink.mission_client import MissionItem
 from companion.mavlink.px4_mode import FlightMode
 from companion.mavlink.setpoints import PositionSetpoint, SetpointCommand
@@ -582,7 +583,8 @@ class ServeService:
                 return prog.reference(t_join + t - join_s)
         source = TrackingSource(ref, cfg.setpoint_mode, cfg.params,
                                 tracking=cfg.tracking if cfg.setpoint_mode in ("attitude", "rates")
-                                else None)
+                                else None,
+                                limits=SetpointLimits.of_px4(cfg.px4 or Px4PlanningParams()))
         return MissionStream(source, obs.now_s, join_s, t_join)
 
     def _join_trajectory(self, here: FloatArray, vel: FloatArray, yaw_here: float | None,
@@ -632,9 +634,14 @@ class ServeService:
         self.stream = HoldStream(PositionSetpoint(
             pos_ned=(float(end[0]), float(end[1]), float(end[2])), vel_ned=(0.0, 0.0, 0.0),
             yaw=_yaw_of(prog.reference(prog.t_end))))
+        quality = ms.source.quality
+        bad = quality.failure()
         return [Announce(f"ecca: mission complete, {prog.final_action}"),
+                *([Announce(f"ecca: setpoints: {bad}", MAV_SEVERITY_WARNING)] if bad else []),
                 LogEvent("mission_complete", {"reached": self.reached,
-                                              "final_action": prog.final_action}),
+                                              "final_action": prog.final_action,
+                                              "setpoint_quality": quality.report(),
+                                              "setpoints_ok": bad is None}),
                 *self._request_final(obs)]
 
     def _request_final(self, obs: Observation) -> list[Action]:

@@ -13,7 +13,7 @@ import math
 import statistics
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -29,6 +29,7 @@ from companion.control import (
     state_estimate_of_arrays,
 )
 from companion.flatness import MultirotorParams
+from companion.flight_report import SetpointLimits, SetpointQuality
 from companion.mavlink.setpoints import (
     AttitudeSetpoint,
     PositionSetpoint,
@@ -156,33 +157,35 @@ TOUCHDOWN_TIMEOUT_S = 15.0
 
 @dataclass(frozen=True)
 class Touchdown:
-    """How a source lands the vehicle itself once its reference has ended (a plan that ends
-    at rest just above the ground), instead of handing over to PX4's LAND.
+    """How a source lands the vehicle itself once its reference has ended (a plan that ends at rest
+    just above the ground), instead of handing over to PX4's LAND.
 
     From reference time `from_s` [s] the reference descends straight down from where it was,
     starting at `v0_m_s` (the plan's own descent speed there: the touchdown may take over a
-    descent that is still cruising) and changing at `accel_m_s2` to `descent_m_s` (PX4's
-    MPC_LAND_SPEED) [m/s]. Ground contact is what PX4's
-    land detector calls "hit ground": after the ramp-in, the vehicle is not descending
-    (|vz| < `still_m_s`) while the reference is more than `gap_m` [m] below it, for
-    `contact_s` [s]; `still_m_s` is PX4's own LNDMC_Z_VEL_MAX (EKF2's vertical speed jitters
+    descent that is still cruising) and changing smoothly, at most at `accel_m_s2` and
+    `jerk_m_s3` (PX4's MPC_JERK_AUTO), to `descent_m_s` (PX4's MPC_LAND_SPEED) [m/s]. Ground
+    contact is what PX4's land detector calls "hit ground": after the ramp-in, the vehicle is
+    not descending (|vz| < `still_m_s`) while the reference is more than `gap_m` [m] below it,
+    for `contact_s` [s]; `still_m_s` is PX4's own LNDMC_Z_VEL_MAX (EKF2's vertical speed jitters
     by +-0.2 m/s on the ground). Then (attitude and rates modes) the attitude goes level at the
     current yaw and the thrust ramps from its last value to zero over `ramp_s` [s], so PX4's
-    land detector sees low thrust and no motion (its three stages take LNDMC_TRIG_TIME or
-    more) and accepts a disarm. Position mode only descends: PX4's own controller and land
-    detector finish it."""
+    land detector sees low thrust and no motion (its three stages take LNDMC_TRIG_TIME or more)
+    and accepts a disarm. Position mode only descends: PX4's own controller and land detector
+    finish it."""
 
     from_s: float
     descent_m_s: float = 0.7
     v0_m_s: float = 0.0
     accel_m_s2: float = 1.0
+    jerk_m_s3: float = 4.0
     still_m_s: float = 0.25
     gap_m: float = 0.2
     contact_s: float = 0.3
     ramp_s: float = 0.5
 
     def __post_init__(self) -> None:
-        for name in ("descent_m_s", "accel_m_s2", "still_m_s", "gap_m", "contact_s", "ramp_s"):
+        for name in ("descent_m_s", "accel_m_s2", "jerk_m_s3", "still_m_s", "gap_m", "contact_s",
+                     "ramp_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0.0):
                 raise ValueError(f"Touchdown.{name} must be a positive number, got {v}")
@@ -193,20 +196,45 @@ class Touchdown:
 
     def offset(self, tau: float) -> tuple[float, float, float]:
         """Distance below the start point [m], descent speed [m/s] and acceleration [m/s^2]
-        `tau` [s] after `from_s`."""
-        v0, v = self.v0_m_s, self.descent_m_s
+        `tau` [s] after `from_s`. The speed changes from `v0_m_s` to `descent_m_s` along a
+        cubic smoothstep (acceleration continuous, zero at both ends, peak `accel_m_s2`), so
+        the thrust command has no step where the touchdown takes over or reaches its speed."""
+        v0, dv = self.v0_m_s, self.descent_m_s - self.v0_m_s
         if tau <= 0.0:
             return 0.0, v0, 0.0
-        a = self.accel_m_s2 if v >= v0 else -self.accel_m_s2
         t_ramp = self.ramp_in_s
         if tau < t_ramp:
-            return v0 * tau + 0.5 * a * tau * tau, v0 + a * tau, a
-        return v0 * t_ramp + 0.5 * a * t_ramp * t_ramp + v * (tau - t_ramp), v, 0.0
+            x = tau / t_ramp
+            return (v0 * tau + dv * t_ramp * (x ** 3 - 0.5 * x ** 4),
+                    v0 + dv * x * x * (3.0 - 2.0 * x), dv / t_ramp * 6.0 * x * (1.0 - x))
+        return v0 * t_ramp + 0.5 * dv * t_ramp + self.descent_m_s * (tau - t_ramp), \
+            self.descent_m_s, 0.0
 
     @property
     def ramp_in_s(self) -> float:
-        """Time from `from_s` until the descent reaches its speed [s]."""
-        return abs(self.descent_m_s - self.v0_m_s) / self.accel_m_s2
+        """Time from `from_s` until the descent reaches its speed [s]: long enough that the
+        smoothstep's peak acceleration 1.5 |dv| / ramp stays within `accel_m_s2` and its jerk
+        6 |dv| / ramp^2 within `jerk_m_s3`."""
+        dv = abs(self.descent_m_s - self.v0_m_s)
+        return max(1.5 * dv / self.accel_m_s2, math.sqrt(6.0 * dv / self.jerk_m_s3))
+
+
+def tilt_of_q(q_wxyz: tuple[float, float, float, float]) -> float:
+    """Angle between the body z axis of attitude `q_wxyz` (FRD -> NED) and vertical [rad]."""
+    _w, x, y, _z = q_wxyz
+    return math.acos(max(-1.0, min(1.0, 1.0 - 2.0 * (x * x + y * y))))
+
+
+def vehicle_limited(config: TrackingConfig, limits: SetpointLimits) -> TrackingConfig:
+    """`config` with its tilt clamp and body-rate command limits within the vehicle's."""
+    ag = config.attitude_gains
+    rp = min(ag.max_rate_rp, limits.rate_max_frd[0], limits.rate_max_frd[1])
+    yaw = min(ag.max_rate_yaw, limits.rate_max_frd[2])
+    tilt = min(config.max_tilt_rad, limits.tilt_max_rad)
+    if (rp, yaw, tilt) == (ag.max_rate_rp, ag.max_rate_yaw, config.max_tilt_rad):
+        return config
+    return replace(config, max_tilt_rad=tilt,
+                   attitude_gains=replace(ag, max_rate_rp=rp, max_rate_yaw=yaw))
 
 
 def _level_q(q_wxyz: np.ndarray) -> tuple[float, float, float, float]:
@@ -238,6 +266,11 @@ class TrackingSource:
       flatness rates as feed-forward;
     - "rover": horizontal velocity + yaw rate from rover flatness with track correction.
 
+    The controller's tilt clamp and body-rate command limits are held within `limits` (the
+    vehicle's: PX4's MPC_TILTMAX_AIR and MC_*RATE_MAX, default PX4's defaults), and every
+    attitude/rates setpoint sent is measured against them in `quality`
+    (:class:`companion.flight_report.SetpointQuality`).
+
     Until telemetry has both position and attitude, and in position mode, it sends the
     reference as a position setpoint (a rover: zero velocity). In attitude and rates mode it
     also does so while priming (`t_s <= 0` before the first call with `t_s > 0`): the vehicle
@@ -254,8 +287,9 @@ class TrackingSource:
         params: MultirotorParams | None = None,
         *,
         tracking: TrackingConfig | None = None,
-        max_tilt_rad: float = math.radians(50.0),
+        max_tilt_rad: float = math.radians(45.0),
         touchdown: Touchdown | None = None,
+        limits: SetpointLimits | None = None,
     ) -> None:
         if mode not in ("position", "attitude", "rates", "rover"):
             raise ValueError(f"unknown setpoint mode {mode!r}")
@@ -264,9 +298,11 @@ class TrackingSource:
         self.reference = reference
         self.mode = mode
         self.controller: TrackingController | None = None
+        self.limits = limits or SetpointLimits()
+        self.quality = SetpointQuality(self.limits)
         if mode in ("attitude", "rates"):
             cfg = tracking or TrackingConfig(params=params, max_tilt_rad=max_tilt_rad)  # type: ignore[arg-type]
-            self.controller = TrackingController(cfg)
+            self.controller = TrackingController(vehicle_limited(cfg, self.limits))
         self.rover = RoverController() if mode == "rover" else None
         # position mode: the drag PX4 does not model goes into the acceleration feed-forward
         known = params if params is not None else tracking.params if tracking is not None else None
@@ -305,17 +341,19 @@ class TrackingSource:
     def ref(self, t_s: float) -> Reference:
         """The reference at `t_s` (cached for repeated calls at the same time)."""
         if self._ref is None or self._ref_key != t_s:
-            td = self.touchdown
-            if td is not None and t_s > td.from_s:
-                end = self.reference(td.from_s)
-                dz, vz, az = td.offset(t_s - td.from_s)
-                self._ref = Reference(end.pos_ned + np.array([0.0, 0.0, dz]),
-                                      np.array([0.0, 0.0, vz]), np.array([0.0, 0.0, az]),
-                                      yaw=end.yaw)
-            else:
-                self._ref = self.reference(max(t_s, 0.0))
+            self._ref = self._reference_at(t_s)
             self._ref_key = t_s
         return self._ref
+
+    def _reference_at(self, t_s: float) -> Reference:
+        """The reference at `t_s`: the plan's, or past `touchdown.from_s` the touchdown's."""
+        td = self.touchdown
+        if td is not None and t_s > td.from_s:
+            end = self.reference(td.from_s)
+            dz, vz, az = td.offset(t_s - td.from_s)
+            return Reference(end.pos_ned + np.array([0.0, 0.0, dz]),
+                             np.array([0.0, 0.0, vz]), np.array([0.0, 0.0, az]), yaw=end.yaw)
+        return self.reference(max(t_s, 0.0))
 
     def _touched_down(self, t_s: float, now: float, est: StateEstimate,
                       ref: Reference) -> bool:
@@ -381,6 +419,7 @@ class TrackingSource:
         if self.mode == "position" or est is None or not math.isfinite(now):
             if self.mode == "rover":
                 return PositionSetpoint(vel_ned=(0.0, 0.0, 0.0), yaw_rate=0.0)
+            self.quality.gap()
             return self.position_setpoint(t_s)
         if self.mode == "rover":
             assert self.rover is not None
@@ -390,27 +429,42 @@ class TrackingSource:
                 yaw_rate=_opt(float(cmd.yaw_rate)),
             )
         assert self.controller is not None
-        if self.touchdown is not None and self._touched_down(t_s, now, est, ref):
+        quality = self.quality
+        touched = self.touchdown is not None and self._touched_down(t_s, now, est, ref)
+        # in the air for the setpoint figures: PX4 says so, and the vehicle has not stopped
+        # under a touchdown reference that goes on down (its first contact with the ground:
+        # the velocity feedback then lowers the thrust at once, as it should)
+        td = self.touchdown
+        airborne = est.airborne and not touched and not (
+            td is not None and t_s > td.from_s + td.ramp_in_s
+            and abs(float(est.vel_ned[2])) < td.still_m_s)
+        if touched:
             assert self.contact_s is not None and self.touchdown is not None
             fade = max(0.0, 1.0 - (now - self.contact_s) / self.touchdown.ramp_s)
             thrust = self._contact_thrust * fade
+            quality.add(now, thrust, 0.0, (0.0, 0.0, 0.0), airborne)
             if self.mode == "attitude":
                 return AttitudeSetpoint(_level_q(est.q_wxyz), thrust, 0.0)
             return RatesSetpoint((0.0, 0.0, 0.0), thrust)
         if self.mode == "attitude":
-            out = self.controller.attitude_values(now, est, ref)
+            # the lead feed-forward sampled from the reference itself (never a Taylor step:
+            # the plan's snap spikes where a short speed ramp starts)
+            ahead = self._reference_at(t_s + self.controller.config.attitude_lead_s)
+            out = self.controller.attitude_values(now, est, ref, ahead)
             if isinstance(out, AttitudeCommand):  # a hover fallback
                 qw, qx, qy, qz = out.q_wxyz.tolist()
                 thrust, rate_ff = out.thrust_norm, out.yaw_rate_ff
             else:  # the regular command as floats (no arrays on the way)
                 (qw, qx, qy, qz), thrust, rate_ff, _sat = out
             self._last_thrust = float(thrust)
-            return AttitudeSetpoint(
-                (float(qw), float(qx), float(qy), float(qz)),
-                float(thrust),
-                _opt(float(rate_ff)),
-            )
+            q = (float(qw), float(qx), float(qy), float(qz))
+            quality.add(now, self._last_thrust, tilt_of_q(q), (0.0, 0.0, float(rate_ff)),
+                        airborne)
+            return AttitudeSetpoint(q, float(thrust), _opt(float(rate_ff)))
         r = self.controller.rates(now, est, ref)
         w = r.omega_frd
         self._last_thrust = float(r.thrust_norm)
-        return RatesSetpoint((float(w[0]), float(w[1]), float(w[2])), float(r.thrust_norm))
+        rates = (float(w[0]), float(w[1]), float(w[2]))
+        q_des = _level_q(est.q_wxyz) if r.fallback else self.controller.last_q_des
+        quality.add(now, self._last_thrust, tilt_of_q(q_des), rates, airborne)
+        return RatesSetpoint(rates, float(r.thrust_norm))

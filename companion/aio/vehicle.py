@@ -90,6 +90,9 @@ T = TypeVar("T")
 MODES = ("position", "attitude", "rates", "rover")
 MAV_STATE_CRITICAL = 5  # HEARTBEAT system_status while PX4 is in a failsafe
 LANDED_STATE_ON_GROUND = 1  # EXTENDED_SYS_STATE landed_state (MAV_LANDED_STATE_ON_GROUND)
+LOCAL_POSITION_NED_ID = 32  # MAVLink message id
+#: Rate [Hz] `Vehicle.stream_position_fast` asks of LOCAL_POSITION_NED (PX4's default: 30).
+POSITION_STREAM_HZ = 100.0
 _CAN_NOT_ARM = {FlightMode.OFFBOARD, FlightMode.POSCTL, FlightMode.ALTCTL,
                 FlightMode.STABILIZED, FlightMode.MANUAL, FlightMode.ACRO}
 
@@ -567,6 +570,20 @@ class Vehicle:
         interval = -1.0 if rate_hz == 0.0 else 1e6 / rate_hz
         await self._command(lambda now: self.link.set_message_interval(message_id, interval, now),
                             MAV_CMD_SET_MESSAGE_INTERVAL, f"stream message {message_id}")
+
+    async def stream_position_fast(self, rate_hz: float = POSITION_STREAM_HZ) -> str | None:
+        """Ask for LOCAL_POSITION_NED at `rate_hz` (attitude and rates mode close their loop
+        on it): between PX4's default 30 Hz samples the controller's extrapolation drifts from
+        the vehicle's true motion, and each new sample stepped the velocity feedback (thrust
+        steps of up to 0.055 between setpoints 10 ms apart at the corners of an 8 m/s square on
+        real PX4 SITL; 0.031 at 100 Hz). Returns None, or what was refused (the flight goes on
+        at the default rate)."""
+        try:
+            await self.set_message_interval(LOCAL_POSITION_NED_ID, rate_hz)
+        except (VehicleError, TimeoutError) as exc:
+            return (f"LOCAL_POSITION_NED at {rate_hz:g} Hz refused ({exc}): flying on the "
+                    "default rate")
+        return None
 
     async def hold(self) -> None:
         """Switch to Hold (AUTO.LOITER)."""

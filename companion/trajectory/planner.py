@@ -1478,15 +1478,26 @@ def _solve_1d(
     return PiecewiseBezier.from_control_points(sys_.control_points(x, h), h)
 
 
-def velocity_heading(traj: PiecewiseBezier) -> PiecewiseBezier:
+def velocity_heading(traj: PiecewiseBezier,
+                     max_rate_rad_s: float | None = None) -> PiecewiseBezier:
     """A yaw channel [rad] for `traj` (same durations) that follows its horizontal velocity
     heading, as ``plan(..., yaw="velocity")`` makes, but fitted after the position is planned:
     the time allocation then bounds the body rate of the translation only, and the heading
-    turns as fast as the smoothing lets it (see ``_heading_fit``)."""
-    return _heading_fit(traj, 4)
+    turns as fast as the smoothing lets it (see ``_heading_fit``). With ``max_rate_rad_s`` the
+    smoothing is raised until the yaw rate stays within it (a U-turn at the end of a survey
+    transect turned the heading at 3.6 rad/s, above PX4's MC_YAWRATE_MAX of 3.49): the heading
+    then starts turning before the turn and finishes after it."""
+    return _heading_fit(traj, 4, max_rate_rad_s)
 
 
-def _heading_fit(traj: PiecewiseBezier, s: int) -> PiecewiseBezier:
+#: Factor by which `_heading_fit` raises its smoothing weight per try to meet a yaw-rate cap
+#: (the smoothing time grows by its 8th root, about 1.4x), and the number of tries.
+HEADING_SMOOTHING_STEP = 16.0
+HEADING_SMOOTHING_TRIES = 12
+
+
+def _heading_fit(traj: PiecewiseBezier, s: int,
+                 max_rate_rad_s: float | None = None) -> PiecewiseBezier:
     """Yaw channel following the horizontal velocity heading: the same-durations piecewise
     polynomial minimising ``int w (yaw - atan2(v_y, v_x))^2 dt + lambda int (yaw^(s))^2 dt``,
     at rest at both ends. The weight ``w = (V / V_max)^2`` (plus a tiny floor) discounts the
@@ -1516,8 +1527,15 @@ def _heading_fit(traj: PiecewiseBezier, s: int) -> PiecewiseBezier:
     R = np.einsum("mj,mja,mjb->mab", wk, rows, rows)
     g = np.einsum("mj,mja,mj->ma", wk, rows, psi.reshape(m, n))[:, :, None]
     lam = (VELOCITY_YAW_SMOOTHING * float(np.median(h))) ** (2 * s)
-    x, _ = sysm.solve(h, (R / lam, g / lam))
-    return PiecewiseBezier.from_control_points(sysm.control_points(x, h), h)
+    t_check = np.linspace(0.0, float(traj.duration), max(8 * m * n, 2))
+    for _ in range(HEADING_SMOOTHING_TRIES):
+        x, _ = sysm.solve(h, (R / lam, g / lam))
+        fit = PiecewiseBezier.from_control_points(sysm.control_points(x, h), h)
+        if max_rate_rad_s is None or float(
+                np.max(np.abs(fit.evaluate(t_check, 1)))) <= max_rate_rad_s:
+            break
+        lam *= HEADING_SMOOTHING_STEP
+    return fit
 
 
 def _yaw_channel(

@@ -67,7 +67,10 @@ def test_speed_changes_take_effect_on_the_following_legs_only() -> None:
         _wp(360.0, 10),
         _item(21, [0, 0, 0, None, HOME[0] + 360.0 / M_PER_DEG_LAT, HOME[1], 0]),
     ]
-    fp = mission_to_flight_plan(parse_plan(_plan_text(items), source="speeds.plan"))
+    # MPC_TILTMAX_AIR 55 deg: the plan may tilt the 45 deg of LIMITS (10 deg below it), so
+    # 8 m/s is within the level speed against the drag
+    fp = mission_to_flight_plan(parse_plan(_plan_text(items), source="speeds.plan"),
+                                px4=Px4PlanningParams(MPC_TILTMAX_AIR=55.0))
     s = build_schedule(fp, PARAMS, LIMITS)
     mid, vel = _samples(s)
     at_alt = mid[:, 2] < -9.5
@@ -208,3 +211,35 @@ def test_each_axis_stays_within_its_own_px4_limit() -> None:
     assert float(np.max(a[:, 2])) <= px4.MPC_ACC_DOWN_MAX * tol
     assert float(np.max(-v[:, 2])) <= px4.MPC_Z_VEL_MAX_UP * tol
     assert float(np.max(v[:, 2])) <= px4.MPC_Z_VEL_MAX_DN * tol
+
+
+def test_speed_items_above_the_level_speed_are_said_once_and_the_bound_uses_that_speed(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """DO_CHANGE_SPEED legs at 15, 10 and 17 m/s on SIH's quad (1 kg, D = 1 N/(m/s)): at the
+    35 deg planning tilt the thrust's horizontal part m g tan(35 deg) balances the drag at
+    6.87 m/s, so those legs fly at that speed, a single warning says so with the speed, and the
+    time-optimal bound is held to the same speed (before: no word, and a bound of 146 s for a
+    225 s plan, 1.54x, as if 15-17 m/s were reachable)."""
+    from companion.config import VehicleFile
+
+    vf = VehicleFile()
+    v_level = 9.80665 * math.tan(math.radians(35.0)) * vf.params.mass / vf.params.drag
+    fp = mission_to_flight_plan(load_mission(ROOT / "tests" / "data" / "missions"
+                                             / "speed_items.plan"))
+    with caplog.at_level("WARNING", logger="companion.schedule"):
+        s = build_schedule(fp, vf.params, vf.limits)
+    said = [r.getMessage() for r in caplog.records if "mission speed" in r.getMessage()]
+    assert len(said) == 1 and list(s.warnings) == said
+    assert "10, 15, 17 m/s" in said[0] and f"{v_level:.1f} m/s" in said[0]
+    _mid, vel = _samples(s)
+    speed = np.hypot(vel[:, 0], vel[:, 1])
+    assert 0.9 * v_level <= float(speed.max()) <= v_level * 1.001  # delivered up to the cap
+    bound = s.time_optimal_bound_s()
+    assert bound <= s.duration_s and s.duration_s / bound < 1.15
+    # within the cap: nothing to say
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="companion.schedule"):
+        quiet = build_schedule(mission_to_flight_plan(load_mission(
+            ROOT / "examples" / "missions" / "square.plan")), vf.params, vf.limits)
+    assert quiet.warnings == () and not [r for r in caplog.records
+                                         if "mission speed" in r.getMessage()]

@@ -1,0 +1,92 @@
+"""Setpoint quality judged from a flight's tlog alone, as an outsider would: the companion's
+SET_ATTITUDE_TARGET frames against the vehicle's own LOCAL_POSITION_NED and
+EXTENDED_SYS_STATE. Independent of `companion.flight_report` (which measures the same things
+from inside the setpoint source): shared by the replay and the real-PX4 tests."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from pymavlink import mavutil
+
+#: MAV_LANDED_STATE_IN_AIR
+_IN_AIR = 2
+
+
+@dataclass
+class SetpointSeries:
+    """What a tlog shows of the attitude/rates setpoints sent and the vehicle at each one."""
+
+    t_s: list[float] = field(default_factory=list)
+    thrust: list[float] = field(default_factory=list)
+    tilt_deg: list[float | None] = field(default_factory=list)  # None: attitude ignored
+    body_rates: list[tuple[float, float, float] | None] = field(default_factory=list)
+    in_air: list[bool] = field(default_factory=list)
+    height_m: list[float] = field(default_factory=list)  # above the first position sample
+
+    def thrust_steps(self, max_dt_s: float = 0.02, min_height_m: float = 0.5
+                     ) -> list[tuple[float, float]]:
+        """(time [s], |thrust change|) between consecutive setpoints at most `max_dt_s`
+        apart while the vehicle is in the air (PX4's landed state) and more than
+        `min_height_m` up, at both of them."""
+        out = []
+        for i in range(1, len(self.t_s)):
+            if self.t_s[i] - self.t_s[i - 1] > max_dt_s:
+                continue
+            if not (self.in_air[i] and self.in_air[i - 1]):
+                continue
+            if min(self.height_m[i], self.height_m[i - 1]) <= min_height_m:
+                continue
+            out.append((self.t_s[i], abs(self.thrust[i] - self.thrust[i - 1])))
+        return out
+
+    def max_tilt_deg(self) -> float:
+        """Largest commanded tilt (quaternion setpoints) [deg]; 0 without any."""
+        return max((t for t in self.tilt_deg if t is not None), default=0.0)
+
+    def max_body_rates(self) -> tuple[float, float, float]:
+        """Largest |commanded body rate| per axis (rates setpoints) [rad/s]."""
+        rows = [r for r in self.body_rates if r is not None]
+        return tuple(max((abs(r[k]) for r in rows), default=0.0) for k in range(3))  # type: ignore[return-value]
+
+
+def read_setpoints(path: str) -> SetpointSeries:
+    """The SET_ATTITUDE_TARGET frames of the tlog at `path` with the vehicle state then."""
+    conn = mavutil.mavlink_connection(path, dialect="common")
+    out = SetpointSeries()
+    z0: float | None = None
+    height = 0.0
+    in_air = False
+    try:
+        while True:
+            msg = conn.recv_match(blocking=False)
+            if msg is None:
+                break
+            kind = msg.get_type()
+            if kind == "LOCAL_POSITION_NED":
+                if z0 is None:
+                    z0 = float(msg.z)
+                height = z0 - float(msg.z)
+            elif kind == "EXTENDED_SYS_STATE":
+                in_air = int(msg.landed_state) == _IN_AIR
+            elif kind == "SET_ATTITUDE_TARGET":
+                mask = int(msg.type_mask)
+                _w, x, y, _z = (float(c) for c in msg.q)
+                tilt = None
+                if not mask & 128:
+                    c33 = 1.0 - 2.0 * (x * x + y * y)  # z_b . e3 of the commanded attitude
+                    tilt = math.degrees(math.acos(max(-1.0, min(1.0, c33))))
+                rates = None
+                if not mask & 3:
+                    rates = (float(msg.body_roll_rate), float(msg.body_pitch_rate),
+                             float(msg.body_yaw_rate))
+                out.t_s.append(float(msg._timestamp))
+                out.thrust.append(float(msg.thrust))
+                out.tilt_deg.append(tilt)
+                out.body_rates.append(rates)
+                out.in_air.append(in_air)
+                out.height_m.append(height)
+    finally:
+        conn.close()
+    return out
