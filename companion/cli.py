@@ -18,6 +18,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from companion.app.campaign import add_campaign_parser
+from companion.app.paths import output_file, output_folder
 from companion.app.replay_options import add_perturbation_options, mock_param
 from companion.link_options import add_signing_option
 
@@ -379,7 +380,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     demo = sub.add_parser("demo", help="plan a trajectory offline, print setpoints, save a plot")
-    demo.add_argument("--out", default="demo_out", help="output folder (default demo_out)")
+    demo.add_argument("--out", default="demo_out", type=output_folder,
+                      help="output folder (default demo_out)")
     demo.add_argument("--rate", type=float, default=50.0, help="sample rate [Hz] (default 50)")
     demo.add_argument("--every", type=int, default=50, help="print every Nth sample")
     demo.set_defaults(func=_cmd_demo)
@@ -400,7 +402,8 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     rp.add_argument("--jobs", type=_positive_int, default=1,
                     help="files replayed in parallel (default 1)")
-    rp.add_argument("--out", default="replay_out", help="output folder (default ./replay_out)")
+    rp.add_argument("--out", default="replay_out", type=output_folder,
+                    help="output folder (default ./replay_out)")
     add_perturbation_options(rp)
     rp.set_defaults(func=_cmd_replay)
 
@@ -420,7 +423,7 @@ def build_parser() -> argparse.ArgumentParser:
     # the former spelling; `--vehicle` is the vehicle kind (quad | rover) in `replay`
     fl.add_argument("--vehicle", dest="vehicle_file", metavar="FILE.toml",
                     help=argparse.SUPPRESS)
-    fl.add_argument("--log", metavar="FILE.tlog", default=None,
+    fl.add_argument("--log", metavar="FILE.tlog", default=None, type=output_file,
                     help="flight log (default flight-<UTC time>.tlog here)")
     fl.add_argument("--size", type=_positive_float, default=10.0,
                     help="pattern size [m] (default 10)")
@@ -450,7 +453,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="vehicle parameters, limits and gains (see companion/config.py)")
     sv.add_argument("--vehicle", dest="vehicle_file", metavar="FILE.toml",
                     help=argparse.SUPPRESS)
-    sv.add_argument("--log-dir", metavar="DIR", default="ecca-logs",
+    sv.add_argument("--log-dir", metavar="DIR", default="ecca-logs", type=output_folder,
                     help="folder for rotating .tlog files and events.jsonl (default ecca-logs)")
     sv.add_argument("--tlog-max-mb", type=float, default=64.0,
                     help="start a new .tlog beyond this size [MiB] (default 64)")
