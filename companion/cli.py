@@ -1,7 +1,8 @@
 """Command line: `python -m companion COMMAND ...`.
 
 Exit codes: 0 success, 1 flight/runtime failure (vehicle refused, link lost, limit exceeded),
-2 bad input (unreadable or invalid file, bad option), 130 interrupted by the user.
+2 bad input (unreadable or invalid file, bad option), 3 no vehicle heard within the connect
+timeout (`fly --connect`, `status`), 130 interrupted by the user.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from companion.link_options import add_signing_option
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_BAD_INPUT = 2
+EXIT_NO_VEHICLE = 3
 EXIT_INTERRUPTED = 130
 
 console = Console(stderr=False, width=None if sys.stdout.isatty() else 110)
@@ -275,7 +277,7 @@ def _cmd_fly(args: argparse.Namespace) -> int:
         vehicle_file=args.vehicle_file, log=args.log, size_m=args.size, speed_m_s=args.speed,
         alt_m=args.alt, laps=args.laps, mock_params=tuple(args.mock_param),
         busy_wait=args.busy_wait, sender_cpu=args.sender_cpu, target_system=args.target_system,
-        signing_key=args.signing_key,
+        signing_key=args.signing_key, connect_timeout_s=args.timeout,
     )
     return _run_vehicle_command(lambda: asyncio.run(fly(opts, console)))
 
@@ -286,8 +288,9 @@ def _cmd_status(args: argparse.Namespace) -> int:
     from companion.flycmd import status
 
     return _run_vehicle_command(
-        lambda: asyncio.run(status(args.connect, console, target_system=args.target_system,
-                                   signing_key=args.signing_key)))
+        lambda: asyncio.run(status(args.connect, console, timeout_s=args.timeout,
+                                   target_system=args.target_system,
+                                   signing_key=args.signing_key)), "status failed")
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
@@ -304,18 +307,28 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     return _run_vehicle_command(lambda: asyncio.run(serve(opts, console)))
 
 
-def _run_vehicle_command(run: Callable[[], int]) -> int:
-    """Map vehicle-side failures to exit code 1 with a pilot-readable message."""
-    from companion.aio import VehicleError
+def _run_vehicle_command(run: Callable[[], int], label: str = "flight failed") -> int:
+    """Map vehicle-side failures to a pilot-readable message: exit code 3 when no vehicle was
+    heard within the connect timeout, 1 for any other failure (``label`` leads its message)."""
+    from companion.aio import ConnectTimeoutError, VehicleError
     from companion.aio.transports import TransportError
 
     try:
         return run()
+    except ConnectTimeoutError as exc:
+        print_error("error", exc)
+        return EXIT_NO_VEHICLE
     except (VehicleError, TransportError, TimeoutError) as exc:
         result = getattr(exc, "result", None)
         extra = f" (MAVLink result {result})" if result is not None else ""
-        print_error("flight failed", f"{exc}{extra}")
+        print_error(label, f"{exc}{extra}")
         return EXIT_FAILURE
+
+
+def _timeout_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--timeout", type=_positive_float, default=10.0, metavar="SECONDS",
+                   help="give up (exit 3) if no vehicle HEARTBEAT is heard within this "
+                   "(default 10)")
 
 
 def _target_system_option(p: argparse.ArgumentParser) -> None:
@@ -415,6 +428,7 @@ def build_parser() -> argparse.ArgumentParser:
     fl.add_argument("--connect", metavar="URL", default=None, type=_connect_url,
                     help="vehicle link, e.g. udpin://0.0.0.0:14540 (default: an embedded mock)")
     _target_system_option(fl)
+    _timeout_option(fl)
     add_signing_option(fl)
     fl.add_argument("--mode", choices=("position", "attitude", "rates"), default="attitude")
     fl.add_argument("--rate", type=float, default=100.0, help="setpoint rate [Hz] (default 100)")
@@ -466,6 +480,7 @@ def build_parser() -> argparse.ArgumentParser:
     stp.add_argument("--connect", metavar="URL", required=True, type=_connect_url,
                      help="e.g. udpin://0.0.0.0:14540")
     _target_system_option(stp)
+    _timeout_option(stp)
     add_signing_option(stp)
     stp.set_defaults(func=_cmd_status)
     return parser
