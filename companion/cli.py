@@ -215,6 +215,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         px4 = rep.get("px4_mission")
         if isinstance(px4, dict):
             px4_ok, px4_verdict = _verdict(px4)
+            if not px4_ok and exit_code == EXIT_OK:
+                exit_code = EXIT_FAILURE
             table.add_row(
                 _PX4_ROW,
                 "ok" if px4_ok else f"[yellow]{escape(px4_verdict)}[/yellow]",
