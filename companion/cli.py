@@ -1,7 +1,8 @@
 """Command line: `python -m companion COMMAND ...`.
 
 Exit codes: 0 success, 1 flight/runtime failure (vehicle refused, link lost, limit exceeded),
-2 bad input (unreadable or invalid file, bad option), 130 interrupted by the user.
+2 bad input (unreadable or invalid file, bad option), 3 no vehicle heard within the connect
+timeout (`fly --connect`, `status`), 130 interrupted by the user.
 """
 
 from __future__ import annotations
@@ -18,12 +19,14 @@ from rich.markup import escape
 from rich.table import Table
 
 from companion.app.campaign import add_campaign_parser
+from companion.app.paths import output_file, output_folder
 from companion.app.replay_options import add_perturbation_options, mock_param
 from companion.link_options import add_signing_option
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_BAD_INPUT = 2
+EXIT_NO_VEHICLE = 3
 EXIT_INTERRUPTED = 130
 
 console = Console(stderr=False, width=None if sys.stdout.isatty() else 110)
@@ -212,6 +215,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         px4 = rep.get("px4_mission")
         if isinstance(px4, dict):
             px4_ok, px4_verdict = _verdict(px4)
+            if not px4_ok and exit_code == EXIT_OK:
+                exit_code = EXIT_FAILURE
             table.add_row(
                 _PX4_ROW,
                 "ok" if px4_ok else f"[yellow]{escape(px4_verdict)}[/yellow]",
@@ -274,7 +279,7 @@ def _cmd_fly(args: argparse.Namespace) -> int:
         vehicle_file=args.vehicle_file, log=args.log, size_m=args.size, speed_m_s=args.speed,
         alt_m=args.alt, laps=args.laps, mock_params=tuple(args.mock_param),
         busy_wait=args.busy_wait, sender_cpu=args.sender_cpu, target_system=args.target_system,
-        signing_key=args.signing_key,
+        signing_key=args.signing_key, connect_timeout_s=args.timeout,
     )
     return _run_vehicle_command(lambda: asyncio.run(fly(opts, console)))
 
@@ -285,8 +290,9 @@ def _cmd_status(args: argparse.Namespace) -> int:
     from companion.flycmd import status
 
     return _run_vehicle_command(
-        lambda: asyncio.run(status(args.connect, console, target_system=args.target_system,
-                                   signing_key=args.signing_key)))
+        lambda: asyncio.run(status(args.connect, console, timeout_s=args.timeout,
+                                   target_system=args.target_system,
+                                   signing_key=args.signing_key)), "status failed")
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
@@ -303,18 +309,28 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     return _run_vehicle_command(lambda: asyncio.run(serve(opts, console)))
 
 
-def _run_vehicle_command(run: Callable[[], int]) -> int:
-    """Map vehicle-side failures to exit code 1 with a pilot-readable message."""
-    from companion.aio import VehicleError
+def _run_vehicle_command(run: Callable[[], int], label: str = "flight failed") -> int:
+    """Map vehicle-side failures to a pilot-readable message: exit code 3 when no vehicle was
+    heard within the connect timeout, 1 for any other failure (``label`` leads its message)."""
+    from companion.aio import ConnectTimeoutError, VehicleError
     from companion.aio.transports import TransportError
 
     try:
         return run()
+    except ConnectTimeoutError as exc:
+        print_error("error", exc)
+        return EXIT_NO_VEHICLE
     except (VehicleError, TransportError, TimeoutError) as exc:
         result = getattr(exc, "result", None)
         extra = f" (MAVLink result {result})" if result is not None else ""
-        print_error("flight failed", f"{exc}{extra}")
+        print_error(label, f"{exc}{extra}")
         return EXIT_FAILURE
+
+
+def _timeout_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--timeout", type=_positive_float, default=10.0, metavar="SECONDS",
+                   help="give up (exit 3) if no vehicle HEARTBEAT is heard within this "
+                   "(default 10)")
 
 
 def _target_system_option(p: argparse.ArgumentParser) -> None:
@@ -379,7 +395,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     demo = sub.add_parser("demo", help="plan a trajectory offline, print setpoints, save a plot")
-    demo.add_argument("--out", default="demo_out", help="output folder (default demo_out)")
+    demo.add_argument("--out", default="demo_out", type=output_folder,
+                      help="output folder (default demo_out)")
     demo.add_argument("--rate", type=float, default=50.0, help="sample rate [Hz] (default 50)")
     demo.add_argument("--every", type=int, default=50, help="print every Nth sample")
     demo.set_defaults(func=_cmd_demo)
@@ -400,7 +417,8 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     rp.add_argument("--jobs", type=_positive_int, default=1,
                     help="files replayed in parallel (default 1)")
-    rp.add_argument("--out", default="replay_out", help="output folder (default ./replay_out)")
+    rp.add_argument("--out", default="replay_out", type=output_folder,
+                    help="output folder (default ./replay_out)")
     add_perturbation_options(rp)
     rp.set_defaults(func=_cmd_replay)
 
@@ -412,6 +430,7 @@ def build_parser() -> argparse.ArgumentParser:
     fl.add_argument("--connect", metavar="URL", default=None, type=_connect_url,
                     help="vehicle link, e.g. udpin://0.0.0.0:14540 (default: an embedded mock)")
     _target_system_option(fl)
+    _timeout_option(fl)
     add_signing_option(fl)
     fl.add_argument("--mode", choices=("position", "attitude", "rates"), default="attitude")
     fl.add_argument("--rate", type=float, default=100.0, help="setpoint rate [Hz] (default 100)")
@@ -420,7 +439,7 @@ def build_parser() -> argparse.ArgumentParser:
     # the former spelling; `--vehicle` is the vehicle kind (quad | rover) in `replay`
     fl.add_argument("--vehicle", dest="vehicle_file", metavar="FILE.toml",
                     help=argparse.SUPPRESS)
-    fl.add_argument("--log", metavar="FILE.tlog", default=None,
+    fl.add_argument("--log", metavar="FILE.tlog", default=None, type=output_file,
                     help="flight log (default flight-<UTC time>.tlog here)")
     fl.add_argument("--size", type=_positive_float, default=10.0,
                     help="pattern size [m] (default 10)")
@@ -450,7 +469,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="vehicle parameters, limits and gains (see companion/config.py)")
     sv.add_argument("--vehicle", dest="vehicle_file", metavar="FILE.toml",
                     help=argparse.SUPPRESS)
-    sv.add_argument("--log-dir", metavar="DIR", default="ecca-logs",
+    sv.add_argument("--log-dir", metavar="DIR", default="ecca-logs", type=output_folder,
                     help="folder for rotating .tlog files and events.jsonl (default ecca-logs)")
     sv.add_argument("--tlog-max-mb", type=float, default=64.0,
                     help="start a new .tlog beyond this size [MiB] (default 64)")
@@ -463,6 +482,7 @@ def build_parser() -> argparse.ArgumentParser:
     stp.add_argument("--connect", metavar="URL", required=True, type=_connect_url,
                      help="e.g. udpin://0.0.0.0:14540")
     _target_system_option(stp)
+    _timeout_option(stp)
     add_signing_option(stp)
     stp.set_defaults(func=_cmd_status)
     return parser

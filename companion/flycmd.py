@@ -78,6 +78,7 @@ class FlyOptions:
     sender_cpu: int | None = None
     target_system: int = 1  # the autopilot's MAVLink system id (PX4 MAV_SYS_ID)
     signing_key: bytes | None = dataclasses.field(default=None, repr=False)  # MAVLink 2 signing
+    connect_timeout_s: float = 10.0  # no vehicle HEARTBEAT within this: ConnectTimeoutError
 
 
 def _free_udp_port() -> int:
@@ -368,7 +369,8 @@ async def fly(opts: FlyOptions, console: Console) -> int:
     log_path = inputs.log_path
     vconfig = VehicleConfig(rate_hz=opts.rate_hz, tlog_path=log_path,
                             stream_wait="busy" if opts.busy_wait else "sleep",
-                            stream_cpu=opts.sender_cpu)
+                            stream_cpu=opts.sender_cpu,
+                            connect_timeout_s=opts.connect_timeout_s)
     recorder = TrackRecorder()
     report: dict[str, Any] | None = None
     fence_shift: FloatArray | None = None
@@ -525,7 +527,8 @@ async def fly(opts: FlyOptions, console: Console) -> int:
 
 async def status(url: str, console: Console, timeout_s: float = 10.0,
                  target_system: int = 1, signing_key: bytes | None = None) -> int:
-    """Connect, wait for telemetry, print the vehicle state once (signed with ``signing_key``)."""
+    """Connect, wait for telemetry, print the vehicle state once (signed with ``signing_key``);
+    ConnectTimeoutError without a vehicle HEARTBEAT within ``timeout_s``."""
     from companion.aio import Vehicle, VehicleConfig
 
     link = LinkConfig(target_sysid=target_system).with_signing_key(signing_key)

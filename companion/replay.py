@@ -926,6 +926,20 @@ def breach_result(report: dict[str, Any]) -> str:
     return f"geofence breach: {found[0]['message']}{more}"
 
 
+def missed_result(report: dict[str, Any]) -> str:
+    """The report's result, failed by missed waypoints: ``"missed N waypoint(s): item I by D m,
+    ..."`` if the flight otherwise ended "ok" and passed a waypoint farther than its
+    acceptance radius."""
+    result = str(report["result"])
+    missed = [w for w in report["waypoints"] if not w["reached"]]
+    if result != "ok" or not missed:
+        return result
+    where = ", ".join(f"item {w['item_index']} by {w['closest_approach_m']:.1f} m"
+                      for w in missed[:3])
+    more = f" (+{len(missed) - 3} more)" if len(missed) > 3 else ""
+    return f"missed {len(missed)} waypoint(s): {where}{more}"
+
+
 @dataclass(frozen=True)
 class ReplayRun:
     """One flight of a prepared mission: the flight, its log and its report (see summarize)."""
@@ -1028,6 +1042,7 @@ def replay_file(
                             fence_shift_ned=fence_shift(config, flight.origin))
             px4["result"] = res
             px4["result"] = breach_result(px4)
+            px4["result"] = missed_result(px4)
             px4["ok"] = report_ok(px4)
             px4.pop("rms_error_m")
             px4.pop("max_error_m")
@@ -1079,6 +1094,7 @@ __all__ = [
     "ReplayRun",
     "fly_px4_mission",
     "fly_schedule",
+    "missed_result",
     "mission_frames",
     "prepare_mission",
     "read_mock_params",

@@ -526,6 +526,7 @@ class MissionExecutor:
         self._jump_counts: dict[int, int] = {}
         self.active = False
         self.last_goal_ned: tuple[float, float, float] | None = None
+        self._takeoff_goal: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def load(self, items: list[MissionItem]) -> None:
         self.items = list(items)
@@ -605,11 +606,19 @@ class MissionExecutor:
         nav = self.nav
         if self._phase == "enter":
             self._on_current(self.current)
-            if cmd == 22:  # TAKEOFF
-                alt_rel = -self._pos_of(item, state)[2]
+            if cmd == 22:  # TAKEOFF: climb where the vehicle stands, then to the item
+                pos = self._pos_of(item, state)
+                alt_rel = -pos[2]
                 if item.frame == 2 or not math.isfinite(alt_rel):
                     alt_rel = float(self.params["MIS_TAKEOFF_ALT"])
-                nav.takeoff(alt_rel, state)
+                self._takeoff_goal = (pos[0], pos[1], -alt_rel)
+                if state.landed or nav.ground_vehicle:
+                    nav.takeoff(alt_rel, state)
+                    self._phase = "takeoff_climb"
+                    return False
+                # in the air: PX4 flies a TAKEOFF item as a waypoint
+                nav.goto(self._takeoff_goal, math.nan, self._acceptance(item), state)
+                self.last_goal_ned = self._takeoff_goal
                 self._phase = "fly"
             elif cmd in (16, 17, 19, 31):
                 pos = self._pos_of(item, state)
@@ -653,6 +662,20 @@ class MissionExecutor:
             else:  # DO_* items without an effect in the mock
                 return self._next(t)
             return False
+        if self._phase == "takeoff_climb":
+            # PX4 (mission.cpp handleTakeoff): after the vertical climb the TAKEOFF item becomes
+            # a waypoint at its own position and is reported reached only there (a point
+            # already within the acceptance radius: at once)
+            if not nav.reached:
+                return False
+            gx, gy, _ = self._takeoff_goal
+            px, py, _ = state.pos_ned
+            away = math.hypot(gx - px, gy - py) > self._acceptance(item)
+            if away and not nav.ground_vehicle:
+                nav.goto(self._takeoff_goal, math.nan, self._acceptance(item), state)
+                self.last_goal_ned = self._takeoff_goal
+            self._phase = "fly"
+            return True
         if self._phase == "takeoff_first":
             if nav.reached:
                 self._phase = "enter"

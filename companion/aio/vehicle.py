@@ -298,8 +298,8 @@ class Vehicle:
         except TimeoutError:
             await self.close()
             raise ConnectTimeoutError(
-                f"no PX4 heartbeat on {self.url} within {self.config.connect_timeout_s:g} s "
-                f"({self._silence_hint()})") from None
+                f"no vehicle heard on {self.url} within {self.config.connect_timeout_s:g} s: "
+                f"no PX4 HEARTBEAT ({self._silence_hint()})") from None
 
     def _silence_hint(self) -> str:
         """Why no HEARTBEAT got through, as far as the signer saw (for the connect error)."""

@@ -15,6 +15,7 @@ from typing import Any
 from rich.console import Console
 from rich.markup import escape
 
+from companion.app.paths import output_folder
 from companion.campaign.perturb import PerturbationRanges
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
@@ -77,7 +78,8 @@ def add_campaign_parser(sub: Any) -> None:
     cp.add_argument("--require", type=float, default=95.0, metavar="PCT",
                     help="exit 1 if a mission/mode succeeds in fewer than PCT %% of runs "
                          "(default 95)")
-    cp.add_argument("--out", default="campaign_out", help="output folder (default ./campaign_out)")
+    cp.add_argument("--out", default="campaign_out", type=output_folder,
+                    help="output folder (default ./campaign_out)")
     defaults = PerturbationRanges()
     for opt, name, metavar, text in _RANGE_OPTIONS:
         d = getattr(defaults, name)

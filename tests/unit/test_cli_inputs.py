@@ -148,7 +148,7 @@ def test_px4_compare_row_is_not_ok_with_missed_waypoints(
     row = next(ln for ln in out.splitlines() if "PX4 AUTO.MISSION" in ln)
     assert "9/11" in row and "missed 2 waypoint(s)" in row
     assert " ok " not in row
-    assert code == EXIT_FAILURE or code == 0  # the companion's own flight decides the exit code
+    assert code == EXIT_FAILURE  # a waypoint AUTO.MISSION missed fails the comparison
 
 
 def test_rover_plan_as_quad_points_to_vehicle_rover() -> None:
@@ -216,3 +216,61 @@ def test_replay_of_out_of_range_values_exits_2_with_the_item(
     assert code == EXIT_BAD_INPUT
     assert "edited.plan: item 1:" in _one_line(err)
     assert "Traceback" not in out + err
+
+
+_SQUARE = str(EXAMPLES / "square.plan")
+
+
+@pytest.mark.parametrize(
+    ("args", "option", "kind"),
+    [
+        (["demo", "--out", "{f}"], "--out", "folder"),
+        (["replay", _SQUARE, "--out", "{f}"], "--out", "folder"),
+        (["campaign", _SQUARE, "--runs", "1", "--out", "{f}"], "--out", "folder"),
+        (["serve", "--connect", "udpin://127.0.0.1:14540", "--log-dir", "{f}"], "--log-dir",
+         "folder"),
+        (["demo", "--out", "{f}/sub"], "--out", "folder"),
+        (["replay", _SQUARE, "--out", "{f}/sub"], "--out", "folder"),
+        (["fly", "square", "--log", "{d}"], "--log", "file"),
+        (["fly", "square", "--log", "{f}/x.tlog"], "--log", "folder"),
+    ],
+)
+def test_output_path_of_the_wrong_kind_is_bad_input(
+    capsys: pytest.CaptureFixture[str], never_start_mock: None, tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch, args: list[str], option: str, kind: str
+) -> None:
+    """An output folder that is a file, a path under a file, or an output file that is a folder:
+    exit 2 naming the option and the path, nothing written, no traceback."""
+    a_file = tmp_path / "taken"
+    a_file.write_text("keep me\n")
+    a_dir = tmp_path / "a_folder"
+    a_dir.mkdir()
+    monkeypatch.setattr(companion.replay, "replay_file", _no_mock)
+    argv = [x.format(f=a_file, d=a_dir) for x in args]
+    code, _out, err = _run(capsys, argv)
+    text = _one_line(err)
+    assert code == EXIT_BAD_INPUT, text
+    assert "Traceback" not in err and "Errno" not in err
+    assert option in text and str(a_file if kind == "folder" else a_dir) in text
+    assert f"not a {kind}" in text
+    assert a_file.read_text() == "keep me\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_folder", "taken"]
+
+
+@pytest.mark.parametrize(("command", "default"), [
+    (["demo"], "demo_out"), (["replay", _SQUARE], "replay_out"),
+    (["campaign", _SQUARE, "--runs", "1"], "campaign_out"),
+    (["serve", "--connect", "udpin://127.0.0.1:14540"], "ecca-logs"),
+])
+def test_default_output_folder_taken_by_a_file_is_bad_input(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    command: list[str], default: str
+) -> None:
+    """The default output folder is checked like a given one."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(companion.replay, "replay_file", _no_mock)
+    (tmp_path / default).write_text("")
+    code, _out, err = _run(capsys, command)
+    assert code == EXIT_BAD_INPUT
+    assert f"{default}: exists and is a file, not a folder" in _one_line(err)
+    assert "Traceback" not in err

@@ -350,3 +350,65 @@ def test_rover_flies_a_multicopter_mission_on_the_ground_and_disarms_at_its_land
     reached = {m.seq for m in h.msgs("MISSION_ITEM_REACHED")}
     assert reached >= {0, 1, 2, 3}
     assert any("Disarmed" in t for t in h.texts())
+
+
+def _fly_mission(h: Harness, items: list[object]
+                 ) -> list[tuple[float, tuple[float, float, float]]]:
+    """Upload, arm, AUTO.MISSION until "Mission finished"; the track (t, NED) every step."""
+    assert upload(h, items) == 0
+    h.wait_ready()
+    h.arm()
+    h.set_mode(4, 4)
+    track: list[tuple[float, tuple[float, float, float]]] = []
+    h.run_until(lambda: any("Mission finished" in t for t in h.texts()), 90.0,
+                lambda: track.append((h.now_boot, h.ap.state.pos_ned)))
+    return track
+
+
+def _first_reached(h: Harness) -> dict[int, float]:
+    first: dict[int, float] = {}
+    for t_msg, m in h.timed("MISSION_ITEM_REACHED"):
+        first.setdefault(m.seq, t_msg)
+    return first
+
+
+def _pos_at(track: list[tuple[float, tuple[float, float, float]]], t: float
+            ) -> tuple[float, float, float]:
+    return min(track, key=lambda tp: abs(tp[0] - t))[1]
+
+
+def test_takeoff_item_away_from_home_climbs_in_place_then_flies_to_its_position() -> None:
+    """PX4 (navigator/mission_base.cpp checkClimbRequired, mission.cpp handleTakeoff): from the
+    ground the vehicle climbs vertically where it stands to the takeoff altitude, then the
+    TAKEOFF item becomes a waypoint at its own lat/lon, reported reached only there."""
+    tko_n, tko_e, alt = 6.0, -4.0, 5.0  # 7.2 m from home
+    h = Harness(step_s=0.02)
+    h.run(0.1)
+    track = _fly_mission(h, [
+        item(0, 22, north_of_home(tko_n), east_of_home(tko_e), alt),
+        item(1, 16, north_of_home(20.0), HOME[1], alt),
+    ])
+    start = track[0][1]
+    climbing = [p for _t, p in track if -p[2] < 0.9 * alt]
+    assert max(math.hypot(p[0] - start[0], p[1] - start[1]) for p in climbing) < 0.5
+    first = _first_reached(h)
+    assert set(first) == {0, 1} and first[0] < first[1]
+    at_reached = _pos_at(track, first[0])
+    nav_acc_rad = 2.0  # PX4's NAV_ACC_RAD default; the item gives none
+    assert math.hypot(at_reached[0] - tko_n, at_reached[1] - tko_e) <= nav_acc_rad + 0.3
+    assert abs(-at_reached[2] - alt) < 1.0
+
+
+def test_takeoff_item_in_the_air_is_flown_as_a_waypoint() -> None:
+    """PX4 (mission.cpp handleTakeoff): no climb needed, a TAKEOFF item is a waypoint."""
+    h = Harness(step_s=0.02)
+    h.run(0.1)
+    track = _fly_mission(h, [
+        item(0, 22, HOME[0], HOME[1], 5.0),
+        item(1, 16, north_of_home(10.0), HOME[1], 5.0),
+        item(2, 22, north_of_home(10.0), east_of_home(10.0), 5.0),
+    ])
+    first = _first_reached(h)
+    assert set(first) == {0, 1, 2}
+    at_reached = _pos_at(track, first[2])
+    assert math.hypot(at_reached[0] - 10.0, at_reached[1] - 10.0) <= 2.3
