@@ -43,6 +43,8 @@ SUPPORTED_COMMANDS = frozenset(
         21,
         22,
         31,
+        84,
+        85,
         93,
         112,
         115,
@@ -68,7 +70,7 @@ SUPPORTED_COMMANDS = frozenset(
         3000,
     }
 )
-POSITION_COMMANDS = frozenset({16, 17, 18, 19, 21, 22, 31})
+POSITION_COMMANDS = frozenset({16, 17, 18, 19, 21, 22, 31, 84, 85})
 
 EARTH_RADIUS_M = 6371000.0  # PX4 CONSTANTS_RADIUS_OF_EARTH
 
@@ -498,6 +500,11 @@ def _result_text(result: int) -> str:
 # ====================================================================== execution
 class MissionExecutor:
     """Runs the stored mission items through the navigator (AUTO.MISSION).
+
+    As PX4 v1.16: NAV_DELAY (93) holds the last setpoint for param1 s from the moment it
+    becomes current; VTOL takeoff/land (84/85) fly as takeoff/land; after a NAV_LAND that is
+    not the last item the mission goes on (a later position item takes off again first) and the
+    autopilot does not auto-disarm while landed amid it.
 
     Events go to the callbacks: `on_reached(seq)` (MISSION_ITEM_REACHED), `on_current(seq)`
     (current item changed), `on_finished(landed)` (past the last item).
