@@ -147,7 +147,8 @@ class Schedule:
     """A planned flight: pieces back to back from t = 0 to `duration_s`.
 
     `waypoints_ned` (K, 3) with `acceptance_m` and `item_indices` are the points the flight must
-    pass (for reach checks); `final_action` is "land", "rtl" or "loiter".
+    pass (for reach checks): one per mission item with a position flown (each pass of a DO_JUMP
+    loop), none for points the plan adds; `final_action` is "land", "rtl" or "loiter".
     """
 
     pieces: tuple[Piece, ...]
@@ -474,13 +475,15 @@ def build_schedule(
         if chunk.hold_after_s > 0.0:
             pieces.append(Piece("hold", t, chunk.hold_after_s, chunk.phase, pts[-1], yaw, yaw))
             t += chunk.hold_after_s
-        for k in range(1, len(chunk.points_ned_m)):
-            if chunk.item_indices[k] is not None:
-                wps.append(np.array(chunk.points_ned_m[k], dtype=np.float64))
-                acc.append(float(chunk.acceptance_radius_m[k]))
-                items.append(chunk.item_indices[k])
     if not pieces:
         raise ValueError(f"{flight.source}: nothing to fly (all points coincide)")
+    # the points to reach are the mission items' (one per item flown, a DO_JUMP pass each),
+    # never the points the plan adds (a takeoff climb before an item, the touchdown point)
+    for w in flight.waypoints:
+        if w.item_index is not None:
+            wps.append(np.array(w.pos_ned_m, dtype=np.float64))
+            acc.append(float(w.acceptance_radius_m))
+            items.append(w.item_index)
     warnings: tuple[str, ...] = ()
     if too_fast:
         asked = ", ".join(f"{v:g}" for v in sorted(too_fast))

@@ -1445,7 +1445,10 @@ class Autopilot:
                 self._takeoff_done = True
                 self._set_mode(Mode.AUTO_LOITER, user=False)
                 self.user_mode = Mode.AUTO_LOITER
-            if landed and self._taken_off:
+            # PX4 (Commander::handleAutoDisarm): no COM_DISARM_LAND auto-disarm while landed
+            # amid an unfinished AUTO.MISSION (a landing in the middle of a mission)
+            amid_mission = self.mode is _AUTO_MISSION and not self.mission.finished
+            if landed and self._taken_off and not amid_mission:
                 if self._landed_since is None:
                     self._landed_since = t
                 elif 0.0 <= float(p["COM_DISARM_LAND"]) <= t - self._landed_since:

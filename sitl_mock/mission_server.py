@@ -43,6 +43,8 @@ SUPPORTED_COMMANDS = frozenset(
         21,
         22,
         31,
+        84,
+        85,
         93,
         112,
         115,
@@ -68,7 +70,7 @@ SUPPORTED_COMMANDS = frozenset(
         3000,
     }
 )
-POSITION_COMMANDS = frozenset({16, 17, 18, 19, 21, 22, 31})
+POSITION_COMMANDS = frozenset({16, 17, 18, 19, 21, 22, 31, 84, 85})
 
 EARTH_RADIUS_M = 6371000.0  # PX4 CONSTANTS_RADIUS_OF_EARTH
 
@@ -499,6 +501,11 @@ def _result_text(result: int) -> str:
 class MissionExecutor:
     """Runs the stored mission items through the navigator (AUTO.MISSION).
 
+    As PX4 v1.16: NAV_DELAY (93) holds the last setpoint for param1 s from the moment it
+    becomes current; VTOL takeoff/land (84/85) fly as takeoff/land; after a NAV_LAND that is
+    not the last item the mission goes on (a later position item takes off again first) and the
+    autopilot does not auto-disarm while landed amid it.
+
     Events go to the callbacks: `on_reached(seq)` (MISSION_ITEM_REACHED), `on_current(seq)`
     (current item changed), `on_finished(landed)` (past the last item).
     """
@@ -583,14 +590,14 @@ class MissionExecutor:
             if not self._step(t, state):
                 return
 
-    def _next(self, t: float) -> bool:
+    def _next(self, t: float, landed: bool = False) -> bool:
         self.current += 1
         self._phase = "enter"
         if self.current >= len(self.items):
             self.finished = True
             self.active = False
             self.current = max(len(self.items) - 1, 0)
-            self._on_finished(False)
+            self._on_finished(landed)
             return False
         self._on_current(self.current)
         return True
@@ -602,7 +609,8 @@ class MissionExecutor:
             self._on_finished(state.landed)
             return False
         item = self.items[self.current]
-        cmd = item.command
+        # PX4 on a multicopter (or rover) flies VTOL takeoff / land as takeoff / land
+        cmd = {84: 22, 85: 21}.get(item.command, item.command)
         nav = self.nav
         if self._phase == "enter":
             self._on_current(self.current)
@@ -652,15 +660,20 @@ class MissionExecutor:
                     self._phase = "enter"
                     self._on_current(self.current)
                     return True
-                return self._next(t)
+                return self._next(t, bool(state.landed))
+            elif cmd == 93:  # NAV_DELAY: hold the last setpoint for param1 s (PX4 time_inside)
+                delay = item.param1 if math.isfinite(item.param1) else 0.0
+                self._hold_until = t + max(delay, 0.0)
+                self._phase = "delay"
+                return False
             elif cmd == 178:  # DO_CHANGE_SPEED p2 m/s
                 speed = item.param2
                 setter = getattr(nav, "set_cruise_speed", None)
                 if setter is not None:
                     setter(speed if math.isfinite(speed) and speed > 0 else math.nan)
-                return self._next(t)
+                return self._next(t, bool(state.landed))
             else:  # DO_* items without an effect in the mock
-                return self._next(t)
+                return self._next(t, bool(state.landed))
             return False
         if self._phase == "takeoff_climb":
             # PX4 (mission.cpp handleTakeoff): after the vertical climb the TAKEOFF item becomes
@@ -698,14 +711,23 @@ class MissionExecutor:
         if self._phase == "hold":
             if t < self._hold_until:
                 return False
-            return self._next(t)
+            return self._next(t, bool(state.landed))
+        if self._phase == "delay":
+            if t < self._hold_until:
+                return False
+            self._on_reached(item.seq)
+            return self._next(t, bool(state.landed))
         if self._phase in ("landing", "rtl"):
             # a rover has no landing: it is "landed" once stopped at the point (navigator)
             if state.landed or (nav.ground_vehicle and nav.phase == "landed" and nav.reached):
                 if self._phase == "rtl":
                     self._on_reached(item.seq)
-                self.finished = True
-                self.active = False
-                self._on_finished(True)
+                    self.finished = True
+                    self.active = False
+                    self._on_finished(True)
+                    return False
+                # PX4 v1.16: LAND is done once landed; the mission goes on (still armed: no
+                # auto-disarm amid a mission), taking off again for a later position item
+                return self._next(t, landed=True)
             return False
         return False

@@ -14,10 +14,22 @@ Semantics follow PX4's mission mode (multicopter, default parameters) where they
 - DO_CHANGE_SPEED (178): param2 [m/s] from the next leg on (-1 no change, -2 back to default).
 - DO_SET_ROI_LOCATION (195): yaw toward the ROI at every later waypoint (overrides param4) until
   DO_SET_ROI_NONE (197).
+- NAV_DELAY (93): wait param1 [s] where the vehicle is (PX4's navigator holds the last
+  position setpoint for the item's time_inside = param1). A delay until a time of day (param1
+  < 0, params 2-4) is refused at load time; a delay before the first position item is refused
+  (PX4 would sit on the ground armed and may auto-disarm, COM_DISARM_PRFLT).
 - LAND (21): fly to above the land point at the current altitude, then descend to the ground
   (assumed at home altitude). RTL (20): climb to ``rtl_return_alt_m`` if lower (PX4
-  RTL_RETURN_ALT), fly to above home, descend. Both end the plan; later items are ignored
-  with a warning. A mission that just ends hovers at its last waypoint (``final_action="loiter"``).
+  RTL_RETURN_ALT), fly to above home, descend. Both end the plan. Position items after an RTL
+  or a LOITER_UNLIM are ignored with a warning (PX4 never gets to them either); position items
+  after a LAND are refused: PX4 v1.16 lands, stays armed (no COM_DISARM_LAND auto-disarm while
+  AUTO.MISSION is unfinished) and takes off again for the next position item, which the
+  companion cannot fly (in OFFBOARD PX4 disarms after touchdown). A mission that just ends
+  hovers at its last waypoint (``final_action="loiter"``).
+- VTOL_TAKEOFF (84) / VTOL_LAND (85): flown as TAKEOFF / LAND, as by PX4 on a multicopter.
+- The takeoff climb's top counts as the takeoff item only where the item is (a TAKEOFF with no
+  other latitude/longitude); an implicit takeoff, or the climb before a TAKEOFF item's own
+  position, is a point the plan adds (``item_index`` None), as is the touchdown point.
 - Rover: altitudes are ignored (down = 0), no takeoff climb or descent.
 """
 
@@ -42,8 +54,11 @@ from companion.mission.model import (
     CMD_LAND,
     CMD_LOITER_TIME,
     CMD_LOITER_UNLIM,
+    CMD_NAV_DELAY,
     CMD_RETURN_TO_LAUNCH,
     CMD_TAKEOFF,
+    CMD_VTOL_LAND,
+    CMD_VTOL_TAKEOFF,
     CMD_WAYPOINT,
     Mission,
     MissionError,
@@ -70,8 +85,11 @@ FinalAction = Literal["land", "rtl", "loiter"]
 Vec3 = tuple[float, float, float]
 _MERGE_TOL_M = 1e-3
 _NAV_COMMANDS = frozenset(
-    {CMD_WAYPOINT, CMD_LOITER_UNLIM, CMD_LOITER_TIME, CMD_RETURN_TO_LAUNCH, CMD_LAND, CMD_TAKEOFF}
+    {CMD_WAYPOINT, CMD_LOITER_UNLIM, CMD_LOITER_TIME, CMD_RETURN_TO_LAUNCH, CMD_LAND, CMD_TAKEOFF,
+     CMD_VTOL_TAKEOFF, CMD_VTOL_LAND}
 )
+#: VTOL takeoff/land flown as a multicopter's (PX4 treats them so on a rotary-wing vehicle).
+_AS_MULTICOPTER = {CMD_VTOL_TAKEOFF: CMD_TAKEOFF, CMD_VTOL_LAND: CMD_LAND}
 #: Items a multicopter flies through or stops at in the air (their altitude is checked).
 _FLY_THROUGH_COMMANDS = frozenset({CMD_WAYPOINT, CMD_LOITER_UNLIM, CMD_LOITER_TIME, CMD_TAKEOFF})
 
@@ -219,6 +237,7 @@ def _wrap_deg(a: float) -> float:
 MAV_TYPE_GROUND_ROVER = 10
 _MULTICOPTER_TYPES = frozenset({2, 3, 4, 13, 14, 15})
 """MAV_TYPE quadrotor, coaxial, helicopter, hexarotor, octorotor, tricopter."""
+_VTOL_TYPES = frozenset({19, 20, 21, 22, 23, 24})
 _MAV_TYPE_NAMES = {
     1: "fixed-wing aircraft", 2: "quadrotor", 3: "coaxial helicopter", 4: "helicopter",
     10: "ground rover", 11: "surface boat", 12: "submarine", 13: "hexarotor", 14: "octorotor",
@@ -301,6 +320,9 @@ def mission_to_flight_plan(
         elif not rover and vtype not in _MULTICOPTER_TYPES:
             hint = ("; fly it as a rover (replay --vehicle rover)"
                     if vtype == MAV_TYPE_GROUND_ROVER else "")
+            if vtype in _VTOL_TYPES:
+                hint = ("; VTOL takeoff/land are flown as multicopter takeoff/land, "
+                        "without transitions")
             warn(f"the file was written for a {written_for} (vehicleType {vtype}); "
                  f"flying it as a multicopter{hint}")
 
@@ -359,15 +381,17 @@ def mission_to_flight_plan(
         )
         cur = p
 
-    def takeoff(alt_rel: float, it: MissionItem) -> None:
+    def takeoff(alt_rel: float, it: MissionItem, at_item: bool) -> None:
+        """The vertical climb; its top is mission item ``it`` when ``at_item`` (a TAKEOFF
+        there), else a point the plan adds (PX4 does not report it reached either)."""
         nonlocal airborne, takeoff_alt
         h = alt_rel if math.isfinite(alt_rel) else takeoff_alt_default
         h = max(h, takeoff_alt_default)
         takeoff_alt = h
-        yaw = it.params[3] if it.command == CMD_TAKEOFF else math.nan
+        yaw = it.params[3] if it.command in (CMD_TAKEOFF, CMD_VTOL_TAKEOFF) else math.nan
         add(
             (cur[0], cur[1], -h),
-            it=it,
+            it=it if at_item else None,
             command=CMD_TAKEOFF,
             phase="takeoff",
             stop=True,
@@ -377,10 +401,36 @@ def mission_to_flight_plan(
         airborne = True
 
     for it in executed:
-        cmd = it.command
+        cmd = _AS_MULTICOPTER.get(it.command, it.command)
         if ended_by is not None:
+            if cmd in _NAV_COMMANDS and ended_by.command in (CMD_LAND, CMD_VTOL_LAND):
+                raise MissionError(
+                    src,
+                    f"{command_name(it.command)} after the landing at item {ended_by.index}: "
+                    "PX4 would land there, stay armed and take off again to fly on; the "
+                    "companion cannot fly a landing in the middle of a mission (in OFFBOARD "
+                    "PX4 disarms after touchdown): split the mission at the landing",
+                    item=it.index,
+                )
             if cmd in _NAV_COMMANDS:
-                warn(f"ignored: the mission already ended at item {ended_by.index}", it)
+                warn(f"ignored: the mission already ended at item {ended_by.index} "
+                     f"({command_name(ended_by.command)}); PX4 does not fly it either", it)
+            continue
+        if cmd == CMD_NAV_DELAY:
+            delay = it.params[0] if math.isfinite(it.params[0]) and it.params[0] > 0 else 0.0
+            if not wps:
+                raise MissionError(
+                    src,
+                    "NAV_DELAY before the first position item is not supported: PX4 would "
+                    "wait on the ground, armed, and its preflight auto-disarm (COM_DISARM_PRFLT) "
+                    "may disarm it first; put the delay after the takeoff",
+                    item=it.index,
+                )
+            if delay <= 0.0:
+                warn("NAV_DELAY of 0 s: no wait (PX4 goes on at once)", it)
+                continue
+            # PX4 holds the last position setpoint for the delay: rest at the point flown to
+            wps[-1] = replace(wps[-1], hold_s=wps[-1].hold_s + delay, stop=True)
             continue
         if cmd == CMD_DO_CHANGE_SPEED:
             s = it.params[1]
@@ -408,8 +458,10 @@ def mission_to_flight_plan(
         if not airborne:
             # PX4: the first position item starts with a takeoff at the current position
             if cmd == CMD_TAKEOFF:
-                takeoff(alt_rel, it)
-                if ne is not None and math.hypot(ne[0] - cur[0], ne[1] - cur[1]) > _MERGE_TOL_M:
+                moves = ne is not None and math.hypot(ne[0] - cur[0], ne[1] - cur[1]) > _MERGE_TOL_M
+                takeoff(alt_rel, it, at_item=not moves)
+                if moves:
+                    assert ne is not None
                     add(
                         (ne[0], ne[1], cur[2]),
                         it=it,
@@ -419,7 +471,7 @@ def mission_to_flight_plan(
                         yaw=yaw_at(ne[0], ne[1], math.nan),
                     )
                 continue
-            takeoff(alt_rel, it)
+            takeoff(alt_rel, it, at_item=False)
         n, e = ne if ne is not None else (cur[0], cur[1])
         d = -alt_rel if math.isfinite(alt_rel) else cur[2]
         if not rover and cmd in _FLY_THROUGH_COMMANDS and -d < min_height_m:
@@ -626,7 +678,7 @@ def split_flight_plan(plan: FlightPlan) -> tuple[FlightChunk, ...]:
                 np.asarray(plan.touchdown_ned_m, float),
                 pts[-1].yaw,
                 pts[-1].acc,
-                pts[-1].item,
+                None,  # a point the plan adds: the LAND / RTL item is reached above it
                 plan.land_speed_m_s,
                 0.0,
                 True,

@@ -26,8 +26,11 @@ from companion.mission.model import (
     CMD_LAND,
     CMD_LOITER_TIME,
     CMD_LOITER_UNLIM,
+    CMD_NAV_DELAY,
     CMD_RETURN_TO_LAUNCH,
     CMD_TAKEOFF,
+    CMD_VTOL_LAND,
+    CMD_VTOL_TAKEOFF,
     CMD_WAYPOINT,
     FRAME_MISSION,
     FRAMES_AMSL,
@@ -76,17 +79,22 @@ POSITION_COMMANDS = frozenset(
         CMD_LOITER_TIME,
         CMD_LAND,
         CMD_TAKEOFF,
+        CMD_VTOL_TAKEOFF,
+        CMD_VTOL_LAND,
         CMD_DO_SET_ROI_LOCATION,
     }
 )
-"""Supported commands that carry a position (need a global frame)."""
+"""Supported commands that carry a position (need a global frame). A multicopter flies VTOL
+takeoff/land (84/85) as takeoff/land, as PX4 does on a vehicle without a fixed-wing mode."""
 OTHER_COMMANDS = frozenset(
-    {CMD_RETURN_TO_LAUNCH, CMD_DO_JUMP, CMD_DO_CHANGE_SPEED, CMD_DO_SET_ROI_NONE}
+    {CMD_RETURN_TO_LAUNCH, CMD_DO_JUMP, CMD_DO_CHANGE_SPEED, CMD_DO_SET_ROI_NONE, CMD_NAV_DELAY}
 )
 """Supported commands without a position (frame ignored)."""
-_POSITION_OPTIONAL = frozenset({CMD_LOITER_UNLIM, CMD_LOITER_TIME, CMD_LAND, CMD_TAKEOFF})
+_POSITION_OPTIONAL = frozenset(
+    {CMD_LOITER_UNLIM, CMD_LOITER_TIME, CMD_LAND, CMD_TAKEOFF, CMD_VTOL_TAKEOFF, CMD_VTOL_LAND}
+)
 """Lat/lon may be NaN or (0, 0): "at the current position"."""
-_UNSUPPORTED_POSITIONAL = frozenset({18, 30, 31, 80, 82, 84, 85, 94, 201})
+_UNSUPPORTED_POSITIONAL = frozenset({18, 30, 31, 80, 82, 94, 201})
 """NAV commands (and the deprecated DO_SET_ROI) that always move or point the vehicle."""
 _GLOBAL_FRAMES = FRAMES_AMSL | FRAMES_RELATIVE | FRAMES_TERRAIN
 _MAX_REPEAT = 65_535
@@ -260,6 +268,17 @@ def _validate_item(it: MissionItem, home: GeoPoint, src: Path, where: str = "") 
                 f"DO_CHANGE_SPEED: {speed:g} m/s exceeds PX4's largest speed limit, "
                 f"{MAX_SPEED_M_S:g} m/s (GND_SPEED_MAX; multicopters MPC_XY_VEL_MAX <= 20 m/s)"
             )
+    elif cmd == CMD_NAV_DELAY:
+        delay = it.params[0]
+        clock = [v for v in it.params[1:4] if math.isfinite(v) and v >= 0.0]
+        if not (math.isfinite(delay) and delay >= 0.0) and clock:
+            raise fail(
+                "NAV_DELAY until a time of day (param2-4 hour/minute/second) is not supported: "
+                "PX4 ignores the time of day and goes on at once; give the delay in seconds "
+                "(param1)"
+            )
+        if math.isfinite(delay) and delay > MAX_HOLD_S:
+            raise fail(f"NAV_DELAY: delay {delay:g} s exceeds {MAX_HOLD_S:g} s")
     elif cmd == CMD_DO_JUMP:
         rep = it.params[1]
         if not math.isfinite(rep) or not float(rep).is_integer():
@@ -427,6 +446,7 @@ def parse_plan(
             ctype = raw.get("complexItemType")
             if ctype not in ("survey", "CorridorScan", "StructureScan"):
                 raise fail(f"complex item type {_show(ctype)} is not supported", item=seq)
+            _complex_version_check(raw, str(ctype), where, seq, fail)
             sub = raw.get("Items")
             tsci = raw.get("TransectStyleComplexItem")
             sub_where = f"{where}.Items"
@@ -466,6 +486,50 @@ def parse_plan(
         vehicle_type=vtype if isinstance(vtype, int) and not isinstance(vtype, bool) else None,
         hover_speed_m_s=_opt_speed(hover),
     )
+
+
+#: Complex item versions QGroundControl loads (src/MissionManager/SurveyComplexItem.cc,
+#: CorridorScanComplexItem.cc, StructureScanComplexItem.cc); any other is refused there.
+_COMPLEX_VERSIONS: dict[str, tuple[int, ...]] = {
+    "survey": (2, 3, 4, 5),
+    "CorridorScan": (2,),
+    "StructureScan": (3,),
+}
+#: TransectStyleComplexItem (inside survey v4/v5 and CorridorScan) versions QGroundControl
+#: loads: missing or 0 means 1, which it upgrades to 2 (TransectStyleComplexItem.cc).
+_TRANSECT_VERSIONS = (0, 1, 2)
+
+
+def _complex_version_check(
+    raw: dict[str, Any], ctype: str, where: str, seq: int, fail: Callable[..., MissionError]
+) -> None:
+    """Refuse a complex item (and its TransectStyleComplexItem) of a version QGroundControl
+    refuses to load: its meaning (and its pre-expanded items) cannot be trusted."""
+    accepted = _COMPLEX_VERSIONS[ctype]
+    shown = ", ".join(str(v) for v in accepted)
+    ver = raw.get("version")
+    if ver is None:
+        raise fail(
+            f"{ctype} ({where}) has no version; QGroundControl loads {ctype} version {shown} "
+            "only", item=seq,
+        )
+    if isinstance(ver, bool) or not _is_num(ver) or not float(ver).is_integer() or int(
+            ver) not in accepted:
+        raise fail(
+            f"{ctype} ({where}) version {_show(ver)} is not supported: QGroundControl loads "
+            f"{ctype} version {shown} only (and MAVSDK survey version 5 only); re-save the "
+            "plan in QGroundControl", item=seq,
+        )
+    tsci = raw.get("TransectStyleComplexItem")
+    if isinstance(tsci, dict):
+        tver = tsci.get("version", 0)
+        if isinstance(tver, bool) or not _is_num(tver) or not float(tver).is_integer() or int(
+                tver) not in _TRANSECT_VERSIONS:
+            raise fail(
+                f"{ctype} ({where}): TransectStyleComplexItem version {_show(tver)} is not "
+                "supported: QGroundControl loads version 1 or 2 only; re-save the plan in "
+                "QGroundControl", item=seq,
+            )
 
 
 def _opt_speed(x: Any) -> float | None:
@@ -649,6 +713,7 @@ def parse_wpl(
         raise MissionError(src, f'unsupported header "{" ".join(header)}" (expected QGC WPL 110)')
 
     file_home: GeoPoint | None = None
+    row0_item: str | None = None
     items: list[MissionItem] = []
     wheres: dict[int, str] = {}
     expected = 0
@@ -680,7 +745,11 @@ def parse_wpl(
             for i, name in enumerate(_WPL_FIELDS.split()[4:11])
         ]
         autocont = _wpl_int(fields[11], "AUTOCONTINUE", fail, 0, 1)
-        if index == 0:
+        if index == 0 and cmd != CMD_WAYPOINT:
+            # not a home row (QGroundControl and Mission Planner write home as a NAV_WAYPOINT):
+            # mission item 0, as MAVSDK's "Mission Planner" import reads every row of the file
+            row0_item = f"row 0 is a {command_name(cmd)} mission item (line {lineno})"
+        elif index == 0:
             if frame not in FRAMES_AMSL:
                 _log.debug("%s: home line frame %d treated as AMSL", src, frame)
             file_home = GeoPoint(vals[4], vals[5], vals[6])
@@ -697,12 +766,47 @@ def parse_wpl(
             )
         )
         wheres[index] = f"line {lineno}"
+    warns: list[str] = []
+    if home is None and file_home is None and row0_item is not None:
+        home = _wpl_home_from_items(items, src, row0_item)
+        warns.append(
+            f"{src}: {row0_item}, not a home row (as MAVSDK's Mission Planner import reads "
+            f"it): home taken at its position ({home.lat_deg:.7f}, {home.lon_deg:.7f}), "
+            "altitudes relative to it (the vehicle's own home when flown)"
+        )
+        _log.warning(warns[-1])
     if home is None:
         if file_home is None:
             raise MissionError(src, "no home line (INDEX 0); give the home position explicitly")
         home = file_home
     home = _home_check(home, src, "home position (line with INDEX 0)")
-    return _finish(src, home, items, by_do_jump_id=False, wheres=wheres, file_format="wpl")
+    return _finish(src, home, items, by_do_jump_id=False, wheres=wheres, file_format="wpl",
+                   warnings=warns)
+
+
+def _wpl_home_from_items(items: list[MissionItem], src: Path, row0: str) -> GeoPoint:
+    """Home of a QGC WPL file without a home row: the first item's latitude/longitude, at an
+    arbitrary 0 m AMSL, which only relative altitudes (frame 3/6) make flyable."""
+    amsl = [it for it in items if it.frame in FRAMES_AMSL
+            and (it.command in POSITION_COMMANDS) and math.isfinite(it.alt_m)]
+    if amsl:
+        it = amsl[0]
+        raise MissionError(
+            src,
+            f"{row0}, not a home row (MAVSDK's Mission Planner import reads every row as a "
+            f"mission item), so the file has no home position, and the altitude "
+            f"{it.alt_m:g} m of {command_name(it.command)} is AMSL (frame {it.frame}), which "
+            "needs the ground altitude: write home as row 0 (0 1 0 16 0 0 0 0 LAT LON "
+            "ALT_AMSL 1) or give altitudes relative to home (frame 3)",
+            item=it.index,
+        )
+    for it in items:
+        if it.has_latlon and it.frame in _GLOBAL_FRAMES:
+            return GeoPoint(it.lat_deg, it.lon_deg, 0.0)
+    raise MissionError(
+        src, f"{row0}, not a home row, and no item has a position to take home from; "
+        "write home as row 0 (0 1 0 16 0 0 0 0 LAT LON ALT_AMSL 1)",
+    )
 
 
 def _wpl_peek_index(fields: list[str]) -> int | None:

@@ -14,6 +14,7 @@ from companion.mission.model import (
     CMD_DO_JUMP,
     CMD_DO_SET_ROI_LOCATION,
     CMD_TAKEOFF,
+    CMD_VTOL_TAKEOFF,
     FRAME_MISSION,
     Mission,
     MissionError,
@@ -73,7 +74,8 @@ def mission_upload_items(
             lat, lon = (it.lat_deg, it.lon_deg) if it.has_latlon else (last_lat, last_lon)
             alt = it.alt_rel_home_m(home)
             if not math.isfinite(alt):
-                alt = takeoff_alt_default if it.command == CMD_TAKEOFF else last_alt
+                alt = (takeoff_alt_default if it.command in (CMD_TAKEOFF, CMD_VTOL_TAKEOFF)
+                       else last_alt)
             x, y, z = _deg_e7(lat), _deg_e7(lon), alt
             if it.command != CMD_DO_SET_ROI_LOCATION:
                 last_lat, last_lon, last_alt = lat, lon, alt

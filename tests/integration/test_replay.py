@@ -299,3 +299,69 @@ def test_replay_in_wind_lands_and_completes_both_flights(tmp_path: Path) -> None
     assert report["result"] == "ok"
     assert report["px4_mission"]["result"] == "ok"
     assert report["px4_mission"]["waypoints_reached"] == len(report["px4_mission"]["waypoints"])
+
+
+# ----------------------------------------------------------------------------- issue 24
+_POSITION_COMMANDS = {16, 17, 19, 21, 22}
+
+
+def test_report_counts_the_mission_items_not_the_points_the_plan_adds(replayed: Path) -> None:
+    """ten_waypoints.plan has 12 position items (takeoff, 10 waypoints, land): the report lists
+    each once, by its QGC item number, and no leg runs from an item to itself."""
+    items = json.loads(MISSION.read_text())["mission"]["items"]
+    expected = [k + 1 for k, it in enumerate(items) if it["command"] in _POSITION_COMMANDS]
+    report = json.loads((replayed / "report.json").read_text())
+    assert [w["item_index"] for w in report["waypoints"]] == expected
+    assert report["waypoints_reached"] <= len(expected)
+    for leg in report["legs"]:
+        assert leg["from_item"] is None or leg["from_item"] != leg["to_item"], leg["leg"]
+
+
+def _delay_plan(path: Path, delay_s: float) -> tuple[float, float, float]:
+    """square.plan with a NAV_DELAY of ``delay_s`` after its second waypoint; returns that
+    waypoint (lat, lon, relative altitude) as written in the file."""
+    doc = json.loads((ROOT / "examples" / "missions" / "square.plan").read_text())
+    items = doc["mission"]["items"]
+    k = [i for i, it in enumerate(items) if it["command"] == 16][1]
+    wp = items[k]["params"]
+    delay = {"type": "SimpleItem", "command": 93, "frame": 2, "autoContinue": True,
+             "params": [delay_s, -1, -1, -1, 0, 0, 0]}
+    items.insert(k + 1, delay)
+    for n, it in enumerate(items):
+        it["doJumpId"] = n + 1
+    path.write_text(json.dumps(doc))
+    return float(wp[4]), float(wp[5]), float(wp[6])
+
+
+def test_replay_dwells_at_the_point_for_a_nav_delay(tmp_path: Path) -> None:
+    """PX4's navigator waits NAV_DELAY's param1 at the last setpoint (mission_block.cpp,
+    get_time_inside): judged from the tlog, the vehicle rests (< 0.3 m/s) within 1 m of the
+    waypoint before the delay for at least the 5 s of the delay."""
+    plan = tmp_path / "delay.plan"
+    lat, lon, rel = _delay_plan(plan, 5.0)
+    doc = json.loads(plan.read_text())
+    lat0, lon0, alt0 = doc["mission"]["plannedHomePosition"]
+    code = cli_main(["replay", str(plan), "--out", str(tmp_path / "out")])
+    assert code == 0
+    n0, e0 = _flat_ne(lat, lon, lat0, lon0)
+    mlog = _open_tlog(str(tmp_path / "out" / "delay" / "flight.tlog"))
+    t, near = [], []
+    while True:
+        m = mlog.recv_match(type="GLOBAL_POSITION_INT")
+        if m is None:
+            break
+        n, e = _flat_ne(m.lat * 1e-7, m.lon * 1e-7, lat0, lon0)
+        d = math.hypot(n - n0, e - e0, -(m.alt * 1e-3 - alt0) + rel)
+        speed = math.sqrt(m.vx**2 + m.vy**2 + m.vz**2) * 0.01
+        t.append(m._timestamp)
+        near.append(d <= 1.0 and speed < 0.3)
+    best = run_start = None
+    longest = 0.0
+    for ti, ok in zip(t, near, strict=True):
+        if ok and run_start is None:
+            run_start = ti
+        elif not ok:
+            run_start = None
+        if run_start is not None and ti - run_start > longest:
+            longest, best = ti - run_start, run_start
+    assert best is not None and longest >= 5.0 - 0.1, f"dwell {longest:.2f} s"

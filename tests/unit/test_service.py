@@ -69,7 +69,8 @@ def test_downloaded_items_plan_like_the_mission_file() -> None:
     assert prog.final_action == direct.final_action == "land"
     # the flown part stops above the land point: PX4 lands itself
     assert prog.t_end < direct.duration_s
-    assert abs(prog.reference(prog.t_end).pos_ned[2] - direct.waypoints_ned[-2][2]) < 0.05
+    # (the last point to reach is the LAND item, above the land point: no touchdown point)
+    assert abs(prog.reference(prog.t_end).pos_ned[2] - direct.waypoints_ned[-1][2]) < 0.05
 
 
 def test_the_vehicles_planning_parameters_reach_the_plan() -> None:
