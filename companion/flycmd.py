@@ -407,7 +407,7 @@ async def fly(opts: FlyOptions, console: Console) -> int:
         # MPC_LAND_SPEED until PX4 sees the landing (PX4's LAND crawls the last metre at
         # MPC_LAND_CRWL and took ~4 s to detect it)
         touchdown = mission is not None and not rover and mode in ("attitude", "rates")
-        if mode in ("attitude", "rates"):
+        if mode == "attitude":
             refused = await v.stream_position_fast()
             if refused is not None:
                 console.print(f"[yellow]{escape(refused)}[/yellow]")

@@ -198,7 +198,7 @@ class _Session:
             defaulted=list(r.defaulted))
         for w in r.warnings:
             self.events.write("px4_params_warning", why=w)
-        if self.opts.mode in ("attitude", "rates"):
+        if self.opts.mode == "attitude":
             refused = await self.v.stream_position_fast()
             if refused is not None:
                 self.events.write("position_stream_refused", why=refused)

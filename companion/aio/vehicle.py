@@ -572,12 +572,14 @@ class Vehicle:
                             MAV_CMD_SET_MESSAGE_INTERVAL, f"stream message {message_id}")
 
     async def stream_position_fast(self, rate_hz: float = POSITION_STREAM_HZ) -> str | None:
-        """Ask for LOCAL_POSITION_NED at `rate_hz` (attitude and rates mode close their loop
-        on it): between PX4's default 30 Hz samples the controller's extrapolation drifts from
-        the vehicle's true motion, and each new sample stepped the velocity feedback (thrust
-        steps of up to 0.055 between setpoints 10 ms apart at the corners of an 8 m/s square on
-        real PX4 SITL; 0.031 at 100 Hz). Returns None, or what was refused (the flight goes on
-        at the default rate)."""
+        """Ask for LOCAL_POSITION_NED at `rate_hz` (`fly` and `serve` do in attitude mode,
+        whose loop closes on it): between PX4's default 30 Hz samples the controller's
+        extrapolation drifts from the vehicle's true motion, and each new sample stepped the
+        velocity feedback (thrust steps of up to 0.055 between setpoints 10 ms apart at the
+        corners of an 8 m/s square on real PX4 SITL; 0.031 at 100 Hz). Rates mode stays at the
+        default: on the mock at 100 Hz its figure-8 error doubled (0.04 -> 0.08 m RMS), cause
+        not found. Returns None, or what was refused (the flight goes on at the default
+        rate)."""
         try:
             await self.set_message_interval(LOCAL_POSITION_NED_ID, rate_hz)
         except (VehicleError, TimeoutError) as exc:
