@@ -23,8 +23,10 @@ FloatArray = NDArray[np.float64]
 #: Commanded normalised thrust may change by at most this much over 10 ms while airborne
 #: (the setpoint-smoothness goal; a step above it is counted in the report).
 THRUST_STEP_GOAL = 0.05
-#: A thrust change over 10 ms above this is chatter: the flight's result is not "ok".
-THRUST_STEP_FAIL = 0.1
+#: A thrust change over 10 ms above this is chatter (a motor jolt: half of a 0.5 hover thrust)
+#: and the flight's result is not "ok". Steps between the goal and this are counted only: a lossy
+#: link (10 % loss, 50 ms latency) makes steps of ~0.15 where a late sample arrives.
+THRUST_STEP_FAIL = 0.25
 #: A commanded tilt above the vehicle's limit by more than this fails the flight [deg].
 TILT_MARGIN_DEG = 0.5
 #: A commanded body rate above the vehicle's limit by more than this share fails the flight.

@@ -136,7 +136,7 @@ async def take_off(gcs: Gcs) -> None:
 async def prepared(gcs: Gcs) -> None:
     await gcs.wait_for(lambda: gcs.heartbeat is not None, 15.0, "the autopilot's HEARTBEAT")
     await gcs.upload_mission(mission())
-    await gcs.wait_for(lambda: gcs.text_seen("ecca: mission 4 wp"), 20.0,
+    await gcs.wait_for(lambda: gcs.text_seen("ecca: mission 5 wp"), 20.0,
                        "the service's plan announcement")
     await take_off(gcs)
 
@@ -332,6 +332,6 @@ async def test_serve_refuses_a_mission_that_crosses_the_vehicles_geofence(
         assert gcs.text_seen("ecca: cannot fly mission")
         # items as the service numbers the downloaded mission: takeoff 1, wp 2, 3, 4, land 5
         assert "the leg from item 2 to item 3 crosses exclusion polygon 0" in joined(), joined()
-        assert not gcs.text_seen("ecca: mission 4 wp")
+        assert not gcs.text_seen("ecca: mission 5 wp")
         rejected = [e for e in svc.events() if e["event"] == "mission_rejected"]
         assert rejected and "geofence" in str(rejected[0]["why"])

@@ -170,7 +170,7 @@ async def test_status_with_the_right_key_reports_and_with_a_wrong_key_names_it(
             _status(f"udpin://127.0.0.1:{m1.client_port}", good),
             _status(f"udpin://127.0.0.1:{m2.client_port}", bad))
     assert ok_code == 0 and "ready to arm" in ok_out, ok_out
-    assert bad_code == 1 and "signing keys differ" in bad_out.replace("\n", " "), bad_out
+    assert bad_code == 3 and "signing keys differ" in bad_out.replace("\n", " "), bad_out
 
 
 def test_fly_with_a_signing_key_flies_the_keyed_embedded_mock(

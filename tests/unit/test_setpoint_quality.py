@@ -33,6 +33,9 @@ def test_smooth_thrust_is_ok_and_a_step_is_measured_against_10ms_earlier() -> No
     q = SetpointQuality()
     _feed(q, [0.5] * 10 + [0.62] + [0.5] * 10)
     assert q.max_thrust_step == pytest.approx(0.12) and q.thrust_steps_over_goal == 2
+    assert q.failure() is None  # counted, not a failure
+    _feed(q, [0.5, 0.8, 0.5], t0=1.0)
+    assert q.max_thrust_step == pytest.approx(0.3) and q.thrust_steps_over_goal == 4
     assert q.failure() is not None and "chatter" in q.failure()  # type: ignore[operator]
 
 
