@@ -128,6 +128,11 @@ def _fly_px4(code: Path, mode: str, out: Path) -> dict[str, Any]:
             sitl.stop()
     res = quality_of_tlog(tlog) if tlog.exists() else {"error": "no tlog"}
     res["exit"] = proc.returncode
+    rep = Path(f"{tlog}.report.json")
+    if rep.exists():  # `fly`'s own figures: armed time flown, tracking error, waypoints
+        r = json.loads(rep.read_text())
+        res.update(duration_s=r.get("duration_s"), rms_m=r.get("rms_error_m"),
+                   reached=f"{r.get('waypoints_reached')}/{len(r.get('waypoints') or [])}")
     return res
 
 
@@ -135,8 +140,12 @@ def _row(label: str, b: dict[str, Any], a: dict[str, Any]) -> str:
     def cell(r: dict[str, Any]) -> str:
         if "error" in r:
             return r["error"]
-        return (f"{r['max_step']:.3f} / {r['over_0_05']} / {r['over_0_1']} / "
+        text = (f"{r['max_step']:.3f} / {r['over_0_05']} / {r['over_0_1']} / "
                 f"{r['max_tilt_deg']:.1f} / {r['over_tilt_s']:.2f}")
+        if r.get("duration_s") is not None:
+            text += (f" (fly: {r['duration_s']:.1f} s, RMS {r['rms_m']:.3f} m, "
+                     f"{r['reached']} waypoints)")
+        return text
     return f"| {label} | {cell(b)} | {cell(a)} |"
 
 
@@ -184,7 +193,8 @@ def main(argv: list[str] | None = None) -> int:
         "the vehicle in the air and it is more than 0.5 m up; tilt of the commanded quaternion "
         "(attitude mode) against MPC_TILTMAX_AIR 45 deg.", "",
         "Cells: largest thrust step / steps over 0.05 / steps over 0.1 / largest commanded tilt "
-        "[deg] / time over 45 deg [s].", "",
+        "[deg] / time over 45 deg [s]; real PX4 rows add `fly`'s own report: armed time flown "
+        "(ARM to disarm), RMS distance to the reference, waypoints reached.", "",
         "| mission, mode | before | after |", "| --- | --- | --- |", *rows, ""])
     print(text)
     if args.write:
