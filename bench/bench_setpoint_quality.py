@@ -107,7 +107,7 @@ def _replay(code: Path, mission: Path, mode: str, out: Path) -> dict[str, Any]:
     return quality_of_tlog(tlog)
 
 
-def _fly_px4(code: Path, mode: str, out: Path) -> dict[str, Any]:
+def _fly_px4(code: Path, mode: str, out: Path, mission: Path = SQUARE) -> dict[str, Any]:
     from tests.px4.px4_sitl import Px4Sitl, find_px4_sitl
 
     loc, why = find_px4_sitl()
@@ -120,7 +120,7 @@ def _fly_px4(code: Path, mode: str, out: Path) -> dict[str, Any]:
         sitl = Px4Sitl(location=loc, log=out / "px4-console.log")
         sitl.start()
         try:
-            cmd = [sys.executable, "-m", "companion", "fly", str(SQUARE), "--connect", sitl.url,
+            cmd = [sys.executable, "-m", "companion", "fly", str(mission), "--connect", sitl.url,
                    "--target-system", str(sitl.target_system), "--mode", mode,
                    "--log", str(tlog)]
             proc = subprocess.run(cmd, cwd=code, capture_output=True, text=True, timeout=300)
@@ -153,6 +153,11 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--parts", nargs="+", choices=("mock", "px4"), default=["mock", "px4"])
     ap.add_argument("--before", default="910ef12", help="git revision of the 'before' code")
+    ap.add_argument("--px4-missions", nargs="+", type=Path, default=[SQUARE],
+                    help="missions flown on real PX4 (default: the 10 m-descent square)")
+    ap.add_argument("--after-only", action="store_true",
+                    help="fly the working tree only (the 'before' column says 'not flown')")
+    ap.add_argument("--title", default="Setpoint quality", help="BENCHMARKS.md section")
     ap.add_argument("--out", default="bench_out/setpoint-quality")
     ap.add_argument("--write", action="store_true")
     args = ap.parse_args(argv)
@@ -168,13 +173,16 @@ def main(argv: list[str] | None = None) -> int:
         for part in args.parts:
             for mode in ("attitude", "rates"):
                 cases = ([(m.name, m) for m in missions] if part == "mock"
-                         else [(f"{SQUARE.name} on real PX4", SQUARE)])
+                         else [(f"{m.name} on real PX4", m.resolve()) for m in args.px4_missions])
                 for label, mission in cases:
-                    pair = []
+                    pair: list[dict[str, Any]] = []
                     for name, code in (("before", before), ("after", ROOT)):
+                        if name == "before" and args.after_only:
+                            pair.append({"error": "not flown"})
+                            continue
                         where = out / part / mode / name / mission.stem
                         r = (_replay(code, mission, mode, where) if part == "mock"
-                             else _fly_px4(code, mode, where))
+                             else _fly_px4(code, mode, where, mission))
                         pair.append(r)
                         results[f"{part}/{mode}/{label}/{name}"] = r
                     rows.append(_row(f"{label}, {mode}", *pair))
@@ -182,10 +190,14 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     (out / "quality.json").write_text(json.dumps(results, indent=1))
     cmd = "`.venv/bin/python bench/bench_setpoint_quality.py " + " ".join(
-        a for a in (["--parts", *args.parts] if args.parts != ["mock", "px4"] else [])
+        (["--parts", *args.parts] if args.parts != ["mock", "px4"] else [])
+        + (["--px4-missions", *map(str, args.px4_missions)] if args.px4_missions != [SQUARE]
+           else [])
+        + (["--after-only"] if args.after_only else [])
+        + (["--title", repr(args.title)] if args.title != "Setpoint quality" else [])
         + ["--before", args.before, "--write"]) + "`"
     text = "\n".join([
-        "## Setpoint quality", "",
+        f"## {args.title}", "",
         f"Command: {cmd} ({t0}, before = git {args.before}, after = git {head} and the working "
         "tree). Mock: lockstep replay; real PX4: v1.16 SITL (SIH quad, default parameters), "
         "`companion fly`, one flight per cell. Judged from each flight's tlog alone: thrust steps "
@@ -198,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
         "| mission, mode | before | after |", "| --- | --- | --- |", *rows, ""])
     print(text)
     if args.write:
-        write_section("Setpoint quality", text)
+        write_section(args.title, text)
     return 0
 
 
