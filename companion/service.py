@@ -456,6 +456,9 @@ class ServeService:
                                              "planned_s": round(result.planned_s, 2),
                                              "final_action": result.final_action}),
                 Announce(f"ecca: mission {n} wp, {result.planned_s:.0f} s planned")]
+        for w in result.schedule.warnings:  # e.g. a speed item above the level speed cap
+            out += [LogEvent("plan_warning", {"mission_id": key[0], "why": w}),
+                    Announce(f"ecca: {w.split(': ', 1)[-1]}", MAV_SEVERITY_WARNING)]
         return out
 
     def shutdown(self, obs: Observation) -> list[Action]:

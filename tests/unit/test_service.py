@@ -87,6 +87,20 @@ def test_the_vehicles_planning_parameters_reach_the_plan() -> None:
     assert max(fast.schedule.acceptance_m) == 4.0 > max(slow.schedule.acceptance_m)
 
 
+def test_a_speed_item_above_the_level_speed_is_announced_to_the_pilot() -> None:
+    """serve plans the downloaded mission like `fly`, and says to the ground station what the
+    plan cannot give (a 15-17 m/s speed item flown at the 6.9 m/s level speed cap)."""
+    items, home = wire_items(MISSIONS / "speed_items.plan")
+    prog = plan_program(items, home, (1, len(items)), ServiceConfig())
+    acts = ServeService().on_planned((1, len(items)), prog, 0.0)
+    said = [a.text for a in acts if isinstance(a, Announce) and "above" in a.text]
+    assert len(said) == 1 and "15" in said[0] and "6.9 m/s" in said[0]
+    items, home = wire_items(MISSIONS / "px4_short.plan")
+    quiet = ServeService().on_planned((1, len(items)), plan_program(
+        items, home, (1, len(items)), ServiceConfig()), 0.0)
+    assert not [a for a in quiet if isinstance(a, Announce) and "above" in a.text]
+
+
 def test_hold_is_streamed_only_while_armed_and_flying() -> None:
     svc = ServeService()
     svc.update(obs(0.0, armed=False, landed=1))
