@@ -147,7 +147,7 @@ async def test_keyed_mock_process_refuses_unsigned_command_from_pymavlink(
 async def _status(url: str, key_file: Path) -> tuple[int, str]:
     proc = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "companion", "status", "--connect", url,
-        "--signing-key", str(key_file),
+        "--signing-key", str(key_file), "--timeout", "4",
         stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT)
     try:
         out, _ = await bounded(proc.communicate(), 40.0, "companion status")

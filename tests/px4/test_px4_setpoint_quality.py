@@ -21,7 +21,9 @@ REPO = Path(__file__).resolve().parents[2]
 MISSION = REPO / "tests" / "data" / "missions" / "square_8ms.plan"
 
 
-@pytest.mark.parametrize("mode", ["attitude", "rates"])
+# attitude mode only: the mode that chattered (rates mode on the same square: largest step 0.047
+# before, 0.044 after; BENCHMARKS.md "Setpoint quality"), to keep the real-time px4 set short
+@pytest.mark.parametrize("mode", ["attitude"])
 def test_px4_fly_has_no_thrust_chatter_and_keeps_the_tilt_limit(
         px4: Px4Sitl, tmp_path: Path, mode: str) -> None:
     tlog = tmp_path / "flight.tlog"
