@@ -468,13 +468,13 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                     # take over where the plan's last descent stops cruising (no stop 0.5 m up)
                     t_td, v_td = planned.schedule.final_descent_cruise(land_speed)
                     td = Touchdown(t_td - planned.t_off_s, descent_m_s=land_speed, v0_m_s=v_td)
+                limits = SetpointLimits.of_px4(px4.params if px4 is not None
+                                               else Px4PlanningParams())
                 source = TrackingSource(
                     ref, mode, vf.params,  # type: ignore[arg-type]
-                    tracking=(vf.tracking_config(math.radians(50.0))
+                    tracking=(vf.tracking_config(limits.tilt_max_rad)
                               if mode in ("attitude", "rates") else None),
-                    touchdown=td,
-                    limits=SetpointLimits.of_px4(px4.params if px4 is not None
-                                                 else Px4PlanningParams()))
+                    touchdown=td, limits=limits)
                 rec = loop.create_task(record())
                 started = loop.time()
                 flown = await v.fly(mode=mode, setpoint_source=source,

@@ -10,18 +10,19 @@ import itertools
 import math
 
 from tests.unit.test_sitl_autopilot_harness import Harness
-from tests.unit.test_sitl_mission_protocol import HOME, east_of_home, item, north_of_home, upload
+from tests.unit.test_sitl_mission_protocol import (
+    HOME,
+    east_of_home,
+    item,
+    north_of_home,
+    start_auto_mission,
+)
 
 
 def _fly(items: list[object], until_s: float, done: object) -> tuple[Harness, list[tuple[
         float, tuple[float, float, float], tuple[float, float, float], bool]]]:
     """Upload, arm, AUTO.MISSION; record (t, pos, vel, landed) until ``done(h)`` or ``until_s``."""
-    h = Harness(step_s=0.02)
-    h.run(0.1)
-    assert upload(h, items) == 0
-    h.wait_ready()
-    h.arm()
-    h.set_mode(4, 4)
+    h = start_auto_mission(items)
     track: list[tuple[float, tuple[float, float, float], tuple[float, float, float], bool]] = []
     h.run_until(lambda: done(h), until_s,  # type: ignore[operator]
                 lambda: track.append((h.now_boot, h.ap.state.pos_ned, h.ap.state.vel_ned,

@@ -70,6 +70,17 @@ def upload(h: Harness, items: list[object]) -> int:
     raise AssertionError("upload did not finish")
 
 
+def start_auto_mission(items: list[object]) -> Harness:
+    """A fresh mock with `items` uploaded, armed and in AUTO.MISSION."""
+    h = Harness(step_s=0.02)
+    h.run(0.1)
+    assert upload(h, items) == 0
+    h.wait_ready()
+    h.arm()
+    h.set_mode(4, 4)
+    return h
+
+
 def download(h: Harness, use_int: bool = True) -> list[object]:
     h.run(0.01)
     t = h.now_boot
@@ -228,12 +239,7 @@ def _dist_to(h: Harness, n: float, e: float) -> float:
 
 
 def test_mission_flight_reached_messages_and_finish_loiter() -> None:
-    h = Harness(step_s=0.02)
-    h.run(0.1)
-    assert upload(h, SIMPLE) == 0
-    h.wait_ready()
-    h.arm()
-    h.set_mode(4, 4)
+    h = start_auto_mission(SIMPLE)
     track: list[tuple[float, tuple[float, float, float]]] = []
     h.run_until(
         lambda: any("Mission finished" in t for t in h.texts()),
