@@ -1,0 +1,123 @@
+"""Behaviour kept through refactors: replaying every bundled mission gives the report figures
+stored in tests/data/report_figures.json, to round-off.
+
+This is a regression snapshot, not a correctness oracle: the figures were recorded from the
+replays of commit d133c5d (before the issue-25 redesign), whose correctness is asserted by the
+other replay tests (waypoints from the tlog, setpoint quality, touchdown). A change of flight
+behaviour must show up here and be re-recorded on purpose, with the reason in the commit:
+
+    python -m tests.integration.test_report_figures --write
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from companion.cli import main as cli_main
+
+ROOT = Path(__file__).resolve().parents[2]
+MISSIONS = ROOT / "examples" / "missions"
+STORED = ROOT / "tests" / "data" / "report_figures.json"
+
+#: (case name, file, extra replay arguments)
+CASES: list[tuple[str, str, tuple[str, ...]]] = [
+    *[(p.stem, p.name, ()) for p in sorted(MISSIONS.glob("*.plan")) if "rover" not in p.stem],
+    ("square_waypoints", "square.waypoints", ()),
+    ("rover_square", "rover_square.plan", ("--vehicle", "rover")),
+    ("square_rates", "square.plan", ("--mode", "rates")),
+]
+
+#: report keys that measure the host, not the flight
+_VOLATILE = {"wall_s", "real_time_factor", "file"}
+_REL = 1e-6
+_ABS = 1e-9
+
+
+def _figures(report: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in report.items() if k not in _VOLATILE}
+
+
+def _replay_all(out: Path) -> dict[str, dict[str, Any]]:
+    """Replay every case, two files at a time, and return each case's report figures."""
+    batches: list[tuple[tuple[str, ...], list[tuple[str, str]]]] = []
+    for name, file, args in CASES:
+        # files of the same stem would share an output folder: they go in separate calls
+        batch = next((b for a, b in batches if a == args
+                      and all(Path(f).stem != Path(file).stem for _, f in b)), None)
+        if batch is None:
+            batch = []
+            batches.append((args, batch))
+        batch.append((name, file))
+    figures: dict[str, dict[str, Any]] = {}
+    for i, (args, batch) in enumerate(batches):
+        batch_out = out / str(i)
+        rc = cli_main(["replay", *(str(MISSIONS / f) for _, f in batch), "--out", str(batch_out),
+                       "--jobs", "2", *args])
+        assert rc == 0, f"replay of {[f for _, f in batch]} exited {rc}"
+        for name, file in batch:
+            report = json.loads((batch_out / Path(file).stem / "report.json").read_text())
+            figures[name] = _figures(report)
+    return figures
+
+
+def _diff(path: str, want: Any, got: Any, out: list[str]) -> None:
+    if isinstance(want, dict) and isinstance(got, dict):
+        for k in sorted(set(want) | set(got)):
+            if k not in want or k not in got:
+                out.append(f"{path}.{k}: only in {'stored' if k in want else 'replay'}")
+            else:
+                _diff(f"{path}.{k}", want[k], got[k], out)
+    elif isinstance(want, list) and isinstance(got, list):
+        if len(want) != len(got):
+            out.append(f"{path}: {len(want)} stored entries, {len(got)} replayed")
+        for i, (a, b) in enumerate(zip(want, got, strict=False)):
+            _diff(f"{path}[{i}]", a, b, out)
+    elif (isinstance(want, float | int) and not isinstance(want, bool)
+          and isinstance(got, float | int) and not isinstance(got, bool)):
+        if not math.isclose(float(want), float(got), rel_tol=_REL, abs_tol=_ABS):
+            out.append(f"{path}: stored {want!r}, replayed {got!r}")
+    elif want != got:
+        out.append(f"{path}: stored {want!r}, replayed {got!r}")
+
+
+@pytest.mark.slow
+def test_bundled_missions_replay_to_the_stored_report_figures(tmp_path: Path) -> None:
+    stored = json.loads(STORED.read_text())
+    assert sorted(stored) == sorted(name for name, _, _ in CASES)
+    got = _replay_all(tmp_path)
+    problems: list[str] = []
+    for name in stored:
+        _diff(name, stored[name], got[name], problems)
+    assert not problems, "report figures changed:\n" + "\n".join(problems[:40])
+
+
+def test_the_comparison_notices_a_changed_figure() -> None:
+    """The differ is not blind: a relative change of 1e-5 in one nested figure is reported,
+    round-off (1e-9) is not."""
+    base = {"a": {"legs": [{"time_s": 9.768, "leg": "x"}], "ok": True}}
+    changed = json.loads(json.dumps(base))
+    changed["a"]["legs"][0]["time_s"] *= 1 + 1e-5
+    problems: list[str] = []
+    _diff("m", base, changed, problems)
+    assert problems == [f"m.a.legs[0].time_s: stored 9.768, replayed {9.768 * (1 + 1e-5)!r}"]
+    rounded = json.loads(json.dumps(base))
+    rounded["a"]["legs"][0]["time_s"] *= 1 + 1e-9
+    problems.clear()
+    _diff("m", base, rounded, problems)
+    assert problems == []
+
+
+if __name__ == "__main__":
+    if sys.argv[1:] != ["--write"]:
+        sys.exit(__doc__)
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        STORED.write_text(json.dumps(_replay_all(Path(d)), indent=1, sort_keys=True) + "\n")
+    print(f"wrote {STORED}")
