@@ -32,9 +32,9 @@ from pymavlink import mavutil
 
 from companion.aio import CommandError, Vehicle, VehicleConfig
 from companion.control import Reference
+from companion.flight.tracking import TrackingSource
 from companion.mavlink import LinkConfig, TelemetrySnapshot
 from companion.mission import GeoPoint, geodetic_to_ned
-from companion.tracking import TrackingSource
 
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
@@ -180,7 +180,7 @@ async def fly_on(v: Vehicle, mode: str, reference: Callable[[float], Reference],
                  ) -> Flight:
     """Fly `reference` (shifted horizontally to start where the vehicle is) in `mode` for
     `duration_s` with a `TrackingSource` (or `source_factory(reference, mode)`), then Hold."""
-    from companion.config import VehicleFile
+    from companion.planning.config import VehicleFile
 
     await fresh_position(v)
     pos = v.telemetry.position

@@ -82,7 +82,7 @@ def on_cluster(tasks: list[Any], workers: int) -> tuple[float, float, list[dict[
         with dask_client(None, workers) as client:
             client.wait_for_workers(workers, timeout=120)
             # import the replay stack in every worker before timing (a campaign pays it once)
-            client.run(lambda: __import__("companion.replay"))
+            client.run(lambda: __import__("companion.replay.runner"))
             t1 = time.perf_counter()
             rows = run_tasks(client, tasks, ResultStore(Path(out)), CampaignProgress())
             t2 = time.perf_counter()

@@ -1,6 +1,6 @@
 """Missions: the companion against PX4's own AUTO.MISSION (issue 13's goals), in three parts.
 
-mock (lockstep replay, `companion.replay`): every bundled mission in examples/missions
+mock (lockstep replay, `companion.replay.runner`): every bundled mission in examples/missions
   (rover_square.plan as a rover) flown by the companion (`prepare_mission` + `run_prepared`,
   attitude mode) and, on a second fresh mock with the same `ReplayConfig` (same PX4
   parameters), in the mock's AUTO.MISSION (`fly_px4_mission`). Per mission:
@@ -13,8 +13,8 @@ mock (lockstep replay, `companion.replay`): every bundled mission in examples/mi
     touchdown of `FlightPlan.points_ned_m()`; inside the corridor when within `--corridor` m
     (default 1) of it or within a waypoint's acceptance radius (corners may be cut there);
   - planned duration vs the time-optimal bound of the same plan and limits, when the planner
-    provides one (`time_optimal_bound_s(flight_plan, params, limits)` in companion.schedule or
-    companion.trajectory; "n/a" otherwise).
+    provides one (`time_optimal_bound_s(flight_plan, params, limits)` in
+    companion.planning.schedule or companion.trajectory; "n/a" otherwise).
 px4 (real PX4 v1.16 SITL, real time, ../shared/px4_sitl through tests/px4/px4_sitl.Px4Sitl, each
   flight on a fresh PX4 holding /tmp/ecca-px4-flights.lock): `--px4-mission` (default
   examples/missions/square.plan) flown by `python -m companion fly --connect ... --mode attitude`
@@ -77,7 +77,8 @@ from companion.mission import (  # noqa: E402
     loads_mission,
     mission_to_flight_plan,
 )
-from companion.replay import (  # noqa: E402
+from companion.planning.schedule import VehicleLimits, build_schedule  # noqa: E402
+from companion.replay.runner import (  # noqa: E402
     DEFAULT_QUAD,
     FlightLog,
     Phase,
@@ -87,7 +88,6 @@ from companion.replay import (  # noqa: E402
     prepare_mission,
     run_prepared,
 )
-from companion.schedule import VehicleLimits, build_schedule  # noqa: E402
 
 MISSIONS_DIR = REPO / "examples" / "missions"
 ROVER_MISSIONS = ("rover_square.plan",)
@@ -112,12 +112,12 @@ def time_optimal_bound() -> tuple[Callable[..., float] | None, str]:
     as `build_schedule`), or None and why."""
     import importlib
 
-    for mod in ("companion.schedule", "companion.trajectory"):
+    for mod in ("companion.planning.schedule", "companion.trajectory"):
         fn = getattr(importlib.import_module(mod), "time_optimal_bound_s", None)
         if callable(fn):
             return fn, f"`{mod}.{BOUND_CALL}`"
-    return None, (f"n/a: the planner has no `{BOUND_CALL}` (looked in companion.schedule and "
-                  "companion.trajectory)")
+    return None, (f"n/a: the planner has no `{BOUND_CALL}` (looked in "
+                  "companion.planning.schedule and companion.trajectory)")
 
 
 def flight_plan_of(prep: PreparedMission, vehicle: str) -> FlightPlan:

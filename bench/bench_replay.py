@@ -21,9 +21,9 @@ sys.path.insert(0, str(ROOT))
 
 from benchmarks_md import write_section  # noqa: E402
 
-from companion.cli import main as cli_main  # noqa: E402
-from companion.plotting import PlotWorker  # noqa: E402
-from companion.replay import ReplayConfig, replay_file  # noqa: E402
+from companion.app.cli import main as cli_main  # noqa: E402
+from companion.app.plotting import PlotWorker  # noqa: E402
+from companion.replay.runner import ReplayConfig, replay_file  # noqa: E402
 
 FIVE_MIN = ROOT / "examples" / "missions" / "five_minute.plan"
 EIGHT = [ROOT / "examples" / "missions" / n for n in (

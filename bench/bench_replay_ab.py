@@ -22,7 +22,7 @@ root, mode = sys.argv[1], sys.argv[2]
 sys.path.insert(0, root)
 import companion, sitl_mock
 assert companion.__file__.startswith(root) and sitl_mock.__file__.startswith(root)
-from companion.replay import ReplayConfig, replay_file
+from companion.replay.runner import ReplayConfig, replay_file
 with tempfile.TemporaryDirectory() as out:
     load = os.getloadavg()[0]
     c0, t0 = time.process_time(), time.perf_counter()

@@ -534,7 +534,7 @@ def _controller_factory(overrides: list[str]) -> Any:
     from dataclasses import fields, replace
 
     from companion.control import AttitudeGains, TrackingGains
-    from companion.tracking import TrackingSource
+    from companion.flight.tracking import TrackingSource
 
     gain_names = {f.name for f in fields(TrackingGains)}
     att_names = {f.name for f in fields(AttitudeGains)}

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from companion.mission import load_mission, mission_to_flight_plan, split_flight_plan
-from companion.px4_params import Px4PlanningParams
-from companion.schedule import _land_profile, _leg_speed_caps
+from companion.mission.px4_params import Px4PlanningParams
+from companion.planning.schedule import _land_profile, _leg_speed_caps
 from sitl_mock.params import PARAMS
 
 MAV_TYPE_GROUND_ROVER = 10

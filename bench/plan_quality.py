@@ -23,8 +23,8 @@ sys.path.insert(0, str(ROOT / "bench"))
 from mission_metrics import corridor_check  # noqa: E402
 
 from companion.mission import load_mission, loads_mission, mission_to_flight_plan  # noqa: E402
-from companion.replay import DEFAULT_QUAD  # noqa: E402
-from companion.schedule import VehicleLimits, axis_ratios, build_schedule  # noqa: E402
+from companion.planning.schedule import VehicleLimits, axis_ratios, build_schedule  # noqa: E402
+from companion.replay.runner import DEFAULT_QUAD  # noqa: E402
 
 MISSIONS = sorted([*ROOT.glob("examples/missions/*.plan"),
                    *ROOT.glob("examples/missions/*.waypoints"),

@@ -1,7 +1,7 @@
-"""`python -m companion`: see companion.cli."""
+"""`python -m companion`: see companion.app.cli."""
 
 import sys
 
-from companion.cli import main
+from companion.app.cli import main
 
 sys.exit(main())

@@ -1,6 +1,6 @@
 """Setpoint quality judged from a flight's tlog alone, as an outsider would: the companion's
 SET_ATTITUDE_TARGET frames against the vehicle's own LOCAL_POSITION_NED and
-EXTENDED_SYS_STATE. Independent of `companion.flight_report` (which measures the same things
+EXTENDED_SYS_STATE. Independent of `companion.flight.report` (which measures the same things
 from inside the setpoint source): shared by the replay and the real-PX4 tests."""
 
 from __future__ import annotations

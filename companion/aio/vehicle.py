@@ -28,6 +28,7 @@ from collections.abc import AsyncIterator, Awaitable, Callable, Generator, Mappi
 from dataclasses import dataclass
 from typing import Any, Generic, Literal, TypeVar
 
+from companion.flight.tracking import TOUCHDOWN_TIMEOUT_S
 from companion.mavlink import (
     ArmedChanged,
     Attitude,
@@ -62,9 +63,8 @@ from companion.mavlink.commands import (
     MAV_CMD_NAV_TAKEOFF,
     MAV_CMD_SET_MESSAGE_INTERVAL,
 )
-from companion.px4_params import PLANNING_PARAM_NAMES
-from companion.tracking import TOUCHDOWN_TIMEOUT_S
-from companion.vehicle_params import ResolvedPlanningParams, resolve_planning_params
+from companion.mission.px4_params import PLANNING_PARAM_NAMES
+from companion.planning.vehicle_params import ResolvedPlanningParams, resolve_planning_params
 
 from .errors import (
     CommandError,
@@ -495,7 +495,7 @@ class Vehicle:
         with the vehicle file's ``[px4]`` overrides:
         ``.params`` is the :class:`Px4PlanningParams` to plan with, ``.warnings`` names the
         parameters the vehicle did not have (PX4's default used; see
-        :mod:`companion.vehicle_params` for the policy). ValueError for a value the planner
+        :mod:`companion.planning.vehicle_params` for the policy). ValueError for a value the planner
         cannot use (wrong type, out of range) unless overridden."""
         names = list(PLANNING_PARAM_NAMES)
         expect = {n: ParamType.REAL32 for n in names}

@@ -147,7 +147,7 @@ def run_campaign(
         run_tasks,
     )
     from companion.mission import MissionError
-    from companion.replay import ReplayConfig, prepare_mission
+    from companion.replay.runner import ReplayConfig, prepare_mission
 
     for f in opts.files:  # every file must load (and its plan keep inside its geofence)
         try:  # before anything is flown

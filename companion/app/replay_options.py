@@ -48,7 +48,7 @@ def add_perturbation_options(p: argparse.ArgumentParser) -> None:
 
 def replay_config_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     """ReplayConfig keyword arguments from parsed `replay` options."""
-    from companion.replay import DEFAULT_QUAD
+    from companion.replay.runner import DEFAULT_QUAD
 
     params = DEFAULT_QUAD
     if args.hover_thrust is not None:

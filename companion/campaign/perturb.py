@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass, fields
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # (kept out of `python -m companion` start-up: the replay stack is heavy)
-    from companion.replay import ReplayConfig
+    from companion.replay.runner import ReplayConfig
 
 #: Quantisation of sampled values (decimals), so commands stay readable and exact.
 DECIMALS = 4

@@ -114,7 +114,7 @@ def execute_run(task: RunTask) -> RunOutcome:
     import time
 
     t0 = time.perf_counter()
-    from companion.replay import ReplayConfig, prepare_mission
+    from companion.replay.runner import ReplayConfig, prepare_mission
 
     config = task.perturbation.replay_config(
         ReplayConfig(vehicle="quad", mode=task.mode, rate_hz=task.rate_hz)  # type: ignore[arg-type]
@@ -146,7 +146,7 @@ def execute_run(task: RunTask) -> RunOutcome:
 
 def _fly(prep: Any, config: Any, tlog_path: Path | None) -> Any:
     from companion.aio.tlog import TlogWriter
-    from companion.replay import run_prepared
+    from companion.replay.runner import run_prepared
 
     if tlog_path is None:
         return run_prepared(prep, config, None)

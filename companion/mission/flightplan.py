@@ -65,7 +65,7 @@ from companion.mission.model import (
     MissionItem,
     command_name,
 )
-from companion.px4_params import Px4PlanningParams
+from companion.mission.px4_params import Px4PlanningParams
 
 __all__ = [
     "FinalAction",

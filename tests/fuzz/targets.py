@@ -31,7 +31,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from companion.mavlink.link import LinkConfig, VehicleLink
 from companion.mission import MissionError, loads_mission, mission_to_flight_plan
-from companion.schedule import PlanMemo, Schedule, VehicleLimits, build_schedule
+from companion.planning.schedule import PlanMemo, Schedule, VehicleLimits, build_schedule
 
 #: Mission expansion cap in the fuzz (planning costs ~5 ms per waypoint: 200 items stay ~1 s).
 FUZZ_MAX_ITEMS = 200
@@ -46,7 +46,7 @@ def mission_target(data: bytes, memo: PlanMemo | None = None, verify: bool = Fal
     """Load, plan and schedule; returns "rejected", "not flyable" or "flown". ``memo``: plan
     through it (see `MissionTarget`); ``verify``: also schedule without it and require the
     same schedule bit for bit."""
-    from companion.replay import DEFAULT_QUAD, mission_frames
+    from companion.replay.runner import DEFAULT_QUAD, mission_frames
 
     try:
         mission = loads_mission(data, source="fuzz")
@@ -104,7 +104,7 @@ def same_schedule(a: Schedule, b: Schedule) -> bool:
                 out += [None] if tr is None else [tr.control_points, tr.durations]
         return out
 
-    from companion.schedule import exact_key
+    from companion.planning.schedule import exact_key
 
     return exact_key(arrays(a)) == exact_key(arrays(b))
 

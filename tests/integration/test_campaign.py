@@ -22,9 +22,9 @@ import pytest
 from rich.console import Console
 
 from companion.app.campaign import CampaignOptions, run_campaign
+from companion.app.cli import main as cli_main
 from companion.campaign.perturb import PerturbationRanges
 from companion.campaign.runner import RESULTS_FILE, WALL_CLOCK_COLUMNS
-from companion.cli import main as cli_main
 
 ROOT = Path(__file__).resolve().parents[2]
 MISSION = str(ROOT / "tests" / "data" / "missions" / "px4_short.plan")

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from companion.cli import main
+from companion.app.cli import main
 from tests.integration.conftest import free_udp_port
 
 EXIT_NO_VEHICLE = 3  # README "Conventions": no vehicle heard within --timeout

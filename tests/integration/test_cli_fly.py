@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from pymavlink import mavutil
 
-from companion.cli import main as cli_main
+from companion.app.cli import main as cli_main
 from tests.integration.conftest import bounded, run_mock
 
 OFFBOARD_CUSTOM_MODE = 6 << 16

@@ -21,7 +21,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.mission import load_mission
-from companion.px4_params import PLANNING_PARAM_NAMES, Px4PlanningParams
+from companion.mission.px4_params import PLANNING_PARAM_NAMES, Px4PlanningParams
 from tests.integration.conftest import bounded, free_udp_port
 
 MISSION = Path(__file__).resolve().parents[1] / "data" / "missions" / "px4_short.plan"

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
-from companion.cli import main as cli_main
+from companion.app.cli import main as cli_main
 
 ROOT = Path(__file__).resolve().parents[2]
 MISSION = ROOT / "examples" / "missions" / "ten_waypoints.plan"
@@ -276,7 +276,7 @@ def test_rover_planned_above_its_top_speed_misses_corners_and_says_so(
 ) -> None:
     """Without the speed cap (5 m/s legs for a 1.5 m/s rover) the rover falls behind and cuts
     the corners: the replay exits 1 and the summary names the missed waypoints."""
-    import companion.replay as replay
+    import companion.replay.runner as replay
 
     monkeypatch.setattr(replay, "ROVER_SPEED_FRACTION", 4.0)  # cap 6 m/s: legs at 5 m/s
     code = cli_main(["replay", str(ROVER_MISSION), "--vehicle", "rover", "--out", str(tmp_path),

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
-from companion.cli import main as cli_main
+from companion.app.cli import main as cli_main
 from tests.fence_plans import HOME, box, write_plan
 
 R_EARTH = 6_371_000.0
@@ -121,8 +121,8 @@ def test_time_optimal_bounds_given_to_the_replay_appear_per_leg_and_per_flight(
         tmp_path: Path) -> None:
     import dataclasses
 
-    from companion.legs import plan_legs
-    from companion.replay import ReplayConfig, prepare_mission, run_prepared
+    from companion.planning.legs import plan_legs
+    from companion.replay.runner import ReplayConfig, prepare_mission, run_prepared
 
     plan = write_plan(tmp_path / "b.plan", POINTS, land=False)
     config = ReplayConfig()

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from companion.cli import main as cli_main
-from companion.px4_params import PLANNING_PARAM_NAMES
-from companion.replay import ReplayConfig, prepare_mission, read_mock_params
+from companion.app.cli import main as cli_main
+from companion.mission.px4_params import PLANNING_PARAM_NAMES
+from companion.replay.runner import ReplayConfig, prepare_mission, read_mock_params
 from sitl_mock.params import PARAMS
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -11,8 +11,8 @@ from typing import Any
 
 import pytest
 
-import companion.replay
-from companion.cli import main as cli_main
+import companion.replay.runner
+from companion.app.cli import main as cli_main
 from companion.mission import load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -58,13 +58,13 @@ def test_a_waypoint_auto_mission_misses_fails_the_replay(
     """AUTO.MISSION is given the square with its takeoff at home, so it never goes to the
     offset takeoff point the companion flies: the comparison must say so and fail."""
     plan = _offset_takeoff_plan(tmp_path)
-    real = companion.replay.fly_px4_mission
+    real = companion.replay.runner.fly_px4_mission
     at_home = load_mission(SQUARE)
 
     def fly_takeoff_at_home(config: Any, _mission: Any, home: Any, hint: float) -> Any:
         return real(config, at_home, home, hint)
 
-    monkeypatch.setattr(companion.replay, "fly_px4_mission", fly_takeoff_at_home)
+    monkeypatch.setattr(companion.replay.runner, "fly_px4_mission", fly_takeoff_at_home)
     code = cli_main(["replay", str(plan), "--compare-px4-mission", "--out", str(tmp_path)])
     out = capsys.readouterr().out
     report = json.loads((tmp_path / plan.stem / "report.json").read_text())

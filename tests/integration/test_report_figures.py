@@ -19,7 +19,7 @@ from typing import Any
 
 import pytest
 
-from companion.cli import main as cli_main
+from companion.app.cli import main as cli_main
 
 ROOT = Path(__file__).resolve().parents[2]
 MISSIONS = ROOT / "examples" / "missions"

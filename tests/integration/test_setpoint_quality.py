@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from companion.cli import main as cli_main
+from companion.app.cli import main as cli_main
 from tests.setpoint_checks import read_setpoints
 
 ROOT = Path(__file__).resolve().parents[2]

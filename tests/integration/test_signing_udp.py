@@ -18,7 +18,7 @@ import pytest
 from pymavlink.dialects.v20 import common as m
 
 from companion.aio import Vehicle, VehicleConfig
-from companion.cli import main as cli_main
+from companion.app.cli import main as cli_main
 from companion.mavlink import LinkConfig, PositionSetpoint, SigningConfig, TelemetrySnapshot
 from sitl_mock.autopilot import Autopilot
 from sitl_mock.server import LinkConfig as MockLink

@@ -20,8 +20,8 @@ import numpy as np
 
 from companion.control import Reference, TrackingConfig
 from companion.flatness import MultirotorParams
+from companion.flight.tracking import TrackingSource
 from companion.mavlink import SetpointCommand, TelemetrySnapshot
-from companion.tracking import TrackingSource
 from tests.integration import test_companion_vehicle as vehicle_tests
 from tests.integration.test_companion_vehicle import MockFactory, connected, ours, read_tlog
 

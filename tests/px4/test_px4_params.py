@@ -15,7 +15,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.aio import ParamReadError, Vehicle, VehicleConfig
 from companion.mavlink import LinkConfig
-from companion.px4_params import PLANNING_PARAM_NAMES
+from companion.mission.px4_params import PLANNING_PARAM_NAMES
 
 from .px4_sitl import Px4Sitl
 

@@ -18,13 +18,13 @@ import numpy as np
 import pytest
 
 from companion.aio import ModeChangeError, OffboardExitedError, Vehicle, VehicleConfig
-from companion.config import VehicleFile
 from companion.control import Reference
+from companion.flight.tracking import TrackingSource
 from companion.mavlink import FlightMode, LinkConfig, MissionItem, TelemetrySnapshot
 from companion.mission import load_mission, mission_upload_items
-from companion.patterns import pattern_trajectory
-from companion.schedule import trajectory_reference
-from companion.tracking import TrackingSource
+from companion.planning.config import VehicleFile
+from companion.planning.schedule import trajectory_reference
+from companion.trajectory.patterns import pattern_trajectory
 
 from .px4_sitl import Px4Sitl
 

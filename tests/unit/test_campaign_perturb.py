@@ -11,11 +11,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from companion.app.cli import build_parser
 from companion.app.replay_options import replay_config_kwargs
 from companion.campaign.perturb import PerturbationRanges, sample
 from companion.campaign.runner import make_tasks, replay_command
-from companion.cli import build_parser
-from companion.replay import ReplayConfig
+from companion.replay.runner import ReplayConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 MISSION = str(ROOT / "tests" / "data" / "missions" / "px4_short.plan")

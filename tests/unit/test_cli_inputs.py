@@ -11,9 +11,9 @@ from typing import Any
 
 import pytest
 
-import companion.flycmd
-import companion.replay
-from companion.cli import EXIT_BAD_INPUT, EXIT_FAILURE, build_parser, main
+import companion.app.fly
+import companion.replay.runner
+from companion.app.cli import EXIT_BAD_INPUT, EXIT_FAILURE, build_parser, main
 from companion.mission import MissionError, load_mission, mission_to_flight_plan
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -26,7 +26,7 @@ def _no_mock(*_a: Any, **_k: Any) -> Any:
 
 @pytest.fixture
 def never_start_mock(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(companion.flycmd, "embedded_mock", _no_mock)
+    monkeypatch.setattr(companion.app.fly, "embedded_mock", _no_mock)
 
 
 def _run(capsys: pytest.CaptureFixture[str], args: list[str]) -> tuple[int, str, str]:
@@ -122,7 +122,7 @@ def test_replay_prints_each_warning_once(
         mission_to_flight_plan(load_mission(path))
         raise MissionError(path, "stub: stop after planning")
 
-    monkeypatch.setattr(companion.replay, "replay_file", stub)
+    monkeypatch.setattr(companion.replay.runner, "replay_file", stub)
     src = ROOT / "tests" / "data" / "missions" / "all_commands.plan"
     main(["replay", str(src), "--out", str(tmp_path)])
     ignored = [r for r in caplog.records if "ignored (no position)" in r.getMessage()]
@@ -140,9 +140,9 @@ def test_px4_compare_row_is_not_ok_with_missed_waypoints(
                               "duration_s": 12.0, "max_tilt_deg": 11.0}}
 
     def stub(path: str, out: str, *_a: Any, **_k: Any) -> Any:
-        return companion.replay.ReplayResult(Path(path).stem, Path(out), report, True)
+        return companion.replay.runner.ReplayResult(Path(path).stem, Path(out), report, True)
 
-    monkeypatch.setattr(companion.replay, "replay_file", stub)
+    monkeypatch.setattr(companion.replay.runner, "replay_file", stub)
     code, out, _err = _run(capsys, ["replay", str(EXAMPLES / "square.plan"), "--out",
                                     str(tmp_path), "--compare-px4-mission"])
     row = next(ln for ln in out.splitlines() if "PX4 AUTO.MISSION" in ln)
@@ -245,7 +245,7 @@ def test_output_path_of_the_wrong_kind_is_bad_input(
     a_file.write_text("keep me\n")
     a_dir = tmp_path / "a_folder"
     a_dir.mkdir()
-    monkeypatch.setattr(companion.replay, "replay_file", _no_mock)
+    monkeypatch.setattr(companion.replay.runner, "replay_file", _no_mock)
     argv = [x.format(f=a_file, d=a_dir) for x in args]
     code, _out, err = _run(capsys, argv)
     text = _one_line(err)
@@ -268,7 +268,7 @@ def test_default_output_folder_taken_by_a_file_is_bad_input(
 ) -> None:
     """The default output folder is checked like a given one."""
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(companion.replay, "replay_file", _no_mock)
+    monkeypatch.setattr(companion.replay.runner, "replay_file", _no_mock)
     (tmp_path / default).write_text("")
     code, _out, err = _run(capsys, command)
     assert code == EXIT_BAD_INPUT

@@ -1,4 +1,5 @@
-"""Vehicle TOML files (`companion.config`) and the rover speed cap they feed to the schedule."""
+"""Vehicle TOML files (`companion.planning.config`) and the rover speed cap they feed to the
+schedule."""
 
 from __future__ import annotations
 
@@ -8,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.config import load_vehicle_file
 from companion.control import AttitudeGains, TrackingGains
 from companion.mission import load_mission, mission_to_flight_plan
-from companion.schedule import VehicleLimits, build_schedule
+from companion.planning.config import load_vehicle_file
+from companion.planning.schedule import VehicleLimits, build_schedule
 
 ROOT = Path(__file__).resolve().parents[2]
 

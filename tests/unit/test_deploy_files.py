@@ -8,8 +8,8 @@ import shlex
 from pathlib import Path
 
 from companion.aio.transports import parse_url
-from companion.cli import build_parser
-from companion.config import load_vehicle_file
+from companion.app.cli import build_parser
+from companion.planning.config import load_vehicle_file
 
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
 

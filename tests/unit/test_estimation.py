@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from companion.estimation import (
+from companion.control.estimation import (
     DragConfig,
     DragEstimator,
     HoverThrustConfig,

@@ -16,13 +16,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from companion.control import (
-    Reference,
-    StateEstimate,
-    _body_z_down,
-    _quat_integrate_f,
-    _quat_normalize_f,
-)
+from companion.control import Reference, StateEstimate
+from companion.control.so3 import body_z_down, quat_integrate_f, quat_normalize_f
 from companion.flatness import MultirotorParams, multirotor_setpoint
 from companion.flatness.numeric import multirotor_setpoint_scalar
 
@@ -76,7 +71,7 @@ quat = st.tuples(*[st.floats(-1.0, 1.0)] * 4).filter(lambda q: math.hypot(*q) > 
 @settings(max_examples=200, deadline=None)
 @given(quat, vec3, st.floats(0.0, 0.3))
 def test_float_quaternion_integration_matches_scipy(q, omega, dt) -> None:  # type: ignore[no-untyped-def]
-    out = np.array(_quat_integrate_f(list(q), list(omega), dt))
+    out = np.array(quat_integrate_f(list(q), list(omega), dt))
     w, x, y, z = q
     ref = Rotation.from_quat([x, y, z, w]) * Rotation.from_rotvec(np.array(omega) * dt)
     rx, ry, rz, rw = ref.as_quat()
@@ -92,15 +87,15 @@ def test_float_quaternion_integration_matches_scipy(q, omega, dt) -> None:  # ty
 def test_body_z_down_is_the_dcm_element_c22(q) -> None:  # type: ignore[no-untyped-def]
     w, x, y, z = q
     c22 = Rotation.from_quat([x, y, z, w]).as_matrix()[2, 2]
-    assert _body_z_down(np.array(q)) == pytest.approx(c22, abs=1e-12)
-    n = _quat_normalize_f(*q)
+    assert body_z_down(np.array(q)) == pytest.approx(c22, abs=1e-12)
+    n = quat_normalize_f(*q)
     assert math.hypot(*n) == pytest.approx(1.0) and n[0] >= 0.0
 
 
 def test_degenerate_quaternions_give_identity() -> None:
-    assert _quat_normalize_f(0.0, 0.0, 0.0, 0.0) == (1.0, 0.0, 0.0, 0.0)
-    assert _quat_normalize_f(math.nan, 0.0, 0.0, 1.0) == (1.0, 0.0, 0.0, 0.0)
-    assert _body_z_down(np.array([math.nan, 0.0, 0.0, 0.0])) == 1.0
+    assert quat_normalize_f(0.0, 0.0, 0.0, 0.0) == (1.0, 0.0, 0.0, 0.0)
+    assert quat_normalize_f(math.nan, 0.0, 0.0, 1.0) == (1.0, 0.0, 0.0, 0.0)
+    assert body_z_down(np.array([math.nan, 0.0, 0.0, 0.0])) == 1.0
 
 
 @pytest.mark.parametrize("bad", [math.nan, math.inf])
@@ -157,13 +152,13 @@ def test_tracking_source_reuses_estimates_without_changing_setpoints(mode: str) 
     the setpoints of building a fresh estimate every call (oracle: a source whose cache is
     bypassed)."""
     from companion.control import Reference as Ref
+    from companion.flight.tracking import TrackingSource, estimate_from_telemetry
     from companion.mavlink.telemetry import (
         Attitude,
         ExtendedState,
         LocalPosition,
         TelemetrySnapshot,
     )
-    from companion.tracking import TrackingSource, estimate_from_telemetry
 
     def reference(t: float) -> Ref:
         return Ref(

@@ -10,7 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.fence_check import (
+from companion.mavlink.mission_client import MissionItem
+from companion.mavlink.telemetry import HomePosition
+from companion.mission import FlightPlan, MissionError, load_mission, mission_to_flight_plan
+from companion.planning.fence_check import (
     CHECK_DT_S,
     CHECK_STEP_M,
     flown_breaches,
@@ -18,12 +21,9 @@ from companion.fence_check import (
     require_plan_inside,
     sample_schedule,
 )
-from companion.mavlink.mission_client import MissionItem
-from companion.mavlink.telemetry import HomePosition
-from companion.mission import FlightPlan, MissionError, load_mission, mission_to_flight_plan
-from companion.replay import DEFAULT_QUAD
-from companion.schedule import Schedule, build_schedule
-from companion.service import ServeService, ServiceConfig, geofence_from_items, plan_program
+from companion.planning.schedule import Schedule, build_schedule
+from companion.replay.runner import DEFAULT_QUAD
+from companion.serve.service import ServeService, ServiceConfig, geofence_from_items, plan_program
 from tests.fence_plans import HOME, box, latlon, write_plan
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples" / "missions"
@@ -89,7 +89,7 @@ def test_corner_cut_through_a_zone_the_straight_legs_clear_is_refused(tmp_path: 
     corner = np.array([40.0, 0.0])
     near = np.linalg.norm(p[:, :2] - corner, axis=1) < 5.0
     # distance of the planned path to the two straight legs near the corner (independent of
-    # companion.legs: the legs are the lines east = 0 and north = 40 there)
+    # companion.planning.legs: the legs are the lines east = 0 and north = 40 there)
     dev = np.minimum(np.abs(p[near, 1]), np.abs(p[near, 0] - 40.0))
     k = int(np.argmax(dev))
     assert dev[k] > 0.3, "precondition: the plan cuts the corner"

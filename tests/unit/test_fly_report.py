@@ -9,15 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.fence_check import sample_schedule
-from companion.flight_report import TrackRecorder
-from companion.flycmd import (
+from companion.app.fly import (
     FlyOptions,
     breach_failure,
     check_inputs,
     mission_figures,
     plan_flight,
 )
+from companion.flight.report import TrackRecorder
+from companion.planning.fence_check import sample_schedule
 from tests.fence_plans import box, write_plan
 
 

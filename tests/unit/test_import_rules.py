@@ -42,7 +42,7 @@ def test_gen_c_native_imports_nothing_from_companion() -> None:
 
 def test_pure_layers_do_not_import_io_layers() -> None:
     pure = ["companion/geometry.py", "companion/trajectory", "companion/flatness"]
-    io_mods = ("companion.aio", "companion.mavlink", "companion.cli", "companion.replay",
+    io_mods = ("companion.aio", "companion.mavlink", "companion.app.cli", "companion.replay.runner",
                "sitl_mock", "asyncio", "socket")
     bad = []
     for rel in pure:

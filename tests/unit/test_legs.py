@@ -13,7 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from companion.legs import (
+from companion.mission import FlightPlan, load_mission, mission_to_flight_plan
+from companion.planning.legs import (
     leg_figures,
     leg_spans,
     passages,
@@ -21,7 +22,6 @@ from companion.legs import (
     segment_distance,
     worst_leg_text,
 )
-from companion.mission import FlightPlan, load_mission, mission_to_flight_plan
 from tests.fence_plans import write_plan
 
 coord = st.floats(-100.0, 100.0, allow_nan=False)
@@ -143,9 +143,9 @@ def test_bound_gives_time_over_bound_and_missing_bound_shows_a_dash(tmp_path: Pa
 
 
 def test_planned_samples_give_planned_time_and_speed(tmp_path: Path) -> None:
-    from companion.fence_check import sample_schedule
-    from companion.replay import DEFAULT_QUAD
-    from companion.schedule import build_schedule
+    from companion.planning.fence_check import sample_schedule
+    from companion.planning.schedule import build_schedule
+    from companion.replay.runner import DEFAULT_QUAD
 
     fp = _plan(tmp_path, [(60, 0)], land=False)
     sched = build_schedule(fp, DEFAULT_QUAD)

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as m
 
 from companion.aio.tlog import TlogWriter
-from companion.cli import main as cli_main
+from companion.app.cli import main as cli_main
 from companion.mavlink import (
     AttitudeSetpoint,
     Codec,
@@ -254,7 +254,7 @@ def test_shared_link_options_give_the_link_config(tmp_path: Path) -> None:
     """What a command (fly, status, serve) does with `add_signing_option` + `link_config`."""
     import argparse
 
-    from companion.link_options import add_signing_option, link_config
+    from companion.app.link_options import add_signing_option, link_config
 
     path = tmp_path / "k"
     path.write_text(KEY.hex())

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from companion.flatness import MultirotorParams
-from companion.legs import plan_legs
 from companion.mission import MissionError, load_mission, loads_mission, mission_to_flight_plan
-from companion.schedule import VehicleLimits, build_schedule
+from companion.planning.legs import plan_legs
+from companion.planning.schedule import VehicleLimits, build_schedule
 from tests.mission_oracle import expected_ne
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples" / "missions"

@@ -1,7 +1,7 @@
 """Mission planning inside the vehicle's limits: per-leg speeds (DO_CHANGE_SPEED from the next
 leg on), PX4's vertical profiles from its parameters, the corridor around the legs and the
 time-optimal bound. Speeds are measured by finite differences of the schedule's positions;
-the PX4 formulas are written out here independently of companion/schedule.py."""
+the PX4 formulas are written out here independently of companion/planning/schedule.py."""
 
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ import pytest
 
 from companion.flatness import MultirotorParams
 from companion.mission import load_mission, mission_to_flight_plan, parse_plan
-from companion.px4_params import Px4PlanningParams
-from companion.schedule import VehicleLimits, build_schedule
+from companion.mission.px4_params import Px4PlanningParams
+from companion.planning.schedule import VehicleLimits, build_schedule
 from companion.trajectory import Limits, plan
 from companion.trajectory.bound import KinematicLimits, time_optimal_duration
 
@@ -220,13 +220,13 @@ def test_speed_items_above_the_level_speed_are_said_once_and_the_bound_uses_that
     6.87 m/s, so those legs fly at that speed, a single warning says so with the speed, and the
     time-optimal bound is held to the same speed (before: no word, and a bound of 146 s for a
     225 s plan, 1.54x, as if 15-17 m/s were reachable)."""
-    from companion.config import VehicleFile
+    from companion.planning.config import VehicleFile
 
     vf = VehicleFile()
     v_level = 9.80665 * math.tan(math.radians(35.0)) * vf.params.mass / vf.params.drag
     fp = mission_to_flight_plan(load_mission(ROOT / "tests" / "data" / "missions"
                                              / "speed_items.plan"))
-    with caplog.at_level("WARNING", logger="companion.schedule"):
+    with caplog.at_level("WARNING", logger="companion.planning.schedule"):
         s = build_schedule(fp, vf.params, vf.limits)
     said = [r.getMessage() for r in caplog.records if "mission speed" in r.getMessage()]
     assert len(said) == 1 and list(s.warnings) == said
@@ -238,7 +238,7 @@ def test_speed_items_above_the_level_speed_are_said_once_and_the_bound_uses_that
     assert bound <= s.duration_s and s.duration_s / bound < 1.15
     # within the cap: nothing to say
     caplog.clear()
-    with caplog.at_level("WARNING", logger="companion.schedule"):
+    with caplog.at_level("WARNING", logger="companion.planning.schedule"):
         quiet = build_schedule(mission_to_flight_plan(load_mission(
             ROOT / "examples" / "missions" / "square.plan")), vf.params, vf.limits)
     assert quiet.warnings == () and not [r for r in caplog.records

@@ -104,7 +104,7 @@ def test_mission_bench_on_a_short_mission_agrees_with_the_replay_report() -> Non
     mock's AUTO.MISSION passes every waypoint within its acceptance radius."""
     import bench_missions
 
-    from companion.replay import ReplayConfig
+    from companion.replay.runner import ReplayConfig
 
     root = Path(__file__).resolve().parents[2]
     row = bench_missions.mock_mission(root / "tests" / "data" / "missions" / "px4_short.plan",

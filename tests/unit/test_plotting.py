@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.plotting import PlotData, PlotWorker, draw_flight_png
+from companion.app.plotting import PlotData, PlotWorker, draw_flight_png
 
 
 def _data(n: int = 4000) -> PlotData:

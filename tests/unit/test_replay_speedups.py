@@ -143,8 +143,8 @@ def test_state_estimate_of_arrays_equals_constructor() -> None:
 
 def test_schedule_reference_fast_path_equals_general_path() -> None:
     from companion.mission import load_mission, mission_to_flight_plan
-    from companion.replay import DEFAULT_QUAD
-    from companion.schedule import VehicleLimits, build_schedule
+    from companion.planning.schedule import VehicleLimits, build_schedule
+    from companion.replay.runner import DEFAULT_QUAD
 
     root = Path(__file__).resolve().parents[2]
     m = load_mission(root / "examples" / "missions" / "hold_and_jump.plan")

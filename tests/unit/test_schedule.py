@@ -12,7 +12,7 @@ import pytest
 
 from companion.flatness import MultirotorParams
 from companion.mission import FlightPlan, load_mission, mission_to_flight_plan
-from companion.schedule import PlanMemo, build_schedule, exact_key
+from companion.planning.schedule import PlanMemo, build_schedule, exact_key
 
 ROOT = Path(__file__).resolve().parents[2]
 PARAMS = MultirotorParams(mass=1.0, inertia=(0.025, 0.025, 0.03), drag=1.0)
@@ -148,7 +148,7 @@ def test_rover_cruises_its_straight_legs_within_the_corridor(cap: float | None) 
     its path keeps within the 1 m corridor of the straight legs outside the corners'
     acceptance radii (dense samples, distance to the nearest leg: the two-joint legs of before
     bulged 1.45 m off them at 2.7 m/s), passing every waypoint."""
-    from companion.schedule import VehicleLimits
+    from companion.planning.schedule import VehicleLimits
 
     fp = mission_to_flight_plan(load_mission(ROOT / "examples" / "missions" / "rover_square.plan"),
                                 vehicle="rover")
@@ -175,7 +175,7 @@ def test_rover_legs_too_long_for_the_joints_fly_the_closer_pattern_with_a_warnin
     the legs), passes every corner, and a warning says how far it leaves the corridor."""
     import json
 
-    from companion.schedule import VehicleLimits
+    from companion.planning.schedule import VehicleLimits
 
     doc = json.loads((ROOT / "examples" / "missions" / "rover_square.plan").read_text())
     lat0, lon0, _ = doc["mission"]["plannedHomePosition"]
@@ -185,7 +185,7 @@ def test_rover_legs_too_long_for_the_joints_fly_the_closer_pattern_with_a_warnin
     path = tmp_path / "rover_3km.plan"
     path.write_text(json.dumps(doc))
     fp = mission_to_flight_plan(load_mission(path), vehicle="rover")
-    with caplog.at_level("WARNING", logger="companion.schedule"):
+    with caplog.at_level("WARNING", logger="companion.planning.schedule"):
         sched = build_schedule(fp, None, VehicleLimits(rover_max_speed_m_s=2.7))
     msgs = [r.getMessage() for r in caplog.records if "corridor" in r.getMessage()]
     assert len(msgs) == 1 and "leaves the 1 m corridor" in msgs[0], msgs

@@ -1,4 +1,4 @@
-"""The serve state machine (companion.service) on injected observations and time, and its
+"""The serve state machine (companion.serve.service) on injected observations and time, and its
 helpers (mission from downloaded items, rotating tlogs). No sockets, no clock."""
 
 from __future__ import annotations
@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
-from companion.config import VehicleFile
 from companion.mavlink import FlightMode, MissionItem
 from companion.mavlink.telemetry import HomePosition, LocalPosition, MissionCurrent
 from companion.mission import load_mission, mission_to_flight_plan, mission_upload_items
-from companion.schedule import build_schedule
-from companion.servecmd import RotatingTlog
-from companion.service import (
+from companion.planning.config import VehicleFile
+from companion.planning.schedule import build_schedule
+from companion.serve.runner import RotatingTlog
+from companion.serve.service import (
     Announce,
     DownloadMission,
     HoldStream,
@@ -76,7 +76,7 @@ def test_downloaded_items_plan_like_the_mission_file() -> None:
 def test_the_vehicles_planning_parameters_reach_the_plan() -> None:
     """A faster MPC_XY_CRUISE (the mission's legs have no DO_CHANGE_SPEED) and a larger
     NAV_ACC_RAD read from the vehicle change the downloaded mission's plan accordingly."""
-    from companion.px4_params import Px4PlanningParams
+    from companion.mission.px4_params import Px4PlanningParams
 
     items, home = wire_items(MISSIONS / "px4_short.plan")
     slow = plan_program(items, home, (1, len(items)),

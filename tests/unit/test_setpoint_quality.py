@@ -7,12 +7,12 @@ import math
 
 import pytest
 
-from companion.flight_report import (
+from companion.flight.report import (
     THRUST_STEP_GOAL,
     SetpointLimits,
     SetpointQuality,
 )
-from companion.px4_params import Px4PlanningParams
+from companion.mission.px4_params import Px4PlanningParams
 
 
 def _feed(q: SetpointQuality, thrust: list[float], dt: float = 0.01, tilt: float = 0.1,

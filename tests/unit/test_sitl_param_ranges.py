@@ -146,7 +146,7 @@ def _mc_airframe_defaults() -> dict[str, float] | None:
 def test_mock_has_every_planning_parameter_with_px4_multicopter_defaults() -> None:
     """The companion reads PLANNING_PARAM_NAMES from the vehicle: the mock answers each of them
     with PX4 v1.16's default for a multicopter (parameters.json, then rc.mc_defaults)."""
-    from companion.px4_params import PLANNING_PARAM_NAMES
+    from companion.mission.px4_params import PLANNING_PARAM_NAMES
 
     meta = next((p for p in _META if p.is_file()), None)
     mc = _mc_airframe_defaults()

@@ -10,21 +10,14 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 PURE = [
     "companion/geometry.py",
-    "companion/trajectory",
     "companion/flatness",
-    "companion/control.py",
-    "companion/estimation.py",
+    "companion/trajectory",
+    "companion/control",
     "companion/mission",
     "companion/mavlink",
-    "companion/schedule.py",
-    "companion/tracking.py",
-    "companion/patterns.py",
-    "companion/config.py",
-    "companion/flight_report.py",
-    "companion/service.py",
-    "companion/vehicle_params.py",
-    "companion/legs.py",
-    "companion/fence_check.py",
+    "companion/planning",
+    "companion/flight",
+    "companion/serve/service.py",
 ]
 
 

@@ -174,9 +174,9 @@ def test_climbs_and_descents_of_a_mission_fly_near_their_bound_within_px4_limits
     positions)."""
     from pathlib import Path
 
-    from companion.config import VehicleFile
     from companion.mission import load_mission, mission_to_flight_plan
-    from companion.schedule import build_schedule
+    from companion.planning.config import VehicleFile
+    from companion.planning.schedule import build_schedule
 
     root = Path(__file__).resolve().parents[2]
     vf = VehicleFile()

@@ -11,9 +11,9 @@ import pytest
 
 from companion.control import Reference
 from companion.flatness import MultirotorParams
+from companion.flight.tracking import Touchdown, TrackingSource
 from companion.mavlink.setpoints import AttitudeSetpoint, RatesSetpoint
 from companion.mavlink.telemetry import Attitude, ExtendedState, LocalPosition, TelemetrySnapshot
-from companion.tracking import Touchdown, TrackingSource
 
 PARAMS = MultirotorParams(mass=1.0, inertia=(0.025, 0.025, 0.030), hover_thrust=0.5, drag=1.0)
 END_S = 2.0  # the plan ends here, 0.5 m above the ground (NED z = 0 is the ground)
@@ -65,9 +65,9 @@ def test_touchdown_takes_over_where_the_plan_stops_cruising_down() -> None:
     slows (the stop 0.5 m above the ground the touchdown replaces)."""
     from pathlib import Path
 
-    from companion.config import VehicleFile
     from companion.mission import load_mission, mission_to_flight_plan
-    from companion.schedule import build_schedule
+    from companion.planning.config import VehicleFile
+    from companion.planning.schedule import build_schedule
 
     vf = VehicleFile()
     root = Path(__file__).resolve().parents[2]

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import pytest
 
-from companion.px4_params import PLANNING_PARAM_NAMES, Px4PlanningParams
-from companion.vehicle_params import resolve_planning_params
+from companion.mission.px4_params import PLANNING_PARAM_NAMES, Px4PlanningParams
+from companion.planning.vehicle_params import resolve_planning_params
 
 ALL_READ = {n: v for n, v in Px4PlanningParams().as_dict().items()}
 

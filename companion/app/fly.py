@@ -21,17 +21,9 @@ from rich.live import Live
 from rich.markup import escape
 from rich.table import Table
 
-from companion.config import VehicleFile, load_vehicle_file
 from companion.control import Reference
-from companion.fence_check import (
-    breach_report,
-    flown_breaches,
-    require_plan_inside,
-    sample_schedule,
-    zone_masks,
-)
-from companion.flight_report import FloatArray, SetpointLimits, TrackRecorder
-from companion.legs import leg_figures, plan_bounds, plan_legs, worst_leg_text
+from companion.flight.report import FloatArray, SetpointLimits, TrackRecorder
+from companion.flight.tracking import TOUCHDOWN_FROM_M, Touchdown, TrackingSource
 from companion.mavlink import FlightMode, LinkConfig
 from companion.mission import (
     FlightPlan,
@@ -40,11 +32,19 @@ from companion.mission import (
     load_mission,
     mission_to_flight_plan,
 )
-from companion.patterns import PATTERNS, pattern_trajectory, pattern_waypoints
-from companion.px4_params import Px4PlanningParams
-from companion.schedule import Schedule, build_schedule, trajectory_reference
-from companion.tracking import TOUCHDOWN_FROM_M, Touchdown, TrackingSource
-from companion.vehicle_params import ResolvedPlanningParams
+from companion.mission.px4_params import Px4PlanningParams
+from companion.planning.config import VehicleFile, load_vehicle_file
+from companion.planning.fence_check import (
+    breach_report,
+    flown_breaches,
+    require_plan_inside,
+    sample_schedule,
+    zone_masks,
+)
+from companion.planning.legs import leg_figures, plan_bounds, plan_legs, worst_leg_text
+from companion.planning.schedule import Schedule, build_schedule, trajectory_reference
+from companion.planning.vehicle_params import ResolvedPlanningParams
+from companion.trajectory.patterns import PATTERNS, pattern_trajectory, pattern_waypoints
 
 DEFAULT_HOME = (47.397742, 8.545594, 488.0)
 #: A mission's planned home must be this close to the vehicle to be flown [m].
@@ -61,7 +61,7 @@ MAV_TYPE_GROUND_ROVER = 10
 
 @dataclass
 class FlyOptions:
-    """Options of `fly` (see `build_fly_parser` in companion.cli)."""
+    """Options of `fly` (see `build_fly_parser` in companion.app.cli)."""
 
     target: str
     connect: str | None

@@ -29,7 +29,7 @@ from companion.control import (
     state_estimate_of_arrays,
 )
 from companion.flatness import MultirotorParams
-from companion.flight_report import SetpointLimits, SetpointQuality
+from companion.flight.report import SetpointLimits, SetpointQuality
 from companion.mavlink.setpoints import (
     AttitudeSetpoint,
     PositionSetpoint,
@@ -269,7 +269,7 @@ class TrackingSource:
     The controller's tilt clamp and body-rate command limits are held within `limits` (the
     vehicle's: PX4's MPC_TILTMAX_AIR and MC_*RATE_MAX, default PX4's defaults), and every
     attitude/rates setpoint sent is measured against them in `quality`
-    (:class:`companion.flight_report.SetpointQuality`).
+    (:class:`companion.flight.report.SetpointQuality`).
 
     Until telemetry has both position and attitude, and in position mode, it sends the
     reference as a position setpoint (a rover: zero velocity). In attitude and rates mode it

@@ -19,9 +19,9 @@ from rich.markup import escape
 from rich.table import Table
 
 from companion.app.campaign import add_campaign_parser
+from companion.app.link_options import add_signing_option
 from companion.app.paths import output_file, output_folder
 from companion.app.replay_options import add_perturbation_options, mock_param
-from companion.link_options import add_signing_option
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -52,7 +52,7 @@ def _quiet_mission_log() -> Iterator[None]:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from companion.demo import run_demo, save_plot
+    from companion.app.demo import run_demo, save_plot
 
     result = run_demo(rate_hz=args.rate)
     traj = result.trajectory
@@ -86,7 +86,7 @@ def _replay_one(
 ) -> tuple[str, dict[str, object] | None, str | None]:
     """Worker: replay one file; returns (path, report or None, error message or None)."""
     from companion.mission import MissionError
-    from companion.replay import ReplayConfig, replay_file
+    from companion.replay.runner import ReplayConfig, replay_file
 
     def progress(t: float, expected: float) -> None:
         if queue is not None:
@@ -107,7 +107,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
     from companion.app.replay_options import replay_config_kwargs
     from companion.mission import load_mission, mission_to_flight_plan
-    from companion.replay import ReplayConfig
+    from companion.replay.runner import ReplayConfig
 
     config_kw: dict[str, object] = replay_config_kwargs(args)
     config_kw["compare_px4_mission"] = args.compare_px4_mission
@@ -133,9 +133,9 @@ def _cmd_replay(args: argparse.Namespace) -> int:
             for f in args.files
         }
         if args.jobs <= 1:
+            from companion.app.plotting import PlotWorker
             from companion.mission import MissionError
-            from companion.plotting import PlotWorker
-            from companion.replay import replay_file
+            from companion.replay.runner import replay_file
 
             # a helper process draws the flight.png files; it imports matplotlib while the
             # first file flies, which the replay would otherwise wait for
@@ -236,7 +236,7 @@ def _print_leg_lines(
 ) -> None:
     """Below the summary table: per file, the worst leg (path deviation, speeds, time vs the
     bound) and every geofence breach (per-leg detail is in report.json)."""
-    from companion.legs import worst_leg_text
+    from companion.planning.legs import worst_leg_text
 
     for f in files:
         rep = results[f][0]
@@ -272,7 +272,7 @@ def _verdict(rep: dict[str, object]) -> tuple[bool, str]:
 def _cmd_fly(args: argparse.Namespace) -> int:
     import asyncio
 
-    from companion.flycmd import FlyOptions, fly
+    from companion.app.fly import FlyOptions, fly
 
     opts = FlyOptions(
         target=args.target, connect=args.connect, mode=args.mode, rate_hz=args.rate,
@@ -287,7 +287,7 @@ def _cmd_fly(args: argparse.Namespace) -> int:
 def _cmd_status(args: argparse.Namespace) -> int:
     import asyncio
 
-    from companion.flycmd import status
+    from companion.app.fly import status
 
     return _run_vehicle_command(
         lambda: asyncio.run(status(args.connect, console, timeout_s=args.timeout,
@@ -298,7 +298,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
 def _cmd_serve(args: argparse.Namespace) -> int:
     import asyncio
 
-    from companion.servecmd import ServeOptions, serve
+    from companion.serve.runner import ServeOptions, serve
 
     opts = ServeOptions(
         connect=args.connect, mode=args.mode, rate_hz=args.rate, vehicle_file=args.vehicle_file,
@@ -435,7 +435,7 @@ def build_parser() -> argparse.ArgumentParser:
     fl.add_argument("--mode", choices=("position", "attitude", "rates"), default="attitude")
     fl.add_argument("--rate", type=float, default=100.0, help="setpoint rate [Hz] (default 100)")
     fl.add_argument("--vehicle-file", metavar="FILE.toml", default=None,
-                    help="vehicle parameters and limits (see companion/config.py)")
+                    help="vehicle parameters and limits (see companion/planning/config.py)")
     # the former spelling; `--vehicle` is the vehicle kind (quad | rover) in `replay`
     fl.add_argument("--vehicle", dest="vehicle_file", metavar="FILE.toml",
                     help=argparse.SUPPRESS)
@@ -466,7 +466,7 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--mode", choices=("position", "attitude", "rates"), default="attitude")
     sv.add_argument("--rate", type=float, default=50.0, help="setpoint rate [Hz] (default 50)")
     sv.add_argument("--vehicle-file", metavar="FILE.toml", default=None,
-                    help="vehicle parameters, limits and gains (see companion/config.py)")
+                    help="vehicle parameters, limits and gains (see companion/planning/config.py)")
     sv.add_argument("--vehicle", dest="vehicle_file", metavar="FILE.toml",
                     help=argparse.SUPPRESS)
     sv.add_argument("--log-dir", metavar="DIR", default="ecca-logs", type=output_folder,

@@ -36,9 +36,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from companion.control import Reference, TrackingConfig
-from companion.fence_check import require_plan_inside
 from companion.flatness import MultirotorParams
-from companion.flight_report import SetpointLimits
+from companion.flight.report import SetpointLimits
+from companion.flight.tracking import SetpointMode, TrackingSource
 from companion.mavlink.mission_client import MissionItem
 from companion.mavlink.px4_mode import FlightMode
 from companion.mavlink.setpoints import PositionSetpoint, SetpointCommand
@@ -52,9 +52,14 @@ from companion.mission import (
     loads_mission,
     mission_to_flight_plan,
 )
-from companion.px4_params import Px4PlanningParams
-from companion.schedule import Schedule, VehicleLimits, build_schedule, trajectory_reference
-from companion.tracking import SetpointMode, TrackingSource
+from companion.mission.px4_params import Px4PlanningParams
+from companion.planning.fence_check import require_plan_inside
+from companion.planning.schedule import (
+    Schedule,
+    VehicleLimits,
+    build_schedule,
+    trajectory_reference,
+)
 from companion.trajectory import Limits, plan
 
 FloatArray = NDArray[np.float64]

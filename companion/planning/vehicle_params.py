@@ -20,7 +20,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
 
-from companion.px4_params import PLANNING_PARAM_NAMES, Px4PlanningParams
+from companion.mission.px4_params import PLANNING_PARAM_NAMES, Px4PlanningParams
 
 __all__ = ["ParamSource", "ResolvedPlanningParams", "check_overrides", "resolve_planning_params"]
 

@@ -34,7 +34,7 @@ class PlotData:
     (N, 3); `t`/`pos_ned` the flown position samples; `px4_pos_ned` the PX4-mission flight, if
     any; `waypoints_ned` (K, 3) with their `acceptance_m`; `t_fly0` the simulated time at which
     the plan started; `err_t`/`err_m` the tracking error series; `legs` the per-leg figures of
-    the report (`companion.legs.leg_figures`), drawn in a fourth panel when given.
+    the report (`companion.planning.legs.leg_figures`), drawn in a fourth panel when given.
     """
 
     title: str
@@ -190,7 +190,7 @@ class PlotWorker:
             p for p in (pkg_root, env.get("PYTHONPATH", "")) if p)
         try:
             proc = subprocess.Popen(
-                [sys.executable, "-c", "from companion.plotting import _main; _main()"],
+                [sys.executable, "-c", "from companion.app.plotting import _main; _main()"],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                 env=env, close_fds=True,
             )

@@ -23,7 +23,7 @@ Example `vehicle.toml` (every key optional; defaults are PX4's SIH quadrotor)::
 
     [px4]                                   # PX4 parameters the mission planner uses: these
     MPC_XY_CRUISE = 8.0                     # win over the values read from the vehicle at
-    NAV_ACC_RAD = 1.0                       # connect (names: companion.px4_params)
+    NAV_ACC_RAD = 1.0                       # connect (names: companion.mission.px4_params)
 """
 
 from __future__ import annotations
@@ -36,8 +36,8 @@ from typing import Any
 
 from companion.control import AttitudeGains, TrackingConfig, TrackingGains
 from companion.flatness import MultirotorParams
-from companion.schedule import VehicleLimits
-from companion.vehicle_params import check_overrides
+from companion.planning.schedule import VehicleLimits
+from companion.planning.vehicle_params import check_overrides
 
 _VEHICLE_KEYS = {"mass_kg", "inertia_kg_m2", "hover_thrust", "drag_n_per_m_s"}
 _LIMIT_KEYS = {

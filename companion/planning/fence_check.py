@@ -5,8 +5,8 @@ when there are any, outside every exclusion zone, horizontal only) is checked ag
 *planned trajectory*, not only its straight legs: the schedule is sampled every ``dt_s`` (0.1 s)
 and at most ``max_step_m`` (0.5 m) apart, within a budget of ``max_samples`` points (a longer
 flight is sampled more coarsely, uniformly in time). Each breach names the leg it happens on
-(``companion.legs``: between two consecutive points of the flight plan, named by their mission
-items) and how long it is (path length in breach, m).
+(``companion.planning.legs``: between two consecutive points of the flight plan, named by their
+mission items) and how long it is (path length in breach, m).
 
 :func:`require_plan_inside` raises a :class:`MissionError` with the first breach, for the
 commands to refuse a plan before anything is sent; :func:`flown_breaches` checks flown
@@ -22,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.legs import Leg, leg_of_samples, plan_legs
 from companion.mission import FenceCircle, FencePolygon, FlightPlan, Geofence, MissionError
-from companion.schedule import Schedule
+from companion.planning.legs import Leg, leg_of_samples, plan_legs
+from companion.planning.schedule import Schedule
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]

@@ -25,10 +25,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.control import Reference, reference_of_arrays
 from companion.flatness import MultirotorParams
+from companion.flatness.reference import Reference, reference_of_arrays
 from companion.mission import FlightChunk, FlightPlan, split_flight_plan
-from companion.px4_params import Px4PlanningParams
+from companion.mission.px4_params import Px4PlanningParams
 from companion.trajectory import Limits, PiecewiseBezier, RoverLimits, check, hermite, plan
 from companion.trajectory.bezier import ScalarEvaluator
 from companion.trajectory.bound import (
@@ -49,7 +49,7 @@ from companion.trajectory.straight import (
     yaw_peak_rate,
 )
 
-_log = logging.getLogger("companion.schedule")
+_log = logging.getLogger("companion.planning.schedule")
 
 FloatArray = NDArray[np.float64]
 

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.px4_params import Px4PlanningParams
+from companion.mission.px4_params import Px4PlanningParams
 
 FloatArray = NDArray[np.float64]
 

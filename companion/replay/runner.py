@@ -9,8 +9,8 @@ timestamp + raw MAVLink frame), readable by pymavlink, MAVExplorer and QGroundCo
 The companion side follows PX4's offboard protocol exactly as on a real vehicle: wait for a
 healthy vehicle, stream setpoints for 0.5 s (priming), switch to OFFBOARD, arm, fly the planned
 schedule, then land as `fly` does: in attitude and rates mode touch down itself
-(`companion.tracking.Touchdown`), in position mode hand over to PX4's NAV_LAND (a loiter ending:
-Hold), and disarm once PX4 reports the vehicle on the ground.
+(`companion.flight.tracking.Touchdown`), in position mode hand over to PX4's NAV_LAND (a loiter
+ending: Hold), and disarm once PX4 reports the vehicle on the ground.
 """
 
 from __future__ import annotations
@@ -33,11 +33,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from companion.aio.tlog import TlogWriter
+from companion.app.plotting import PlotData, PlotWorker, draw_flight_png
 from companion.control import Reference
-from companion.fence_check import breach_report, flown_breaches, require_plan_inside, zone_masks
 from companion.flatness import MultirotorParams
-from companion.flight_report import SetpointLimits, closest_approach
-from companion.legs import leg_figures, plan_bounds, plan_legs
+from companion.flight.report import SetpointLimits, closest_approach
+from companion.flight.tracking import (
+    TOUCHDOWN_FROM_M,
+    TOUCHDOWN_TIMEOUT_S,
+    SetpointMode,
+    Touchdown,
+    TrackingSource,
+)
 from companion.mavlink.commands import CommandFinished
 from companion.mavlink.link import LinkConfig, VehicleLink
 from companion.mavlink.mission_client import MissionItem as WireItem
@@ -57,18 +63,17 @@ from companion.mission import (
     load_mission,
     mission_to_flight_plan,
 )
+from companion.mission.px4_params import PLANNING_PARAM_NAMES
 from companion.mission.upload import mission_upload_items
-from companion.plotting import PlotData, PlotWorker, draw_flight_png
-from companion.px4_params import PLANNING_PARAM_NAMES
-from companion.schedule import Schedule, VehicleLimits, build_schedule
-from companion.tracking import (
-    TOUCHDOWN_FROM_M,
-    TOUCHDOWN_TIMEOUT_S,
-    SetpointMode,
-    Touchdown,
-    TrackingSource,
+from companion.planning.fence_check import (
+    breach_report,
+    flown_breaches,
+    require_plan_inside,
+    zone_masks,
 )
-from companion.vehicle_params import ResolvedPlanningParams, resolve_planning_params
+from companion.planning.legs import leg_figures, plan_bounds, plan_legs
+from companion.planning.schedule import Schedule, VehicleLimits, build_schedule
+from companion.planning.vehicle_params import ResolvedPlanningParams, resolve_planning_params
 
 FloatArray = NDArray[np.float64]
 Mode = Literal["position", "attitude", "rates"]
@@ -693,12 +698,12 @@ def summarize(
     """Report metrics of one flight (keys carry units).
 
     With ``flight_plan`` the report also has ``legs`` (per-leg figures, see
-    :func:`companion.legs.leg_figures`; ``leg_bounds_s`` the time-optimal bound per leg, None
-    unknown) and ``geofence_breaches`` (per leg and zone, see
-    :mod:`companion.fence_check`). ``bound_s``: the time-optimal bound of the whole schedule
-    [s] (None: unknown), reported with the planned duration over it. The fence is checked in
-    the mission's frame: flown local positions plus ``fence_shift_ned`` (default ``-origin``:
-    the companion's plan frame)."""
+    :func:`companion.planning.legs.leg_figures`; ``leg_bounds_s`` the time-optimal bound per
+    leg, None unknown) and ``geofence_breaches`` (per leg and zone, see
+    :mod:`companion.planning.fence_check`). ``bound_s``: the time-optimal bound of the whole
+    schedule [s] (None: unknown), reported with the planned duration over it. The fence is
+    checked in the mission's frame: flown local positions plus ``fence_shift_ned`` (default
+    ``-origin``: the companion's plan frame)."""
     pos = np.asarray(log.pos, dtype=np.float64).reshape(-1, 3)
     vel = np.asarray(log.vel, dtype=np.float64).reshape(-1, 3)
     t = np.asarray(log.t)
@@ -762,7 +767,7 @@ def summarize(
         legs = plan_legs(flight_plan)
         found = flown_breaches(flight_plan, t_f, pos_fence) if masks else []
         out["geofence_breaches"] = breach_report(found)
-        from companion.fence_check import sample_schedule
+        from companion.planning.fence_check import sample_schedule
 
         pt, pp = sample_schedule(schedule)
         out["legs"] = leg_figures(legs, t_f, pos_f - origin, vel_ned=vel_f, planned_t_s=pt,
@@ -866,7 +871,7 @@ class PreparedMission:
     px4: ResolvedPlanningParams | None = None
     flight_plan: FlightPlan | None = None
     leg_bounds_s: tuple[float | None, ...] | None = None
-    """Time-optimal bound of each leg of `companion.legs.plan_legs(flight_plan)` [s] (None:
+    """Time-optimal bound of each leg of `companion.planning.legs.plan_legs(flight_plan)` [s] (None:
     not known; the report shows "-")."""
     bound_s: float | None = None
     """Time-optimal bound of the whole schedule [s] (None: not known)."""

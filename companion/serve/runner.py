@@ -1,4 +1,4 @@
-"""`python -m companion serve`: the asyncio runner around :mod:`companion.service`.
+"""`python -m companion serve`: the asyncio runner around :mod:`companion.serve.service`.
 
 One :class:`~companion.aio.Vehicle` carries the link (UDP or serial; it reopens a failed
 transport and notices a silent link), a fixed-rate sender thread sends whatever
@@ -28,11 +28,12 @@ from typing import Any, BinaryIO, Literal
 
 from rich.console import Console
 
-from companion.config import VehicleFile, load_vehicle_file
 from companion.mavlink import FlightMode, LinkConfig, VehicleLink
 from companion.mavlink.codec import MavMessage
-from companion.px4_params import Px4PlanningParams
-from companion.service import (
+from companion.mission.px4_params import Px4PlanningParams
+from companion.planning.config import VehicleFile, load_vehicle_file
+from companion.planning.vehicle_params import ResolvedPlanningParams
+from companion.serve.service import (
     Action,
     Announce,
     DownloadMission,
@@ -45,7 +46,6 @@ from companion.service import (
     ServiceConfig,
     plan_program,
 )
-from companion.vehicle_params import ResolvedPlanningParams
 
 log = logging.getLogger("companion.serve")
 MSG_HOME_POSITION = 242
@@ -55,7 +55,7 @@ _TS_BYTES = 8
 
 @dataclass(frozen=True)
 class ServeOptions:
-    """Options of `serve` (see `build_parser` in companion.cli)."""
+    """Options of `serve` (see `build_parser` in companion.app.cli)."""
 
     connect: str
     mode: str = "attitude"

@@ -1,0 +1,203 @@
+"""Gains and configuration of the tracking law, and its per-update diagnostics."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from companion.control.estimation import (
+    DragConfig,
+    HoverThrustConfig,
+)
+from companion.flatness import MultirotorParams
+
+FloatArray = npt.NDArray[np.float64]
+
+
+
+
+
+@dataclass(frozen=True)
+class TrackingGains:
+    """Position-loop gains: a = a_ref + kp e_p + kd e_v + ki int(e_p) (per axis, xy and z).
+
+    kp [1/s^2], kd [1/s], ki [1/s^3]; i_max_xy / i_max_z: clamp of the integrator's
+    acceleration contribution [m/s^2]. The xy defaults (omega_n 4.5 rad/s, zeta 0.95) were tuned
+    on real PX4 v1.16 SITL over UDP, figure-8 at 2 and 6 m/s (BENCHMARKS.md); kp_xy 30
+    oscillates there in attitude mode, so they sit at about 2/3 of the stability limit. They
+    assume telemetry latency under ~50 ms; with ~100 ms use kp_xy 6, kd_xy 4.5, ki_xy 1 and
+    attitude gains k_roll = k_pitch = 6.5.
+    """
+
+    kp_xy: float = 20.0
+    kd_xy: float = 8.5
+    ki_xy: float = 3.0
+    kp_z: float = 8.0
+    kd_z: float = 5.5
+    ki_z: float = 2.0
+    i_max_xy: float = 2.0
+    i_max_z: float = 4.0
+
+    def kp(self) -> FloatArray:
+        """(3,) proportional gains."""
+        return np.array([self.kp_xy, self.kp_xy, self.kp_z])
+
+    def kd(self) -> FloatArray:
+        """(3,) derivative gains."""
+        return np.array([self.kd_xy, self.kd_xy, self.kd_z])
+
+    def ki(self) -> FloatArray:
+        """(3,) integral gains."""
+        return np.array([self.ki_xy, self.ki_xy, self.ki_z])
+
+    def i_max(self) -> FloatArray:
+        """(3,) integrator clamps [m/s^2]."""
+        return np.array([self.i_max_xy, self.i_max_xy, self.i_max_z])
+
+
+@dataclass(frozen=True)
+class AttitudeGains:
+    """Companion-side SO(3) attitude loop producing body-rate commands.
+
+    k_roll/k_pitch/k_yaw: attitude gains [1/s]. Roll/pitch 10 (PX4's MC_ROLL_P is 6.5), tuned
+        on real PX4 v1.16 SITL with the default position gains: 6.5 forced `rates_mode_gains`
+        to soften the position loop (rates 6 m/s 0.17 m RMS vs 0.10 m), 12 lost the
+        large-angle recovery (170 deg: overshoot back above 10 deg) and oscillated on the mock
+        at 2 m/s. With ~100 ms telemetry latency use 6.5 (10 gives 0.46 m there, 6.5 < 0.1 m).
+        k_yaw is PX4's MC_YAW_P.
+    max_rate_rp / max_rate_yaw: rate command limits [rad/s] (MC_*RATE_MAX).
+    large_angle: scale e_R by 1/cos(angle/2) so the error grows monotonically up to 180 deg
+    (Lee 2011's alternative error function; small-angle behaviour unchanged).
+    """
+
+    k_roll: float = 10.0
+    k_pitch: float = 10.0
+    k_yaw: float = 2.8
+    max_rate_rp: float = math.radians(220.0)
+    max_rate_yaw: float = math.radians(200.0)
+    large_angle: bool = True
+
+
+def rates_mode_gains(gains: TrackingGains, attitude: AttitudeGains,
+                     separation: float = 2.5) -> TrackingGains:
+    """Position gains for `rates` mode with `TrackingConfig.rates_separation` > 0 (the default was
+    2.5 until the feedback rate feed-forward, `feedback_rate_ff`, replaced the cap): the
+    horizontal loop's natural frequency sqrt(kp_xy) [rad/s] is capped at min(k_roll, k_pitch) /
+    `separation`, so the companion's own attitude loop (which `attitude` mode leaves to PX4's
+    faster one) stays that much quicker than the position loop it serves (cascade separation).
+    The damping ratio is kept (kd_xy scales with the frequency) and ki_xy scales with its cube;
+    vertical gains are untouched. Why 2.5: with kp_xy 20 and k_roll 6.5 the mock in lockstep
+    flew the 2 m/s figure-8 in a limit cycle (tilt 33 deg instead of 15); with k_roll 10 and
+    kp_xy 20 (separation 2.2) two of four real-time mock flights at 6 m/s oscillated (0.45 m);
+    capped to kp_xy 16, none of three did. Re-measured uncapped: real PX4 SITL on a loaded
+    machine flew the 2 m/s figure-8 in a 1.4-1.5 Hz oscillation (0.39 m RMS, 0.11 m on a quieter
+    run), the real-time mock with PX4-like estimate errors (`serve --estimator ekf2 --jitter
+    0.01`) oscillated at 1.5 Hz at 6 m/s (tilt 60 deg instead of 48) in 2 of 2 flights; capped,
+    or uncapped with `feedback_rate_ff` 0.25, it did not."""
+    cap = min(attitude.k_roll, attitude.k_pitch) / separation
+    wn = math.sqrt(gains.kp_xy)
+    if wn <= cap:
+        return gains
+    s = cap / wn
+    return replace(gains, kp_xy=gains.kp_xy * s * s, kd_xy=gains.kd_xy * s,
+                   ki_xy=gains.ki_xy * s ** 3)
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    """Configuration of `TrackingController`.
+
+    params: vehicle (mass [kg], inertia, hover_thrust prior, drag D [N/(m/s)] prior).
+    drag_feedforward: include -D v in the thrust vector (D from params or the estimator).
+    drag_velocity: velocity used in the drag term: "reference" (smooth feed-forward) or
+        "estimate" (the extrapolated measured velocity).
+    estimate_hover_thrust / estimate_drag: run the online estimators.
+    latency_compensation: extrapolate the last estimate to `now`.
+    max_extrapolation_s: cap of the extrapolation horizon [s].
+    stale_after_s: older telemetry -> hover fallback [s].
+    attitude_lead_s: in `attitude` mode the feed-forward is evaluated this far ahead to offset
+        the lag of PX4's attitude loop (~1/MC_ROLL_P) [s]: the reference sampled at
+        now + lead when the caller passes it (`attitude(..., ahead=)`), else a Taylor step in
+        jerk and snap (fine on smooth references only). `rates` mode needs no lead: it feeds
+        the flatness body rates forward instead.
+    thrust_delay_s: delay between a thrust command and its effect, used to pair commands with
+        measured accelerations for the hover-thrust estimator [s].
+    max_tilt_rad: tilt limit of the commanded thrust vector.
+    thrust_min / thrust_max: normalised thrust bounds.
+    feedback_rate_ff: `rates` mode, share (0..1) of the feedback part of the commanded
+        acceleration's derivative (kp e_v + kd (a_ref - a) + ki e_p, `a` from the attitude) fed
+        to the flatness map as jerk, i.e. forward as body rates (0: the reference's jerk only;
+        the attitude loop then lags the feedback by ~1/k_roll). It buys the phase margin the
+        position loop would otherwise need a cap for, but puts k_roll + share * kd_xy on the
+        measured (delayed) tilt. 0.25 keeps that at ~12 with the default gains (linear model,
+        rate loop 20 ms: phase margin 42 deg, delay margin 59 ms, vs 39 deg / 62 ms for the
+        former cap kp_xy 16 and 35 deg / 55 ms uncapped without it). On real PX4 v1.16 SITL,
+        share 0.5 and 1 with k_roll 10 oscillated at 1.7-2 Hz; share 1 with k_roll 4 flew
+        6 m/s well (0.108 m) but 2 m/s badly (0.153 m). BENCHMARKS.md, "Tracking on real PX4:
+        where the error came from".
+    rates_separation: if > 0, `rates` mode flies `rates_mode_gains(gains, attitude_gains,
+        rates_separation)` (the cascade-separation cap, 2.5 before the feed-forward); 0 (the
+        default) flies the configured gains.
+    """
+
+    params: MultirotorParams
+    gains: TrackingGains = TrackingGains()
+    attitude_gains: AttitudeGains = AttitudeGains()
+    drag_feedforward: bool = True
+    drag_velocity: Literal["reference", "estimate"] = "estimate"
+    estimate_hover_thrust: bool = True
+    estimate_drag: bool = False
+    hover_thrust_config: HoverThrustConfig | None = None
+    drag_config: DragConfig | None = None
+    latency_compensation: bool = True
+    max_extrapolation_s: float = 0.25
+    stale_after_s: float = 0.5
+    attitude_lead_s: float = 0.15
+    thrust_delay_s: float = 0.05
+    max_tilt_rad: float = math.radians(60.0)
+    thrust_min: float = 0.08
+    thrust_max: float = 1.0
+    feedback_rate_ff: float = 0.25
+    rates_separation: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.max_tilt_rad < math.radians(89.0):
+            raise ValueError("max_tilt_rad must be in (0, 89) deg")
+        if not 0.0 <= self.thrust_min < self.thrust_max <= 1.0:
+            raise ValueError("thrust bounds must satisfy 0 <= min < max <= 1")
+        if not 0.0 < self.params.hover_thrust < 1.0:
+            raise ValueError("params.hover_thrust must be in (0, 1)")
+        if not 0.0 <= self.feedback_rate_ff <= 1.0:
+            raise ValueError("feedback_rate_ff must be in [0, 1]")
+        if not (math.isfinite(self.rates_separation) and self.rates_separation >= 0.0):
+            raise ValueError("rates_separation must be >= 0 (0: no cap)")
+
+
+@dataclass(frozen=True)
+class TrackingDiagnostics:
+    """What the last `TrackingController` update computed (for logs and tests).
+
+    Errors are reference minus estimate (NED). attitude_err_frd: Lee's e_R (rates mode; zero in
+    attitude mode, where PX4 closes the attitude loop); rate_err_frd: Lee's e_Omega =
+    omega - R^T R_d omega_d with the measured rates (rates mode), body FRD [rad/s].
+    """
+
+    t_s: float
+    pos_err_ned: FloatArray
+    vel_err_ned: FloatArray
+    acc_cmd_ned: FloatArray
+    integrator_ned: FloatArray
+    hover_thrust: float
+    drag: float
+    extrapolation_s: float
+    saturated: bool
+    attitude_err_frd: FloatArray
+    fallback: bool
+    reason: str
+    rate_err_frd: FloatArray = field(default_factory=lambda: np.zeros(3))
+
+

@@ -1,0 +1,615 @@
+"""Tracking control for the companion: multirotor attitude/rates setpoints and rover velocity.
+
+Pure: every call takes `now` [s] (the companion clock, the same clock the telemetry time stamps
+`t_s` are expressed in); no clock reads, no IO. Frames: world NED, body FRD, SI units.
+
+Multirotor pipeline (`TrackingController`):
+
+1. Latency compensation: the last state estimate (stamped `t_s`) is extrapolated to `now` with
+   its velocity and the acceleration (measured if given, else the last commanded one); the
+   attitude with the body rates.
+2. Acceleration command `a = a_ref + Kp e_p + Kd e_v + Ki int(e_p)` (errors reference minus
+   extrapolated estimate), optionally with the reference feed-forward shifted ahead by
+   `attitude_lead_s` in attitude mode (compensates PX4's attitude-loop lag): the reference
+   sampled that much later when the caller passes it (`ahead`, what `TrackingSource` does),
+   else a Taylor step in jerk and snap. The sample is bounded by the plan's own acceleration
+   and jerk; the Taylor step multiplies the snap by lead^2 / 2, which on a jerk-limited
+   profile (snap spikes of ~1000 m/s^4 where a short speed ramp starts) made the thrust jump
+   by up to 0.6 between setpoints 10 ms apart.
+3. Thrust vector `t = m (g e3 - a) - D v` (drag feed-forward, D configured or estimated), then
+   saturation: minimum upward thrust, tilt limit (horizontal part scaled down), maximum thrust
+   with vertical priority; the integrator is frozen while saturated (anti-windup) and clamped.
+4. The drag-aware flatness map (`companion.flatness.multirotor_setpoint`) turns the saturated
+   acceleration plus the reference jerk/snap/yaw into `q_wxyz`, normalised thrust (with the
+   estimated hover thrust) and the feed-forward body rates.
+5. `attitude` mode sends q + thrust + yaw-rate feed-forward; `rates` mode closes the attitude
+   loop here with a geometric SO(3) controller (Lee et al.) whose feed-forward is the flatness
+   body rate (of the reference's jerk plus a share of the feedback's derivative,
+   `feedback_rate_ff`), and sends body rates + thrust.
+
+Bad input (non-finite or stale telemetry, singular flatness) never produces NaN: the output falls
+back to a level hover at the current heading with the hover-thrust estimate and is flagged
+(`fallback=True`, `reason`).
+
+Rover (`RoverController`): velocity + yaw-rate setpoints from rover flatness with a cross-track /
+along-track / heading correction.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import replace
+
+import numpy as np
+import numpy.typing as npt
+
+from companion.control.commands import AttitudeCommand, RateCommand
+from companion.control.estimation import (
+    DragConfig,
+    DragEstimator,
+    HoverThrustConfig,
+    HoverThrustEstimator,
+)
+from companion.control.gains import (
+    AttitudeGains,
+    TrackingConfig,
+    TrackingDiagnostics,
+    rates_mode_gains,
+)
+from companion.control.so3 import (
+    all_finite,
+    attitude_error,
+    body_z_down,
+    quat_integrate_f,
+    quat_normalize,
+    quat_normalize_f,
+    quat_to_dcm,
+    yaw_of_dcm,
+    yaw_quat,
+)
+from companion.control.state import StateEstimate
+from companion.flatness import MultirotorParams
+from companion.flatness.numeric import multirotor_attitude_scalar
+from companion.flatness.reference import Reference
+
+FloatArray = npt.NDArray[np.float64]
+
+
+
+# ----------------------------------------------------------------------------- SO(3) loop
+
+
+def so3_rate_command(
+    q_wxyz: FloatArray,
+    q_des_wxyz: FloatArray,
+    omega_ff_frd: FloatArray,
+    gains: AttitudeGains,
+) -> tuple[FloatArray, FloatArray]:
+    """Geometric attitude controller: body-rate command and the attitude error.
+
+    omega_cmd = R^T R_d omega_ff - K e_R (optionally e_R / cos(angle/2)), limited per axis.
+    q_wxyz: actual attitude; q_des_wxyz: desired; omega_ff_frd: desired body rates (in the
+    desired body frame) [rad/s]. Returns (omega_cmd_frd [rad/s], e_R).
+    """
+    R = quat_to_dcm(q_wxyz)
+    Rd = quat_to_dcm(q_des_wxyz)
+    return so3_rate_command_dcm(R, Rd, omega_ff_frd, gains)
+
+
+def so3_rate_command_dcm(
+    R: FloatArray, Rd: FloatArray, omega_ff_frd: FloatArray, gains: AttitudeGains
+) -> tuple[FloatArray, FloatArray]:
+    """`so3_rate_command` with the attitudes given as DCMs C_eb (actual R, desired Rd)."""
+    Rt_Rd = R.T @ Rd
+    e_R = attitude_error(R, Rd)
+    k = np.array([gains.k_roll, gains.k_pitch, gains.k_yaw])
+    err = e_R
+    if gains.large_angle:
+        # 1 + tr(R_d^T R) = 4 cos^2(angle / 2)
+        c_half = 0.5 * math.sqrt(max(1.0 + float(np.trace(Rt_Rd)), 0.0))
+        err = e_R / max(c_half, 0.05)
+    ff = np.asarray(omega_ff_frd, dtype=np.float64)
+    if not all_finite(ff):
+        ff = np.zeros(3)
+    omega = Rt_Rd @ ff - k * err
+    lim = np.array([gains.max_rate_rp, gains.max_rate_rp, gains.max_rate_yaw])
+    omega = np.minimum(np.maximum(omega, -lim), lim)
+    return omega, e_R
+
+
+# ----------------------------------------------------------------------------- controller
+
+
+class TrackingController:
+    """Multirotor trajectory-tracking controller (see the module docstring).
+
+    Call `attitude(now, estimate, ref)` or `rates(now, estimate, ref)` at the setpoint rate;
+    pass the newest estimate each time (a repeated estimate is recognised by its `t_s`).
+    """
+
+    def __init__(self, config: TrackingConfig) -> None:
+        self.config = config
+        p = config.params
+        htc = config.hover_thrust_config or HoverThrustConfig(
+            initial_hover_thrust=p.hover_thrust,
+            drag_over_mass=p.drag / p.mass if config.drag_feedforward else 0.0,
+            g=p.g,
+        )
+        self.hover_estimator = HoverThrustEstimator(htc)
+        dc = config.drag_config or DragConfig(initial_drag_over_mass=p.drag / p.mass, g=p.g)
+        self.drag_estimator = DragEstimator(dc)
+        self._gain_lists = {
+            rates: (g.kp().tolist(), g.kd().tolist(), g.ki().tolist(), g.i_max().tolist())
+            for rates, g in ((False, config.gains),
+                             (True, rates_mode_gains(config.gains, config.attitude_gains,
+                                                     config.rates_separation)
+                              if config.rates_separation > 0.0 else config.gains))
+        }
+        self._kp_l, self._kd_l, self._ki_l, self._imax_l = self._gain_lists[False]
+        self._integ_l = [0.0, 0.0, 0.0]
+        self._cos_tilt = math.cos(config.max_tilt_rad)
+        self._tan_tilt = math.tan(config.max_tilt_rad)
+        self._t_last_update: float | None = None
+        self._last_est: StateEstimate | None = None
+        self._prev_est: StateEstimate | None = None
+        self._last_acc_cmd: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self._thrust_hist: deque[tuple[float, float]] = deque(maxlen=256)
+        self._last_yaw = 0.0
+        self._last_diag: TrackingDiagnostics | None = None
+        self._diag_pending: tuple[FloatArray | None, FloatArray | None] | None = None
+
+    # -- state --------------------------------------------------------------------------------
+    @property
+    def hover_thrust(self) -> float:
+        """Hover thrust in use (estimate if enabled, else the configured value)."""
+        if self.config.estimate_hover_thrust:
+            return self.hover_estimator.hover_thrust
+        return self.config.params.hover_thrust
+
+    @property
+    def drag(self) -> float:
+        """Linear drag coefficient in use [N/(m/s)] (0 without drag feed-forward)."""
+        if not self.config.drag_feedforward:
+            return 0.0
+        if self.config.estimate_drag:
+            return self.drag_estimator.drag_over_mass * self.config.params.mass
+        return self.config.params.drag
+
+    def reset(self) -> None:
+        """Clear the integrator and the telemetry history (e.g. on entering offboard)."""
+        self._integ_l = [0.0, 0.0, 0.0]
+        self._t_last_update = None
+        self._last_est = None
+        self._prev_est = None
+        self._last_acc_cmd = (0.0, 0.0, 0.0)
+        self._thrust_hist.clear()
+
+    @property
+    def last(self) -> TrackingDiagnostics | None:
+        """What the last update computed (built on first access after each update)."""
+        pending = self._diag_pending
+        if pending is not None:
+            self._diag_pending = None
+            now, e_p, e_v, a_sat, integ, h, D, tau, sat, reason = self._diag
+            e_R, e_omega = pending
+            self._last_diag = TrackingDiagnostics(
+                t_s=now,
+                pos_err_ned=np.array(e_p),
+                vel_err_ned=np.array(e_v),
+                acc_cmd_ned=np.array(a_sat),
+                integrator_ned=np.array(integ),
+                hover_thrust=h,
+                drag=D,
+                extrapolation_s=tau,
+                saturated=sat,
+                attitude_err_frd=np.zeros(3) if e_R is None else e_R,
+                fallback=False,
+                reason=reason,
+                rate_err_frd=np.zeros(3) if e_omega is None else e_omega,
+            )
+        return self._last_diag
+
+    # -- public API ---------------------------------------------------------------------------
+    def attitude(self, now: float, est: StateEstimate, ref: Reference,
+                 ahead: Reference | None = None) -> AttitudeCommand:
+        """`attitude` mode setpoint at `now`: q + normalised thrust + yaw-rate feed-forward.
+
+        `ahead`: the reference `config.attitude_lead_s` later (its acceleration, jerk and snap
+        are the lead feed-forward); None: a Taylor step from `ref` instead."""
+        out = self.attitude_values(now, est, ref, ahead)
+        if isinstance(out, AttitudeCommand):
+            return out
+        q_des, thrust, rate_ff, sat = out
+        return AttitudeCommand(np.array(q_des), thrust, rate_ff, saturated=sat)
+
+    def attitude_values(
+        self, now: float, est: StateEstimate, ref: Reference, ahead: Reference | None = None
+    ) -> tuple[tuple[float, float, float, float], float, float, bool] | AttitudeCommand:
+        """`attitude` without building the command: a regular one as its plain floats
+        `(q_wxyz, thrust_norm, yaw_rate_ff, saturated)`, a hover fallback as the (flagged)
+        `AttitudeCommand`. Same state update as `attitude` (it is `attitude`'s core)."""
+        out = self._core(now, est, ref, self.config.attitude_lead_s, ahead=ahead)
+        if out is None:
+            return self._fallback_attitude(now, est)
+        q_des, thrust, _omega_ff, sat = out
+        self._record_thrust(now, thrust)
+        rate_ff = ref.yaw_rate if math.isfinite(ref.yaw_rate) else 0.0
+        self._publish_diag(None)
+        return q_des, thrust, rate_ff, sat
+
+    def rates(self, now: float, est: StateEstimate, ref: Reference) -> RateCommand:
+        """`rates` mode setpoint at `now`: body rates from the SO(3) loop + thrust."""
+        out = self._core(now, est, ref, 0.0, rates=True)
+        if out is None:
+            return self._fallback_rates(now, est)
+        q_des_t, thrust, omega_ff_t, sat = out
+        omega_ff = np.array(omega_ff_t)
+        R = quat_to_dcm(np.array(self._q_now))
+        Rd = quat_to_dcm(np.array(q_des_t))
+        omega, e_R = so3_rate_command_dcm(R, Rd, omega_ff, self.config.attitude_gains)
+        e_omega = est.omega_frd - (R.T @ Rd) @ omega_ff
+        # Thrust along the actual body z (Lee): project the desired thrust direction.
+        proj = float(Rd[:, 2] @ R[:, 2])
+        thrust = min(max(thrust * max(proj, 0.5), self.config.thrust_min), self.config.thrust_max)
+        self._publish_diag(e_R, e_omega)
+        if not (all_finite(omega) and math.isfinite(thrust)):
+            return self._fallback_rates(now, est, "non-finite rate command")
+        self._record_thrust(now, thrust)
+        return RateCommand(omega, thrust, saturated=sat)
+
+    # -- internals ----------------------------------------------------------------------------
+    def _record_thrust(self, now: float, thrust: float) -> None:
+        self._thrust_hist.append((now, thrust))
+
+    def _mean_thrust(self, t0: float, t1: float) -> float:
+        """Time average of the (zero-order-hold) thrust command history over [t0, t1]."""
+        if not self._thrust_hist or t1 <= t0:
+            return math.nan
+        total = 0.0
+        covered = 0.0
+        t_next = math.inf
+        for ti, ui in reversed(self._thrust_hist):  # newest first; stop once before t0
+            if t_next <= t0:
+                break
+            a = ti if ti > t0 else t0
+            b = t_next if t_next < t1 else t1
+            if b > a:
+                total += ui * (b - a)
+                covered += b - a
+            t_next = ti
+        if covered < 0.5 * (t1 - t0):
+            return math.nan
+        return total / covered
+
+    def _ingest(self, est: StateEstimate) -> None:
+        """Remember a new telemetry sample and feed the estimators."""
+        last = self._last_est
+        if last is not None and est.t_s <= last.t_s:
+            return
+        self._prev_est, self._last_est = last, est
+        if last is None:
+            return
+        dt = est.t_s - last.t_s
+        if not (1e-3 < dt < 0.5):
+            return
+        hover, drag = self.config.estimate_hover_thrust, self.config.estimate_drag
+        if not (hover or drag):
+            return
+        delay = self.config.thrust_delay_s
+        if est.acc_ned is not None:
+            u = self._mean_thrust(est.t_s - delay - 0.01, est.t_s - delay + 0.01)
+        else:
+            u = self._mean_thrust(last.t_s - delay, est.t_s - delay)
+        if not math.isfinite(u):
+            return
+        airborne = est.airborne and last.airborne
+        if hover:
+            # plain floats: the z components of what the drag branch computes with arrays
+            vz, vz_last = float(est.vel_ned[2]), float(last.vel_ned[2])
+            if est.acc_ned is None:
+                acc_z = (vz - vz_last) / dt
+                v_mid_z = 0.5 * (vz + vz_last)
+            else:
+                acc_z = float(est.acc_ned[2])
+                v_mid_z = vz
+            zb_mid_z = 0.5 * (body_z_down(est.q_wxyz) + body_z_down(last.q_wxyz))
+            self.hover_estimator.update(est.t_s, acc_z, u, zb_mid_z, v_mid_z, airborne)
+        if drag:
+            acc = est.acc_ned if est.acc_ned is not None else (est.vel_ned - last.vel_ned) / dt
+            zb = quat_to_dcm(est.q_wxyz)[:, 2]
+            zb_prev = quat_to_dcm(last.q_wxyz)[:, 2]
+            zb_mid = 0.5 * (zb + zb_prev)
+            v_mid = 0.5 * (est.vel_ned + last.vel_ned) if est.acc_ned is None else est.vel_ned
+            self.drag_estimator.update(
+                est.t_s, acc, v_mid, u, zb_mid, self.hover_thrust, airborne
+            )
+
+    def _core(
+        self, now: float, est: StateEstimate, ref: Reference, lead_s: float, rates: bool = False,
+        ahead: Reference | None = None,
+    ) -> tuple[tuple[float, float, float, float], float, tuple[float, float, float], bool] | None:
+        """q_des, thrust_norm, omega_ff_frd, saturated; None -> fallback (see _fallback_reason).
+        `rates`: use the `rates_mode_gains` position gains. `ahead`: the reference `lead_s`
+        later, whose acceleration, jerk and snap replace the Taylor step of the lead."""
+        self._kp_l, self._kd_l, self._ki_l, self._imax_l = self._gain_lists[rates]
+        c = self.config
+        p = c.params
+        self._fallback_reason = ""
+        isfinite = math.isfinite
+        # Each vector as floats once: the finiteness checks below are `est.is_finite()` and
+        # `ref.is_finite()` on these lists, and the arithmetic further down uses them too.
+        px0, py0, pz0 = pos0 = est.pos_ned.tolist()
+        vx0, vy0, vz0 = vel0 = est.vel_ned.tolist()
+        q_est = est.q_wxyz.tolist()
+        w_est = est.omega_frd.tolist()
+        acc0 = est.acc_ned.tolist() if est.acc_ned is not None else []
+        if not (
+            isfinite(now)
+            and isfinite(est.t_s)
+            and all(map(isfinite, pos0 + vel0 + q_est + w_est + acc0))
+            and 0.5 < math.hypot(*q_est) < 2.0  # est.quat_ok()
+        ):
+            self._fallback_reason = "telemetry not finite"
+            return None
+        rp = ref.pos_ned.tolist()
+        rv = ref.vel_ned.tolist()
+        ra = ref.acc_ned.tolist()
+        rj = ref.jerk_ned.tolist()
+        rs = ref.snap_ned.tolist()
+        if not all(map(isfinite, rp + rv + ra + rj + rs + [ref.yaw, ref.yaw_rate, ref.yaw_acc])):
+            self._fallback_reason = "reference not finite"
+            return None
+        if ahead is not None and lead_s > 0.0:
+            la, lj, ls = ahead.acc_ned.tolist(), ahead.jerk_ned.tolist(), ahead.snap_ned.tolist()
+            if not all(map(isfinite, la + lj + ls)):
+                self._fallback_reason = "reference not finite"
+                return None
+        else:
+            la = lj = ls = []
+        age = now - est.t_s
+        if age > c.stale_after_s:
+            self._fallback_reason = f"telemetry stale ({age:.2f} s old)"
+            return None
+        self._ingest(est)
+        qw, qx, qy, qz = q_est
+        self._last_yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+
+        dt_ctrl = 0.0 if self._t_last_update is None else now - self._t_last_update
+        dt_ctrl = min(max(dt_ctrl, 0.0), 0.1)
+        self._t_last_update = now
+
+        # Plain floats from here to the flatness call: this runs at the setpoint rate on
+        # single samples, where numpy's per-operation overhead dominates.
+        # 1. latency compensation
+        tau = min(max(age, 0.0), c.max_extrapolation_s) if c.latency_compensation else 0.0
+        if acc0:
+            ax0, ay0, az0 = acc0
+        else:
+            ax0, ay0, az0 = self._last_acc_cmd
+        h2 = 0.5 * tau * tau
+        pos = (px0 + vx0 * tau + ax0 * h2, py0 + vy0 * tau + ay0 * h2, pz0 + vz0 * tau + az0 * h2)
+        vel = (vx0 + ax0 * tau, vy0 + ay0 * tau, vz0 + az0 * tau)
+        self._q_now = (
+            quat_integrate_f(q_est, w_est, tau) if tau > 0 else quat_normalize_f(*q_est)
+        )
+
+        # 2. acceleration command
+        # the feed-forward: the reference's acceleration, jerk and snap `lead_s` ahead (sampled,
+        # or a Taylor step from now)
+        if la:
+            a_ff, j_ff, rs = (la[0], la[1], la[2]), (lj[0], lj[1], lj[2]), ls
+        else:
+            L = lead_s
+            hL2 = 0.5 * L * L
+            a_ff = (ra[0] + rj[0] * L + rs[0] * hL2, ra[1] + rj[1] * L + rs[1] * hL2,
+                    ra[2] + rj[2] * L + rs[2] * hL2)
+            j_ff = (rj[0] + rs[0] * L, rj[1] + rs[1] * L, rj[2] + rs[2] * L)
+        kp, kd, integ = self._kp_l, self._kd_l, self._integ_l
+        # (per component, written out: a comprehension costs a frame per call)
+        e_p = (rp[0] - pos[0], rp[1] - pos[1], rp[2] - pos[2])
+        e_v = (rv[0] - vel[0], rv[1] - vel[1], rv[2] - vel[2])
+        a_cmd = (
+            a_ff[0] + kp[0] * e_p[0] + kd[0] * e_v[0] + integ[0],
+            a_ff[1] + kp[1] * e_p[1] + kd[1] * e_v[1] + integ[1],
+            a_ff[2] + kp[2] * e_p[2] + kd[2] * e_v[2] + integ[2],
+        )
+        if rates and c.feedback_rate_ff > 0.0 and self._thrust_hist:
+            j_ff = self._feedback_jerk(j_ff, ra, e_p, e_v, vel, c.feedback_rate_ff)
+
+        # 3. thrust vector t = m (g e3 - a) - D v with drag, saturation
+        h = self.hover_thrust
+        D = self.drag
+        v_drag = vel if c.drag_velocity == "estimate" else rv
+        m = p.mass
+        g0 = p.g
+        t_vec = (
+            -m * a_cmd[0] - D * v_drag[0],
+            -m * a_cmd[1] - D * v_drag[1],
+            m * (g0 - a_cmd[2]) - D * v_drag[2],
+        )
+        t_sat, sat = self._saturate(t_vec, h)
+        a_sat = (
+            -(t_sat[0] + D * v_drag[0]) / m,
+            -(t_sat[1] + D * v_drag[1]) / m,
+            g0 - (t_sat[2] + D * v_drag[2]) / m,
+        )
+
+        # anti-windup: integrate only in the air and when not saturated (or when it unwinds)
+        if dt_ctrl > 0.0 and est.airborne:
+            ki, imax = self._ki_l, self._imax_l
+            for i in range(3):
+                di = ki[i] * e_p[i] * dt_ctrl
+                if sat and di * integ[i] >= 0.0:
+                    continue  # saturated: only let the integrator unwind
+                integ[i] = min(max(integ[i] + di, -imax[i]), imax[i])
+        self._last_acc_cmd = a_sat
+
+        # 4. flatness map
+        params = self._params_for_drag(D)
+        jerk = (0.0, 0.0, 0.0) if sat else j_ff
+        snap = (0.0, 0.0, 0.0) if sat else rs
+        yaw_rate = ref.yaw_rate
+        yaw_acc = 0.0 if sat else ref.yaw_acc
+        try:
+            qw, qx, qy, qz, thrust_n, wx, wy, wz, singular = multirotor_attitude_scalar(
+                v_drag, a_sat, jerk, snap, ref.yaw, yaw_rate, yaw_acc, params
+            )
+        except ValueError as exc:  # e.g. absurd magnitudes the flatness map refuses
+            self._fallback_reason = f"flatness map refused the input: {exc}"
+            return None
+        # normalised thrust with the hover thrust in use (MATH.md "MAVLink thrust")
+        thrust = h * thrust_n / (m * p.g)
+        if not all(map(isfinite, (qw, qx, qy, qz, wx, wy, wz, thrust))):
+            self._fallback_reason = "flatness output not finite"
+            return None
+        omega_ff = (0.0, 0.0, 0.0) if singular else (float(wx), float(wy), float(wz))
+        q_des = quat_normalize_f(float(qw), float(qx), float(qy), float(qz))
+        thrust = min(max(thrust, c.thrust_min), c.thrust_max)
+        self._diag = (now, e_p, e_v, a_sat, tuple(integ), h, D, tau, sat,
+                      "singular flatness point" if singular else "")
+        self.last_q_des = q_des
+        return q_des, thrust, omega_ff, sat
+
+    def _feedback_jerk(
+        self,
+        j_ref: tuple[float, float, float],
+        a_ref: list[float],
+        e_p: tuple[float, float, float],
+        e_v: tuple[float, float, float],
+        vel: tuple[float, float, float],
+        share: float,
+    ) -> tuple[float, float, float]:
+        """Time derivative of the commanded acceleration [m/s^3, NED], its feedback part scaled
+        by `share`: j_ref + share (kp e_v + kd (a_ref - a) + ki e_p). The vehicle's acceleration
+        `a` comes from its (extrapolated) attitude and the last thrust command,
+        a = g e3 - (u g / h) z_b - D v / m, not from differentiated velocities. Fed to the
+        flatness map in `rates` mode, the body rates then carry the commanded attitude's own
+        rotation forward (share 1: exactly; tests/unit/test_control.py checks it against finite
+        differences), so the P attitude loop only corrects what the rate loop missed."""
+        p = self.config.params
+        g0 = p.g
+        h = self.hover_thrust
+        u = self._thrust_hist[-1][1]
+        qw, qx, qy, qz = self._q_now
+        # body z axis (third column of C_eb) in NED
+        zx = 2.0 * (qx * qz + qw * qy)
+        zy = 2.0 * (qy * qz - qw * qx)
+        zz = 1.0 - 2.0 * (qx * qx + qy * qy)
+        f = u * g0 / h
+        dm = self.drag / p.mass
+        a = (-f * zx - dm * vel[0], -f * zy - dm * vel[1], g0 - f * zz - dm * vel[2])
+        kp, kd, ki = self._kp_l, self._kd_l, self._ki_l
+        return (
+            j_ref[0] + share * (kp[0] * e_v[0] + kd[0] * (a_ref[0] - a[0]) + ki[0] * e_p[0]),
+            j_ref[1] + share * (kp[1] * e_v[1] + kd[1] * (a_ref[1] - a[1]) + ki[1] * e_p[1]),
+            j_ref[2] + share * (kp[2] * e_v[2] + kd[2] * (a_ref[2] - a[2]) + ki[2] * e_p[2]),
+        )
+
+    def _publish_diag(self, e_R: FloatArray | None, e_omega: FloatArray | None = None) -> None:
+        """Diagnostics of this update (from `_diag`), built lazily by `last`."""
+        self._diag_pending = (e_R, e_omega)
+
+    def _params_for_drag(self, drag: float) -> MultirotorParams:
+        """Flatness parameters with drag `drag` (cached: constructing them validates inertia)."""
+        key = round(drag, 4)
+        cached = self._params_cache
+        if cached is None or cached[0] != key:
+            cached = (key, replace(self.config.params, drag=key))
+            self._params_cache = cached
+        return cached[1]
+
+    def _saturate(
+        self, t_vec: tuple[float, float, float], hover_thrust: float
+    ) -> tuple[tuple[float, float, float], bool]:
+        """Limit the thrust vector [N]: min upward, tilt, max magnitude (vertical first)."""
+        c = self.config
+        p = c.params
+        n_per_norm = p.mass * p.g / hover_thrust  # N per unit normalised thrust
+        T_min = c.thrust_min * n_per_norm
+        T_max = c.thrust_max * n_per_norm
+        tx, ty, tz = t_vec
+        # t = T z_b points along body z (down when level); the lift is -t. Vertical part: t_z.
+        sat = False
+        if tz < T_min * self._cos_tilt:
+            tz = T_min * self._cos_tilt
+            sat = True
+        if tz > T_max:
+            tz = T_max
+            sat = True
+        h_lim = min(tz * self._tan_tilt, math.sqrt(max(T_max * T_max - tz * tz, 0.0)))
+        hn = math.hypot(tx, ty)
+        if hn > h_lim:
+            k = h_lim / hn
+            tx, ty = tx * k, ty * k
+            sat = True
+        if T_min > math.hypot(tx, ty, tz):
+            tz = math.sqrt(max(T_min * T_min - tx * tx - ty * ty, 0.0))
+            sat = True
+        return (tx, ty, tz), sat
+
+    def _fallback_q(self, est: StateEstimate) -> FloatArray:
+        yaw = self._last_yaw
+        if est.quat_ok():
+            yaw = yaw_of_dcm(quat_to_dcm(est.q_wxyz))
+        return yaw_quat(yaw if math.isfinite(yaw) else 0.0)
+
+    def _fallback_attitude(self, now: float, est: StateEstimate) -> AttitudeCommand:
+        reason = self._fallback_reason or "fallback"
+        h = self.hover_thrust
+        self._record_fb(now, reason)
+        self._record_thrust(now, h)
+        return AttitudeCommand(self._fallback_q(est), h, 0.0, fallback=True, reason=reason)
+
+    def _fallback_rates(
+        self, now: float, est: StateEstimate, reason: str | None = None
+    ) -> RateCommand:
+        reason = reason or self._fallback_reason or "fallback"
+        h = self.hover_thrust
+        omega = np.zeros(3)
+        if est.quat_ok():
+            omega, _ = so3_rate_command(
+                quat_normalize(est.q_wxyz), self._fallback_q(est), np.zeros(3),
+                self.config.attitude_gains,
+            )
+            if not all_finite(omega):
+                omega = np.zeros(3)
+        self._record_fb(now, reason)
+        self._record_thrust(now, h)
+        return RateCommand(omega, h, fallback=True, reason=reason)
+
+    def _record_fb(self, now: float, reason: str) -> None:
+        z = np.zeros(3)
+        self._diag_pending = None
+        self._last_diag = TrackingDiagnostics(
+            t_s=now if math.isfinite(now) else math.nan,
+            pos_err_ned=z,
+            vel_err_ned=z,
+            acc_cmd_ned=z,
+            integrator_ned=np.array(self._integ_l),
+            hover_thrust=self.hover_thrust,
+            drag=self.drag,
+            extrapolation_s=0.0,
+            saturated=False,
+            attitude_err_frd=z,
+            fallback=True,
+            reason=reason,
+        )
+
+    _fallback_reason: str = ""
+    _params_cache: tuple[float, MultirotorParams] | None = None
+    _diag: tuple[
+        float,
+        tuple[float, ...],
+        tuple[float, ...],
+        tuple[float, ...],
+        tuple[float, ...],
+        float,
+        float,
+        float,
+        bool,
+        str,
+    ]
+    _q_now: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    #: the attitude the last regular update steered to (w, x, y, z), body FRD -> NED
+    last_q_des: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)

@@ -1,0 +1,95 @@
+"""Rover path following: velocity + yaw-rate setpoints from rover flatness with cross-track,
+along-track and heading correction."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from companion.control.commands import PositionCommand
+from companion.control.so3 import quat_to_dcm, yaw_of_dcm
+from companion.control.state import StateEstimate
+from companion.flatness import rover_setpoint
+from companion.flatness.reference import Reference
+
+FloatArray = npt.NDArray[np.float64]
+
+
+
+
+
+@dataclass(frozen=True)
+class RoverGains:
+    """Rover path-following gains.
+
+    k_along [1/s]: speed correction per metre of along-track error.
+    k_cross [1/m]: heading correction atan(k_cross * cross-track error).
+    k_heading [1/s]: yaw-rate correction per radian of heading error.
+    max_speed [m/s], max_yaw_rate [rad/s]: command limits.
+    """
+
+    k_along: float = 1.0
+    k_cross: float = 0.8
+    k_heading: float = 2.0
+    max_speed: float = 3.0
+    max_yaw_rate: float = math.radians(90.0)
+
+
+class RoverController:
+    """Rover tracking: velocity + yaw-rate setpoints from rover flatness plus a correction."""
+
+    def __init__(self, gains: RoverGains | None = None) -> None:
+        self.gains = gains or RoverGains()
+        self._last_heading: float | None = None
+
+    def update(self, now: float, est: StateEstimate, ref: Reference) -> PositionCommand:
+        """Velocity (NED, z NaN), yaw and yaw-rate setpoint at `now`.
+
+        The reference heading/speed/yaw rate come from rover flatness of the xy reference;
+        the along-track error corrects the speed, the cross-track error the heading, the heading
+        error the yaw rate. Bad input -> stop (zero velocity, zero yaw rate), flagged.
+        """
+        k = self.gains
+        if not (math.isfinite(now) and est.is_finite() and ref.is_finite()):
+            return PositionCommand(
+                vel_ned=np.array([0.0, 0.0, math.nan]), yaw_rate=0.0,
+                fallback=True, reason="input not finite",
+            )
+        try:
+            rs = rover_setpoint(ref.vel_ned[:2], ref.acc_ned[:2], ref.jerk_ned[:2])
+        except ValueError as exc:
+            return PositionCommand(
+                vel_ned=np.array([0.0, 0.0, math.nan]), yaw_rate=0.0,
+                fallback=True, reason=f"rover flatness refused the input: {exc}",
+            )
+        speed = float(np.asarray(rs.speed).reshape(-1)[0])
+        psi_ref = float(np.asarray(rs.yaw).reshape(-1)[0])
+        r_ref = float(np.asarray(rs.yaw_rate).reshape(-1)[0])
+        if not (math.isfinite(psi_ref) and math.isfinite(r_ref) and math.isfinite(speed)):
+            psi_ref, r_ref, speed = ref.yaw, 0.0, 0.0
+        if speed < 1e-3 and self._last_heading is not None:
+            psi_ref = self._last_heading
+        self._last_heading = psi_ref
+        # latency: extrapolate the position with the measured velocity
+        tau = min(max(now - est.t_s, 0.0), 0.25)
+        pos = est.pos_ned[:2] + est.vel_ned[:2] * tau
+        e = ref.pos_ned[:2] - pos
+        t_hat = np.array([math.cos(psi_ref), math.sin(psi_ref)])
+        n_hat = np.array([-math.sin(psi_ref), math.cos(psi_ref)])
+        e_at = float(e @ t_hat)
+        e_ct = float(e @ n_hat)
+        speed_cmd = min(max(speed + k.k_along * e_at, 0.0), k.max_speed)
+        heading_cmd = psi_ref + math.atan(k.k_cross * e_ct)
+        yaw_now = yaw_of_dcm(quat_to_dcm(est.q_wxyz))
+        yaw_now += float(est.omega_frd[2]) * tau
+        herr = math.remainder(heading_cmd - yaw_now, 2.0 * math.pi)
+        yaw_rate = r_ref + k.k_heading * herr
+        yaw_rate = min(max(yaw_rate, -k.max_yaw_rate), k.max_yaw_rate)
+        vel = np.array(
+            [speed_cmd * math.cos(heading_cmd), speed_cmd * math.sin(heading_cmd), math.nan]
+        )
+        return PositionCommand(vel_ned=vel, yaw_rate=yaw_rate)
+
