@@ -40,7 +40,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from tests.px4.px4_sitl import Px4Sitl, find_px4_sitl  # noqa: E402
+from px4_harness import Px4Sitl, find_px4_sitl  # noqa: E402
 
 FloatArray = npt.NDArray[np.float64]
 HIL_STATE_QUATERNION = 115

@@ -108,7 +108,7 @@ def _replay(code: Path, mission: Path, mode: str, out: Path) -> dict[str, Any]:
 
 
 def _fly_px4(code: Path, mode: str, out: Path, mission: Path = SQUARE) -> dict[str, Any]:
-    from tests.px4.px4_sitl import Px4Sitl, find_px4_sitl
+    from px4_harness import Px4Sitl, find_px4_sitl
 
     loc, why = find_px4_sitl()
     if loc is None:

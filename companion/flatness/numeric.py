@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from companion.flatness import _formulas as fm
+import companion.flatness._formulas as fm
 from companion.flatness.types import FloatArray, MultirotorParams, MultirotorSetpoint, RoverSetpoint
 
 __all__ = [

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import casadi as ca
 
-from companion.flatness import _formulas as fm
+import companion.flatness._formulas as fm
 
 __all__ = [
     "MULTIROTOR_INPUTS",

@@ -11,8 +11,10 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.flatness import MultirotorParams
-from companion.trajectory import Limits, PiecewiseBezier, plan
+from companion.flatness.types import MultirotorParams
+from companion.trajectory.bezier import PiecewiseBezier
+from companion.trajectory.limits import Limits
+from companion.trajectory.planner import plan
 
 PATTERNS = ("figure8", "circle", "square")
 
