@@ -408,7 +408,8 @@ def position_command(
     """`position` mode: the reference as a PX4 position setpoint (PX4 closes the loop).
 
     feedforward False sends position + yaw only (the naive baseline); True adds velocity,
-    acceleration and the yaw rate. `drag_per_kg` = D / m [1/s] (linear world-frame drag, MATH.md)
+    acceleration and the yaw rate. `drag_per_kg` = D / m [1/s] (linear world-frame drag,
+    docs/theory/multirotor.md)
     adds the acceleration that cancels the drag at the reference velocity, D v / m, to the
     acceleration feed-forward: PX4 turns that feed-forward into thrust without a drag model, so
     without it its velocity integral has to carry the drag (6 m/s^2 at 6 m/s on SIH) and the
@@ -994,7 +995,8 @@ class TrackingController:
         except ValueError as exc:  # e.g. absurd magnitudes the flatness map refuses
             self._fallback_reason = f"flatness map refused the input: {exc}"
             return None
-        # normalised thrust with the hover thrust in use (MATH.md "MAVLink thrust")
+        # normalised thrust with the hover thrust in use
+        # (docs/theory/multirotor.md, "Thrust for MAVLink")
         thrust = h * thrust_n / (m * p.g)
         if not all(map(isfinite, (qw, qx, qy, qz, wx, wy, wz, thrust))):
             self._fallback_reason = "flatness output not finite"

@@ -106,7 +106,8 @@ def frames() -> None:
     lift_h = -C[:, :2, 2] * 4.0  # horizontal part of the lift direction, x4
     nose = C[:, :2, 0] * 1.5
     ax.quiver(pos[:, 1], pos[:, 0], lift_h[:, 1], lift_h[:, 0], color="royalblue",
-              angles="xy", scale_units="xy", scale=1, width=0.006, label="tilt: horizontal part of the lift -z_b, x4")
+              angles="xy", scale_units="xy", scale=1, width=0.006,
+              label="tilt: horizontal part of the lift -z_b, x4")
     ax.quiver(pos[:, 1], pos[:, 0], nose[:, 1], nose[:, 0], color="crimson",
               angles="xy", scale_units="xy", scale=1, width=0.005, label="nose x_b")
     ax.set_xlabel("East [m]")
