@@ -1,6 +1,6 @@
 """SO(3) and frame helpers: quaternions, direction cosine matrices, Euler 3-2-1, exp/log.
 
-Conventions (the project contract, see MATH.md):
+Conventions (the project contract, see docs/theory/geometry.md):
 
 * ``C_eb`` (3x3) maps body FRD components to world NED components, ``v_e = C_eb @ v_b``; its
   columns are the body axes in world components.

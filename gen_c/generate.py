@@ -2,10 +2,10 @@
 
 The math comes from one place: the CasADi SX functions of ``companion.flatness.symbolic()``
 (multirotor and rover differential flatness) plus the Bezier segment evaluation built here from
-the Bernstein / derivative-control-point rule of MATH.md. Each is re-wrapped into a function
-with a fixed, documented argument layout (the one the hand-written ``ecca_setpoint.c`` relies
-on) and emitted by CasADi's ``CodeGenerator`` twice: ``casadi_real`` = ``double`` (prefix
-``ecca_d_``) and ``float`` (prefix ``ecca_f_``).
+the Bernstein / derivative-control-point rule of docs/theory/trajectory.md. Each is re-wrapped
+into a function with a fixed, documented argument layout (the one the hand-written
+``ecca_setpoint.c`` relies on) and emitted by CasADi's ``CodeGenerator`` twice: ``casadi_real``
+= ``double`` (prefix ``ecca_d_``) and ``float`` (prefix ``ecca_f_``).
 
 The CasADi output is post-processed deterministically so that it passes
 ``-std=c99 -Wall -Wextra -Werror -pedantic`` (and PX4's extra warnings) and so that both

@@ -71,7 +71,8 @@ def position_command(
     """`position` mode: the reference as a PX4 position setpoint (PX4 closes the loop).
 
     feedforward False sends position + yaw only (the naive baseline); True adds velocity,
-    acceleration and the yaw rate. `drag_per_kg` = D / m [1/s] (linear world-frame drag, MATH.md)
+    acceleration and the yaw rate. `drag_per_kg` = D / m [1/s] (linear world-frame drag,
+    docs/theory/multirotor.md)
     adds the acceleration that cancels the drag at the reference velocity, D v / m, to the
     acceleration feed-forward: PX4 turns that feed-forward into thrust without a drag model, so
     without it its velocity integral has to carry the drag (6 m/s^2 at 6 m/s on SIH) and the

@@ -4,8 +4,8 @@ Pure: every call takes the sample time `now` [s]; no clock, no IO.
 
 Hover thrust: a scalar Kalman filter on the vertical specific-force balance (the idea of PX4's
 mc_hover_thrust_estimator, written here in NED with tilt and linear drag). With the linear
-thrust model of MATH.md (`T = m g u / h`, `u` the normalised thrust, `h` the hover thrust) the
-vertical acceleration in NED is
+thrust model of docs/theory/multirotor.md (`T = m g u / h`, `u` the normalised thrust, `h` the
+hover thrust) the vertical acceleration in NED is
 
     a_z = g - g * u * (z_b . e3) / h - (D / m) * v_z
 

@@ -458,7 +458,8 @@ class TrackingController:
         except ValueError as exc:  # e.g. absurd magnitudes the flatness map refuses
             self._fallback_reason = f"flatness map refused the input: {exc}"
             return None
-        # normalised thrust with the hover thrust in use (MATH.md "MAVLink thrust")
+        # normalised thrust with the hover thrust in use
+        # (docs/theory/multirotor.md, "Thrust for MAVLink")
         thrust = h * thrust_n / (m * p.g)
         if not all(map(isfinite, (qw, qx, qy, qz, wx, wy, wz, thrust))):
             self._fallback_reason = "flatness output not finite"

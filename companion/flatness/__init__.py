@@ -1,7 +1,8 @@
 """Differential flatness: flat outputs (position derivatives, yaw) -> vehicle setpoints.
 
 Multirotor: thrust and its derivatives, attitude (quaternion and DCM), body rates, angular
-acceleration and moments, with linear drag (MATH.md). Rover: heading, speed and rates.
+acceleration and moments, with linear drag (docs/theory/multirotor.md). Rover: heading, speed
+and rates.
 :func:`symbolic` gives the same maps as named ``casadi.Function`` objects (for the C generator);
 :func:`multirotor_setpoint` and :func:`rover_setpoint` are the fast numeric path.
 """

@@ -1,4 +1,4 @@
-"""The flatness formulas of MATH.md, written once over an abstract scalar backend.
+"""The flatness formulas of the manual (docs/theory/), written once over an abstract scalar backend.
 
 This module is the single source of truth of the math. The same function bodies are evaluated
 
@@ -242,7 +242,7 @@ def multirotor(
     hover_thrust: S,
     drag: S,
 ) -> dict[str, Any]:
-    """Multirotor flat outputs -> setpoint (MATH.md "Multirotor"), components as tuples.
+    """Multirotor flat outputs -> setpoint (docs/theory/multirotor.md), components as tuples.
 
     Returns a dict with ``thrust, thrust_dot, thrust_ddot, thrust_norm`` (scalars), ``q_wxyz``
     (4-tuple), ``C_eb`` (3 rows of 3), ``omega_frd, omega_dot_frd, moment_frd`` (3-tuples),
@@ -366,7 +366,7 @@ def rover(
     acc_xy: tuple[S, S],
     jerk_xy: tuple[S, S],
 ) -> dict[str, S]:
-    """Rover (unicycle) flat output derivatives -> heading, speed and rates (MATH.md "Rover").
+    """Rover (unicycle) flat output derivatives -> heading, speed and rates (docs/theory/rover.md).
 
     Returns ``yaw`` (rad), ``speed`` (m/s), ``speed_dot`` (m/s^2), ``yaw_rate`` (rad/s),
     ``yaw_acc`` (rad/s^2) and ``singular`` (float 0/1).

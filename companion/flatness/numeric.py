@@ -204,7 +204,7 @@ def multirotor_setpoint(
     yaw_acc: npt.ArrayLike,
     params: MultirotorParams,
 ) -> MultirotorSetpoint:
-    """Multirotor setpoint from the flat outputs (MATH.md), drag-aware.
+    """Multirotor setpoint from the flat outputs (docs/theory/multirotor.md), drag-aware.
 
     vel, acc, jerk, snap: derivatives of the NED position (m/s, m/s^2, m/s^3, m/s^4), shape (3,)
     for one sample or (N, 3) for a batch. yaw, yaw_rate, yaw_acc: the 3-2-1 yaw and its first two

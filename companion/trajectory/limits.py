@@ -1,6 +1,6 @@
 """Feasibility limits of a trajectory and their check (pure numpy).
 
-Multirotor quantities follow MATH.md: NED world frame, thrust vector
+Multirotor quantities follow docs/theory/multirotor.md: NED world frame, thrust vector
 ``t = m (g e3 - a) - D v`` (N), collective thrust ``T = |t|``, tilt = angle between the body
 z axis ``z_b = t / T`` and straight down ``e3``. Body rates come from the flatness module.
 Rover quantities follow the unicycle relations: speed ``V = |v|``, yaw rate

@@ -179,8 +179,14 @@ def _subcommands() -> dict[str, argparse.ArgumentParser]:
     return dict(sub.choices)
 
 
+def _manual_text() -> str:
+    """README.md and every page of the manual (docs/), where the commands are documented."""
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    return "\n".join(p.read_text(encoding="utf-8") for p in pages)
+
+
 def test_readme_documents_every_command_and_option() -> None:
-    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    readme = _manual_text()
     for name, sp in _subcommands().items():
         assert f"python -m companion {name}" in readme, name
         for action in sp._actions:

@@ -121,7 +121,8 @@ def test_so3_feedforward_removes_tracking_lag() -> None:
 
 def _newton_residual(cmd_q: np.ndarray, thrust_norm: float, acc: np.ndarray, vel: np.ndarray,
                      p: MultirotorParams, hover: float) -> np.ndarray:
-    """m a - (m g e3 - T z_b - D v) with T from the linear thrust model (MATH.md)."""
+    """m a - (m g e3 - T z_b - D v) with T from the linear thrust model
+    (docs/theory/multirotor.md)."""
     zb = _rot(cmd_q).apply([0.0, 0.0, 1.0])
     T = thrust_norm / hover * p.mass * G
     return np.asarray(p.mass * acc - (p.mass * G * E3 - T * zb - p.drag * vel), dtype=float)

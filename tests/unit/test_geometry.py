@@ -68,7 +68,7 @@ def test_yaw_plus_90_maps_body_x_to_east() -> None:
     # and a 3-2-1 pitch up (theta > 0) raises the nose: body x gets a negative Down component
     C = geo.euler321_to_dcm(0.0, 0.2, 0.0)
     assert (C @ np.array([1.0, 0.0, 0.0]))[2] < 0.0
-    # third row of C_eb (MATH.md erratum 1)
+    # third row of C_eb (docs/theory/geometry.md: the manual's erratum)
     psi, th, ph = 0.4, -0.3, 1.2
     row = np.array([-np.sin(th), np.sin(ph) * np.cos(th), np.cos(ph) * np.cos(th)])
     np.testing.assert_allclose(geo.euler321_to_dcm(psi, th, ph)[2], row, atol=1e-15)

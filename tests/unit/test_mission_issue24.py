@@ -187,7 +187,9 @@ def test_vtol_plan_flies_as_a_multicopter_with_a_warning() -> None:
 def test_readme_sentence_on_other_vehicles_matches_the_code() -> None:
     """README: "A plan written for another kind of vehicle ... is flown with a warning": a
     fixed-wing plan and a VTOL plan as QGroundControl writes it (VTOL takeoff/land items)."""
-    readme = " ".join((Path(__file__).resolve().parents[2] / "README.md").read_text().split())
+    root = Path(__file__).resolve().parents[2]
+    pages = [root / "README.md", *sorted((root / "docs").rglob("*.md"))]  # README + the manual
+    readme = " ".join(" ".join(p.read_text() for p in pages).split())
     assert "written for another kind of vehicle" in readme
     assert "is flown with a warning" in readme
     vtol = [_simple(84, [0, 0, 0, None, HOME[0], HOME[1], 10]), WP_A,
