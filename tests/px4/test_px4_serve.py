@@ -24,7 +24,7 @@ from tests.gcs import Gcs, ground_station
 from tests.integration.conftest import free_udp_port
 from tests.integration.test_serve_mock import relay
 
-from .px4_sitl import Px4Sitl
+from px4_harness import Px4Sitl
 
 REPO = Path(__file__).resolve().parents[2]
 MISSION = REPO / "tests" / "data" / "missions" / "px4_short.plan"

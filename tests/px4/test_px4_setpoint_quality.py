@@ -14,7 +14,7 @@ import pytest
 
 from tests.setpoint_checks import read_setpoints
 
-from .px4_sitl import Px4Sitl
+from px4_harness import Px4Sitl
 
 REPO = Path(__file__).resolve().parents[2]
 #: takeoff to 10 m, a 30 x 20 m square at 8 m/s, land at home: a 10 m final descent
