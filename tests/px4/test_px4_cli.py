@@ -15,7 +15,6 @@ import numpy as np
 from pymavlink import mavutil
 
 from companion.mission import geodetic_to_ned, load_mission
-
 from px4_harness import Px4Sitl
 
 REPO = Path(__file__).resolve().parents[2]

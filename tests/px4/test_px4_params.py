@@ -16,7 +16,6 @@ from pymavlink.dialects.v20 import common as mavlink2
 from companion.aio import ParamReadError, Vehicle, VehicleConfig
 from companion.mavlink import LinkConfig
 from companion.mission.px4_params import PLANNING_PARAM_NAMES
-
 from px4_harness import Px4Sitl
 
 

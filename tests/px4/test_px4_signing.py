@@ -14,7 +14,6 @@ from pymavlink.dialects.v20 import common as m
 
 from companion.aio import ConnectTimeoutError, Vehicle, VehicleConfig
 from companion.mavlink import LinkConfig, SigningConfig
-
 from px4_harness import Px4Sitl
 
 

@@ -25,7 +25,6 @@ from companion.mission import load_mission, mission_upload_items
 from companion.planning.config import VehicleFile
 from companion.planning.schedule import trajectory_reference
 from companion.trajectory.patterns import pattern_trajectory
-
 from px4_harness import Px4Sitl
 
 REPO = Path(__file__).resolve().parents[2]
