@@ -213,7 +213,7 @@ def render(c: dict[str, float], py: dict[str, float], arm: list[crossbuild.ArmRe
     lines += [
         "Cortex-M7 cross-build (`arm-none-eabi-gcc -mcpu=cortex-m7 -mfpu=fpv5-d16 "
         "-mfloat-abi=hard -mthumb -O2 -fstack-usage`, one variant per build, linked against "
-        "newlib's libm; `gen_c.crossbuild`, checked by `tests/golden/test_gen_c_arm.py`). Code "
+        "newlib's libm; `gen_c.crossbuild`, checked by `tests/gen_c/test_gen_c_arm.py`). Code "
         "size is `arm-none-eabi-size` text of the library objects before `--gc-sections` "
         "(includes CasADi's unused metadata functions); worst stack = own frame + deepest callee "
         "chain in the library (from `-fstack-usage`/`-fcallgraph-info`, libm excluded). No "

@@ -15,7 +15,7 @@ mock (lockstep replay, `companion.replay.runner`): every bundled mission in exam
   - planned duration vs the time-optimal bound of the same plan and limits, when the planner
     provides one (`time_optimal_bound_s(flight_plan, params, limits)` in
     companion.planning.schedule or companion.trajectory; "n/a" otherwise).
-px4 (real PX4 v1.16 SITL, real time, ../shared/px4_sitl through tests/px4/px4_sitl.Px4Sitl, each
+px4 (real PX4 v1.16 SITL, real time, ../shared/px4_sitl through px4_harness.Px4Sitl, each
   flight on a fresh PX4 holding /tmp/ecca-px4-flights.lock): `--px4-mission` (default
   examples/missions/square.plan) flown by `python -m companion fly --connect ... --mode attitude`
   and by PX4's AUTO.MISSION (bench_fidelity's mission flight: upload, arm, mission start),

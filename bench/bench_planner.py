@@ -65,7 +65,7 @@ HISTORY = [
 
 
 def random_waypoints(rng: np.random.Generator, n: int) -> np.ndarray:
-    """Same generator as tests/unit/test_planner_allocation.py."""
+    """Same generator as tests/companion/trajectory/test_planner_allocation.py."""
     pts = [rng.uniform(-5.0, 5.0, 3)]
     while len(pts) < n:
         step = rng.normal(size=3)

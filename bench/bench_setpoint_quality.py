@@ -9,7 +9,7 @@ that version) and the working tree. Parts:
     plus tests/data/missions/square_8ms.plan (takeoff to 10 m, 8 m/s square, land: a 10 m
     final descent), attitude and rates mode;
   px4: `python -m companion fly square_8ms.plan --connect ...` on a fresh real PX4 v1.16 SITL
-    (tests/px4/px4_sitl.Px4Sitl, under /tmp/ecca-px4-flights.lock), attitude and rates mode.
+    (px4_harness.Px4Sitl, under /tmp/ecca-px4-flights.lock), attitude and rates mode.
 From each tlog: the companion's SET_ATTITUDE_TARGET frames, and at each the vehicle's landed
 state (EXTENDED_SYS_STATE) and height above its first LOCAL_POSITION_NED. A thrust step is the
 change between consecutive setpoints at most 20 ms apart, both in the air (landed state 2) and

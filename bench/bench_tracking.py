@@ -20,7 +20,7 @@ Run: `.venv/bin/python bench/bench_tracking.py [--harness mavlink|direct] [--wri
 with `sitl_mock.lockstep.LockstepSim` (ODOMETRY telemetry at 30 Hz, one period of extra
 latency); `direct` steps the vehicle model with setpoint objects.
 The module also exposes the lockstep harness (`run_lockstep`, `figure8_reference`) used by
-tests/integration/test_tracking_lockstep.py.
+bench/tests/test_tracking_lockstep.py.
 """
 
 from __future__ import annotations

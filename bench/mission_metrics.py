@@ -1,5 +1,5 @@
 """Pure metrics of a flown mission (numpy only; used by bench_missions.py, tested in
-tests/unit/test_mission_metrics.py): closest approach of the flown path to each waypoint,
+bench/tests/test_mission_metrics.py): closest approach of the flown path to each waypoint,
 deviation of the flown path from the mission's straight legs, and the corridor check.
 
 Positions are NED [m] in one frame; a flown path is the polyline through its samples in time

@@ -17,7 +17,7 @@ build fails, so callers can fall back to the pure-Python path::
 Units, frames and field names are those of ``companion.flatness`` (NED, FRD, SI, q_wxyz).
 Call :func:`load_setpoint_library` once at start-up, not in the control loop: the first call
 in a fresh cache compiles the library (a few seconds). Results agree with the Python path to
-1e-12 relative (double), tested in ``tests/golden/test_gen_c_native.py``.
+1e-12 relative (double), tested in ``tests/gen_c/test_gen_c_native.py``.
 """
 
 from __future__ import annotations

@@ -19,8 +19,8 @@ which dominated the mock's MAVLink cost. Here:
   unknown ids, bad CRC, garbage, truncated or over-long frames) returns None so the caller can
   hand the whole datagram to pymavlink's robust parser and count it exactly as before.
 
-Tests compare every path with pymavlink (tests/unit/test_sitl_autopilot_mavwire.py,
-tests/unit/test_sitl_mavwire_codec.py, tests/unit/test_sitl_fastpaths.py).
+Tests compare every path with pymavlink (tests/sitl_mock/test_sitl_autopilot_mavwire.py,
+tests/sitl_mock/test_sitl_mavwire_codec.py, tests/sitl_mock/test_fast_paths.py).
 """
 
 from __future__ import annotations

@@ -243,9 +243,10 @@ PARAMS.update(
 )
 
 # Accepted values: PX4 v1.16 parameter metadata (min, max, enumerated values; the build's
-# etc/extras/parameters.json, checked by tests/unit/test_sitl_param_ranges.py) for every parameter
-# PX4 has. `_MOCK_RANGES` below replaces or completes a range where PX4 gives none or PX4's would
-# break the simulation (PX4 itself does not enforce ranges on PARAM_SET; the mock does).
+# etc/extras/parameters.json, checked by tests/sitl_mock/test_sitl_param_ranges.py) for every
+# parameter PX4 has. `_MOCK_RANGES` below replaces or completes a range where PX4 gives none or
+# PX4's would break the simulation (PX4 itself does not enforce ranges on PARAM_SET; the mock
+# does).
 PX4_RANGES: dict[str, tuple[float | None, float | None, tuple[int, ...]]] = {
     "MAV_SYS_ID": (1, 250, ()),
     "COM_OF_LOSS_T": (0.0, 60.0, ()),

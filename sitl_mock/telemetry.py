@@ -3,7 +3,7 @@
 The builders turn the autopilot's view (vehicle state, mode, targets) into messages the
 autopilot packs on a link: either a pymavlink message object or, on the hot path, a
 `(MessageCodec, fields)` pair with the pymavlink constructor's positional arguments, packed
-without building the message object (same bytes: tests/unit/test_sitl_mavwire_codec.py).
+without building the message object (same bytes: tests/sitl_mock/test_sitl_mavwire_codec.py).
 Attitude math here is the mock's own (explicit Euler 3-2-1 from the Hamilton quaternion
 body FRD -> NED), independent of `companion`.
 """

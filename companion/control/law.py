@@ -486,8 +486,9 @@ class TrackingController:
         `a` comes from its (extrapolated) attitude and the last thrust command,
         a = g e3 - (u g / h) z_b - D v / m, not from differentiated velocities. Fed to the
         flatness map in `rates` mode, the body rates then carry the commanded attitude's own
-        rotation forward (share 1: exactly; tests/unit/test_control.py checks it against finite
-        differences), so the P attitude loop only corrects what the rate loop missed."""
+        rotation forward (share 1: exactly; tests/companion/control/test_control.py checks it
+        against finite differences), so the P attitude loop only corrects what the rate loop
+        missed."""
         p = self.config.params
         g0 = p.g
         h = self.hover_thrust

@@ -14,8 +14,8 @@ and the payload is zero-extended and unpacked with the message class's ``struct`
 Signed frames and unknown message ids go through pymavlink's ``MAVLink.decode`` (pymavlink's
 own signing, ``mav.signing``, is not used). Encoding likewise packs the payload with the class's
 ``struct`` in the generated ``pack``'s order and gives the same bytes as ``msg.pack(mav)``; every
-frame gets the next sequence number. ``tests/unit/test_mavlink_codec_fast.py`` checks both
-against pymavlink.
+frame gets the next sequence number. ``tests/companion/mavlink/test_mavlink_codec_fast.py``
+checks both against pymavlink.
 
 Signing (``signer``, see :mod:`companion.mavlink.signing`): every encoded frame is signed, every
 decoded frame is verified after its CRC (signature first, then the replay rules) and dropped

@@ -135,7 +135,7 @@ class TelemetrySnapshot:
 
 # Per-cycle constructors of the hot values: the same objects as the dataclass constructors (whose
 # generated frozen __init__ only assigns the fields, one object.__setattr__ each, ~3x slower),
-# checked field by field against them in tests/unit/test_mavlink_hot_path.py.
+# checked field by field against them in tests/companion/mavlink/test_fast_paths.py.
 def _local_position(t_s: float, time_boot_s: float, pos_ned: Vec3, vel_ned: Vec3,
                     source: str) -> LocalPosition:
     return frozen_new(LocalPosition, t_s=t_s, time_boot_s=time_boot_s, pos_ned=pos_ned,

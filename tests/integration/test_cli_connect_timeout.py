@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from companion.app.cli import main
-from tests.integration.conftest import free_udp_port
+from tests.support.mock_process import free_udp_port
 
 EXIT_NO_VEHICLE = 3  # README "Conventions": no vehicle heard within --timeout
 ROOT = Path(__file__).resolve().parents[2]

@@ -21,7 +21,7 @@ import numpy as np
 from pymavlink import mavutil
 
 from companion.app.cli import main as cli_main
-from tests.integration.conftest import bounded, run_mock
+from tests.support.mock_process import bounded, run_mock
 
 OFFBOARD_CUSTOM_MODE = 6 << 16
 SIZE_M, SPEED_M_S = 6.0, 2.0

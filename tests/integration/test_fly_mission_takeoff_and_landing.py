@@ -25,8 +25,8 @@ from typing import Any
 import pytest
 from pymavlink import mavutil
 
-from tests.integration.conftest import run_companion, run_mock
 from tests.integration.test_lossy_link_mission_passes_waypoints import haversine_m, waypoints
+from tests.support.mock_process import run_companion, run_mock
 
 MISSION = Path(__file__).parents[1] / "data" / "missions" / "px4_short.plan"
 OFFBOARD, LAND_SUB = 6, 6  # PX4 main mode OFFBOARD; AUTO (4) sub mode LAND

@@ -22,7 +22,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.mission import load_mission
 from companion.mission.px4_params import PLANNING_PARAM_NAMES, Px4PlanningParams
-from tests.integration.conftest import bounded, free_udp_port
+from tests.support.mock_process import bounded, free_udp_port
 
 MISSION = Path(__file__).resolve().parents[1] / "data" / "missions" / "px4_short.plan"
 REAL32 = mavlink2.MAV_PARAM_TYPE_REAL32
@@ -196,7 +196,7 @@ async def test_missing_vehicle_file_fails_before_anything_is_sent(tmp_path: Path
 
 
 async def test_mission_crossing_its_geofence_refused_before_any_command(tmp_path: Path) -> None:
-    from tests.fence_plans import HOME, box, write_plan
+    from tests.support.fence_plans import HOME, box, write_plan
 
     plan = write_plan(tmp_path / "cross.plan", [(60.0, 0.0), (60.0, 60.0)],
                       polygons=[(False, box(50.0, 70.0, 20.0, 34.0))])

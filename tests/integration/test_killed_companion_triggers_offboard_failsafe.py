@@ -24,7 +24,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from tests.integration.conftest import free_udp_port
+from tests.support.mock_process import free_udp_port
 
 OFFBOARD, POSCTL = 6, 3
 MAV_STATE_CRITICAL = 5

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from pymavlink import mavutil
 
-from tests.integration.conftest import run_companion, run_mock
+from tests.support.mock_process import run_companion, run_mock
 
 MISSION = Path(__file__).parents[1] / "data" / "missions" / "square_15m.plan"
 EARTH_RADIUS_M = 6_371_008.8  # IUGG mean radius

@@ -10,7 +10,7 @@ import sys
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from tests.integration.conftest import bounded
+from tests.support.mock_process import bounded
 
 
 def _udp() -> socket.socket:

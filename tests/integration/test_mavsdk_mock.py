@@ -25,7 +25,7 @@ from mavsdk.asyncio.plugins.offboard import (
 from mavsdk.asyncio.plugins.telemetry import FlightMode
 from mavsdk.plugins.mavlink_direct import MavlinkMessage
 
-from tests.integration.conftest import Drone, bounded, connect_drone
+from tests.support.mock_process import Drone, bounded, connect_drone
 
 T = TypeVar("T")
 SPEED = 2.0  # simulated seconds per wall second (MAVSDK's wall-clock timeouts allow it)

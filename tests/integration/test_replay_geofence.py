@@ -15,7 +15,7 @@ import pytest
 from pymavlink import mavutil
 
 from companion.app.cli import main as cli_main
-from tests.fence_plans import HOME, box, write_plan
+from tests.support.fence_plans import HOME, box, write_plan
 
 R_EARTH = 6_371_000.0
 # the leg item 2 (60, 0) -> item 3 (60, 40) at 10 m; no landing (the flight ends hovering)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from companion.aio import Vehicle, VehicleConfig
 from companion.mission import load_mission, mission_upload_items
-from tests.integration.conftest import bounded, stop_process
+from tests.support.mock_process import bounded, stop_process
 
 MISSION = Path(__file__).resolve().parents[1] / "data" / "missions" / "px4_short.plan"
 

@@ -1,5 +1,5 @@
 """`python -m companion serve` against the mock, with the test playing QGroundControl on the
-mock's GCS link (pymavlink, tests/gcs.py).
+mock's GCS link (pymavlink, tests/support/gcs.py).
 
 The pilot uploads a mission, arms and takes off in AUTO, and switches to OFFBOARD: the service
 flies the smooth mission; Hold mid-way stops it at once; OFFBOARD again resumes from where the
@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 from pymavlink import mavutil
 
-from tests.gcs import Gcs, custom_mode, ground_station, mission_item, offset_deg
-from tests.integration.conftest import bounded, free_udp_port, run_mock
+from tests.support.gcs import Gcs, custom_mode, ground_station, mission_item, offset_deg
+from tests.support.mock_process import bounded, free_udp_port, run_mock
 
 HOME = (47.397742, 8.545594)  # the mock's default home (PX4 SITL's)
 ALT_M = 5.0

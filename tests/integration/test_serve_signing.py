@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.integration.conftest import run_mock
 from tests.integration.test_serve_mock import Service, run_service
+from tests.support.mock_process import run_mock
 
 
 def _key(path: Path, seed: int) -> Path:

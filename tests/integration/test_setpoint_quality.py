@@ -1,4 +1,4 @@
-"""Setpoint quality of replayed flights, judged from the tlog (tests/setpoint_checks.py): no
+"""Setpoint quality of replayed flights, judged from the tlog (tests/support/setpoint_checks.py): no
 thrust chatter on the final 10 m descent, commanded tilt within the vehicle's MPC_TILTMAX_AIR,
 and the report's own figures (`setpoint_quality`) agreeing with the tlog."""
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from companion.app.cli import main as cli_main
-from tests.setpoint_checks import read_setpoints
+from tests.support.setpoint_checks import read_setpoints
 
 ROOT = Path(__file__).resolve().parents[2]
 #: takeoff to 10 m, a 30 x 20 m square at 8 m/s, land at home: a 10 m final descent

@@ -23,7 +23,7 @@ from companion.mavlink import LinkConfig, PositionSetpoint, SigningConfig, Telem
 from sitl_mock.autopilot import Autopilot
 from sitl_mock.server import LinkConfig as MockLink
 from sitl_mock.server import MockServer, ServerConfig
-from tests.integration.conftest import bounded, free_udp_port, run_mock
+from tests.support.mock_process import bounded, free_udp_port, run_mock
 
 KEY = bytes(range(7, 39))
 OTHER_KEY = bytes(range(32))

@@ -11,7 +11,7 @@ import pytest
 from pymavlink import mavutil
 
 from companion.aio import ParamReadError, Vehicle, VehicleConfig
-from tests.integration.conftest import bounded, free_udp_port, run_mock
+from tests.support.mock_process import bounded, free_udp_port, run_mock
 
 
 async def test_vehicle_reads_changed_planning_parameters_from_the_mock() -> None:

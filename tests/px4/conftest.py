@@ -1,6 +1,6 @@
 """Real PX4 v1.16 SITL (SIH quadrotor) for the `px4` test set.
 
-Every test gets a fresh PX4 (`px4_sitl.Px4Sitl`: its own instance, ports, parameters and
+Every test gets a fresh PX4 (`px4_harness.Px4Sitl`: its own instance, ports, parameters and
 estimator) that is stopped in the fixture's finally. Without a PX4 SITL (`$ECCA_PX4_SITL`, else
 `../shared/px4_sitl`), every test here is skipped with the reason; CI has one. On a failure the
 tail of PX4's console is printed with the test's output.
@@ -14,7 +14,7 @@ from typing import Any
 
 import pytest
 
-from .px4_sitl import Px4Sitl, find_px4_sitl
+from px4_harness import Px4Sitl, find_px4_sitl
 
 _LOCATION, _WHY = find_px4_sitl()
 

@@ -15,8 +15,7 @@ import numpy as np
 from pymavlink import mavutil
 
 from companion.mission import geodetic_to_ned, load_mission
-
-from .px4_sitl import Px4Sitl
+from px4_harness import Px4Sitl
 
 REPO = Path(__file__).resolve().parents[2]
 MISSION = REPO / "tests" / "data" / "missions" / "px4_short.plan"

@@ -16,8 +16,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from companion.aio import ParamReadError, Vehicle, VehicleConfig
 from companion.mavlink import LinkConfig
 from companion.mission.px4_params import PLANNING_PARAM_NAMES
-
-from .px4_sitl import Px4Sitl
+from px4_harness import Px4Sitl
 
 
 def _px4_defaults(px4: Px4Sitl) -> dict[str, float]:

@@ -1,6 +1,6 @@
 """`python -m companion serve` against real PX4 v1.16 SITL, the test playing QGroundControl on
-PX4's GCS link (pymavlink, tests/gcs.py): upload a mission, arm and take off in AUTO, OFFBOARD
--> the service flies the smooth mission; Hold (AUTO.LOITER: PX4 refuses POSCTL without RC)
+PX4's GCS link (pymavlink, tests/support/gcs.py): upload a mission, arm and take off in AUTO,
+OFFBOARD -> the service flies the smooth mission; Hold (AUTO.LOITER: PX4 refuses POSCTL without RC)
 mid-way -> it stops; OFFBOARD again -> it resumes from there and at the end switches PX4 to
 LAND. Oracles: PX4's HEARTBEAT and LOCAL_POSITION_NED as the GCS sees them, the service's event
 log. About 60-75 s (PX4 runs in real time).
@@ -20,11 +20,10 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.mission import load_mission, mission_upload_items
-from tests.gcs import Gcs, ground_station
-from tests.integration.conftest import free_udp_port
+from px4_harness import Px4Sitl
 from tests.integration.test_serve_mock import relay
-
-from .px4_sitl import Px4Sitl
+from tests.support.gcs import Gcs, ground_station
+from tests.support.mock_process import free_udp_port
 
 REPO = Path(__file__).resolve().parents[2]
 MISSION = REPO / "tests" / "data" / "missions" / "px4_short.plan"

@@ -1,6 +1,6 @@
 """`companion fly` on real PX4 SITL: no thrust chatter on the final 10 m descent, commanded tilt
-within PX4's MPC_TILTMAX_AIR, judged from the flight's tlog (tests/setpoint_checks.py) against
-PX4's own LOCAL_POSITION_NED and landed state. Before the fix, the same square in attitude
+within PX4's MPC_TILTMAX_AIR, judged from the flight's tlog (tests/support/setpoint_checks.py)
+against PX4's own LOCAL_POSITION_NED and landed state. Before the fix, the same square in attitude
 mode made 95 thrust jumps over 0.1 (up to 0.5) between setpoints 10-20 ms apart."""
 
 from __future__ import annotations
@@ -12,9 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.setpoint_checks import read_setpoints
-
-from .px4_sitl import Px4Sitl
+from px4_harness import Px4Sitl
+from tests.support.setpoint_checks import read_setpoints
 
 REPO = Path(__file__).resolve().parents[2]
 #: takeoff to 10 m, a 30 x 20 m square at 8 m/s, land at home: a 10 m final descent

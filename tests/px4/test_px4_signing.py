@@ -14,8 +14,7 @@ from pymavlink.dialects.v20 import common as m
 
 from companion.aio import ConnectTimeoutError, Vehicle, VehicleConfig
 from companion.mavlink import LinkConfig, SigningConfig
-
-from .px4_sitl import Px4Sitl
+from px4_harness import Px4Sitl
 
 
 def _recv_until(sock: socket.socket, rx: m.MAVLink, pred: object, timeout_s: float) -> object:

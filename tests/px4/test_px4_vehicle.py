@@ -25,8 +25,7 @@ from companion.mission import load_mission, mission_upload_items
 from companion.planning.config import VehicleFile
 from companion.planning.schedule import trajectory_reference
 from companion.trajectory.patterns import pattern_trajectory
-
-from .px4_sitl import Px4Sitl
+from px4_harness import Px4Sitl
 
 REPO = Path(__file__).resolve().parents[2]
 SIH = VehicleFile().params  # the SIH quad: 1 kg, D = 1 N/(m/s), hover 0.5
