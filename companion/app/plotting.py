@@ -184,7 +184,7 @@ class PlotWorker:
             return
         # a fresh interpreter running this module (not multiprocessing's spawn, which would
         # re-import the caller's __main__ script), with this package importable
-        pkg_root = str(Path(__file__).resolve().parents[1])
+        pkg_root = str(Path(__file__).resolve().parents[2])
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join(
             p for p in (pkg_root, env.get("PYTHONPATH", "")) if p)

@@ -40,7 +40,10 @@ _ABS = 1e-9
 
 
 def _figures(report: dict[str, Any]) -> dict[str, Any]:
-    return {k: v for k, v in report.items() if k not in _VOLATILE}
+    """The report without host figures, with paths relative to the repository (warnings name
+    the file)."""
+    text = json.dumps({k: v for k, v in report.items() if k not in _VOLATILE})
+    return dict(json.loads(text.replace(str(ROOT) + "/", "")))
 
 
 def _replay_all(out: Path) -> dict[str, dict[str, Any]]:
