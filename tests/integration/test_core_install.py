@@ -123,7 +123,7 @@ def test_command_needing_a_missing_extra_exits_2_naming_it(
 
 
 def test_require_names_the_extra_and_the_missing_module(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setitem(sys.modules, "pyarrow", None)  # type: ignore[arg-type]
+    monkeypatch.setitem(sys.modules, "pyarrow", None)
     with pytest.raises(MissingExtraError) as info:
         require("campaign", "campaign")
     assert info.value.extra == "campaign" and info.value.module == "pyarrow"
