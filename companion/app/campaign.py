@@ -15,6 +15,7 @@ from typing import Any
 from rich.console import Console
 from rich.markup import escape
 
+from companion.app.extras import require
 from companion.app.paths import output_folder
 from companion.campaign.perturb import PerturbationRanges
 
@@ -112,7 +113,8 @@ def options_from_args(args: argparse.Namespace) -> CampaignOptions:
 
 
 def cmd_campaign(args: argparse.Namespace) -> int:
-    """`campaign` from parsed arguments."""
+    """`campaign` from parsed arguments (MissingExtraError without the [campaign] extra)."""
+    require("campaign", "campaign")
     console = Console()
     try:
         return run_campaign(options_from_args(args), console)

@@ -1,8 +1,9 @@
 """Command line: `python -m companion COMMAND ...`.
 
 Exit codes: 0 success, 1 flight/runtime failure (vehicle refused, link lost, limit exceeded),
-2 bad input (unreadable or invalid file, bad option), 3 no vehicle heard within the connect
-timeout (`fly --connect`, `status`), 130 interrupted by the user.
+2 bad input (unreadable or invalid file, bad option) or an extra the command needs is not
+installed (the message names it), 3 no vehicle heard within the connect timeout (`fly
+--connect`, `status`), 130 interrupted by the user.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from companion.app.campaign import add_campaign_parser
+from companion.app.extras import MissingExtraError, available, install_line, require
 from companion.app.link_options import add_signing_option
 from companion.app.paths import output_file, output_folder
 from companion.app.replay_options import add_perturbation_options, mock_param
@@ -52,6 +54,7 @@ def _quiet_mission_log() -> Iterator[None]:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
+    require("plot", "demo")  # the plot is what the demo makes: fail before the work
     from companion.app.demo import run_demo, save_plot
 
     result = run_demo(rate_hz=args.rate)
@@ -82,9 +85,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _replay_one(
-    path: str, out: str, config_kw: dict[str, object], queue: object | None
+    path: str, out: str, config_kw: dict[str, object], queue: object | None, plot: bool = True
 ) -> tuple[str, dict[str, object] | None, str | None]:
-    """Worker: replay one file; returns (path, report or None, error message or None)."""
+    """Worker: replay one file (with flight.png if `plot`); returns (path, report or None,
+    error message or None)."""
     from companion.mission import MissionError
     from companion.replay.runner import ReplayConfig, replay_file
 
@@ -93,7 +97,8 @@ def _replay_one(
             queue.put((path, t, expected))  # type: ignore[attr-defined]
 
     try:
-        result = replay_file(path, out, ReplayConfig(**config_kw), progress)  # type: ignore[arg-type]
+        result = replay_file(path, out, ReplayConfig(**config_kw),  # type: ignore[arg-type]
+                             progress, plot=plot)
     except (MissionError, ValueError, OSError) as exc:
         return path, None, str(exc)
     return path, result.report, None
@@ -113,6 +118,11 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     config_kw["compare_px4_mission"] = args.compare_px4_mission
 
     ReplayConfig(**config_kw)  # type: ignore[arg-type]  # validate options before any work
+    plot = not args.no_plot
+    if plot and not available("plot"):
+        plot = False  # the flight still runs: tlog and report.json are written
+        print_error("note", f"no flight.png: the plot needs the [plot] extra "
+                    f"({install_line('plot')}); --no-plot skips it", style="yellow")
     # size the progress bars with the nominal mission durations (bad files fail later, cleanly,
     # and warnings are shown then: this pass is silent)
     totals: dict[str, float] = {}
@@ -139,7 +149,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
             # a helper process draws the flight.png files; it imports matplotlib while the
             # first file flies, which the replay would otherwise wait for
-            with PlotWorker() as plotter:
+            with PlotWorker() if plot else contextlib.nullcontext() as plotter:
                 for f in args.files:
                     def cb(t: float, expected: float, f: str = f) -> None:
                         totals[f] = expected
@@ -149,7 +159,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
                     try:
                         r = replay_file(
                             f, args.out, ReplayConfig(**config_kw), cb,  # type: ignore[arg-type]
-                            plotter=plotter,
+                            plotter=plotter, plot=plot,
                         )
                         results[f] = (r.report, None)
                     except (MissionError, ValueError, OSError) as exc:
@@ -158,7 +168,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         else:
             with mp.Manager() as manager, ProcessPoolExecutor(max_workers=args.jobs) as pool:
                 queue = manager.Queue()
-                futures = [pool.submit(_replay_one, f, args.out, config_kw, queue)
+                futures = [pool.submit(_replay_one, f, args.out, config_kw, queue, plot)
                            for f in args.files]
                 pending = set(futures)
                 while pending:
@@ -419,6 +429,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="files replayed in parallel (default 1)")
     rp.add_argument("--out", default="replay_out", type=output_folder,
                     help="output folder (default ./replay_out)")
+    rp.add_argument("--no-plot", action="store_true",
+                    help="write no flight.png (the plot needs the [plot] extra)")
     add_perturbation_options(rp)
     rp.set_defaults(func=_cmd_replay)
 
@@ -505,6 +517,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         err_console.print("[yellow]interrupted[/yellow]")
         return EXIT_INTERRUPTED
+    except MissingExtraError as exc:
+        print_error("error", exc)
+        return EXIT_BAD_INPUT
     except (ValueError, FileNotFoundError) as exc:
         print_error("error", exc)
         return EXIT_BAD_INPUT

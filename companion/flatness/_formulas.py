@@ -19,7 +19,6 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import casadi as ca
 import numpy as np
 
 # A scalar of the backend: casadi.SX, numpy.ndarray of shape (N,), or float.
@@ -87,35 +86,43 @@ class Backend:
 
 
 class CasadiBackend(Backend):
+    """CasADi ``SX`` symbols. casadi is imported when the backend is made (by the symbolic
+    functions only): the numeric path, which flies, never loads it."""
+
+    def __init__(self) -> None:
+        import casadi
+
+        self._ca = casadi
+
     def where(self, c: S, a: S, b: S) -> S:
-        return ca.if_else(c, a, b)
+        return self._ca.if_else(c, a, b)
 
     def sqrt(self, x: S) -> S:
-        return ca.sqrt(x)
+        return self._ca.sqrt(x)
 
     def sin(self, x: S) -> S:
-        return ca.sin(x)
+        return self._ca.sin(x)
 
     def cos(self, x: S) -> S:
-        return ca.cos(x)
+        return self._ca.cos(x)
 
     def atan2(self, y: S, x: S) -> S:
-        return ca.atan2(y, x)
+        return self._ca.atan2(y, x)
 
     def fabs(self, x: S) -> S:
-        return ca.fabs(x)
+        return self._ca.fabs(x)
 
     def fmax(self, a: S, b: S) -> S:
-        return ca.fmax(a, b)
+        return self._ca.fmax(a, b)
 
     def fmin(self, a: S, b: S) -> S:
-        return ca.fmin(a, b)
+        return self._ca.fmin(a, b)
 
     def lor(self, a: S, b: S) -> S:
-        return ca.logic_or(a, b)
+        return self._ca.logic_or(a, b)
 
     def land(self, a: S, b: S) -> S:
-        return ca.logic_and(a, b)
+        return self._ca.logic_and(a, b)
 
 
 class NumpyBackend(Backend):
@@ -175,7 +182,6 @@ class FloatBackend(Backend):
         return bool(a) and bool(b)
 
 
-CASADI = CasadiBackend()
 NUMPY = NumpyBackend()
 FLOAT = FloatBackend()
 

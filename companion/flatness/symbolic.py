@@ -1,5 +1,8 @@
 """CasADi functions of the flatness maps: the single source of truth fed to the C generator.
 
+casadi is imported when :func:`symbolic` first builds them, not with this module: the numeric
+path that flies (``companion.flatness.numeric``) never loads it.
+
 :func:`symbolic` returns two ``casadi.Function`` objects built from CasADi ``SX`` expressions of
 :mod:`companion.flatness._formulas`. Vehicle parameters are inputs, so generated C takes them at
 run time. Matrices (``inertia``, ``C_eb``) are dense 3x3, column-major in CasADi/C buffers.
@@ -9,10 +12,12 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-
-import casadi as ca
+from typing import TYPE_CHECKING
 
 import companion.flatness._formulas as fm
+
+if TYPE_CHECKING:
+    import casadi as ca
 
 __all__ = [
     "MULTIROTOR_INPUTS",
@@ -85,11 +90,13 @@ def _vec(x: ca.SX, n: int) -> tuple[ca.SX, ...]:
 
 
 def _build_multirotor() -> ca.Function:
+    import casadi as ca
+
     sym = {name: ca.SX.sym(name, r, c) for name, r, c in MULTIROTOR_INPUTS}
     J = sym["inertia"]
     inertia = tuple(tuple(J[i, k] for k in range(3)) for i in range(3))
     out = fm.multirotor(
-        fm.CASADI,
+        fm.CasadiBackend(),
         _vec(sym["vel_ned"], 3),  # type: ignore[arg-type]
         _vec(sym["acc_ned"], 3),  # type: ignore[arg-type]
         _vec(sym["jerk_ned"], 3),  # type: ignore[arg-type]
@@ -128,9 +135,11 @@ def _build_multirotor() -> ca.Function:
 
 
 def _build_rover() -> ca.Function:
+    import casadi as ca
+
     sym = {name: ca.SX.sym(name, r, c) for name, r, c in ROVER_INPUTS}
     out = fm.rover(
-        fm.CASADI,
+        fm.CasadiBackend(),
         _vec(sym["vel_xy"], 2),  # type: ignore[arg-type]
         _vec(sym["acc_xy"], 2),  # type: ignore[arg-type]
         _vec(sym["jerk_xy"], 2),  # type: ignore[arg-type]

@@ -1022,12 +1022,15 @@ def replay_file(
     config: ReplayConfig,
     progress: Callable[[float, float], None] | None = None,
     plotter: PlotWorker | None = None,
+    *,
+    plot: bool = True,
 ) -> ReplayResult:
     """Replay one mission file; writes `out_root/<name>/{flight.tlog, report.json, flight.png}`
     atomically (a temporary folder renamed at the end). Raises MissionError on a bad file.
 
-    `plotter` draws flight.png in its helper process (started before the flight, it has
-    imported matplotlib by the time the figure is needed); None draws it here."""
+    `plot` False writes no flight.png (and needs no matplotlib). `plotter` draws flight.png in
+    its helper process (started before the flight, it has imported matplotlib by the time the
+    figure is needed); None draws it here."""
     prep = prepare_mission(path, config)
     src, mission, schedule, home = prep.path, prep.mission, prep.schedule, prep.home
     name = src.stem
@@ -1054,18 +1057,19 @@ def replay_file(
             report["px4_mission"] = px4
         with open(tmp / "report.json", "w", encoding="utf-8") as f:
             json.dump(report, f, indent=2, allow_nan=False, default=_json_default)
-        data = plot_data(
-            f"{src.name}: {config.vehicle}, {config.mode} mode",
-            log,
-            schedule,
-            flight.origin,
-            px4_log,
-            report.get("legs"),
-        )
-        if plotter is not None:
-            plotter.draw(tmp / "flight.png", data)
-        else:
-            draw_flight_png(tmp / "flight.png", data)
+        if plot:
+            data = plot_data(
+                f"{src.name}: {config.vehicle}, {config.mode} mode",
+                log,
+                schedule,
+                flight.origin,
+                px4_log,
+                report.get("legs"),
+            )
+            if plotter is not None:
+                plotter.draw(tmp / "flight.png", data)
+            else:
+                draw_flight_png(tmp / "flight.png", data)
         final = out_root / name
         if final.exists():
             old = out_root / f".{name}.old"
