@@ -307,6 +307,8 @@ class FlightSequence:
             return []
         out: list[SequenceAction] = []
         if ph is Phase.FLY:
+            if self.disarm_sent and not view.armed:
+                return self._finish(now)  # landed and disarmed by the companion
             if self.offboard_seen and view.mode is not FlightMode.OFFBOARD:
                 # pilot takeover or failsafe: stop streaming, never fight back
                 self.t_plan_end = now
@@ -314,8 +316,6 @@ class FlightSequence:
                 name = view.mode.name if view.mode is not None else "unknown"
                 return self._finish(now, f"vehicle left OFFBOARD (now {name})",
                                     Failure.LEFT_OFFBOARD)
-            if self.disarm_sent and not view.armed:
-                return self._finish(now)  # landed and disarmed by the companion
         assert self.t_fly0 is not None or ph is not Phase.FLY
         out.append(Stream(None if ph is not Phase.FLY or self.t_fly0 is None
                           else now - self.t_fly0))
