@@ -842,8 +842,9 @@ class Vehicle:
         stale_since: float | None = None
         done: Finished | None = None
         try:
+            # the sequence's priming starts with the first setpoint sent
+            now = await self._first_setpoint(streamer, state, rate)
             while done is None:
-                now = time.monotonic()
                 actions: list[SequenceAction] = []
                 while results:
                     command, ok, reason, result = results.popleft()
@@ -855,9 +856,7 @@ class Vehicle:
                     elif isinstance(act, Finished):
                         done = act
                     elif isinstance(act, PhaseChanged):
-                        if act.new is Phase.PRIME:
-                            streamer.start()
-                        elif act.new is Phase.REQUEST_OFFBOARD:
+                        if act.new is Phase.REQUEST_OFFBOARD:
                             log.info("stream primed (%d setpoints); requesting OFFBOARD",
                                      streamer.sent)
                         elif act.new is Phase.ARM:
@@ -886,6 +885,7 @@ class Vehicle:
                 self._changed.clear()
                 await _wait_event(self._changed, 0.02)
                 pump()
+                now = time.monotonic()
             await self._fly_failed(done, streamer, rate)
         except asyncio.CancelledError:
             if sm.state in (OffboardState.ACTIVE, OffboardState.REQUESTED):
@@ -903,6 +903,21 @@ class Vehicle:
         elif seq.disarm_sent and not self.is_armed:
             log.info("landed and disarmed")
         return FlightReport(mode, time.monotonic() - t_start, streamer.stats(), True)
+
+    async def _first_setpoint(self, streamer: FixedRateStreamer, state: dict[str, Any],
+                              rate: float) -> float:
+        """Start the stream; the send time of its first setpoint [s, monotonic]."""
+        streamer.start()
+        t_wait = time.monotonic()
+        while not streamer.sent_times:
+            if state["error"]:
+                raise SetpointSourceError(f"setpoint source failed: {state['error']}")
+            if time.monotonic() - t_wait > self.config.prime_timeout_s:
+                raise OffboardError(f"could not prime the setpoint stream at {rate:g} Hz "
+                                    f"(sent {streamer.sent}, last error "
+                                    f"{streamer.last_error or 'none'})")
+            await asyncio.sleep(0.005)
+        return streamer.sent_times[0]
 
     def _flight_view(self) -> VehicleView:
         """The vehicle as the flight sequence sees it now."""
