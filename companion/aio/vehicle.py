@@ -18,6 +18,7 @@ streaming, wait for the link, raise ``LinkLostError``; cancellation (SIGINT/SIGT
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
 import dataclasses
 import logging
@@ -28,6 +29,18 @@ from collections.abc import AsyncIterator, Awaitable, Callable, Generator, Mappi
 from dataclasses import dataclass
 from typing import Any, Generic, Literal, TypeVar
 
+from companion.flight.sequence import (
+    EndPolicy,
+    Failure,
+    Finished,
+    FlightSequence,
+    Phase,
+    PhaseChanged,
+    SendCommand,
+    SequenceAction,
+    SequenceConfig,
+    VehicleView,
+)
 from companion.flight.tracking import TOUCHDOWN_TIMEOUT_S
 from companion.mavlink import (
     ArmedChanged,
@@ -760,16 +773,28 @@ class Vehicle:
                    end_pos: tuple[float, float, float] | None, arm: bool = False,
                    end_mode: FlightMode = FlightMode.HOLD,
                    touchdown: bool = False) -> FlightReport:
+        """Drive the one flight sequence (`companion.flight.FlightSequence`) in real time: a
+        sender thread streams while it says so, its commands are sent and their results fed
+        back; stale telemetry and a failing source are handled here (hold, then Hold)."""
         cfg = self.config
-        sm = OffboardMachine(rate, cfg.prime_s)
-        state: dict[str, Any] = {"t0": None, "hold": None, "error": ""}
+        seq = FlightSequence(SequenceConfig(
+            rate_hz=rate, duration_s=total_s, prime_s=cfg.prime_s,
+            prime_timeout_s=cfg.prime_timeout_s, arm=arm, confirm_arm_s=3.0,
+            end=EndPolicy(handover_mode=end_mode,
+                          touchdown_from_s=total_s if touchdown else None,
+                          touchdown_timeout_s=cfg.touchdown_timeout_s,
+                          settle_s=cfg.settle_s if end_pos is not None else 0.0,
+                          settle_m=cfg.settle_m, end_ned=end_pos, land_command=False,
+                          stream_handover=True, land_and_disarm=False)))
+        sm = seq.machine
+        state: dict[str, Any] = {"hold": None, "error": ""}
         link = self.link
 
         def producer(now: float) -> bytes | None:
             snap = dataclasses.replace(self._snapshot, now_s=now)
             hold: PositionSetpoint | None = state["hold"]
             if hold is None:
-                t0 = state["t0"]
+                t0 = seq.t_fly0
                 t = 0.0 if t0 is None else now - t0
                 try:
                     sp: SetpointCommand = source(t, snap)
@@ -801,103 +826,67 @@ class Vehicle:
         streamer = FixedRateStreamer(rate, send, producer, target=target, on_sent=on_sent,
                                      realtime_priority=cfg.realtime_priority,
                                      wait=cfg.stream_wait, cpu=cfg.stream_cpu)
-        sm.start(time.monotonic())
-        streamer.start()
+        results: collections.deque[tuple[int, bool, str, int | None]] = collections.deque()
+        tasks: list[asyncio.Task[None]] = []
+
+        async def run_command(a: SendCommand) -> None:
+            fin = await self._send_command(a)
+            results.append(fin)
+            self._changed.set()
 
         def pump() -> None:
             while streamer.sent_times:
-                sm.on_setpoint_sent(streamer.sent_times.popleft())
+                seq.on_setpoint_sent(streamer.sent_times.popleft())
 
-        async def tick() -> None:
-            self._changed.clear()
-            await _wait_event(self._changed, 0.02)
-            pump()
-
-        held_at_end = False
+        t_start = time.monotonic()
+        stale_since: float | None = None
+        done: Finished | None = None
         try:
-            # PRIMING
-            t_prime = time.monotonic()
-            while not sm.is_primed(time.monotonic()):
-                if state["error"]:
-                    raise SetpointSourceError(f"setpoint source failed: {state['error']}")
-                if time.monotonic() - t_prime > cfg.prime_timeout_s:
-                    raise OffboardError(f"could not prime the setpoint stream at {rate:g} Hz "
-                                        f"(sent {streamer.sent}, last error "
-                                        f"{streamer.last_error or 'none'})")
-                await tick()
-            # REQUESTED
-            sm.request(time.monotonic())
-            log.info("stream primed (%d setpoints); requesting OFFBOARD", streamer.sent)
-            pump_task = asyncio.get_running_loop().create_task(self._pump_forever(pump))
-            try:
-                fin = await self._command(lambda now: link.set_mode(FlightMode.OFFBOARD, now),
-                                          MAV_CMD_DO_SET_MODE, "switch to OFFBOARD", check=False)
-            finally:
-                pump_task.cancel()
-            if not fin.ok:
-                sm.on_mode_result(False, time.monotonic(), fin.reason)
-                text = self.last_status_text.text if self.last_status_text else ""
-                raise OffboardError(f"OFFBOARD refused: {fin.reason}"
-                                    + (f" (vehicle: {text})" if text else ""), fin.result)
-            sm.on_mode_result(True, time.monotonic(), "HEARTBEAT shows OFFBOARD")
-            log.info("OFFBOARD active (%s mode, %g Hz)", mode, rate)
-            if arm:
-                await self._arm_in_offboard(streamer, sm)
-            t_start = time.monotonic()
-            state["t0"] = t_start
-            stale_since: float | None = None
-            # ACTIVE
-            while True:
-                await tick()
-                now = time.monotonic()
-                if self._link_lost_at is not None or not self.link_ok:
-                    sm.on_link_lost(now)
+            # the sequence's priming starts with the first setpoint sent
+            now = await self._first_setpoint(streamer, state, rate)
+            while done is None:
+                actions: list[SequenceAction] = []
+                while results:
+                    command, ok, reason, result = results.popleft()
+                    actions += seq.on_command_result(command, ok, reason, now, result)
+                actions += seq.update(now, self._flight_view())
+                for act in actions:
+                    if isinstance(act, SendCommand):
+                        tasks.append(asyncio.get_running_loop().create_task(run_command(act)))
+                    elif isinstance(act, Finished):
+                        done = act
+                    elif isinstance(act, PhaseChanged):
+                        if act.new is Phase.REQUEST_OFFBOARD:
+                            log.info("stream primed (%d setpoints); requesting OFFBOARD",
+                                     streamer.sent)
+                        elif act.new is Phase.ARM:
+                            log.info("OFFBOARD active (%s mode, %g Hz)", mode, rate)
+                        elif act.new is Phase.FLY:
+                            if not arm:
+                                log.info("OFFBOARD active (%s mode, %g Hz)", mode, rate)
+                            t_start = now
+                        elif act.new is Phase.HANDOVER:
+                            log.info("%s: switching to %s", act.reason,
+                                     (FlightMode.LAND if seq.disarm_sent or touchdown
+                                      else end_mode).name)
+                if not seq.streaming:
                     streamer.stop()
-                    await self._after_link_loss()
-                hb = link.heartbeat.last
-                if hb is not None and hb.t_s > t_start and hb.mode is not FlightMode.OFFBOARD:
-                    sm.on_heartbeat_offboard(False, now, hb.mode.name)
-                    streamer.stop()
-                    failsafe = hb.system_status == MAV_STATE_CRITICAL
-                    why = "PX4 failsafe" if failsafe else "pilot takeover or failsafe"
-                    raise OffboardExitedError(
-                        f"vehicle left OFFBOARD for {hb.mode.name} ({why});"
-                        " setpoint stream stopped, OFFBOARD not re-requested", hb.mode.name,
-                        failsafe)
+                if done is not None:
+                    break
                 if state["error"]:
+                    if seq.phase is not Phase.FLY:
+                        raise SetpointSourceError(f"setpoint source failed: {state['error']}")
                     await self._hold_and_stop(streamer, sm, "invalid setpoint")
                     raise SetpointSourceError(
                         f"setpoint source failed ({state['error']}); vehicle told to hold")
-                pos = link.telemetry.position
-                age = math.inf if pos is None else now - pos.t_s
-                if age > cfg.stale_telemetry_s:
-                    if stale_since is None:
-                        stale_since = now
-                        state["hold"] = hold_setpoint(self._snapshot)
-                        log.warning("position telemetry stale (%.2f s): holding", age)
-                    rx = link.heartbeat.last_rx_s
-                    link_talking = rx is not None and now - rx <= cfg.stale_telemetry_s
-                    # a silent link is left to the link-loss path (declared after 3 s)
-                    if now - stale_since > cfg.stale_abort_s and link_talking:
-                        await self._hold_and_stop(streamer, sm, "stale telemetry")
-                        raise TelemetryStaleError(
-                            f"no position telemetry for {age:.1f} s; vehicle told to hold")
-                elif stale_since is not None:
-                    await self._hold_and_stop(streamer, sm, "telemetry was stale")
-                    raise TelemetryStaleError("position telemetry was interrupted; vehicle told "
-                                              "to hold")
-                if touchdown and now - t_start >= total_s:
-                    if await self._touchdown_step(streamer, sm, now - t_start - total_s):
-                        held_at_end = True
-                        break
-                    continue
-                if now - t_start >= total_s and (
-                        end_pos is None or now - t_start >= total_s + cfg.settle_s
-                        or (pos is not None
-                            and math.dist(pos.pos_ned, end_pos) <= cfg.settle_m)):
-                    await self._hold_and_stop(streamer, sm, "trajectory complete", end_mode)
-                    held_at_end = True
-                    break
+                if seq.phase is Phase.FLY:
+                    stale_since = await self._check_stale(streamer, sm, state, stale_since,
+                                                          now)
+                self._changed.clear()
+                await _wait_event(self._changed, 0.02)
+                pump()
+                now = time.monotonic()
+            await self._fly_failed(done, streamer, rate)
         except asyncio.CancelledError:
             if sm.state in (OffboardState.ACTIVE, OffboardState.REQUESTED):
                 state["hold"] = hold_setpoint(self._snapshot) or state["hold"]
@@ -907,54 +896,120 @@ class Vehicle:
             streamer.stop()
             pump()
             sm.stop(time.monotonic(), "fly() ended")
-        return FlightReport(mode, time.monotonic() - t_start, streamer.stats(), held_at_end)
-
-    async def _pump_forever(self, pump: Callable[[], None]) -> None:
-        while True:
-            pump()
-            await asyncio.sleep(0.02)
-
-    async def _touchdown_step(self, streamer: FixedRateStreamer, sm: OffboardMachine,
-                              late_s: float) -> bool:
-        """One check after the trajectory of a self-landing source: True when finished
-        (disarmed on the ground, or handed over to PX4's LAND)."""
-        ext: ExtendedState | None = self.link.telemetry.extended
-        if ext is not None and ext.landed_state == LANDED_STATE_ON_GROUND:
-            try:  # still streaming: PX4 sees no offboard loss while it disarms
-                await self.disarm()
-                await self._wait_for(lambda: not self.is_armed, 3.0,
-                                     "the HEARTBEAT to show disarmed")
-            except (VehicleError, TimeoutError) as exc:
-                log.warning("disarm after touchdown failed (%s): requesting LAND", exc)
-                await self._hold_and_stop(streamer, sm, "disarm refused", FlightMode.LAND)
-                return True
+            for task in tasks:
+                task.cancel()
+        if seq.reason.startswith("handover failed"):
+            log.error("%s", seq.reason)
+        elif seq.disarm_sent and not self.is_armed:
             log.info("landed and disarmed")
-            streamer.stop()
-            sm.stop(time.monotonic(), "landed and disarmed")
-            return True
-        if late_s >= self.config.touchdown_timeout_s:
-            await self._hold_and_stop(streamer, sm, f"no landing detected after "
-                                      f"{late_s:.0f} s", FlightMode.LAND)
-            return True
-        return False
+        return FlightReport(mode, time.monotonic() - t_start, streamer.stats(), True)
 
-    async def _arm_in_offboard(self, streamer: FixedRateStreamer, sm: OffboardMachine) -> None:
-        """Arm while in OFFBOARD and streaming; on a refusal stop the stream (still disarmed)
-        and return to Hold, so a later ``arm`` works."""
+    async def _first_setpoint(self, streamer: FixedRateStreamer, state: dict[str, Any],
+                              rate: float) -> float:
+        """Start the stream; the send time of its first setpoint [s, monotonic]."""
+        streamer.start()
+        t_wait = time.monotonic()
+        while not streamer.sent_times:
+            if state["error"]:
+                raise SetpointSourceError(f"setpoint source failed: {state['error']}")
+            if time.monotonic() - t_wait > self.config.prime_timeout_s:
+                raise OffboardError(f"could not prime the setpoint stream at {rate:g} Hz "
+                                    f"(sent {streamer.sent}, last error "
+                                    f"{streamer.last_error or 'none'})")
+            await asyncio.sleep(0.005)
+        return streamer.sent_times[0]
+
+    def _flight_view(self) -> VehicleView:
+        """The vehicle as the flight sequence sees it now."""
+        tel = self.link.telemetry
+        ext: ExtendedState | None = tel.extended
+        pos = tel.position
+        return VehicleView(
+            link_ok=self._link_lost_at is None and self.link_ok, armed=self.is_armed,
+            mode=self.mode,
+            on_ground=ext is not None and ext.landed_state == LANDED_STATE_ON_GROUND,
+            pos_ned=None if pos is None else pos.pos_ned)
+
+    async def _send_command(self, a: SendCommand) -> tuple[int, bool, str, int | None]:
+        """Send one command of the flight sequence; (command, ok, reason, MAV_RESULT)."""
+        link = self.link
+        start: Callable[[float], None]
+        if a.command == MAV_CMD_DO_SET_MODE and a.mode is not None:
+            mode = a.mode
+            start, what = (lambda now: link.set_mode(mode, now)), f"switch to {mode.name}"
+        elif a.command == MAV_CMD_COMPONENT_ARM_DISARM:
+            start = (lambda now: link.arm(now, False)) if a.arm else (
+                lambda now: link.disarm(now, False))
+            what = "arming in OFFBOARD" if a.arm else "disarming"
+        else:
+            start, what = link.land, "landing"
         try:
-            await self._command(lambda now: self.link.arm(now, False),
-                                MAV_CMD_COMPONENT_ARM_DISARM, "arming in OFFBOARD")
-            await self._wait_for(lambda: self.is_armed, 3.0, "the HEARTBEAT to show armed")
-        except (VehicleError, TimeoutError):
-            streamer.stop()
-            sm.stop(time.monotonic(), "arming refused")
-            if not self.is_armed:
-                with contextlib.suppress(VehicleError, TimeoutError):
-                    await _bounded(self.hold(), 5.0)
-            else:  # armed late (the HEARTBEAT came after the wait): never leave it so
-                with contextlib.suppress(VehicleError, TimeoutError):
-                    await _bounded(self.disarm(), 5.0)
-            raise
+            fin = await self._command(start, a.command, what, check=False)
+        except (VehicleError, TimeoutError) as exc:
+            return a.command, False, f"{what}: {exc or 'no answer'}", None
+        return a.command, fin.ok, fin.reason, fin.result
+
+    async def _check_stale(self, streamer: FixedRateStreamer, sm: OffboardMachine,
+                           state: dict[str, Any], stale_since: float | None,
+                           now: float) -> float | None:
+        """Stale position telemetry: hold the last position, then Hold and raise."""
+        cfg = self.config
+        pos = self.link.telemetry.position
+        age = math.inf if pos is None else now - pos.t_s
+        if age > cfg.stale_telemetry_s:
+            if stale_since is None:
+                stale_since = now
+                state["hold"] = hold_setpoint(self._snapshot)
+                log.warning("position telemetry stale (%.2f s): holding", age)
+            rx = self.link.heartbeat.last_rx_s
+            link_talking = rx is not None and now - rx <= cfg.stale_telemetry_s
+            # a silent link is left to the link-loss path (declared after 3 s)
+            if now - stale_since > cfg.stale_abort_s and link_talking:
+                await self._hold_and_stop(streamer, sm, "stale telemetry")
+                raise TelemetryStaleError(
+                    f"no position telemetry for {age:.1f} s; vehicle told to hold")
+        elif stale_since is not None:
+            await self._hold_and_stop(streamer, sm, "telemetry was stale")
+            raise TelemetryStaleError("position telemetry was interrupted; vehicle told "
+                                      "to hold")
+        return stale_since
+
+    async def _fly_failed(self, done: Finished | None, streamer: FixedRateStreamer,
+                          rate: float) -> None:
+        """Raise the error of a failed flight (after its clean-up); nothing if it went well."""
+        if done is None or done.ok:
+            return
+        streamer.stop()
+        why = done.failure
+        if why is Failure.LINK_LOST:
+            await self._after_link_loss()
+        if why is Failure.PRIME_TIMEOUT:
+            raise OffboardError(f"could not prime the setpoint stream at {rate:g} Hz "
+                                f"(sent {streamer.sent}, last error "
+                                f"{streamer.last_error or 'none'})")
+        if why is Failure.OFFBOARD_REFUSED:
+            text = self.last_status_text.text if self.last_status_text else ""
+            raise OffboardError(done.reason + (f" (vehicle: {text})" if text else ""),
+                                done.result)
+        if why is Failure.ARM_REFUSED:
+            # still disarmed: back to Hold, so a later ``arm`` works; armed late (the
+            # HEARTBEAT came after the wait): never leave it so
+            with contextlib.suppress(VehicleError, TimeoutError):
+                await _bounded(self.disarm() if self.is_armed else self.hold(), 5.0)
+            if done.result is not None:
+                raise CommandError(MAV_CMD_COMPONENT_ARM_DISARM, done.result,
+                                   done.reason.removeprefix("arming refused: "),
+                                   "arming in OFFBOARD")
+            raise VehicleError(done.reason)
+        if why is Failure.LEFT_OFFBOARD:
+            hb = self.link.heartbeat.last
+            name = hb.mode.name if hb is not None else "unknown"
+            failsafe = hb is not None and hb.system_status == MAV_STATE_CRITICAL
+            how = "PX4 failsafe" if failsafe else "pilot takeover or failsafe"
+            raise OffboardExitedError(
+                f"vehicle left OFFBOARD for {name} ({how}); setpoint stream stopped, OFFBOARD "
+                "not re-requested", name, failsafe)
+        raise VehicleError(f"flight failed: {done.reason}")
 
     async def _hold_and_stop(self, streamer: FixedRateStreamer, sm: OffboardMachine,
                              why: str, end_mode: FlightMode = FlightMode.HOLD) -> None:

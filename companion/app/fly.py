@@ -22,6 +22,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from companion.control import Reference
+from companion.flight.policy import HANDOVER_HEIGHT_M, lands_at_end, plan_touchdown
 from companion.flight.report import FloatArray, SetpointLimits, TrackRecorder
 from companion.flight.tracking import TOUCHDOWN_FROM_M, Touchdown, TrackingSource
 from companion.mavlink import FlightMode, LinkConfig
@@ -413,7 +414,7 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                 console.print(f"[yellow]{escape(refused)}[/yellow]")
         planned = await asyncio.to_thread(
             plan_flight, opts, inputs, rover, None if px4 is None else px4.params, fly_takeoff,
-            TOUCHDOWN_FROM_M if touchdown else 1.0)
+            TOUCHDOWN_FROM_M if touchdown else HANDOVER_HEIGHT_M)
         if mission is not None:
             horiz, fence_shift = await _home_offset_m(v, mission, HOME_WAIT_S)
             if horiz > MAX_HOME_OFFSET_M:
@@ -460,14 +461,12 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                     return rel_ref(t, origin)
 
                 vf = inputs.vehicle
-                landing = not rover and planned.final_action in ("land", "rtl")
+                landing = lands_at_end("rover" if rover else "quad", planned.final_action)
                 land_speed = (px4.params.MPC_LAND_SPEED if px4 is not None
                               else Px4PlanningParams().MPC_LAND_SPEED)
                 td: Touchdown | None = None
                 if touchdown and landing and planned.schedule is not None:
-                    # take over where the plan's last descent stops cruising (no stop 0.5 m up)
-                    t_td, v_td = planned.schedule.final_descent_cruise(land_speed)
-                    td = Touchdown(t_td - planned.t_off_s, descent_m_s=land_speed, v0_m_s=v_td)
+                    td = plan_touchdown(planned.schedule, land_speed, planned.t_off_s)
                 limits = SetpointLimits.of_px4(px4.params if px4 is not None
                                                else Px4PlanningParams())
                 source = TrackingSource(

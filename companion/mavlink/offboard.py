@@ -123,6 +123,16 @@ class OffboardMachine:
         self._run_count += 1
         self._last_sent = t
 
+    @property
+    def run_count(self) -> int:
+        """Setpoints sent since the stream's last gap."""
+        return self._run_count
+
+    @property
+    def last_sent_s(self) -> float | None:
+        """When the last setpoint left [s] (None: none since the stream started)."""
+        return self._last_sent
+
     def is_primed(self, now: float) -> bool:
         """Stream continuous for >= prime_s with >= 90 % of the expected setpoints."""
         if self._run_start is None or self._last_sent is None:

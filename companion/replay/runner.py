@@ -16,7 +16,6 @@ ending: Hold), and disarm once PX4 reports the vehicle on the ground.
 from __future__ import annotations
 
 import dataclasses
-import enum
 import functools
 import json
 import math
@@ -36,15 +35,27 @@ from companion.aio.tlog import TlogWriter
 from companion.app.plotting import PlotData, PlotWorker, draw_flight_png
 from companion.control import Reference
 from companion.flatness import MultirotorParams
+from companion.flight import policy
+from companion.flight.policy import handover_mode, plan_touchdown
 from companion.flight.report import SetpointLimits, closest_approach
-from companion.flight.tracking import (
-    TOUCHDOWN_FROM_M,
-    TOUCHDOWN_TIMEOUT_S,
-    SetpointMode,
-    Touchdown,
-    TrackingSource,
+from companion.flight.sequence import (
+    EndPolicy,
+    FlightSequence,
+    Phase,
+    PhaseChanged,
+    SendCommand,
+    SequenceAction,
+    SequenceConfig,
+    Stream,
+    VehicleView,
 )
-from companion.mavlink.commands import CommandFinished
+from companion.flight.tracking import SetpointMode, Touchdown, TrackingSource
+from companion.mavlink.commands import (
+    MAV_CMD_COMPONENT_ARM_DISARM,
+    MAV_CMD_DO_SET_MODE,
+    MAV_CMD_NAV_LAND,
+    CommandFinished,
+)
 from companion.mavlink.link import LinkConfig, VehicleLink
 from companion.mavlink.mission_client import MissionItem as WireItem
 from companion.mavlink.mission_client import MissionTransferDone
@@ -161,20 +172,6 @@ class ReplayConfig:
             return (w, -w, 0.0)
         to = math.radians(self.wind_from_deg + 180.0)
         return (self.wind_m_s * math.cos(to), self.wind_m_s * math.sin(to), 0.0)
-
-
-class Phase(enum.Enum):
-    """Companion flight sequence."""
-
-    WAIT_READY = "wait_ready"
-    PRIME = "prime"
-    REQUEST_OFFBOARD = "request_offboard"
-    ARM = "arm"
-    FLY = "fly"
-    HANDOVER = "handover"
-    WAIT_DISARM = "wait_disarm"
-    DONE = "done"
-    ABORTED = "aborted"
 
 
 @dataclass
@@ -326,7 +323,9 @@ def _make_autopilot(config: ReplayConfig, home: tuple[float, float, float]) -> A
 
 
 class Flight:
-    """The companion's flight sequence over a `LockstepLink` (see the module docstring)."""
+    """The replay's side of the one flight sequence (`companion.flight.FlightSequence`): feeds
+    it the lockstep link's events and telemetry, performs its actions over the `LockstepLink`
+    and records the flight's log (see the module docstring)."""
 
     def __init__(
         self,
@@ -340,10 +339,6 @@ class Flight:
         self.lk = lk
         self.link = lk.link
         self.log = log
-        self.phase = Phase.WAIT_READY
-        self.reason = ""
-        self.t_phase = 0.0
-        self.t_fly0 = math.nan
         self.origin = np.zeros(3)
         mode: SetpointMode = "rover" if config.vehicle == "rover" else config.mode
         # attitude and rates mode land a quad themselves (as `fly` does): the plan's descent
@@ -351,73 +346,95 @@ class Flight:
         # cruising and descends until PX4 detects the landing, then the companion disarms
         self.touchdown: Touchdown | None = None
         if self_lands(config, schedule.final_action):
-            land_speed = schedule.px4.MPC_LAND_SPEED
-            t_td, v_td = schedule.final_descent_cruise(land_speed)
-            self.touchdown = Touchdown(t_td, descent_m_s=land_speed, v0_m_s=v_td)
+            self.touchdown = plan_touchdown(schedule, schedule.px4.MPC_LAND_SPEED)
         self.source = TrackingSource(self._reference, mode, config.params,
                                      touchdown=self.touchdown,
                                      limits=SetpointLimits.of_px4(schedule.px4))
+        rover = config.vehicle == "rover"
+        self.seq = FlightSequence(SequenceConfig(
+            rate_hz=config.rate_hz, duration_s=schedule.duration_s, prime_s=PRIME_S,
+            end=EndPolicy(
+                handover_mode=handover_mode(config.vehicle, schedule.final_action),
+                touchdown_from_s=None if self.touchdown is None else self.touchdown.from_s,
+                settle_s=SETTLE_S, disarm_at_hold=rover, disarm_on_ground=not rover)))
         self.setpoints_sent = 0
-        self.offboard_seen = False
         self._armed_seen = False  # a HEARTBEAT showed armed (disarmed_t is after it)
-        self.disarm_sent = False  # the DISARM sent once the landing was detected
 
-    # -- per-tick -----------------------------------------------------------------------------
-    def _go(self, phase: Phase, now: float, reason: str = "") -> None:
-        self.phase = phase
-        self.t_phase = now
-        if reason:
-            self.reason = reason
+    @property
+    def phase(self) -> Phase:
+        """Where the flight sequence is."""
+        return self.seq.phase
+
+    @property
+    def reason(self) -> str:
+        """Why the flight ended (empty: it did not fail)."""
+        return self.seq.reason
+
+    @property
+    def done(self) -> bool:
+        """The sequence finished."""
+        return self.seq.finished
 
     def _reference(self, t_s: float) -> Reference:
         return self.schedule.reference(t_s, origin=self.origin)
 
-    def _setpoint(self, now: float) -> SetpointCommand:
-        if self.phase != Phase.FLY:  # priming, mode request, arming: hold the start point
-            if self.config.vehicle == "rover":
-                return PositionSetpoint(vel_ned=(0.0, 0.0, 0.0), yaw_rate=0.0)
-            return self.source.position_setpoint(0.0)
-        snap = self.link.telemetry.snapshot()
-        # stamp this cycle's clock in place (what dataclasses.replace(snap, now_s=now) gives,
-        # without re-running the constructor). The link may hand out the same snapshot again
-        # while no value changed; it is this flight's own, and every cycle stamps it first.
-        object.__setattr__(snap, "now_s", now)
-        return self.source(now - self.t_fly0, snap)
-
-    def _stream(self, now: float) -> None:
-        sp = self._setpoint(now)
+    def _stream(self, t_s: float | None, now: float) -> None:
+        if t_s is None:  # priming, mode request, arming: hold the start point
+            sp: SetpointCommand = (PositionSetpoint(vel_ned=(0.0, 0.0, 0.0), yaw_rate=0.0)
+                                   if self.config.vehicle == "rover"
+                                   else self.source.position_setpoint(0.0))
+        else:
+            snap = self.link.telemetry.snapshot()
+            # stamp this cycle's clock in place (what dataclasses.replace(snap, now_s=now)
+            # gives, without re-running the constructor). The link may hand out the same
+            # snapshot again while no value changed; it is this flight's own, and every cycle
+            # stamps it first.
+            object.__setattr__(snap, "now_s", now)
+            sp = self.source(t_s, snap)
         self.lk.to_vehicle([self.link.encode_setpoint(sp, now)])
+        self.seq.on_setpoint_sent(now)
         self.setpoints_sent += 1
         if isinstance(sp, (AttitudeSetpoint, RatesSetpoint)):
             self.log.thrust_norm.append(sp.thrust_norm)
 
+    def perform(self, actions: list[SequenceAction], now: float) -> None:
+        """Carry out the sequence's actions over the lockstep link."""
+        link = self.link
+        for a in actions:
+            if isinstance(a, Stream):
+                self._stream(a.t_s, now)
+            elif isinstance(a, SendCommand):
+                if a.command == MAV_CMD_DO_SET_MODE and a.mode is not None:
+                    link.set_mode(a.mode, now)
+                elif a.command == MAV_CMD_COMPONENT_ARM_DISARM:
+                    (link.arm if a.arm else link.disarm)(now)
+                elif a.command == MAV_CMD_NAV_LAND:
+                    link.land(now)
+            elif isinstance(a, PhaseChanged):
+                if a.new is Phase.PRIME:
+                    pos = link.telemetry.position
+                    assert pos is not None
+                    self.origin = np.array(pos.pos_ned)
+                elif a.new is Phase.FLY:
+                    self.log.fly_t0 = now
+                    # armed from the accepted ARM, as PX4's AUTO.MISSION flight: the
+                    # HEARTBEAT (1 Hz) shows it up to 1 s later
+                    if self.log.armed_t is None or now < self.log.armed_t:
+                        self.log.armed_t = now
+                    self.source.reset()
+        if self.seq.t_plan_end is not None:
+            self.log.fly_t1 = self.seq.t_plan_end
+
     def on_events(self, events: list[Any], now: float) -> None:
+        """Command results from the link."""
         for ev in events:
             if isinstance(ev, CommandFinished):
-                if self.phase == Phase.REQUEST_OFFBOARD and ev.command == 176:
-                    if ev.ok:
-                        self._go(Phase.ARM, now)
-                        self.link.arm(now)
-                    else:
-                        self._go(Phase.ABORTED, now, f"OFFBOARD refused: {ev.reason}")
-                elif self.phase == Phase.ARM and ev.command == 400:
-                    if ev.ok:
-                        self._go(Phase.FLY, now)
-                        self.t_fly0 = now
-                        self.log.fly_t0 = now
-                        # armed from the accepted ARM, as PX4's AUTO.MISSION flight: the
-                        # HEARTBEAT (1 Hz) shows it up to 1 s later
-                        if self.log.armed_t is None or now < self.log.armed_t:
-                            self.log.armed_t = now
-                        self.source.reset()
-                    else:
-                        self._go(Phase.ABORTED, now, f"arming refused: {ev.reason}")
+                self.perform(self.seq.on_command_result(ev.command, ev.ok, ev.reason, now,
+                                                        ev.result), now)
 
     def tick(self, now: float) -> None:
         """One setpoint period."""
         tel = self.link.telemetry
-        have_state = tel.position is not None and tel.attitude is not None
-        mode = self.link.mode
         armed = self.link.armed
         if armed:
             self._armed_seen = True
@@ -425,88 +442,18 @@ class Flight:
                 self.log.armed_t = now
         elif self._armed_seen and self.log.disarmed_t is None:
             self.log.disarmed_t = now
-        if mode == FlightMode.OFFBOARD:
-            self.offboard_seen = True
-        ph = self.phase
-        if ph == Phase.WAIT_READY:
-            st = self.link.telemetry.sys_status
-            if have_state and st is not None and st.armable and mode is not None:
-                assert tel.position is not None
-                self.origin = np.array(tel.position.pos_ned)
-                self._go(Phase.PRIME, now)
-            return
-        if ph in (Phase.DONE, Phase.ABORTED):
-            return
-        if ph in (Phase.PRIME, Phase.REQUEST_OFFBOARD, Phase.ARM, Phase.FLY):
-            if not have_state:
-                return
-            if ph == Phase.FLY and self.offboard_seen and mode != FlightMode.OFFBOARD:
-                # pilot takeover or failsafe: stop streaming, never fight back
-                self.log.fly_t1 = now
-                name = mode.name if mode is not None else "unknown"
-                self._go(Phase.ABORTED, now, f"vehicle left OFFBOARD (now {name})")
-                return
-            if ph == Phase.FLY and self.disarm_sent and not armed:
-                self._go(Phase.DONE, now)  # landed and disarmed by the companion
-                return
-            self._stream(now)
-            if ph == Phase.PRIME and now - self.t_phase >= PRIME_S:
-                self._go(Phase.REQUEST_OFFBOARD, now)
-                self.link.set_mode(FlightMode.OFFBOARD, now)
-            elif ph == Phase.FLY and self.touchdown is not None:
-                self._touchdown_step(now)
-            elif ph == Phase.FLY and now - self.t_fly0 >= self.schedule.duration_s + SETTLE_S:
-                self._handover(now)
-            return
-        if ph == Phase.HANDOVER:
-            if self.config.vehicle == "rover" or self.schedule.final_action == "loiter":
-                if self.link.mode == FlightMode.HOLD or now - self.t_phase > 3.0:
-                    if self.config.vehicle == "rover":
-                        self.link.disarm(now)
-                        self._go(Phase.WAIT_DISARM, now)
-                    else:
-                        self._go(Phase.DONE, now)
-            elif self.link.mode == FlightMode.LAND:
-                self._go(Phase.WAIT_DISARM, now)
-            elif now - self.t_phase > 3.0:
-                self._go(Phase.ABORTED, now, "PX4 did not switch to LAND")
-            return
-        if ph == Phase.WAIT_DISARM:
-            if not armed:
-                self._go(Phase.DONE, now)
-            elif self.config.vehicle == "quad":
-                self._disarm_on_ground(now)
+        have_state = tel.position is not None and tel.attitude is not None
+        st = tel.sys_status
+        ext = tel.extended
+        view = VehicleView(
+            link_ok=self.link.heartbeat.link_up, armed=armed, mode=self.link.mode,
+            ready=have_state and st is not None and st.armable, have_state=have_state,
+            on_ground=ext is not None and ext.landed_state == 1)
+        self.perform(self.seq.update(now, view), now)
 
-    def _disarm_on_ground(self, now: float) -> bool:
-        """Send the DISARM once, when PX4 reports the vehicle on the ground (as `fly` does);
-        True when it was sent now."""
-        ext = self.link.telemetry.extended
-        if self.disarm_sent or ext is None or ext.landed_state != 1:
-            return False
-        self.link.disarm(now)
-        self.disarm_sent = True
-        return True
-
-    def _touchdown_step(self, now: float) -> None:
-        """After the plan of a self-landing flight: disarm (still streaming) once PX4 reports
-        the vehicle on the ground; PX4's LAND after TOUCHDOWN_TIMEOUT_S without it."""
-        assert self.touchdown is not None
-        late = now - self.t_fly0 - self.touchdown.from_s
-        if late < 0.0:
-            return
-        if self._disarm_on_ground(now):
-            # tracking metrics end where the touchdown began (it is not plan tracking)
-            self.log.fly_t1 = self.t_fly0 + self.touchdown.from_s
-        elif late >= TOUCHDOWN_TIMEOUT_S:  # no landing seen, or the disarm refused
-            self._handover(now)
-
-    def _handover(self, now: float) -> None:
-        self._go(Phase.HANDOVER, now)
-        self.log.fly_t1 = now
-        if self.config.vehicle == "quad" and self.schedule.final_action in ("land", "rtl"):
-            self.link.land(now)
-        else:
-            self.link.set_mode(FlightMode.HOLD, now)
+    def abort(self, now: float, reason: str) -> None:
+        """End the flight (the replay's time limit)."""
+        self.perform(self.seq.fail(now, reason), now)
 
 
 # ----------------------------------------------------------------------------- public API
@@ -559,11 +506,11 @@ def fly_schedule(
     t_max = schedule.duration_s + config.timeout_margin_s
     expected = schedule.duration_s + EXPECTED_OVERHEAD_S
     k = 0
-    while flight.phase not in (Phase.DONE, Phase.ABORTED):
+    while not flight.done:
         k += 1
         now = k * dt
         if now > t_max:
-            flight._go(Phase.ABORTED, now, f"timed out after {t_max:.0f} s of simulated time")
+            flight.abort(now, f"timed out after {t_max:.0f} s of simulated time")
             break
         flight.on_events(lk.advance(now), now)
         flight.tick(now)
@@ -878,10 +825,8 @@ class PreparedMission:
 
 
 def self_lands(config: ReplayConfig, final_action: str) -> bool:
-    """The companion lands the vehicle itself (a quad in attitude or rates mode whose mission
-    ends in a landing); else PX4's LAND does the last metre."""
-    return (config.vehicle == "quad" and config.mode in ("attitude", "rates")
-            and final_action in ("land", "rtl"))
+    """The companion lands the vehicle itself (`companion.flight.self_lands`)."""
+    return policy.self_lands(config.vehicle, config.mode, final_action)
 
 
 def prepare_mission(path: str | os.PathLike[str], config: ReplayConfig) -> PreparedMission:
@@ -898,8 +843,8 @@ def prepare_mission(path: str | os.PathLike[str], config: ReplayConfig) -> Prepa
     params = None if config.vehicle == "rover" else config.params
     schedule = build_schedule(
         flight_plan, params, planning_limits(config),
-        handover_height_m=(TOUCHDOWN_FROM_M if self_lands(config, flight_plan.final_action)
-                           else 1.0))
+        handover_height_m=policy.handover_height_m(config.vehicle, config.mode,
+                                                   flight_plan.final_action))
     require_plan_inside(flight_plan, schedule)
     warnings = (*flight_plan.warnings, *px4.warnings, *schedule.warnings)
     leg_bounds, bound = plan_bounds(flight_plan, schedule)
@@ -1097,6 +1042,7 @@ __all__ = [
     "FlightLog",
     "LockstepLink",
     "MissionError",
+    "Phase",
     "PreparedMission",
     "ReplayConfig",
     "ReplayResult",

@@ -37,6 +37,7 @@ from numpy.typing import NDArray
 
 from companion.control import Reference, TrackingConfig
 from companion.flatness import MultirotorParams
+from companion.flight.policy import final_mode
 from companion.flight.report import SetpointLimits
 from companion.flight.tracking import SetpointMode, TrackingSource
 from companion.mavlink.mission_client import MissionItem
@@ -70,7 +71,6 @@ NO_MISSION_TOTAL = 65535
 FLYING_STATES = (2, 3, 4)
 #: Position-carrying mission frames PX4 returns as *_INT, mapped to the QGC WPL frames.
 _WPL_FRAME = {5: 0, 6: 3, 11: 10}
-_FINAL_MODE = {"land": FlightMode.LAND, "rtl": FlightMode.RTL, "loiter": FlightMode.HOLD}
 MAV_SEVERITY_WARNING = 4
 MAV_SEVERITY_INFO = 6
 
@@ -656,4 +656,4 @@ class ServeService:
         prog = self.program
         action = prog.final_action if prog is not None else "loiter"
         self._final_requested_at = obs.now_s
-        return [RequestMode(_FINAL_MODE.get(action, FlightMode.HOLD), f"mission end: {action}")]
+        return [RequestMode(final_mode(action), f"mission end: {action}")]

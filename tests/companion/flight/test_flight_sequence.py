@@ -1,0 +1,143 @@
+"""The flight sequence driven with fake events (sans-IO: no link, no clock)."""
+
+from __future__ import annotations
+
+from companion.flight.sequence import (
+    EndPolicy,
+    Failure,
+    Finished,
+    FlightSequence,
+    Phase,
+    SendCommand,
+    SequenceAction,
+    SequenceConfig,
+    Stream,
+    VehicleView,
+)
+from companion.mavlink.commands import (
+    MAV_CMD_COMPONENT_ARM_DISARM,
+    MAV_CMD_DO_SET_MODE,
+    MAV_CMD_NAV_LAND,
+)
+from companion.mavlink.px4_mode import FlightMode
+
+RATE = 50.0
+DT = 1.0 / RATE
+READY = VehicleView(mode=FlightMode.HOLD)
+
+
+def commands(actions: list[SequenceAction]) -> list[SendCommand]:
+    return [a for a in actions if isinstance(a, SendCommand)]
+
+
+def run(seq: FlightSequence, t0: float, t1: float, view: VehicleView) -> tuple[
+        float, list[SequenceAction]]:
+    """Cycles from t0 to t1, every Stream counted as sent."""
+    out: list[SequenceAction] = []
+    t = t0
+    while t < t1 and not seq.finished:
+        t += DT
+        acts = seq.update(t, view)
+        for a in acts:
+            if isinstance(a, Stream):
+                seq.on_setpoint_sent(t)
+        out += acts
+    return t, out
+
+
+def to_offboard(seq: FlightSequence) -> float:
+    """Prime and ask for OFFBOARD; returns the time of the request."""
+    t, acts = run(seq, 0.0, 1.0, READY)
+    assert seq.phase is Phase.REQUEST_OFFBOARD
+    assert commands(acts) == [SendCommand.set_mode(FlightMode.OFFBOARD)]
+    return t
+
+
+def test_primes_before_requesting_offboard() -> None:
+    seq = FlightSequence(SequenceConfig(rate_hz=RATE, duration_s=5.0))
+    _, acts = run(seq, 0.0, 1.0, READY)
+    streams = [a for a in acts if isinstance(a, Stream)]
+    assert len(streams) >= 0.5 * RATE - 1 and all(s.t_s is None for s in streams)
+    assert seq.streaming
+
+
+def test_offboard_refused_sends_no_arm_and_stops_streaming() -> None:
+    seq = FlightSequence(SequenceConfig(rate_hz=RATE, duration_s=5.0))
+    t = to_offboard(seq)
+    acts = seq.on_command_result(MAV_CMD_DO_SET_MODE, False, "DENIED", t + DT, 2)
+    assert not commands(acts)
+    fin = [a for a in acts if isinstance(a, Finished)]
+    assert fin and not fin[0].ok and fin[0].failure is Failure.OFFBOARD_REFUSED
+    assert fin[0].result == 2 and not seq.streaming
+    _, later = run(seq, t + DT, t + 1.0, READY)
+    assert not later  # nothing more, no arm
+
+
+def test_link_loss_stops_the_stream() -> None:
+    seq = FlightSequence(SequenceConfig(rate_hz=RATE, duration_s=5.0))
+    t = to_offboard(seq)
+    acts = seq.update(t + DT, VehicleView(link_ok=False, mode=FlightMode.HOLD))
+    assert seq.failure is Failure.LINK_LOST and not seq.streaming
+    assert not commands(acts)
+
+
+def fly(seq: FlightSequence) -> float:
+    t = to_offboard(seq)
+    t += DT
+    acts = seq.on_command_result(MAV_CMD_DO_SET_MODE, True, "ok", t)
+    assert commands(acts) == [SendCommand.arm_disarm(True)]
+    t += DT
+    seq.on_command_result(MAV_CMD_COMPONENT_ARM_DISARM, True, "ok", t)
+    assert seq.phase is Phase.FLY and seq.t_fly0 == t
+    return t
+
+
+def test_left_offboard_fails_without_fighting_back() -> None:
+    seq = FlightSequence(SequenceConfig(rate_hz=RATE, duration_s=5.0))
+    t = fly(seq)
+    t, _ = run(seq, t, t + 0.5, VehicleView(armed=True, mode=FlightMode.OFFBOARD))
+    acts = seq.update(t + DT, VehicleView(armed=True, mode=FlightMode.POSCTL))
+    assert seq.failure is Failure.LEFT_OFFBOARD and "POSCTL" in seq.reason
+    assert not commands(acts) and not seq.streaming
+
+
+def test_land_detected_disarms_once_then_done() -> None:
+    seq = FlightSequence(SequenceConfig(rate_hz=RATE, duration_s=2.0, end=EndPolicy(
+        handover_mode=FlightMode.LAND, touchdown_from_s=1.0)))
+    t = fly(seq)
+    airborne = VehicleView(armed=True, mode=FlightMode.OFFBOARD)
+    t, acts = run(seq, t, t + 1.5, airborne)
+    assert not commands(acts)  # not on the ground yet: no disarm
+    landed = VehicleView(armed=True, mode=FlightMode.OFFBOARD, on_ground=True)
+    t, acts = run(seq, t, t + 0.5, landed)
+    assert commands(acts) == [SendCommand.arm_disarm(False)]  # once
+    assert seq.streaming  # still streaming through the disarm
+    acts = seq.update(t + DT, VehicleView(armed=False, mode=FlightMode.OFFBOARD, on_ground=True))
+    assert seq.phase is Phase.DONE and not seq.streaming
+    assert any(isinstance(a, Finished) and a.ok for a in acts)
+
+
+def test_no_landing_detected_hands_over_to_land() -> None:
+    seq = FlightSequence(SequenceConfig(rate_hz=RATE, duration_s=1.0, end=EndPolicy(
+        handover_mode=FlightMode.LAND, touchdown_from_s=1.0, touchdown_timeout_s=2.0)))
+    t = fly(seq)
+    t, acts = run(seq, t, t + 3.5, VehicleView(armed=True, mode=FlightMode.OFFBOARD))
+    assert commands(acts) == [SendCommand(MAV_CMD_NAV_LAND)]
+    assert seq.phase is Phase.HANDOVER
+    t, _ = run(seq, t, t + 0.5, VehicleView(armed=True, mode=FlightMode.LAND))
+    assert seq.phase is Phase.WAIT_DISARM
+    t, acts = run(seq, t, t + 0.5, VehicleView(armed=True, mode=FlightMode.LAND, on_ground=True))
+    assert commands(acts) == [SendCommand.arm_disarm(False)]
+    run(seq, t, t + 0.5, VehicleView(armed=False, mode=FlightMode.LAND, on_ground=True))
+    assert seq.phase is Phase.DONE
+
+
+def test_hold_handover_streams_until_the_mode_is_confirmed() -> None:
+    seq = FlightSequence(SequenceConfig(rate_hz=RATE, duration_s=1.0, end=EndPolicy(
+        stream_handover=True, land_and_disarm=False)))
+    t = fly(seq)
+    t, acts = run(seq, t, t + 1.1, VehicleView(armed=True, mode=FlightMode.OFFBOARD))
+    assert commands(acts) == [SendCommand.set_mode(FlightMode.HOLD)]
+    assert seq.streaming
+    acts = seq.on_command_result(MAV_CMD_DO_SET_MODE, True, "ok", t + DT)
+    assert seq.phase is Phase.DONE and not seq.streaming
