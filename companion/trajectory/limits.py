@@ -280,8 +280,9 @@ def _metrics(smp: Samples, names: list[str], params: Any) -> dict[str, FloatArra
 
 
 def _body_rate_norm(smp: Samples, params: Any) -> FloatArray:
-    """|omega_frd| (rad/s) from the flatness module (imported lazily: flatness sits above
-    trajectory in the layering)."""
+    """|omega_frd| (rad/s) from the flatness module (imported lazily: importing
+    companion.flatness loads CasADi, which trajectory work without body-rate limits does not
+    need)."""
     from companion.flatness import multirotor_setpoint
 
     assert smp.jerk is not None and smp.snap is not None

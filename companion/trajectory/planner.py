@@ -160,7 +160,8 @@ def plan(
       allocation; with explicit ``durations`` they are not enforced (use :func:`check`).
     - ``yaw``: None (no yaw channel), a float (fixed yaw, rad), M per-waypoint yaws (rad,
       unwrapped the short way round), or ``"velocity"`` (follow the horizontal velocity
-      heading: speed-weighted least-squares fit with snap smoothing, see ``_heading_fit``).
+      heading: speed-weighted least-squares fit with snap smoothing, see
+      :mod:`companion.trajectory.yaw`).
 
     - ``speed_caps``: (M-1,) speed cap per waypoint leg [m/s] (e.g. per-leg mission speeds,
       or a climb-rate limit turned into a speed along a climbing leg), each at most
