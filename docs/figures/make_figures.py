@@ -139,7 +139,69 @@ def replay() -> None:
     print("wrote docs/figures/replay_square.png")
 
 
-FIGURES = {"min_snap": min_snap, "derivatives": derivatives, "frames": frames, "replay": replay}
+def layers() -> None:
+    """companion's packages by layer (the list tests/architecture/test_layers.py enforces)."""
+    sys.path.insert(0, str(ROOT))
+    from tests.architecture.test_layers import LAYERS
+
+    fig, ax = plt.subplots(figsize=(7.5, 4.6))
+    what = {
+        "geometry": "SO(3), frames", "_frozen": "fast frozen values",
+        "flatness": "flat outputs -> setpoints", "mavlink": "sans-IO MAVLink core",
+        "trajectory": "Bezier, min-snap planner", "control": "tracking law, estimators",
+        "mission": "files <-> model <-> wire", "planning": "schedule, vehicle limits",
+        "flight": "flight sequence, report", "aio": "asyncio Vehicle facade",
+        "replay": "lockstep replay vs mock", "serve": "on-vehicle service",
+        "campaign": "Monte-Carlo on Dask", "app": "commands, console, plots",
+    }
+    for i, layer in enumerate(LAYERS):
+        names = sorted(n for n in layer if n != "_frozen")
+        w = 1.0 / len(names)
+        for j, name in enumerate(names):
+            x = j * w
+            ax.add_patch(plt.Rectangle((x + 0.01, i + 0.08), w - 0.02, 0.84, fc="#e3ecf7",
+                                       ec="#33557a", lw=1.0))
+            ax.text(x + w / 2, i + 0.58, name, ha="center", va="center", fontsize=10,
+                    weight="bold")
+            ax.text(x + w / 2, i + 0.3, what[name], ha="center", va="center", fontsize=8)
+        ax.text(-0.02, i + 0.5, str(i), ha="right", va="center", fontsize=9, color="#555")
+    ax.annotate("", xy=(1.05, 0.2), xytext=(1.05, len(LAYERS) - 0.2),
+                arrowprops={"arrowstyle": "->", "color": "#555"})
+    ax.text(1.07, len(LAYERS) / 2, "imports point down", rotation=90, va="center", fontsize=9,
+            color="#555")
+    ax.set_xlim(-0.06, 1.12)
+    ax.set_ylim(0, len(LAYERS))
+    ax.axis("off")
+    ax.set_title("companion: layers (a module imports its own layer or lower)", fontsize=10)
+    _save(fig, "layers.png")
+
+
+def sequence() -> None:
+    """The phases of the one flight sequence (companion.flight.sequence.Phase)."""
+    fig, ax = plt.subplots(figsize=(8.0, 2.6))
+    main_path = ["WAIT_READY", "PRIME", "REQUEST_OFFBOARD", "ARM", "CONFIRM_ARM", "FLY",
+                 "HANDOVER", "WAIT_DISARM", "DONE"]
+    for i, name in enumerate(main_path):
+        ax.add_patch(plt.Rectangle((i + 0.05, 1.1), 0.9, 0.6, fc="#e3ecf7", ec="#33557a"))
+        ax.text(i + 0.5, 1.4, name.replace("_", "\n"), ha="center", va="center", fontsize=7)
+        if i:
+            ax.annotate("", xy=(i + 0.05, 1.4), xytext=(i - 0.05, 1.4),
+                        arrowprops={"arrowstyle": "->"})
+    ax.annotate("", xy=(7.5, 1.1), xytext=(5.5, 1.1),
+                arrowprops={"arrowstyle": "->", "connectionstyle": "arc3,rad=0.35"})
+    ax.text(6.5, 0.62, "touchdown: disarm once PX4 reports on ground", ha="center", fontsize=7)
+    ax.add_patch(plt.Rectangle((3.55, 0.0), 1.9, 0.45, fc="#f7e3e3", ec="#7a3333"))
+    ax.text(4.5, 0.22, "FAILED (reason)", ha="center", va="center", fontsize=8)
+    ax.text(4.5, 2.0, "refused OFFBOARD / arm, left OFFBOARD, link lost: FAILED, no arm sent "
+            "after a refusal", ha="center", fontsize=7)
+    ax.set_xlim(0, len(main_path))
+    ax.set_ylim(-0.1, 2.2)
+    ax.axis("off")
+    _save(fig, "sequence.png")
+
+
+FIGURES = {"min_snap": min_snap, "derivatives": derivatives, "frames": frames, "replay": replay,
+           "layers": layers, "sequence": sequence}
 
 
 def main(argv: list[str]) -> int:
