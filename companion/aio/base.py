@@ -315,6 +315,16 @@ class VehicleBase:
         finally:
             self._param_waiter = None
 
+    async def fetch_params(self, names: Sequence[str], timeout_s: float = 10.0, *,
+                           floats_only: bool = False) -> ParamReadDone:
+        """Read PX4 parameters by name (PARAM_REQUEST_READ, 3 tries 0.5 s apart each) without
+        raising for missing or (``floats_only``: not REAL32) wrong-typed ones: the
+        :class:`ParamReadDone` says which (a ``ParamReader`` of
+        :func:`companion.planning.vehicle_params.read_planning_params`). TimeoutError after
+        ``timeout_s`` [s]."""
+        expect = {n: ParamType.REAL32 for n in names} if floats_only else None
+        return await self._read_params(names, timeout_s, expect)
+
     async def read_params(self, names: Sequence[str], timeout_s: float = 10.0,
                           *, floats_only: bool = False) -> dict[str, float]:
         """Read PX4 parameters by name (PARAM_REQUEST_READ, 3 tries 0.5 s apart each); returns
