@@ -123,7 +123,8 @@ class Vehicle(VehicleBase):
     async def fly(self, trajectory: TrajectoryLike | None = None, *, mode: str = "position",
                   setpoint_source: SetpointSource | None = None, rate_hz: float | None = None,
                   duration_s: float | None = None, feedforward: str = "acc",
-                  arm: bool = False, end_action: str = "hold") -> FlightReport:
+                  arm: bool = False, end_action: str = "hold",
+                  disarm: bool = False) -> FlightReport:
         """Fly ``trajectory`` (or ``setpoint_source`` for ``duration_s``) in OFFBOARD, then Hold
         (or Land).
 
@@ -139,6 +140,11 @@ class Vehicle(VehicleBase):
         the vehicle on the ground (EXTENDED_SYS_STATE), then it is disarmed while still
         streaming; without a detected landing within ``touchdown_timeout_s``, or if the disarm
         is refused, PX4's LAND is requested (and finishes the landing).
+        disarm: end on the ground disarmed: after "land" or "touchdown" wait (at most
+        ``land_timeout_s`` in LAND) for the landing, disarm once PX4 reports the vehicle on the
+        ground (a refusal leaves it to PX4's auto-disarm) and return when disarmed; after "hold"
+        (a rover) disarm once in Hold (CommandError if refused). The report's ``duration_s``
+        still ends where the stream stopped.
         """
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -188,14 +194,14 @@ class Vehicle(VehicleBase):
                 end_pos = (float(pe[0]), float(pe[1]), float(pe[2]))
             return await self._fly(source, mode, rate_hz or self.config.rate_hz, total, end_pos,
                                    arm, FlightMode.HOLD if end_action == "hold" else
-                                   FlightMode.LAND, end_action == "touchdown")
+                                   FlightMode.LAND, end_action == "touchdown", disarm)
         finally:
             self._flying = False
 
     async def _fly(self, source: SetpointSource, mode: str, rate: float, total_s: float,
                    end_pos: tuple[float, float, float] | None, arm: bool = False,
                    end_mode: FlightMode = FlightMode.HOLD,
-                   touchdown: bool = False) -> FlightReport:
+                   touchdown: bool = False, disarm: bool = False) -> FlightReport:
         """Drive the one flight sequence (`companion.flight.FlightSequence`) in real time: a
         sender thread streams while it says so, its commands are sent and their results fed
         back; stale telemetry and a failing source are handled here (hold, then Hold)."""
@@ -208,7 +214,10 @@ class Vehicle(VehicleBase):
                           touchdown_timeout_s=cfg.touchdown_timeout_s,
                           settle_s=cfg.settle_s if end_pos is not None else 0.0,
                           settle_m=cfg.settle_m, end_ned=end_pos, land_command=False,
-                          stream_handover=True, land_and_disarm=False)))
+                          stream_handover=True, land_and_disarm=disarm,
+                          disarm_at_hold=disarm and end_mode is FlightMode.HOLD,
+                          disarm_on_ground=end_mode is not FlightMode.HOLD,
+                          land_timeout_s=cfg.land_timeout_s)))
         sm = seq.machine
         state: dict[str, Any] = {"hold": None, "error": ""}
         link = self.link
@@ -262,6 +271,7 @@ class Vehicle(VehicleBase):
                 seq.on_setpoint_sent(streamer.sent_times.popleft())
 
         t_start = time.monotonic()
+        t_stop: float | None = None  # the stream stopped: the flown part ended
         stale_since: float | None = None
         done: Finished | None = None
         try:
@@ -294,6 +304,8 @@ class Vehicle(VehicleBase):
                                       else end_mode).name)
                 if not seq.streaming:
                     streamer.stop()
+                    if t_stop is None and seq.t_fly0 is not None:
+                        t_stop = time.monotonic()
                 if done is not None:
                     break
                 if state["error"]:
@@ -325,7 +337,7 @@ class Vehicle(VehicleBase):
             log.error("%s", seq.reason)
         elif seq.disarm_sent and not self.is_armed:
             log.info("landed and disarmed")
-        return FlightReport(mode, time.monotonic() - t_start, streamer.stats(), True)
+        return FlightReport(mode, (t_stop or time.monotonic()) - t_start, streamer.stats(), True)
 
     async def _first_setpoint(self, streamer: FixedRateStreamer, state: dict[str, Any],
                               rate: float) -> float:
@@ -424,6 +436,9 @@ class Vehicle(VehicleBase):
                                    done.reason.removeprefix("arming refused: "),
                                    "arming in OFFBOARD")
             raise VehicleError(done.reason)
+        if why is Failure.DISARM_REFUSED:
+            raise CommandError(MAV_CMD_COMPONENT_ARM_DISARM, done.result,
+                               done.reason.removeprefix("disarm refused: "), "disarming")
         if why is Failure.LEFT_OFFBOARD:
             hb = self.link.heartbeat.last
             name = hb.mode.name if hb is not None else "unknown"

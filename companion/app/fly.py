@@ -480,7 +480,9 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                                     duration_s=planned.duration_s if td is None else td.from_s,
                                     arm=fly_takeoff,
                                     end_action=("touchdown" if source.touchdown is not None
-                                                else "land" if landing else "hold"))
+                                                else "land" if landing else "hold"),
+                                    # landed and disarmed (a rover: disarmed in Hold)
+                                    disarm=rover or landing)
                 ended = loop.time()
                 console.print(f"Trajectory flown in {mode} mode: {flown.duration_s:.1f} s")
                 report = recorder.summary(planned.waypoints_rel + origin, planned.acceptance_m,
@@ -495,10 +497,6 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                 bad = source.quality.failure()
                 report["result"] = breach_failure(report) or (
                     f"setpoints: {bad}" if bad is not None else "ok")
-                if rover:
-                    await v.disarm()
-                elif landing and v.is_armed:
-                    await v.land()  # in LAND already: waits for the landing, then disarms
             except Exception as exc:
                 if recorder.t_s:  # what was flown before the failure, for the post-mortem
                     report = recorder.summary(None, (), duration_s=recorder.t_s[-1]
