@@ -2,6 +2,7 @@
 
 from companion.mission import MissionError
 
+from .base import VehicleBase, VehicleConfig
 from .errors import (
     CommandError,
     ConnectTimeoutError,
@@ -15,17 +16,19 @@ from .errors import (
     TelemetryStaleError,
     VehicleError,
 )
+from .exits import safe_exit
+from .mission import MissionAPI
 from .sources import SetpointSource, TrajectoryPositionSource, hold_setpoint
 from .streamer import FixedRateStreamer, StreamStats
 from .tlog import TlogWriter
 from .transports import Endpoint, Transport, TransportError, open_transport, parse_url
-from .vehicle import FlightReport, MissionAPI, Vehicle, VehicleConfig, safe_exit
+from .vehicle import FlightReport, Vehicle
 
 __all__ = [
     "CommandError", "ConnectTimeoutError", "Endpoint", "FixedRateStreamer", "FlightReport",
     "LinkLostError", "MissionAPI", "MissionError", "MissionTransferError", "ModeChangeError",
     "OffboardError", "OffboardExitedError", "ParamReadError", "SetpointSource",
     "SetpointSourceError", "StreamStats", "TelemetryStaleError", "TlogWriter",
-    "TrajectoryPositionSource", "Transport", "TransportError", "Vehicle", "VehicleConfig",
-    "VehicleError", "hold_setpoint", "open_transport", "parse_url", "safe_exit",
+    "TrajectoryPositionSource", "Transport", "TransportError", "Vehicle", "VehicleBase",
+    "VehicleConfig", "VehicleError", "hold_setpoint", "open_transport", "parse_url", "safe_exit",
 ]

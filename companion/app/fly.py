@@ -44,7 +44,7 @@ from companion.planning.fence_check import (
 )
 from companion.planning.legs import leg_figures, plan_bounds, plan_legs, worst_leg_text
 from companion.planning.schedule import Schedule, build_schedule, trajectory_reference
-from companion.planning.vehicle_params import ResolvedPlanningParams
+from companion.planning.vehicle_params import ResolvedPlanningParams, read_planning_params
 from companion.trajectory.patterns import PATTERNS, pattern_trajectory, pattern_waypoints
 
 DEFAULT_HOME = (47.397742, 8.545594, 488.0)
@@ -324,7 +324,7 @@ def breach_failure(report: dict[str, Any]) -> str | None:
 def print_planning_params(console: Console, resolved: ResolvedPlanningParams,
                           where: str = "the vehicle") -> None:
     """The PX4 parameters a plan uses, one compact block (overrides and defaults marked; the
-    warnings naming parameters the vehicle lacked are logged by ``Vehicle``)."""
+    warnings naming parameters the vehicle lacked are logged by ``read_planning_params``)."""
     console.print(f"PX4 parameters (read from {where}):")
     for line in resolved.lines():
         console.print(f"  {escape(line)}", soft_wrap=True)
@@ -398,7 +398,7 @@ async def fly(opts: FlyOptions, console: Console) -> int:
         # second) and compare the mission's home with where the vehicle is
         px4: ResolvedPlanningParams | None = None
         if mission is not None:
-            px4 = await v.read_planning_params(inputs.vehicle.px4_overrides)
+            px4 = await read_planning_params(v.fetch_params, inputs.vehicle.px4_overrides)
             print_planning_params(console, px4)
         # a multicopter mission from the ground: the plan flies the takeoff too, armed in
         # OFFBOARD (PX4's NAV_TAKEOFF spool-up and the switch after it cost ~5 s)
@@ -480,7 +480,9 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                                     duration_s=planned.duration_s if td is None else td.from_s,
                                     arm=fly_takeoff,
                                     end_action=("touchdown" if source.touchdown is not None
-                                                else "land" if landing else "hold"))
+                                                else "land" if landing else "hold"),
+                                    # landed and disarmed (a rover: disarmed in Hold)
+                                    disarm=rover or landing)
                 ended = loop.time()
                 console.print(f"Trajectory flown in {mode} mode: {flown.duration_s:.1f} s")
                 report = recorder.summary(planned.waypoints_rel + origin, planned.acceptance_m,
@@ -495,10 +497,6 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                 bad = source.quality.failure()
                 report["result"] = breach_failure(report) or (
                     f"setpoints: {bad}" if bad is not None else "ok")
-                if rover:
-                    await v.disarm()
-                elif landing and v.is_armed:
-                    await v.land()  # in LAND already: waits for the landing, then disarms
             except Exception as exc:
                 if recorder.t_s:  # what was flown before the failure, for the post-mortem
                     report = recorder.summary(None, (), duration_s=recorder.t_s[-1]

@@ -61,6 +61,7 @@ class Failure(enum.Enum):
     LEFT_OFFBOARD = "left_offboard"
     LINK_LOST = "link_lost"
     NO_LAND = "no_land"
+    DISARM_REFUSED = "disarm_refused"  # disarming in Hold (a rover) refused
     ABORTED = "aborted"  # by the caller (timeout, cancellation)
 
 
@@ -150,7 +151,10 @@ class EndPolicy:
     loss while it switches); else the stream stops when it is sent.
     land_and_disarm: after the handover wait for the mode (``mode_wait_s``), then for the
     landing and disarm (a quad is disarmed once on the ground; ``disarm_at_hold``: a rover is
-    disarmed once in Hold); else the flight is done when the handover command finished."""
+    disarmed once in Hold); else the flight is done when the handover command finished.
+    land_timeout_s: after the handover the landing and disarm must end within this long [s]
+    from the vehicle being in LAND (or the disarm in Hold being sent), else the flight fails
+    (NO_LAND); None: no limit (the caller bounds the flight)."""
 
     handover_mode: FlightMode = FlightMode.HOLD
     touchdown_from_s: float | None = None
@@ -165,6 +169,7 @@ class EndPolicy:
     disarm_at_hold: bool = False
     disarm_on_ground: bool = True
     mode_wait_s: float = 3.0
+    land_timeout_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -276,6 +281,9 @@ class FlightSequence:
                 self._t_disarm_ack = now
                 return []
             return self._handover(now, FlightMode.LAND, f"disarm refused: {reason}")
+        if (ph is Phase.WAIT_DISARM and command == MAV_CMD_COMPONENT_ARM_DISARM and not ok
+                and self.end.disarm_at_hold):
+            return self._finish(now, f"disarm refused: {reason}", Failure.DISARM_REFUSED, result)
         if ph is Phase.HANDOVER and command == self._handover_cmd and self.machine.streaming:
             self.machine.stop(now, "handed over")  # the stream ran on while PX4 switched
             if not self.end.land_and_disarm:
@@ -396,11 +404,21 @@ class FlightSequence:
                     return self._finish(now)
             elif view.mode is FlightMode.LAND:
                 return self._go(Phase.WAIT_DISARM, now)
+            elif (now - self.t_phase > self.end.mode_wait_s
+                  and self._handover_cmd != MAV_CMD_NAV_LAND):
+                # AUTO.LAND by DO_SET_MODE did not take: NAV_LAND once more (as `land()` would)
+                self._handover_cmd = MAV_CMD_NAV_LAND
+                self.t_phase = now
+                return [SendCommand.land()]
             elif now - self.t_phase > self.end.mode_wait_s:
                 return self._finish(now, "PX4 did not switch to LAND", Failure.NO_LAND)
             return []
         if not view.armed:
             return self._finish(now)
+        limit = self.end.land_timeout_s
+        if limit is not None and now - self.t_phase > limit:
+            return self._finish(now, f"timed out after {limit:g} s waiting for the landing and "
+                                "disarm", Failure.NO_LAND)
         if self.end.disarm_on_ground and not self.disarm_sent and view.on_ground:
             self.disarm_sent = True
             return [SendCommand.arm_disarm(False)]

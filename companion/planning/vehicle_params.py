@@ -16,13 +16,20 @@ vehicle is not what the planner assumes, so nothing is flown until the vehicle f
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+import logging
+from collections.abc import Awaitable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, Protocol
 
+from companion.mavlink.params import ParamReadDone
 from companion.mission.px4_params import PLANNING_PARAM_NAMES, Px4PlanningParams
 
-__all__ = ["ParamSource", "ResolvedPlanningParams", "check_overrides", "resolve_planning_params"]
+__all__ = [
+    "ParamReader", "ParamSource", "ResolvedPlanningParams", "check_overrides",
+    "read_planning_params", "resolve_planning_params",
+]
+
+_log = logging.getLogger("companion.planning.vehicle_params")
 
 ParamSource = Literal["vehicle", "file", "default"]
 _MARK: dict[ParamSource, str] = {"vehicle": "", "file": " (vehicle file)", "default": " (default)"}
@@ -122,3 +129,35 @@ def resolve_planning_params(
     return ResolvedPlanningParams(params, source, {n: float(v) for n, v in read.items()
                                                    if n in PLANNING_PARAM_NAMES},
                                   tuple(warnings))
+
+
+class ParamReader(Protocol):
+    """Reads PX4 parameters by name without raising for missing ones (e.g.
+    ``companion.aio.Vehicle.fetch_params``); ``floats_only``: an answer of another type than
+    REAL32 counts as wrong-typed."""
+
+    def __call__(self, names: Sequence[str], timeout_s: float, *,
+                 floats_only: bool) -> Awaitable[ParamReadDone]: ...
+
+
+async def read_planning_params(read: ParamReader, overrides: Mapping[str, float] | None = None,
+                               timeout_s: float = 10.0) -> ResolvedPlanningParams:
+    """The PX4 parameters the mission planner uses (``PLANNING_PARAM_NAMES``, all REAL32 in PX4)
+    read with ``read`` (names not answered are asked for once more: tells a lossy link from a
+    parameter PX4 lacks), combined with the vehicle file's ``[px4]`` ``overrides``
+    (:func:`resolve_planning_params`); its warnings are logged too. ``timeout_s`` [s] per pass.
+    ValueError for a value the planner cannot use (wrong type, out of range) unless overridden.
+
+        resolved = await read_planning_params(vehicle.fetch_params, overrides)
+    """
+    names = list(PLANNING_PARAM_NAMES)
+    done = await read(names, timeout_s, floats_only=True)
+    values, wrong = dict(done.values), dict(done.wrong_type)
+    if done.missing:  # a second pass
+        again = await read(list(done.missing), timeout_s, floats_only=True)
+        values.update(again.values)
+        wrong.update(again.wrong_type)
+    resolved = resolve_planning_params(values, overrides, wrong_type=wrong)
+    for w in resolved.warnings:
+        _log.warning("%s", w)
+    return resolved

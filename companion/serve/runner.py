@@ -32,7 +32,7 @@ from companion.mavlink import FlightMode, LinkConfig, VehicleLink
 from companion.mavlink.codec import MavMessage
 from companion.mission.px4_params import Px4PlanningParams
 from companion.planning.config import VehicleFile, load_vehicle_file
-from companion.planning.vehicle_params import ResolvedPlanningParams
+from companion.planning.vehicle_params import ResolvedPlanningParams, read_planning_params
 from companion.serve.service import (
     Action,
     Announce,
@@ -185,7 +185,8 @@ class _Session:
         from companion.aio import VehicleError
 
         try:
-            r: ResolvedPlanningParams = await self.v.read_planning_params(self.px4_overrides)
+            r: ResolvedPlanningParams = await read_planning_params(self.v.fetch_params,
+                                                                   self.px4_overrides)
         except ValueError as exc:
             self.events.write("px4_params_refused", why=str(exc))
             return f"PX4 parameters: {exc}"

@@ -1,7 +1,7 @@
-"""`Vehicle.read_params` / `read_planning_params` against the mock PX4 over loopback UDP
-(`python -m sitl_mock serve` subprocess): values set on the mock's command line, an INT32
-parameter (bytewise on the wire), a parameter changed by PARAM_SET from another client
-(pymavlink, playing the ground station), and a name the vehicle does not have."""
+"""`Vehicle.read_params` / `read_planning_params(Vehicle.fetch_params)` against the mock PX4
+over loopback UDP (`python -m sitl_mock serve` subprocess): values set on the mock's command
+line, an INT32 parameter (bytewise on the wire), a parameter changed by PARAM_SET from another
+client (pymavlink, playing the ground station), and a name the vehicle does not have."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import pytest
 from pymavlink import mavutil
 
 from companion.aio import ParamReadError, Vehicle, VehicleConfig
+from companion.planning.vehicle_params import read_planning_params
 from tests.support.mock_process import bounded, free_udp_port, run_mock
 
 
@@ -34,7 +35,7 @@ async def test_vehicle_reads_changed_planning_parameters_from_the_mock() -> None
                                        mavutil.mavlink.MAV_PARAM_TYPE_REAL32)
                 echo = await bounded(_recv(gcs, "PARAM_VALUE"), 10.0, "the PARAM_SET echo")
                 assert echo is not None and echo.param_id == "MPC_TKO_SPEED"
-                r = await bounded(v.read_planning_params({"NAV_ACC_RAD": 0.5}), 10.0,
+                r = await bounded(read_planning_params(v.fetch_params, {"NAV_ACC_RAD": 0.5}), 10.0,
                                   "the planning parameter read")
                 assert r.params.MPC_XY_CRUISE == 8.5 and r.params.MPC_LAND_ALT1 == 12.0
                 assert r.params.MPC_TKO_SPEED == 2.75

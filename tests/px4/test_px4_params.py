@@ -16,6 +16,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from companion.aio import ParamReadError, Vehicle, VehicleConfig
 from companion.mavlink import LinkConfig
 from companion.mission.px4_params import PLANNING_PARAM_NAMES
+from companion.planning.vehicle_params import read_planning_params
 from px4_harness import Px4Sitl
 
 
@@ -38,7 +39,7 @@ async def test_planning_parameters_read_from_px4_are_its_defaults_and_follow_par
     link = LinkConfig(target_sysid=px4.target_system)
     async with Vehicle.connect(px4.url, config=VehicleConfig(connect_timeout_s=15.0),
                                link_config=link) as v:
-        r = await v.read_planning_params()
+        r = await read_planning_params(v.fetch_params)
         assert r.defaulted == () and r.warnings == ()
         for name in PLANNING_PARAM_NAMES:
             assert r.vehicle_values[name] == pytest.approx(defaults[name], rel=1e-6), name

@@ -141,3 +141,57 @@ def test_hold_handover_streams_until_the_mode_is_confirmed() -> None:
     assert seq.streaming
     acts = seq.on_command_result(MAV_CMD_DO_SET_MODE, True, "ok", t + DT)
     assert seq.phase is Phase.DONE and not seq.streaming
+
+
+def test_land_handover_then_landing_and_disarm_within_the_timeout() -> None:
+    """`fly`'s end: AUTO.LAND by DO_SET_MODE while streaming, then landed and disarmed."""
+    seq = FlightSequence(SequenceConfig(rate_hz=RATE, duration_s=1.0, end=EndPolicy(
+        handover_mode=FlightMode.LAND, land_command=False, stream_handover=True,
+        land_timeout_s=5.0)))
+    t = fly(seq)
+    t, acts = run(seq, t, t + 1.1, VehicleView(armed=True, mode=FlightMode.OFFBOARD))
+    assert commands(acts) == [SendCommand.set_mode(FlightMode.LAND)] and seq.streaming
+    t += DT
+    seq.on_command_result(MAV_CMD_DO_SET_MODE, True, "ok", t)
+    assert not seq.streaming and seq.phase is Phase.HANDOVER
+    t, _ = run(seq, t, t + 0.1, VehicleView(armed=True, mode=FlightMode.LAND))
+    assert seq.phase is Phase.WAIT_DISARM
+    t, acts = run(seq, t, t + 4.0, VehicleView(armed=True, mode=FlightMode.LAND))
+    assert not commands(acts) and not seq.finished  # still descending
+    t, acts = run(seq, t, t + 2.0, VehicleView(armed=True, mode=FlightMode.LAND))
+    assert seq.failure is Failure.NO_LAND and "waiting for the landing" in seq.reason
+
+
+def test_refused_auto_land_falls_back_to_nav_land() -> None:
+    seq = FlightSequence(SequenceConfig(rate_hz=RATE, duration_s=1.0, end=EndPolicy(
+        handover_mode=FlightMode.LAND, land_command=False, stream_handover=True)))
+    t = fly(seq)
+    t, _ = run(seq, t, t + 1.1, VehicleView(armed=True, mode=FlightMode.OFFBOARD))
+    t += DT
+    seq.on_command_result(MAV_CMD_DO_SET_MODE, False, "DENIED", t)
+    t, acts = run(seq, t, t + 3.5, VehicleView(armed=True, mode=FlightMode.HOLD))
+    assert commands(acts) == [SendCommand.land()] and seq.phase is Phase.HANDOVER
+    t, _ = run(seq, t, t + 0.1, VehicleView(armed=True, mode=FlightMode.LAND))
+    assert seq.phase is Phase.WAIT_DISARM
+
+
+def test_rover_disarmed_in_hold_and_a_refusal_fails() -> None:
+    def rover() -> tuple[FlightSequence, float]:
+        seq = FlightSequence(SequenceConfig(rate_hz=RATE, duration_s=1.0, end=EndPolicy(
+            stream_handover=True, disarm_at_hold=True, disarm_on_ground=False)))
+        t = fly(seq)
+        t, _ = run(seq, t, t + 1.1, VehicleView(armed=True, mode=FlightMode.OFFBOARD))
+        t += DT
+        seq.on_command_result(MAV_CMD_DO_SET_MODE, True, "ok", t)
+        t, acts = run(seq, t, t + 0.1, VehicleView(armed=True, mode=FlightMode.HOLD,
+                                                    on_ground=True))
+        assert commands(acts) == [SendCommand.arm_disarm(False)]  # once
+        return seq, t
+
+    seq, t = rover()
+    run(seq, t, t + 0.1, VehicleView(armed=False, mode=FlightMode.HOLD))
+    assert seq.phase is Phase.DONE
+    seq, t = rover()
+    acts = seq.on_command_result(MAV_CMD_COMPONENT_ARM_DISARM, False, "DENIED", t + DT, 4)
+    fin = [a for a in acts if isinstance(a, Finished)]
+    assert fin and fin[0].failure is Failure.DISARM_REFUSED and fin[0].result == 4

@@ -78,3 +78,27 @@ def test_a_wrongly_typed_answer_is_an_error_unless_overridden() -> None:
 def test_unknown_override_names_list_the_known_ones() -> None:
     with pytest.raises(ValueError, match=r"unknown PX4 parameter.*MPC_FOO.*known: MPC_XY_CRUISE"):
         resolve_planning_params(ALL_READ, {"MPC_FOO": 1.0})
+
+
+def test_read_planning_params_asks_again_for_unanswered_names() -> None:
+    import asyncio
+    from collections.abc import Sequence
+
+    from companion.mavlink.params import ParamReadDone
+    from companion.planning.vehicle_params import read_planning_params
+
+    calls: list[tuple[list[str], bool]] = []
+
+    async def read(names: Sequence[str], timeout_s: float, *,
+                   floats_only: bool) -> ParamReadDone:
+        calls.append((list(names), floats_only))
+        if len(calls) == 1:  # the first pass loses MPC_XY_CRUISE and NAV_ACC_RAD
+            lost = ("MPC_XY_CRUISE", "NAV_ACC_RAD")
+            return ParamReadDone(0.0, {n: ALL_READ[n] for n in names if n not in lost}, lost)
+        return ParamReadDone(1.0, {"MPC_XY_CRUISE": 7.0}, ("NAV_ACC_RAD",))
+
+    r = asyncio.run(read_planning_params(read, {"MPC_LAND_SPEED": 0.6}))
+    assert calls[0] == (list(PLANNING_PARAM_NAMES), True)
+    assert calls[1] == (["MPC_XY_CRUISE", "NAV_ACC_RAD"], True)
+    assert r.params.MPC_XY_CRUISE == 7.0 and r.source["MPC_XY_CRUISE"] == "vehicle"
+    assert r.defaulted == ("NAV_ACC_RAD",) and r.source["MPC_LAND_SPEED"] == "file"
