@@ -5,7 +5,7 @@
 - `commands`: COMMAND_LONG / COMMAND_INT handling;
 - `offboard`: offboard setpoint intake and its timeout;
 - `param_server`: the parameter protocol; `missions`: the mission protocol and executor;
-- `status` / `telemetry`: a frozen status snapshot and the message builders that read it.
+- `status` / `telemetry`: frozen status snapshots and the message builders that read them.
 """
 
 from sitl_mock.autopilot.core import COMMANDER_PERIOD_S, Autopilot
@@ -20,7 +20,7 @@ from sitl_mock.autopilot.shared import (
     RESULT_UNSUPPORTED,
     SYSID,
 )
-from sitl_mock.autopilot.status import StatusSnapshot
+from sitl_mock.autopilot.status import StatusSnapshot, VehicleStatus
 from sitl_mock.autopilot.telemetry import (
     AUTOPILOT_CAPABILITIES,
     FLIGHT_SW_VERSION,
@@ -46,4 +46,5 @@ __all__ = [
     "MissionCurrentV2",
     "Mode",
     "StatusSnapshot",
+    "VehicleStatus",
 ]

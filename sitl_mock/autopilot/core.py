@@ -12,7 +12,8 @@ Two links like PX4 SITL: "offboard" (the API / onboard link, PX4 binds 14580 and
 
 `Autopilot` composes components that own their state: `Links` (connections and traffic),
 `Commander` (arming, modes, failsafes), `CommandHandler` (COMMAND_LONG / INT), `OffboardInput`
-(setpoints and their timeout), `ParamServer`, `Missions`; telemetry reads a `StatusSnapshot`.
+(setpoints and their timeout), `ParamServer`, `Missions`; telemetry reads the status snapshots
+(`VehicleStatus`, `StatusSnapshot`), never the autopilot.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from sitl_mock.autopilot.modes import Mode
 from sitl_mock.autopilot.offboard import OffboardInput
 from sitl_mock.autopilot.param_server import ParamServer
 from sitl_mock.autopilot.shared import Addr, Clock, Msg, StateView
-from sitl_mock.autopilot.status import StatusSnapshot
+from sitl_mock.autopilot.status import StatusSnapshot, VehicleStatus
 from sitl_mock.faults import LinkFaults, ScenarioFaults
 from sitl_mock.mission_server import MISSION, MissionExecutor, MissionServer
 from sitl_mock.navigator import Navigator
@@ -46,7 +47,8 @@ COMMANDER_PERIOD_S = 0.005
 _OFFBOARD = Mode.OFFBOARD
 _AUTO_MISSION = Mode.AUTO_MISSION
 _PING = telemetry.MSG_ID_PING
-_BUILDERS = telemetry.BUILDERS
+_VEHICLE_BUILDERS = telemetry.VEHICLE_BUILDERS
+_STATUS_BUILDERS = telemetry.STATUS_BUILDERS
 _MAV_TYPE = {"quad": int(mavlink.MAV_TYPE_QUADROTOR), "rover": int(mavlink.MAV_TYPE_GROUND_ROVER)}
 
 
@@ -295,31 +297,64 @@ class Autopilot:
 
     # ================================================================== telemetry
     def _telemetry(self, t: float) -> None:
-        """Build and queue the periodic messages due at `t` on every link (one status)."""
-        snap: StatusSnapshot | None = None
+        """Build and queue the periodic messages due at `t` on every link, from one status
+        (each part built at most once, when a message needs it)."""
+        vehicle: VehicleStatus | None = None
+        full: StatusSnapshot | None = None
 
         def build(msg_id: int) -> Msg | None:
-            nonlocal snap
-            if snap is None:
-                snap = self.status()
-            return self._build(msg_id, snap)
+            nonlocal vehicle, full
+            if vehicle is None:
+                vehicle = self.vehicle_status()
+            fn = _VEHICLE_BUILDERS.get(msg_id)
+            if fn is not None:
+                return fn(vehicle)
+            if msg_id == _PING:
+                return self._ping(vehicle)
+            if full is None:
+                full = self.status(vehicle)
+            return _STATUS_BUILDERS[msg_id](full)
 
         self.comms.emit_streams(t, build)
 
-    def _build(self, msg_id: int, snap: StatusSnapshot) -> Msg | None:
-        if msg_id == _PING:
-            self.ping_seq = (self.ping_seq + 1) & 0xFFFFFFFF
-            return telemetry.ping_message(snap.time_usec, self.ping_seq)
-        return _BUILDERS[msg_id](snap)
+    def _ping(self, vehicle: VehicleStatus) -> Msg:
+        self.ping_seq = (self.ping_seq + 1) & 0xFFFFFFFF
+        return telemetry.ping_message(vehicle.time_usec, self.ping_seq)
 
     def _request_build(self, msg_id: int) -> Msg | None:
-        return self._build(msg_id, self.status())
+        """A streamable message now (REQUEST_MESSAGE)."""
+        fn = _VEHICLE_BUILDERS.get(msg_id)
+        if fn is not None:
+            return fn(self.vehicle_status())
+        if msg_id == _PING:
+            return self._ping(self.vehicle_status())
+        return _STATUS_BUILDERS[msg_id](self.status())
 
-    def status(self) -> StatusSnapshot:
-        """The autopilot's status now, as the telemetry reports it."""
-        cmdr = self.commander
+    def vehicle_status(self) -> VehicleStatus:
+        """The vehicle's side of the status now (what the high-rate streams report)."""
         clock = self.clock
         veh = self.vehicle
+        estimator_ready = self.commander.estimator_ready
+        return frozen_new(
+            VehicleStatus,
+            {
+                "time_boot_ms": clock.time_boot_ms,
+                "time_usec": clock.time_usec,
+                "time_ns": clock.time_ns,
+                "state": self.view.state,
+                "attitude": veh.attitude,
+                "last_attitude_target": veh.last_attitude_target,
+                "last_position_target": veh.last_position_target,
+                "home": self.commander.home,
+                "estimator_ready": estimator_ready,
+                "local_position_valid": estimator_ready and veh.local_position_valid,
+            },
+        )
+
+    def status(self, vehicle: VehicleStatus | None = None) -> StatusSnapshot:
+        """The whole status now, as the telemetry reports it (`vehicle`: its vehicle side, if
+        already built at this instant)."""
+        cmdr = self.commander
         mode = cmdr.mode
         server = self.missions.server
         ex = self.missions.executor
@@ -335,25 +370,14 @@ class Autopilot:
         else:
             m_state = mavlink.MISSION_STATE_NOT_STARTED
         battery = cmdr.battery_remaining
-        estimator_ready = cmdr.estimator_ready
         return frozen_new(
             StatusSnapshot,
             {
-                "time_boot_ms": clock.time_boot_ms,
-                "time_usec": clock.time_usec,
-                "time_ns": clock.time_ns,
+                "vehicle": vehicle if vehicle is not None else self.vehicle_status(),
                 "mav_type": _MAV_TYPE[self.kind],
                 "base_mode": cmdr.base_mode,
                 "custom_mode": mode.custom_mode,
                 "system_status": cmdr.system_status,
-                "state": self.view.state,
-                "attitude": veh.attitude,
-                "last_attitude_target": veh.last_attitude_target,
-                "last_position_target": veh.last_position_target,
-                "home": cmdr.home,
-                "home_set": estimator_ready,
-                "estimator_ready": estimator_ready,
-                "local_position_valid": estimator_ready and veh.local_position_valid,
                 "prearm_ok": cmdr.arming_denial(mode) is None,
                 "battery_remaining": battery,
                 "battery_voltage_mv": round(4 * (3.5 + 0.7 * battery) * 1000.0),

@@ -1,11 +1,11 @@
 """Telemetry: stream tables (PX4 onboard / normal link rates) and message builders.
 
-The builders turn a `StatusSnapshot` (vehicle state, mode, targets at one instant) into messages
-the autopilot packs on a link: either a pymavlink message object or, on the hot path, a
-`(MessageCodec, fields)` pair with the pymavlink constructor's positional arguments, packed
-without building the message object (same bytes: tests/unit/test_sitl_mavwire_codec.py).
-Attitude math here is the mock's own (explicit Euler 3-2-1 from the Hamilton quaternion
-body FRD -> NED), independent of `companion`.
+The builders turn a `VehicleStatus` or a `StatusSnapshot` (the vehicle's / the whole status at
+one instant, status.py) into messages the autopilot packs on a link: either a pymavlink message
+object or, on the hot path, a `(MessageCodec, fields)` pair with the pymavlink constructor's
+positional arguments, packed without building the message object (same bytes:
+tests/unit/test_sitl_mavwire_codec.py). Attitude math here is the mock's own (explicit Euler
+3-2-1 from the Hamilton quaternion body FRD -> NED), independent of `companion`.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from typing import Any, ClassVar
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl_mock.autopilot.status import StatusSnapshot
+from sitl_mock.autopilot.status import StatusSnapshot, VehicleStatus
 from sitl_mock.mavwire import codec
 
 Msg = Any  # a pymavlink MAVLink_message, or a (MessageCodec, fields) pair
@@ -224,19 +224,19 @@ def build_heartbeat(st: StatusSnapshot) -> Msg:
     )
 
 
-def build_attitude(st: StatusSnapshot) -> Msg:
+def build_attitude(st: VehicleStatus) -> Msg:
     q_wxyz, omega_frd = st.attitude  # = state.q_wxyz, the measured body rates
     roll, pitch, yaw = euler_321(q_wxyz)
     p, q, r = omega_frd
     return (_C_ATTITUDE, (st.time_boot_ms, roll, pitch, yaw, p, q, r))
 
 
-def build_attitude_quaternion(st: StatusSnapshot) -> Msg:
+def build_attitude_quaternion(st: VehicleStatus) -> Msg:
     (w, x, y, z), (p, q, r) = st.attitude  # = state.q_wxyz, the measured body rates
     return (_C_ATTITUDE_QUATERNION, (st.time_boot_ms, w, x, y, z, p, q, r, (0.0, 0.0, 0.0, 0.0)))
 
 
-def build_local_position_ned(st: StatusSnapshot) -> Msg | None:
+def build_local_position_ned(st: VehicleStatus) -> Msg | None:
     s = st.state
     if not st.local_position_valid:
         return None
@@ -245,7 +245,7 @@ def build_local_position_ned(st: StatusSnapshot) -> Msg | None:
     return (_C_LOCAL_POSITION_NED, (st.time_boot_ms, x, y, z, vx, vy, vz))
 
 
-def build_odometry(st: StatusSnapshot) -> Msg | None:
+def build_odometry(st: VehicleStatus) -> Msg | None:
     s = st.state
     if not st.local_position_valid:
         return None
@@ -278,7 +278,7 @@ def build_odometry(st: StatusSnapshot) -> Msg | None:
     )
 
 
-def build_global_position_int(st: StatusSnapshot) -> Msg:
+def build_global_position_int(st: VehicleStatus) -> Msg:
     s = st.state
     yaw = s.yaw  # the yaw of euler_321 (same expression), without roll and pitch
     hdg = round(math.degrees(yaw) % 360.0 * 100.0) % 36000
@@ -308,7 +308,7 @@ def _clamp_i16(v: float) -> int:
     return -32768 if r < -32768 else 32767 if r > 32767 else r
 
 
-def build_attitude_target(st: StatusSnapshot) -> Msg | None:
+def build_attitude_target(st: VehicleStatus) -> Msg | None:
     last = st.last_attitude_target
     if last is None:
         return None
@@ -326,7 +326,7 @@ def build_attitude_target(st: StatusSnapshot) -> Msg | None:
     )
 
 
-def build_position_target_local_ned(st: StatusSnapshot) -> Msg | None:
+def build_position_target_local_ned(st: VehicleStatus) -> Msg | None:
     t = st.last_position_target
     if t is None:
         return None
@@ -347,11 +347,11 @@ def build_position_target_local_ned(st: StatusSnapshot) -> Msg | None:
 
 def build_sys_status(st: StatusSnapshot) -> Msg:
     health = SENSORS_HEALTH_READY
-    if not st.estimator_ready:
+    if not st.vehicle.estimator_ready:
         health &= ~(BIT_GPS | BIT_PREARM | BIT_XY_POS)
     elif not st.prearm_ok:
         health &= ~BIT_PREARM
-    if not st.local_position_valid:
+    if not st.vehicle.local_position_valid:
         health &= ~(BIT_GPS | BIT_XY_POS)
     rem = st.battery_remaining
     return (
@@ -378,13 +378,13 @@ def build_extended_sys_state(st: StatusSnapshot) -> Msg:
     return (_C_EXTENDED_SYS_STATE, (mavlink.MAV_VTOL_STATE_UNDEFINED, st.landed_state))
 
 
-def build_home_position(st: StatusSnapshot) -> Msg | None:
-    if not st.home_set:
+def build_home_position(st: VehicleStatus) -> Msg | None:
+    if not st.estimator_ready:  # home is set once the estimator is ready
         return None
     return home_position_message(st.home, st.time_usec)
 
 
-def build_timesync(st: StatusSnapshot) -> Msg:
+def build_timesync(st: VehicleStatus) -> Msg:
     return (_C_TIMESYNC, (0, st.time_ns))
 
 
@@ -420,7 +420,7 @@ def build_mission_current(st: StatusSnapshot) -> Msg:
     )
 
 
-def build_vfr_hud(st: StatusSnapshot) -> Msg:
+def build_vfr_hud(st: VehicleStatus) -> Msg:
     s = st.state
     vn, ve, vd = s.vel_ned
     _, _, yaw = euler_321(s.q_wxyz)
@@ -438,7 +438,7 @@ def build_vfr_hud(st: StatusSnapshot) -> Msg:
     )
 
 
-def build_gps_raw_int(st: StatusSnapshot) -> Msg:
+def build_gps_raw_int(st: VehicleStatus) -> Msg:
     s = st.state
     vn, ve, _ = s.vel_ned
     fix = 3 if st.local_position_valid else 0
@@ -460,9 +460,9 @@ def build_gps_raw_int(st: StatusSnapshot) -> Msg:
     )
 
 
-# PING is streamed too, but its sequence number is the autopilot's: `ping_message`.
-BUILDERS: dict[int, Callable[[StatusSnapshot], Msg | None]] = {
-    mavlink.MAVLINK_MSG_ID_HEARTBEAT: build_heartbeat,
+# Builders of the high-rate streams read only the vehicle's side of the status; PING is
+# streamed too, but its sequence number is the autopilot's (`ping_message`).
+VEHICLE_BUILDERS: dict[int, Callable[[VehicleStatus], Msg | None]] = {
     mavlink.MAVLINK_MSG_ID_ATTITUDE: build_attitude,
     mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: build_attitude_quaternion,
     mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: build_global_position_int,
@@ -470,19 +470,23 @@ BUILDERS: dict[int, Callable[[StatusSnapshot], Msg | None]] = {
     mavlink.MAVLINK_MSG_ID_ODOMETRY: build_odometry,
     mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET: build_attitude_target,
     mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: build_position_target_local_ned,
-    mavlink.MAVLINK_MSG_ID_SYS_STATUS: build_sys_status,
-    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: build_extended_sys_state,
     mavlink.MAVLINK_MSG_ID_HOME_POSITION: build_home_position,
     mavlink.MAVLINK_MSG_ID_TIMESYNC: build_timesync,
-    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: build_battery_status,
-    mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: build_mission_current,
     mavlink.MAVLINK_MSG_ID_VFR_HUD: build_vfr_hud,
     mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: build_gps_raw_int,
+}
+# Builders of the low-rate status messages read the whole status snapshot.
+STATUS_BUILDERS: dict[int, Callable[[StatusSnapshot], Msg | None]] = {
+    mavlink.MAVLINK_MSG_ID_HEARTBEAT: build_heartbeat,
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: build_sys_status,
+    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: build_extended_sys_state,
+    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: build_battery_status,
+    mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: build_mission_current,
 }
 
 MSG_ID_PING = mavlink.MAVLINK_MSG_ID_PING
 # Messages that SET_MESSAGE_INTERVAL can stream and REQUEST_MESSAGE (512) can produce once.
-STREAMABLE = frozenset(BUILDERS) | {MSG_ID_PING}
+STREAMABLE = frozenset(VEHICLE_BUILDERS) | frozenset(STATUS_BUILDERS) | {MSG_ID_PING}
 
 
 class StreamScheduler:
