@@ -17,7 +17,7 @@ import math
 from collections.abc import Mapping
 
 from sitl_mock.setpoints import NAN3, PositionTarget, Vec3
-from sitl_mock.vehicle import VehicleState
+from sitl_mock.vehicle_state import VehicleState
 
 _isfinite = math.isfinite
 _NAN = math.nan

@@ -23,7 +23,7 @@ import math
 from sitl_mock.flight_control import quat_from_yaw, quat_yaw, wrap_pi
 from sitl_mock.params import ParamStore
 from sitl_mock.setpoints import AttitudeTarget, PositionTarget, Quat, Target, Vec3
-from sitl_mock.vehicle import AttitudeTargetReport, VehicleState
+from sitl_mock.vehicle_state import AttitudeTargetReport, VehicleState
 
 _isfinite = math.isfinite
 HEADING_GAIN = 2.5  # yaw-rate command per rad of heading error [1/s]

@@ -23,8 +23,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl_mock import autopilot as ap_module
 from sitl_mock.autopilot import Autopilot
+from sitl_mock.autopilot import links as ap_module
 from sitl_mock.mavwire import codec, unpack_single
 from sitl_mock.params import ParamStore
 from sitl_mock.quad import Quadrotor
@@ -185,13 +185,13 @@ def test_unpack_single_refuses_everything_but_one_clean_frame() -> None:
 
 # ------------------------------------------------------------------------------ autopilot
 def _ob_state(ap: Autopilot) -> tuple[Any, ...]:
-    tgt = ap._ob_target
+    tgt = ap.offboard.target
     fields = (
         None
         if tgt is None
         else (type(tgt).__name__, tgt.q_wxyz, tgt.thrust_norm, tgt.body_rates_frd, tgt.yaw_rate_ff)
     )
-    return fields, ap._ob_last_t, dict(ap.stats)
+    return fields, ap.offboard.last_t, dict(ap.stats)
 
 
 @settings(max_examples=40, deadline=None)

@@ -1,28 +1,26 @@
 """Telemetry: stream tables (PX4 onboard / normal link rates) and message builders.
 
-The builders turn the autopilot's view (vehicle state, mode, targets) into messages the
-autopilot packs on a link: either a pymavlink message object or, on the hot path, a
-`(MessageCodec, fields)` pair with the pymavlink constructor's positional arguments, packed
-without building the message object (same bytes: tests/sitl_mock/test_sitl_mavwire_codec.py).
-Attitude math here is the mock's own (explicit Euler 3-2-1 from the Hamilton quaternion
-body FRD -> NED), independent of `companion`.
+The builders turn a `VehicleStatus` or a `StatusSnapshot` (the vehicle's / the whole status at
+one instant, status.py) into messages the autopilot packs on a link: either a pymavlink message
+object or, on the hot path, a `(MessageCodec, fields)` pair with the pymavlink constructor's
+positional arguments, packed without building the message object (same bytes:
+tests/sitl_mock/test_sitl_mavwire_codec.py). Attitude math here is the mock's own (explicit Euler
+3-2-1 from the Hamilton quaternion body FRD -> NED), independent of `companion`.
 """
 
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any, ClassVar
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl_mock.autopilot.status import StatusSnapshot, VehicleStatus
 from sitl_mock.mavwire import codec
 
-if TYPE_CHECKING:
-    from sitl_mock.autopilot import Autopilot
-
-Msg = Any  # a pymavlink MAVLink_message
+Msg = Any  # a pymavlink MAVLink_message, or a (MessageCodec, fields) pair
 
 # PX4 onboard-link stream rates [Hz] (mavlink_main.cpp, MAVLINK_MODE_ONBOARD) plus the extras
 # the mock needs (BATTERY_STATUS, MISSION_CURRENT, PING).
@@ -139,51 +137,126 @@ def type_mask_of(target: Any) -> int:
     return mask
 
 
-@dataclass(frozen=True)
-class Stream:
-    """One periodic message: id, builder(autopilot) -> message or None (skip this time)."""
+AUTOPILOT_CAPABILITIES = (
+    mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+    | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+    | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY
+)
+FLIGHT_SW_VERSION = (1 << 24) | (16 << 16) | (0 << 8) | 255  # v1.16.0 release
 
-    msg_id: int
-    build: Callable[[Autopilot], Msg | None]
+
+class MissionCurrentV2(mavlink.MAVLink_mission_current_message):  # type: ignore[misc]
+    """MISSION_CURRENT with the extensions PX4 v1.16 sends (pymavlink 2.4 lacks them):
+    ``mission_id`` is the stored mission's opaque id (0 without a mission), so a ground station
+    or companion sees a new upload; fence and rally ids stay 0 (trimmed on the wire)."""
+
+    fieldnames: ClassVar[list[str]] = [*mavlink.MAVLink_mission_current_message.fieldnames,
+                                       "mission_id", "fence_id", "rally_points_id"]
+    ordered_fieldnames: ClassVar[list[str]] = fieldnames
+    fieldtypes: ClassVar[list[str]] = [*mavlink.MAVLink_mission_current_message.fieldtypes,
+                                       "uint32_t", "uint32_t", "uint32_t"]
+    array_lengths: ClassVar[list[int]] = [0] * 7
+    unpacker = struct.Struct("<HHBBIII")
+
+    def __init__(self, seq: int, total: int = 0, mission_state: int = 0, mission_mode: int = 0,
+                 mission_id: int = 0, fence_id: int = 0, rally_points_id: int = 0) -> None:
+        super().__init__(seq, total, mission_state, mission_mode)
+        self.mission_id = mission_id
+        self.fence_id = fence_id
+        self.rally_points_id = rally_points_id
 
 
-def build_heartbeat(ap: Autopilot) -> Msg:
-    return ap.heartbeat_message()
+def home_position_message(home: tuple[float, float, float], time_usec: int) -> Msg:
+    """HOME_POSITION of `home` (lat deg, lon deg, alt AMSL m), local position and q zero."""
+    lat, lon, alt = home
+    return mavlink.MAVLink_home_position_message(
+        round(lat * 1e7),
+        round(lon * 1e7),
+        round(alt * 1000.0),
+        0.0,
+        0.0,
+        0.0,
+        [1.0, 0.0, 0.0, 0.0],
+        0.0,
+        0.0,
+        0.0,
+        time_usec,
+    )
 
 
-def build_attitude(ap: Autopilot) -> Msg:
-    q_wxyz, omega_frd = ap.vehicle.attitude  # = state.q_wxyz, the measured body rates
+def autopilot_version_message() -> Msg:
+    """AUTOPILOT_VERSION: PX4 v1.16.0's capabilities and version, uid "SITLMOCK"."""
+    return mavlink.MAVLink_autopilot_version_message(
+        AUTOPILOT_CAPABILITIES,
+        FLIGHT_SW_VERSION,
+        FLIGHT_SW_VERSION,
+        0,
+        0,
+        [0] * 8,
+        [0] * 8,
+        [0] * 8,
+        0,
+        0,
+        0x5349544C4D4F434B,  # "SITLMOCK"
+    )
+
+
+def ping_message(time_usec: int, seq: int) -> Msg:
+    """PING request number `seq` (the autopilot counts its pings)."""
+    return (_C_PING, (time_usec, seq, 0, 0))
+
+
+def build_heartbeat(st: StatusSnapshot) -> Msg:
+    return mavlink.MAVLink_heartbeat_message(
+        st.mav_type,
+        mavlink.MAV_AUTOPILOT_PX4,
+        st.base_mode,
+        st.custom_mode,
+        st.system_status,
+        3,
+    )
+
+
+def build_attitude(st: VehicleStatus) -> Msg:
+    q_wxyz, omega_frd = st.attitude  # = state.q_wxyz, the measured body rates
     roll, pitch, yaw = euler_321(q_wxyz)
     p, q, r = omega_frd
-    return (_C_ATTITUDE, (ap.time_boot_ms, roll, pitch, yaw, p, q, r))
+    return (_C_ATTITUDE, (st.time_boot_ms, roll, pitch, yaw, p, q, r))
 
 
-def build_attitude_quaternion(ap: Autopilot) -> Msg:
-    (w, x, y, z), (p, q, r) = ap.vehicle.attitude  # = state.q_wxyz, the measured body rates
-    return (_C_ATTITUDE_QUATERNION, (ap.time_boot_ms, w, x, y, z, p, q, r, (0.0, 0.0, 0.0, 0.0)))
+def build_attitude_quaternion(st: VehicleStatus) -> Msg:
+    (w, x, y, z), (p, q, r) = st.attitude  # = state.q_wxyz, the measured body rates
+    return (_C_ATTITUDE_QUATERNION, (st.time_boot_ms, w, x, y, z, p, q, r, (0.0, 0.0, 0.0, 0.0)))
 
 
-def build_local_position_ned(ap: Autopilot) -> Msg | None:
-    s = ap.state
-    if not ap.local_position_valid:
+def build_local_position_ned(st: VehicleStatus) -> Msg | None:
+    s = st.state
+    if not st.local_position_valid:
         return None
     x, y, z = s.pos_ned
     vx, vy, vz = s.vel_ned
-    return (_C_LOCAL_POSITION_NED, (ap.time_boot_ms, x, y, z, vx, vy, vz))
+    return (_C_LOCAL_POSITION_NED, (st.time_boot_ms, x, y, z, vx, vy, vz))
 
 
-def build_odometry(ap: Autopilot) -> Msg | None:
-    s = ap.state
-    if not ap.local_position_valid:
+def build_odometry(st: VehicleStatus) -> Msg | None:
+    s = st.state
+    if not st.local_position_valid:
         return None
     x, y, z = s.pos_ned
     vb = rotate_ned_to_body(s.q_wxyz, s.vel_ned)
-    p, q, r = ap.vehicle.attitude[1]  # the measured body rates, as ATTITUDE
+    p, q, r = st.attitude[1]  # the measured body rates, as ATTITUDE
     nan21 = _NAN21
     return (
         _C_ODOMETRY,
         (
-            ap.time_usec,
+            st.time_usec,
             mavlink.MAV_FRAME_LOCAL_NED,
             mavlink.MAV_FRAME_BODY_FRD,
             x,
@@ -205,8 +278,8 @@ def build_odometry(ap: Autopilot) -> Msg | None:
     )
 
 
-def build_global_position_int(ap: Autopilot) -> Msg:
-    s = ap.state
+def build_global_position_int(st: VehicleStatus) -> Msg:
+    s = st.state
     yaw = s.yaw  # the yaw of euler_321 (same expression), without roll and pitch
     hdg = round(math.degrees(yaw) % 360.0 * 100.0) % 36000
     vx, vy, vz = s.vel_ned
@@ -214,11 +287,11 @@ def build_global_position_int(ap: Autopilot) -> Msg:
     return (
         _C_GLOBAL_POSITION_INT,
         (
-            ap.time_boot_ms,
+            st.time_boot_ms,
             round(lat * 1e7),
             round(lon * 1e7),
             round(alt * 1000.0),
-            round((alt - ap.home[2]) * 1000.0),
+            round((alt - st.home[2]) * 1000.0),
             _clamp_i16(vx * 100.0),
             _clamp_i16(vy * 100.0),
             _clamp_i16(vz * 100.0),
@@ -235,8 +308,8 @@ def _clamp_i16(v: float) -> int:
     return -32768 if r < -32768 else 32767 if r > 32767 else r
 
 
-def build_attitude_target(ap: Autopilot) -> Msg | None:
-    last = ap.vehicle.last_attitude_target
+def build_attitude_target(st: VehicleStatus) -> Msg | None:
+    last = st.last_attitude_target
     if last is None:
         return None
     q, rates, thrust = last
@@ -249,18 +322,18 @@ def build_attitude_target(ap: Autopilot) -> Msg | None:
         mask |= 7
     return (
         _C_ATTITUDE_TARGET,
-        (ap.time_boot_ms, mask, list(q), rates[0], rates[1], rates[2], float(thrust)),
+        (st.time_boot_ms, mask, list(q), rates[0], rates[1], rates[2], float(thrust)),
     )
 
 
-def build_position_target_local_ned(ap: Autopilot) -> Msg | None:
-    t = ap.vehicle.last_position_target
+def build_position_target_local_ned(st: VehicleStatus) -> Msg | None:
+    t = st.last_position_target
     if t is None:
         return None
     return (
         _C_POSITION_TARGET_LOCAL_NED,
         (
-            ap.time_boot_ms,
+            st.time_boot_ms,
             mavlink.MAV_FRAME_LOCAL_NED,
             type_mask_of(t),
             *(_f(c) for c in t.pos_ned),
@@ -272,15 +345,15 @@ def build_position_target_local_ned(ap: Autopilot) -> Msg | None:
     )
 
 
-def build_sys_status(ap: Autopilot) -> Msg:
+def build_sys_status(st: StatusSnapshot) -> Msg:
     health = SENSORS_HEALTH_READY
-    if not ap.estimator_ready:
+    if not st.vehicle.estimator_ready:
         health &= ~(BIT_GPS | BIT_PREARM | BIT_XY_POS)
-    elif not ap.prearm_ok():
+    elif not st.prearm_ok:
         health &= ~BIT_PREARM
-    if not ap.local_position_valid:
+    if not st.vehicle.local_position_valid:
         health &= ~(BIT_GPS | BIT_XY_POS)
-    rem = ap.battery_remaining
+    rem = st.battery_remaining
     return (
         _C_SYS_STATUS,
         (
@@ -288,11 +361,11 @@ def build_sys_status(ap: Autopilot) -> Msg:
             SENSORS_ENABLED,
             health,
             250,
-            ap.battery_voltage_mv,
+            st.battery_voltage_mv,
             -1,
             round(rem * 100.0),
             0,
-            min(ap.errors_comm, UINT16_MAX),
+            min(st.errors_comm, UINT16_MAX),
             0,
             0,
             0,
@@ -301,23 +374,23 @@ def build_sys_status(ap: Autopilot) -> Msg:
     )
 
 
-def build_extended_sys_state(ap: Autopilot) -> Msg:
-    return (_C_EXTENDED_SYS_STATE, (mavlink.MAV_VTOL_STATE_UNDEFINED, ap.landed_state))
+def build_extended_sys_state(st: StatusSnapshot) -> Msg:
+    return (_C_EXTENDED_SYS_STATE, (mavlink.MAV_VTOL_STATE_UNDEFINED, st.landed_state))
 
 
-def build_home_position(ap: Autopilot) -> Msg | None:
-    if not ap.home_set:
+def build_home_position(st: VehicleStatus) -> Msg | None:
+    if not st.estimator_ready:  # home is set once the estimator is ready
         return None
-    return ap.home_position_message()
+    return home_position_message(st.home, st.time_usec)
 
 
-def build_timesync(ap: Autopilot) -> Msg:
-    return (_C_TIMESYNC, (0, ap.time_ns))
+def build_timesync(st: VehicleStatus) -> Msg:
+    return (_C_TIMESYNC, (0, st.time_ns))
 
 
-def build_battery_status(ap: Autopilot) -> Msg:
-    rem = ap.battery_remaining
-    voltages = [ap.battery_voltage_mv] + [UINT16_MAX] * 9
+def build_battery_status(st: StatusSnapshot) -> Msg:
+    rem = st.battery_remaining
+    voltages = [st.battery_voltage_mv] + [UINT16_MAX] * 9
     charge = mavlink.MAV_BATTERY_CHARGE_STATE_OK
     if rem < 0.07:
         charge = mavlink.MAV_BATTERY_CHARGE_STATE_CRITICAL
@@ -341,17 +414,14 @@ def build_battery_status(ap: Autopilot) -> Msg:
     )
 
 
-def build_mission_current(ap: Autopilot) -> Msg:
-    return ap.mission_current_message()
+def build_mission_current(st: StatusSnapshot) -> Msg:
+    return MissionCurrentV2(
+        st.mission_seq, st.mission_total, st.mission_state, st.mission_mode, st.mission_id
+    )
 
 
-def build_ping(ap: Autopilot) -> Msg:
-    ap.ping_seq = (ap.ping_seq + 1) & 0xFFFFFFFF
-    return (_C_PING, (ap.time_usec, ap.ping_seq, 0, 0))
-
-
-def build_vfr_hud(ap: Autopilot) -> Msg:
-    s = ap.state
+def build_vfr_hud(st: VehicleStatus) -> Msg:
+    s = st.state
     vn, ve, vd = s.vel_ned
     _, _, yaw = euler_321(s.q_wxyz)
     speed = math.hypot(vn, ve)
@@ -368,15 +438,15 @@ def build_vfr_hud(ap: Autopilot) -> Msg:
     )
 
 
-def build_gps_raw_int(ap: Autopilot) -> Msg:
-    s = ap.state
+def build_gps_raw_int(st: VehicleStatus) -> Msg:
+    s = st.state
     vn, ve, _ = s.vel_ned
-    fix = 3 if ap.local_position_valid else 0
+    fix = 3 if st.local_position_valid else 0
     cog = round(math.degrees(math.atan2(ve, vn)) % 360.0 * 100.0) % 36000
     return (
         _C_GPS_RAW_INT,
         (
-            ap.time_usec,
+            st.time_usec,
             fix,
             round(s.lat_deg * 1e7),
             round(s.lon_deg * 1e7),
@@ -390,8 +460,9 @@ def build_gps_raw_int(ap: Autopilot) -> Msg:
     )
 
 
-BUILDERS: dict[int, Callable[[Autopilot], Msg | None]] = {
-    mavlink.MAVLINK_MSG_ID_HEARTBEAT: build_heartbeat,
+# Builders of the high-rate streams read only the vehicle's side of the status; PING is
+# streamed too, but its sequence number is the autopilot's (`ping_message`).
+VEHICLE_BUILDERS: dict[int, Callable[[VehicleStatus], Msg | None]] = {
     mavlink.MAVLINK_MSG_ID_ATTITUDE: build_attitude,
     mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: build_attitude_quaternion,
     mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: build_global_position_int,
@@ -399,19 +470,23 @@ BUILDERS: dict[int, Callable[[Autopilot], Msg | None]] = {
     mavlink.MAVLINK_MSG_ID_ODOMETRY: build_odometry,
     mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET: build_attitude_target,
     mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: build_position_target_local_ned,
-    mavlink.MAVLINK_MSG_ID_SYS_STATUS: build_sys_status,
-    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: build_extended_sys_state,
     mavlink.MAVLINK_MSG_ID_HOME_POSITION: build_home_position,
     mavlink.MAVLINK_MSG_ID_TIMESYNC: build_timesync,
-    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: build_battery_status,
-    mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: build_mission_current,
-    mavlink.MAVLINK_MSG_ID_PING: build_ping,
     mavlink.MAVLINK_MSG_ID_VFR_HUD: build_vfr_hud,
     mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: build_gps_raw_int,
 }
+# Builders of the low-rate status messages read the whole status snapshot.
+STATUS_BUILDERS: dict[int, Callable[[StatusSnapshot], Msg | None]] = {
+    mavlink.MAVLINK_MSG_ID_HEARTBEAT: build_heartbeat,
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: build_sys_status,
+    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: build_extended_sys_state,
+    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: build_battery_status,
+    mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: build_mission_current,
+}
 
-# Messages that REQUEST_MESSAGE (512) can produce once, beyond the periodic builders.
-STREAMABLE = frozenset(BUILDERS)
+MSG_ID_PING = mavlink.MAVLINK_MSG_ID_PING
+# Messages that SET_MESSAGE_INTERVAL can stream and REQUEST_MESSAGE (512) can produce once.
+STREAMABLE = frozenset(VEHICLE_BUILDERS) | frozenset(STATUS_BUILDERS) | {MSG_ID_PING}
 
 
 class StreamScheduler:
