@@ -39,6 +39,11 @@ def _modules(top: str) -> Iterator[tuple[str, Path]]:
         yield ".".join(parts), path
 
 
+def _is_module(name: str) -> bool:
+    base = ROOT.joinpath(*name.split("."))
+    return base.with_suffix(".py").exists() or (base / "__init__.py").exists()
+
+
 def _imports(path: Path, module: str) -> set[str]:
     """Absolute names of the modules `path` imports (relative imports resolved)."""
     tree = ast.parse(path.read_text(), filename=str(path))
@@ -52,9 +57,12 @@ def _imports(path: Path, module: str) -> set[str]:
             if node.level:
                 pkg = package.split(".")
                 base = ".".join(pkg[: len(pkg) - node.level + 1] + ([base] if base else []))
-            found.add(base)
-            # `from companion.x import y` may name a submodule y
-            found.update(f"{base}.{a.name}" for a in node.names)
+            subs = [f"{base}.{a.name}" for a in node.names]
+            # `from pkg import mod` of submodules only depends on them (pkg's __init__ is
+            # already running when a module inside pkg does it); any other name is pkg's own
+            if not all(_is_module(s) for s in subs):
+                found.add(base)
+            found.update(subs)
     return found
 
 
