@@ -18,7 +18,7 @@ import numpy as np
 
 from companion.mission import load_mission, mission_to_flight_plan, split_flight_plan
 from companion.mission.px4_params import Px4PlanningParams
-from companion.planning.schedule import _land_profile, _leg_speed_caps
+from companion.planning.chunks import land_profile, leg_speed_caps
 from sitl_mock.params import PARAMS
 
 MAV_TYPE_GROUND_ROVER = 10
@@ -34,11 +34,11 @@ def floor_s(path: Path, px4: Px4PlanningParams, ro_max_speed: float) -> float:
     total = 0.0
     for ch in split_flight_plan(fp):
         pts = np.array(ch.points_ned_m, dtype=np.float64)
-        caps = _leg_speed_caps(ch, pts, fp.px4, rover)
+        caps = leg_speed_caps(ch, pts, fp.px4, rover)
         if rover:
             caps = np.minimum(caps, ro_max_speed)
         if ch.phase == "land":
-            pts, caps = _land_profile(pts, caps, fp.px4, float(fp.start_ned_m[2]))
+            pts, caps = land_profile(pts, caps, fp.px4, float(fp.start_ned_m[2]))
         total += float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1) / caps))
         total += ch.hold_after_s
     return total

@@ -1,10 +1,12 @@
 """asyncio layer of the companion: transports, fixed-rate streamer, .tlog, ``Vehicle`` façade."""
 
+from companion.mission import MissionError
+
 from .errors import (
     CommandError,
     ConnectTimeoutError,
     LinkLostError,
-    MissionError,
+    MissionTransferError,
     ModeChangeError,
     OffboardError,
     OffboardExitedError,
@@ -21,9 +23,9 @@ from .vehicle import FlightReport, MissionAPI, Vehicle, VehicleConfig, safe_exit
 
 __all__ = [
     "CommandError", "ConnectTimeoutError", "Endpoint", "FixedRateStreamer", "FlightReport",
-    "LinkLostError", "MissionAPI", "MissionError", "ModeChangeError", "OffboardError",
-    "OffboardExitedError", "ParamReadError", "SetpointSource", "SetpointSourceError", "StreamStats",
-    "TelemetryStaleError", "TlogWriter", "TrajectoryPositionSource", "Transport",
-    "TransportError", "Vehicle", "VehicleConfig", "VehicleError", "hold_setpoint",
-    "open_transport", "parse_url", "safe_exit",
+    "LinkLostError", "MissionAPI", "MissionError", "MissionTransferError", "ModeChangeError",
+    "OffboardError", "OffboardExitedError", "ParamReadError", "SetpointSource",
+    "SetpointSourceError", "StreamStats", "TelemetryStaleError", "TlogWriter",
+    "TrajectoryPositionSource", "Transport", "TransportError", "Vehicle", "VehicleConfig",
+    "VehicleError", "hold_setpoint", "open_transport", "parse_url", "safe_exit",
 ]

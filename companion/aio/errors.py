@@ -1,8 +1,12 @@
-"""Exceptions of the asyncio façade; each carries what a pilot needs to understand it."""
+"""Exceptions of the asyncio façade; each carries what a pilot needs to understand it.
+
+``MissionError`` here is ``companion.mission.MissionError`` (re-exported): the base of
+:class:`MissionTransferError`, so ``except MissionError`` also catches a failed transfer."""
 
 from __future__ import annotations
 
 from companion.mavlink import MissionResult, result_name
+from companion.mission import MissionError
 
 
 class VehicleError(Exception):
@@ -65,15 +69,24 @@ class SetpointSourceError(VehicleError):
     """The setpoint source produced an invalid setpoint; the vehicle was told to hold."""
 
 
-class MissionError(VehicleError):
-    """A mission transfer failed."""
+class MissionTransferError(VehicleError, MissionError):
+    """A mission upload / download / clear failed: both a :class:`VehicleError` and a
+    ``companion.mission.MissionError`` (the one mission error hierarchy). ``operation``
+    (``"upload"``, ``"download"``, ``"clear"``), ``result`` (:class:`MissionResult`) and
+    ``mav_result`` (the MAV_MISSION_RESULT of a refusal, None otherwise) carry the parts."""
 
     def __init__(self, operation: str, result: MissionResult, mav_result: int | None,
                  detail: str) -> None:
         self.operation = operation
         self.result = result
         self.mav_result = mav_result
-        super().__init__(f"mission {operation} failed: {result.value} ({detail})")
+        self.transfer_detail = detail
+        MissionError.__init__(self, "", f"mission {operation} failed: {result.value} ({detail})")
+
+    def __reduce__(self) -> tuple[type[MissionTransferError],  # type: ignore[override]
+                                  tuple[str, MissionResult, int | None, str]]:
+        return (MissionTransferError,
+                (self.operation, self.result, self.mav_result, self.transfer_detail))
 
 
 class ParamReadError(VehicleError):

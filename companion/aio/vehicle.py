@@ -53,7 +53,6 @@ from companion.mavlink import (
     LinkLost,
     LinkUp,
     LocalPosition,
-    MissionItem,
     MissionResult,
     MissionTransferDone,
     ModeChanged,
@@ -67,6 +66,7 @@ from companion.mavlink import (
     SystemStatus,
     TelemetrySnapshot,
     VehicleLink,
+    WireMissionItem,
     raw_frame,
 )
 from companion.mavlink.commands import (
@@ -83,7 +83,7 @@ from .errors import (
     CommandError,
     ConnectTimeoutError,
     LinkLostError,
-    MissionError,
+    MissionTransferError,
     ModeChangeError,
     OffboardError,
     OffboardExitedError,
@@ -187,11 +187,11 @@ async def _wait_event(ev: asyncio.Event, timeout_s: float) -> None:
             await ev.wait()
 
 
-def _as_item(obj: Any) -> MissionItem:
-    if isinstance(obj, MissionItem):
+def _as_item(obj: Any) -> WireMissionItem:
+    if isinstance(obj, WireMissionItem):
         return obj
-    fields = [f.name for f in dataclasses.fields(MissionItem)]
-    return MissionItem(**{f: getattr(obj, f) for f in fields if hasattr(obj, f)})
+    fields = [f.name for f in dataclasses.fields(WireMissionItem)]
+    return WireMissionItem(**{f: getattr(obj, f) for f in fields if hasattr(obj, f)})
 
 
 class MissionAPI:
@@ -219,16 +219,19 @@ class MissionAPI:
         finally:
             v._mission_waiter = None
         if done.result is not MissionResult.SUCCESS:
-            raise MissionError(done.operation, done.result, done.mav_result, done.detail)
+            raise MissionTransferError(done.operation, done.result, done.mav_result, done.detail)
         return done
 
     async def upload(self, items: Sequence[Any], mission_type: int = 0) -> None:
-        """Upload MISSION_ITEM_INT items (``MissionItem`` or objects with the same fields)."""
+        """Upload MISSION_ITEM_INT items (``WireMissionItem``, e.g.
+        ``companion.mission.mission_upload_items(mission)``, or objects with the same fields).
+        :class:`MissionTransferError` if the vehicle refuses or stops answering."""
         its = [_as_item(i) for i in items]
         await self._run(lambda now: self._v.link.mission.upload(its, now, mission_type))
 
-    async def download(self, mission_type: int = 0) -> list[MissionItem]:
-        """Download the vehicle's mission."""
+    async def download(self, mission_type: int = 0) -> list[WireMissionItem]:
+        """Download the vehicle's mission (``companion.mission.mission_from_wire`` makes it a
+        ``Mission``)."""
         done = await self._run(lambda now: self._v.link.mission.download(now, mission_type))
         return list(done.items)
 

@@ -25,9 +25,11 @@ from .link import LinkConfig, LinkEvent, VehicleLink
 from .mission_client import (
     MissionBusyError,
     MissionClient,
-    MissionItem,
     MissionResult,
     MissionTransferDone,
+    WireMissionItem,
+    item_from_msg,
+    item_to_msg,
 )
 from .offboard import (
     TRANSITIONS,
@@ -95,16 +97,17 @@ __all__ = [
     "CommandFinished", "CommandProgress", "ExtendedState", "FlightMode", "GlobalPosition",
     "HeartbeatTracker", "HomePosition", "LinkConfig", "LinkEvent", "LinkLost", "LinkUp",
     "LocalPosition", "MavResult", "MissionBusyError", "MissionClient", "MissionCurrent",
-    "MissionItem", "MissionResult", "MissionTransferDone", "ModeChanged", "OffboardMachine",
+    "MissionResult", "MissionTransferDone", "ModeChanged", "OffboardMachine",
     "OffboardNotPrimedError", "OffboardState", "OffboardStateChanged", "OffboardTrigger",
     "ParamBusyError", "ParamClient", "ParamReadDone", "ParamType",
     "PositionSetpoint", "Px4AutoSubMode", "Px4MainMode", "RatesSetpoint",
     "RoverVelocitySetpoint", "SetpointCommand", "SetpointError", "Signer", "SigningConfig",
     "SigningKeyError", "StatusText", "SystemStatus", "TelemetrySnapshot", "TelemetryState",
     "TimeSync", "TimesyncUpdate", "VehicleHeartbeat", "VehicleLink", "Verdict",
+    "WireMissionItem",
     "build_attitude_target", "build_position_target", "build_rates_target",
     "build_rover_velocity_target", "build_setpoint", "custom_mode_of", "decode_custom_mode",
     "decode_param_value", "encode_custom_mode", "encode_param_value",
-    "flight_mode_from_custom_mode", "load_signing_key",
+    "flight_mode_from_custom_mode", "item_from_msg", "item_to_msg", "load_signing_key",
     "parse_signing_key", "raw_frame", "result_name",
 ]

@@ -61,8 +61,10 @@ NACK_RESULTS: dict[int, MissionResult] = {
 
 
 @dataclass(frozen=True)
-class MissionItem:
-    """One MISSION_ITEM_INT: x/y are lat/lon in degE7 (or local x/y in m*1e4 by frame), z [m]."""
+class WireMissionItem:
+    """One MISSION_ITEM_INT as it travels: x/y are lat/lon in degE7 (or local x/y in m*1e4 by
+    frame), z [m]. The wire record only; the mission model (``companion.mission.MissionItem``)
+    and the conversions both ways are in ``companion.mission.convert``."""
 
     seq: int
     frame: int
@@ -86,7 +88,7 @@ class MissionTransferDone:
     t_s: float
     operation: str
     result: MissionResult
-    items: tuple[MissionItem, ...] = ()
+    items: tuple[WireMissionItem, ...] = ()
     mav_result: int | None = None
     detail: str = ""
 
@@ -95,7 +97,8 @@ class MissionBusyError(RuntimeError):
     """A mission transfer is already running."""
 
 
-def _item_msg(item: MissionItem, tsys: int, tcomp: int) -> MavMessage:
+def item_to_msg(item: WireMissionItem, tsys: int, tcomp: int) -> MavMessage:
+    """WireMissionItem -> MISSION_ITEM_INT message to ``tsys``/``tcomp``."""
     return mavlink2.MAVLink_mission_item_int_message(
         tsys, tcomp, item.seq, item.frame, item.command, item.current, item.autocontinue,
         item.param1, item.param2, item.param3, item.param4, item.x, item.y, item.z,
@@ -103,9 +106,9 @@ def _item_msg(item: MissionItem, tsys: int, tcomp: int) -> MavMessage:
     )
 
 
-def item_from_msg(msg: MavMessage) -> MissionItem:
-    """MISSION_ITEM_INT message -> MissionItem."""
-    return MissionItem(
+def item_from_msg(msg: MavMessage) -> WireMissionItem:
+    """MISSION_ITEM_INT message -> WireMissionItem."""
+    return WireMissionItem(
         seq=int(msg.seq), frame=int(msg.frame), command=int(msg.command),
         current=int(msg.current), autocontinue=int(msg.autocontinue),
         param1=float(msg.param1), param2=float(msg.param2), param3=float(msg.param3),
@@ -114,7 +117,7 @@ def item_from_msg(msg: MavMessage) -> MissionItem:
     )
 
 
-def validate_items(items: Sequence[MissionItem], mission_type: int) -> MissionResult | None:
+def validate_items(items: Sequence[WireMissionItem], mission_type: int) -> MissionResult | None:
     """Local checks before an upload (None = fine)."""
     if not items:
         return MissionResult.NO_MISSION_AVAILABLE
@@ -146,7 +149,7 @@ class MissionClient:
         self._op: str | None = None
         self._step = ""
         self._type = MAV_MISSION_TYPE_MISSION
-        self._items: list[MissionItem] = []
+        self._items: list[WireMissionItem] = []
         self._count = 0
         self._next = 0
         self._last_req: int | None = None
@@ -169,7 +172,7 @@ class MissionClient:
         self._op, self._type, self._tries = op, mission_type, 0
         self._deadline = now + self.timeout_s
 
-    def upload(self, items: Sequence[MissionItem], now: float,
+    def upload(self, items: Sequence[WireMissionItem], now: float,
                mission_type: int = MAV_MISSION_TYPE_MISSION) -> list[MissionTransferDone]:
         """Start an upload (MISSION_COUNT). Local validation errors finish at once."""
         if self._op is not None:
@@ -265,7 +268,7 @@ class MissionClient:
             self._tries = 0
         self._step, self._last_req = "items", seq
         self._next = max(self._next, seq + 1)
-        self._send(_item_msg(self._items[seq], self.target_sysid, self.target_compid))
+        self._send(item_to_msg(self._items[seq], self.target_sysid, self.target_compid))
         self._deadline = now + self.timeout_s
         return []
 
@@ -331,7 +334,7 @@ class MissionClient:
         elif self._step == "items" and self._op == "upload" and self._last_req is not None:
             # The item or the final MISSION_ACK may have been lost: re-send the last requested
             # item (PX4 answers a duplicate last item with another MISSION_ACK).
-            self._send(_item_msg(self._items[self._last_req], self.target_sysid,
+            self._send(item_to_msg(self._items[self._last_req], self.target_sysid,
                                  self.target_compid))
         elif self._step == "clear":
             self._send(mavlink2.MAVLink_mission_clear_all_message(

@@ -1,6 +1,8 @@
-"""Mission files: QGroundControl ``.plan`` and ``QGC WPL 110`` loaders, PX4's geodetic <-> local
-NED projection, geofence tests, and the mission -> flight plan expansion. Pure: no I/O besides
-reading the file in :func:`load_mission`, no asyncio, no sockets.
+"""Missions: one model (:class:`Mission`, :class:`MissionItem`), every conversion file <-> model
+<-> wire in :mod:`companion.mission.convert` (QGroundControl ``.plan`` and ``QGC WPL 110`` files,
+the vehicle's MISSION_ITEM_INTs), one error hierarchy (:class:`MissionError`), PX4's geodetic
+<-> local NED projection, geofence tests, and the mission -> flight plan expansion. Pure: no I/O
+besides reading the file in :func:`load_mission`, no asyncio, no sockets.
 
 Typical use::
 
@@ -11,6 +13,17 @@ Typical use::
         traj = plan_trajectory(chunk.points_ned_m, ...)          # companion.trajectory.plan
 """
 
+from companion.mission.checks import MAX_RANGE_M
+from companion.mission.convert import (
+    UploadItem,
+    geofence_from_wire,
+    load_mission,
+    loads_mission,
+    mission_from_wire,
+    mission_to_wpl,
+    mission_upload_items,
+)
+from companion.mission.errors import MissionError
 from companion.mission.flightplan import (
     FinalAction,
     FlightChunk,
@@ -23,22 +36,15 @@ from companion.mission.flightplan import (
 )
 from companion.mission.geodesy import EARTH_RADIUS_M, GeoPoint, geodetic_to_ned, ned_to_geodetic
 from companion.mission.geofence import FenceCircle, FencePolygon, FenceViolation, Geofence
-from companion.mission.loaders import (
-    MAX_RANGE_M,
-    load_mission,
-    loads_mission,
-    parse_plan,
-    parse_wpl,
-)
 from companion.mission.model import (
     Mission,
-    MissionError,
     MissionItem,
     RallyPoint,
     command_name,
     frame_name,
 )
-from companion.mission.upload import UploadItem, mission_upload_items
+from companion.mission.plan_file import parse_plan
+from companion.mission.wpl_file import parse_wpl
 
 __all__ = [
     "EARTH_RADIUS_M",
@@ -62,9 +68,12 @@ __all__ = [
     "expand_jumps",
     "frame_name",
     "geodetic_to_ned",
+    "geofence_from_wire",
     "load_mission",
     "loads_mission",
+    "mission_from_wire",
     "mission_to_flight_plan",
+    "mission_to_wpl",
     "mission_upload_items",
     "ned_to_geodetic",
     "parse_plan",

@@ -44,6 +44,7 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
+from companion.mission.errors import MissionError
 from companion.mission.geodesy import GeoPoint, geodetic_to_ned
 from companion.mission.geofence import Geofence
 from companion.mission.model import (
@@ -61,7 +62,6 @@ from companion.mission.model import (
     CMD_VTOL_TAKEOFF,
     CMD_WAYPOINT,
     Mission,
-    MissionError,
     MissionItem,
     command_name,
 )

@@ -1,4 +1,5 @@
-"""Mission data model: frozen values produced by the loaders, plus the error type."""
+"""Mission data model: the frozen values every conversion produces or consumes (files, the
+vehicle's MISSION_ITEM_INTs: see :mod:`companion.mission.convert`), command and frame numbers."""
 
 from __future__ import annotations
 
@@ -24,11 +25,13 @@ __all__ = [
     "CMD_VTOL_TAKEOFF",
     "CMD_WAYPOINT",
     "FRAMES_AMSL",
+    "FRAMES_GLOBAL",
     "FRAMES_RELATIVE",
     "FRAMES_TERRAIN",
     "FRAME_MISSION",
+    "OTHER_COMMANDS",
+    "POSITION_COMMANDS",
     "Mission",
-    "MissionError",
     "MissionItem",
     "RallyPoint",
     "command_name",
@@ -55,6 +58,27 @@ FRAMES_AMSL = frozenset({0, 5})
 FRAMES_RELATIVE = frozenset({3, 6})
 FRAMES_TERRAIN = frozenset({10, 11})
 FRAME_MISSION = 2
+FRAMES_GLOBAL = FRAMES_AMSL | FRAMES_RELATIVE | FRAMES_TERRAIN
+"""Frames whose x/y are latitude/longitude (MISSION_ITEM_INT: degE7)."""
+
+POSITION_COMMANDS = frozenset(
+    {
+        CMD_WAYPOINT,
+        CMD_LOITER_UNLIM,
+        CMD_LOITER_TIME,
+        CMD_LAND,
+        CMD_TAKEOFF,
+        CMD_VTOL_TAKEOFF,
+        CMD_VTOL_LAND,
+        CMD_DO_SET_ROI_LOCATION,
+    }
+)
+"""Supported commands that carry a position (need a global frame). A multicopter flies VTOL
+takeoff/land (84/85) as takeoff/land, as PX4 does on a vehicle without a fixed-wing mode."""
+OTHER_COMMANDS = frozenset(
+    {CMD_RETURN_TO_LAUNCH, CMD_DO_JUMP, CMD_DO_CHANGE_SPEED, CMD_DO_SET_ROI_NONE, CMD_NAV_DELAY}
+)
+"""Supported commands without a position (frame ignored)."""
 
 _FRAME_NAMES = {
     0: "GLOBAL (AMSL)",
@@ -109,33 +133,17 @@ def frame_name(frame: int) -> str:
     return _FRAME_NAMES.get(frame, "unknown")
 
 
-class MissionError(ValueError):
-    """A mission file cannot be loaded or flown.
-
-    ``str(err)`` names the file and, when it applies, the item: ``"square.plan: item 4: frame 10
-    (terrain) needs terrain data"``. ``source``, ``item`` and ``detail`` carry the parts.
-    """
-
-    def __init__(self, source: str | Path, detail: str, item: int | None = None) -> None:
-        self.source = str(source)
-        self.item = item
-        self.detail = detail
-        where = f"{self.source}: item {item}: " if item is not None else f"{self.source}: "
-        super().__init__(where + detail)
-
-    def __reduce__(self) -> tuple[type[MissionError], tuple[str, str, int | None]]:
-        # picklable with its parts (e.g. raised in a worker process of a parallel replay)
-        return (MissionError, (self.source, self.detail, self.item))
-
-
 @dataclass(frozen=True)
 class MissionItem:
-    """One MAVLink mission item as written in the file.
+    """One MAVLink mission item of a :class:`Mission`, as written in the file or downloaded (the
+    one mission-item model; ``companion.mavlink.WireMissionItem`` is the raw MISSION_ITEM_INT).
 
     ``index`` is the item number as in the file: for ``.plan`` the QGroundControl sequence number
     (1-based; home is 0; items of a complex item are numbered consecutively), for ``QGC WPL`` the
-    INDEX column. ``params`` are param1..param4, x (latitude deg), y (longitude deg), z (altitude
-    m); ``null``/missing values are NaN. ``where`` locates the item in the file (JSON path or line).
+    INDEX column, for a downloaded mission ``seq + 1`` (as QGroundControl numbers it).
+    ``params`` are param1..param4, x (latitude deg), y (longitude deg), z (altitude m);
+    ``null``/missing values are NaN. ``where`` locates the item in the file (JSON path or line)
+    or on the wire (``seq N``).
     """
 
     index: int
@@ -197,7 +205,8 @@ class Mission:
     geofence: Geofence = field(default_factory=Geofence)
     rally: tuple[RallyPoint, ...] = ()
     file_format: str = "plan"
-    """``"plan"`` (QGroundControl JSON) or ``"wpl"`` (QGC WPL 110 text)."""
+    """``"plan"`` (QGroundControl JSON), ``"wpl"`` (QGC WPL 110 text) or ``"wire"`` (downloaded
+    MISSION_ITEM_INTs)."""
     vehicle_type: int | None = None
     """MAV_TYPE from the ``.plan`` (2 quadrotor, 10 ground rover), None if not given."""
     hover_speed_m_s: float | None = None

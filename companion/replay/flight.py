@@ -41,8 +41,7 @@ from companion.mavlink.commands import (
     CommandFinished,
 )
 from companion.mavlink.link import LinkConfig, VehicleLink
-from companion.mavlink.mission_client import MissionItem as WireItem
-from companion.mavlink.mission_client import MissionTransferDone
+from companion.mavlink.mission_client import MissionTransferDone, item_to_msg
 from companion.mavlink.px4_mode import FlightMode
 from companion.mavlink.setpoints import (
     AttitudeSetpoint,
@@ -50,8 +49,7 @@ from companion.mavlink.setpoints import (
     RatesSetpoint,
     SetpointCommand,
 )
-from companion.mission import Mission
-from companion.mission.upload import mission_upload_items
+from companion.mission import Mission, mission_upload_items
 from companion.planning.schedule import Schedule
 from companion.replay.config import (
     EXPECTED_OVERHEAD_S,
@@ -249,23 +247,8 @@ def mission_frames(mission: Mission, config: LinkConfig | None = None) -> list[b
     ts, tc = cfg.target_sysid, cfg.target_compid
     items = mission_upload_items(mission)
     frames = [codec.encode(mavlink2.MAVLink_mission_count_message(ts, tc, len(items), 0))]
-    for u in items:
-        frames.append(codec.encode(mavlink2.MAVLink_mission_item_int_message(
-            ts, tc, u.seq, u.frame, u.command, u.current, u.autocontinue, u.param1, u.param2,
-            u.param3, u.param4, u.x, u.y, u.z, 0)))
+    frames += [codec.encode(item_to_msg(u, ts, tc)) for u in items]
     return frames
-
-
-def _wire_items(mission: Mission) -> list[WireItem]:
-    """The mission as MISSION_ITEM_INT fields for the mock's AUTO.MISSION."""
-    return [
-        WireItem(
-            seq=u.seq, frame=u.frame, command=u.command, current=u.current,
-            autocontinue=u.autocontinue, param1=u.param1, param2=u.param2, param3=u.param3,
-            param4=u.param4, x=u.x, y=u.y, z=u.z,
-        )
-        for u in mission_upload_items(mission)
-    ]
 
 
 def fly_px4_mission(
@@ -312,7 +295,7 @@ def fly_px4_mission(
         st = link.telemetry.sys_status
         if state == "wait" and st is not None and st.armable:
             state = "upload"
-            link.mission.upload(_wire_items(mission), t)
+            link.mission.upload(mission_upload_items(mission), t)
             lk.to_vehicle(link.frames_to_send())
         if any("Mission finished" in s for _, _, s in log.statustext):
             finished = True

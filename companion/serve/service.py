@@ -40,17 +40,14 @@ from companion.flatness import MultirotorParams
 from companion.flight.policy import final_mode
 from companion.flight.report import SetpointLimits
 from companion.flight.tracking import SetpointMode, TrackingSource
-from companion.mavlink.mission_client import MissionItem
+from companion.mavlink.mission_client import WireMissionItem
 from companion.mavlink.px4_mode import FlightMode
 from companion.mavlink.setpoints import PositionSetpoint, SetpointCommand
 from companion.mavlink.telemetry import HomePosition, LocalPosition, MissionCurrent
 from companion.mission import (
-    FenceCircle,
-    FencePolygon,
-    Geofence,
     GeoPoint,
-    geodetic_to_ned,
-    loads_mission,
+    geofence_from_wire,
+    mission_from_wire,
     mission_to_flight_plan,
 )
 from companion.mission.px4_params import Px4PlanningParams
@@ -69,8 +66,6 @@ FloatArray = NDArray[np.float64]
 NO_MISSION_TOTAL = 65535
 #: EXTENDED_SYS_STATE landed states counted as flying: in air, takeoff, landing.
 FLYING_STATES = (2, 3, 4)
-#: Position-carrying mission frames PX4 returns as *_INT, mapped to the QGC WPL frames.
-_WPL_FRAME = {5: 0, 6: 3, 11: 10}
 MAV_SEVERITY_WARNING = 4
 MAV_SEVERITY_INFO = 6
 
@@ -263,77 +258,20 @@ class MissionProgram:
         return float(ts[idx[0]]) if len(idx) else self.t_end
 
 
-def mission_from_items(items: Sequence[MissionItem], home: HomePosition) -> Any:
-    """The downloaded items as a :class:`companion.mission.Mission` with ``home`` as its home
-    (through the QGC WPL parser, so every check of a mission file applies)."""
-    lines = ["QGC WPL 110",
-             f"0\t1\t0\t16\t0\t0\t0\t0\t{home.lat_deg:.8f}\t{home.lon_deg:.8f}\t"
-             f"{home.alt_amsl_m:.3f}\t1"]
-    for i, it in enumerate(items, start=1):
-        frame = _WPL_FRAME.get(it.frame, it.frame)
-        glob = frame in (0, 3, 10)
-        x = it.x * 1e-7 if glob else it.x * 1e-4
-        y = it.y * 1e-7 if glob else it.y * 1e-4
-        params = "\t".join(repr(float(p)) for p in (it.param1, it.param2, it.param3, it.param4))
-        lines.append(f"{i}\t0\t{frame}\t{it.command}\t{params}\t{x:.8f}\t{y:.8f}\t"
-                     f"{float(it.z):.3f}\t{int(it.autocontinue)}")
-    home_pt = GeoPoint(home.lat_deg, home.lon_deg, home.alt_amsl_m)
-    return loads_mission("\n".join(lines) + "\n", source="vehicle mission", home=home_pt)
-
-
-#: MAV_CMD_NAV_FENCE_*: polygon vertex (inclusion, exclusion), circle (inclusion, exclusion).
-_FENCE_VERTEX = {5001: True, 5002: False}
-_FENCE_CIRCLE = {5003: True, 5004: False}
-
-
-def geofence_from_items(items: Sequence[MissionItem], home: HomePosition) -> Geofence:
-    """The vehicle's fence items (mission_type FENCE, MAV_CMD_NAV_FENCE_*: a polygon is
-    ``param1`` consecutive vertex items, a circle's radius is ``param1`` [m]) as a
-    :class:`Geofence` about ``home``. ValueError on a malformed fence (safety: no guessing)."""
-    home_pt = GeoPoint(home.lat_deg, home.lon_deg, home.alt_amsl_m)
-
-    def ne(it: MissionItem) -> tuple[tuple[float, float], tuple[float, float]]:
-        lat, lon = it.x * 1e-7, it.y * 1e-7
-        p = geodetic_to_ned(lat, lon, home.alt_amsl_m, home_pt)
-        return (lat, lon), (float(p[0]), float(p[1]))
-
-    polygons: list[FencePolygon] = []
-    circles: list[FenceCircle] = []
-    k = 0
-    while k < len(items):
-        it = items[k]
-        if it.command in _FENCE_VERTEX:
-            n = int(it.param1)
-            group = items[k:k + n]
-            if n < 3 or len(group) < n or any(g.command != it.command for g in group):
-                raise ValueError(f"fence item {it.seq}: a polygon of {n} vertices is incomplete")
-            pts = [ne(g) for g in group]
-            polygons.append(FencePolygon(_FENCE_VERTEX[it.command], tuple(d for d, _ in pts),
-                                         tuple(m for _, m in pts)))
-            k += n
-            continue
-        if it.command in _FENCE_CIRCLE:
-            if not (math.isfinite(it.param1) and it.param1 > 0.0):
-                raise ValueError(f"fence item {it.seq}: circle radius {it.param1} m")
-            (lat, lon), c = ne(it)
-            circles.append(FenceCircle(_FENCE_CIRCLE[it.command], lat, lon, c, float(it.param1)))
-        k += 1  # a return point (5000) or anything else: no zone
-    return Geofence(tuple(polygons), tuple(circles))
-
-
-def plan_program(items: Sequence[MissionItem], home: HomePosition, key: tuple[int, int],
+def plan_program(items: Sequence[WireMissionItem], home: HomePosition, key: tuple[int, int],
                  config: ServiceConfig, vehicle: Literal["quad", "rover"] = "quad",
-                 fence_items: Sequence[MissionItem] = ()) -> MissionProgram:
+                 fence_items: Sequence[WireMissionItem] = ()) -> MissionProgram:
     """Plan downloaded mission items (CPU-bound; ValueError/MissionError with the reason). A
     plan whose trajectory breaches the vehicle's geofence (``fence_items``) is refused
     (MissionError naming the leg's mission items)."""
     if not items:
         raise ValueError("the vehicle has no mission")
-    mission = mission_from_items(items, home)
+    home_pt = GeoPoint(home.lat_deg, home.lon_deg, home.alt_amsl_m)
+    mission = mission_from_wire(items, home_pt)
     fp = mission_to_flight_plan(mission, vehicle=vehicle, px4=config.px4)
     schedule = build_schedule(fp, None if vehicle == "rover" else config.params, config.limits)
     if fence_items:
-        fence = geofence_from_items(fence_items, home)
+        fence = geofence_from_wire(fence_items, home_pt)
         require_plan_inside(dataclasses.replace(fp, geofence=fence), schedule)
     return MissionProgram(schedule, home.pos_ned, key)
 

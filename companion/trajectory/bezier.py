@@ -19,7 +19,14 @@ from numpy.typing import ArrayLike, NDArray
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["Bezier", "PiecewiseBezier", "ScalarEvaluator", "hermite"]
+__all__ = [
+    "Bezier",
+    "PiecewiseBezier",
+    "ScalarEvaluator",
+    "hermite",
+    "horner_fn",
+    "monomial_matrix",
+]
 
 
 def _as_points(control_points: ArrayLike) -> FloatArray:
@@ -54,7 +61,7 @@ def _diff_points(points: FloatArray, order: int, duration: float) -> FloatArray:
     return pts
 
 
-def _monomial_matrix(n: int) -> FloatArray:
+def monomial_matrix(n: int) -> FloatArray:
     """Matrix ``A`` with ``a = A @ P``: monomial coefficients in ``s = t/h`` (ascending)."""
     A = np.zeros((n + 1, n + 1))
     for k in range(n + 1):
@@ -173,7 +180,7 @@ class Bezier:
         ``t`` is local time in seconds (0 at the segment start).
         """
         n = self.degree
-        a = _monomial_matrix(n) @ self._points
+        a = monomial_matrix(n) @ self._points
         scale = self._duration ** -np.arange(n + 1, dtype=np.float64)
         return np.asarray(a * scale[:, None], dtype=np.float64)
 
@@ -374,7 +381,7 @@ class PiecewiseBezier:
         c = self._coeff_cache.get(order)
         if c is None:
             n = self.degree
-            a = np.einsum("kj,mjd->mkd", _monomial_matrix(n), self._cp)
+            a = np.einsum("kj,mjd->mkd", monomial_matrix(n), self._cp)
             k = np.arange(order, n + 1)
             fall = np.array([factorial(int(i)) / factorial(int(i) - order) for i in k])
             scale = self._durations[:, None] ** (-float(order))
@@ -480,7 +487,7 @@ _HornerFn = Callable[[float, tuple[float, ...]], list[float]]
 _HORNER_FNS: dict[tuple[int, ...], _HornerFn] = {}
 
 
-def _horner_fn(lengths: tuple[int, ...]) -> _HornerFn:
+def horner_fn(lengths: tuple[int, ...]) -> _HornerFn:
     """``f(s, c)`` -> Horner value of each row at ``s``, rows of ``lengths`` descending
     coefficients concatenated in ``c``. Straight-line code (generated once per layout; its source
     holds only indices, no data) runs ~2x faster than a Python loop; a loop for huge layouts."""
@@ -558,7 +565,7 @@ class ScalarEvaluator:
                     if i == 0:
                         lengths.append(len(row))
             self._coef.append(tuple(flat))
-        self._horner = _horner_fn(tuple(lengths))
+        self._horner = horner_fn(tuple(lengths))
 
     def values(self, t: float) -> list[float]:
         """Flat list of (max_order+1) * dim floats at global time ``t`` [s]: order-major, i.e.

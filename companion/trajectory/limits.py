@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.trajectory.bezier import PiecewiseBezier, _monomial_matrix
+from companion.trajectory.bezier import PiecewiseBezier, monomial_matrix
+from companion.trajectory.rover_extrema import ROVER_MIN_SPEED_M_S, rover_extrema
 
 FloatArray = NDArray[np.float64]
 
@@ -25,8 +26,6 @@ __all__ = ["LimitReport", "Limits", "RoverLimits", "check"]
 
 #: Samples per segment used by :func:`check` before local refinement around the worst sample.
 SAMPLES_PER_SEGMENT = 48
-#: Below this speed (m/s) the rover yaw rate / lateral acceleration are not evaluated (singular).
-ROVER_MIN_SPEED_M_S = 1e-3
 
 
 def _positive(name: str, value: float | None, *, optional: bool) -> float | None:
@@ -166,7 +165,9 @@ def _limit_table(
     return out
 
 
-def _validate(traj: PiecewiseBezier, limits: Limits | RoverLimits, params: Any) -> None:
+def validate_limits(traj: PiecewiseBezier, limits: Limits | RoverLimits, params: Any) -> None:
+    """Check that `limits` apply to `traj` (RoverLimits: 2-D; tilt, thrust and body-rate
+    limits: 3-D with ``params``); ValueError (TypeError for a wrong limits type) if not."""
     if isinstance(limits, RoverLimits):
         if traj.dim != 2:
             raise ValueError(f"RoverLimits apply to 2-D trajectories, this one is {traj.dim}-D")
@@ -204,7 +205,7 @@ _TV_LAST: list[tuple[FloatArray, FloatArray, Any, FloatArray] | None] = [None]
 
 
 @dataclass(frozen=True)
-class _Samples:
+class Samples:
     """Flat-output derivatives sampled at some times (NED, SI; yaw in rad)."""
 
     vel: FloatArray
@@ -215,9 +216,9 @@ class _Samples:
     yaw_rate: FloatArray
     yaw_acc: FloatArray
 
-    def time_scaled(self, alpha: float) -> _Samples:
+    def time_scaled(self, alpha: float) -> Samples:
         """The samples of the same trajectory slowed down by ``alpha`` (t -> alpha t)."""
-        return _Samples(
+        return Samples(
             vel=self.vel / alpha,
             acc=self.acc / alpha**2,
             jerk=None if self.jerk is None else self.jerk / alpha**3,
@@ -228,7 +229,7 @@ class _Samples:
         )
 
 
-def _sample(traj: PiecewiseBezier, t: FloatArray, names: list[str]) -> _Samples:
+def _sample(traj: PiecewiseBezier, t: FloatArray, names: list[str]) -> Samples:
     vel = traj.evaluate(t, 1)
     acc = traj.evaluate(t, 2)
     need_jerk = "jerk" in names or "body_rate" in names
@@ -241,7 +242,7 @@ def _sample(traj: PiecewiseBezier, t: FloatArray, names: list[str]) -> _Samples:
         yaw = traj.yaw.evaluate(t, 0)[:, 0]
         yaw_rate = traj.yaw.evaluate(t, 1)[:, 0]
         yaw_acc = traj.yaw.evaluate(t, 2)[:, 0]
-    return _Samples(vel, acc, jerk, snap, yaw, yaw_rate, yaw_acc)
+    return Samples(vel, acc, jerk, snap, yaw, yaw_rate, yaw_acc)
 
 
 def _norm(v: FloatArray) -> FloatArray:
@@ -249,7 +250,7 @@ def _norm(v: FloatArray) -> FloatArray:
     return np.asarray(np.sqrt(np.einsum("ij,ij->i", v, v)), dtype=np.float64)
 
 
-def _metrics(smp: _Samples, names: list[str], params: Any) -> dict[str, FloatArray]:
+def _metrics(smp: Samples, names: list[str], params: Any) -> dict[str, FloatArray]:
     """Values of each named quantity at the sampled times."""
     out: dict[str, FloatArray] = {}
     vel, acc = smp.vel, smp.acc
@@ -278,9 +279,10 @@ def _metrics(smp: _Samples, names: list[str], params: Any) -> dict[str, FloatArr
     return out
 
 
-def _body_rate_norm(smp: _Samples, params: Any) -> FloatArray:
-    """|omega_frd| (rad/s) from the flatness module (imported lazily: flatness sits above
-    trajectory in the layering)."""
+def _body_rate_norm(smp: Samples, params: Any) -> FloatArray:
+    """|omega_frd| (rad/s) from the flatness module (imported lazily: importing
+    companion.flatness loads CasADi, which trajectory work without body-rate limits does not
+    need)."""
     from companion.flatness import multirotor_setpoint
 
     assert smp.jerk is not None and smp.snap is not None
@@ -330,7 +332,7 @@ def _grid_matrix(degree: int, per_segment: int, order: int) -> FloatArray:
         k = np.arange(order, degree + 1)
         fall = np.array([math.factorial(int(i)) / math.factorial(int(i) - order) for i in k])
         V = tau[:, None] ** (k - order)[None, :].astype(np.float64) * fall[None, :]
-        out = V @ _monomial_matrix(degree)[order:, :]
+        out = V @ monomial_matrix(degree)[order:, :]
     out.setflags(write=False)
     return out
 
@@ -356,7 +358,7 @@ def _grid_derivatives(
 
 def segment_samples(
     traj: PiecewiseBezier, limits: Limits | RoverLimits, per_segment: int = SAMPLES_PER_SEGMENT
-) -> _Samples:
+) -> Samples:
     """Samples (``per_segment`` per segment, ends included) for :func:`segment_worst`.
 
     Evaluated segment by segment on a fixed normalised-time grid (one matrix product), so a
@@ -378,7 +380,7 @@ def segment_samples(
         yaw, yaw_rate, yaw_acc = (
             y[:, 0] for y in _grid_derivatives(ytraj, per_segment, (0, 1, 2))
         )
-    return _Samples(
+    return Samples(
         ders[0],
         ders[1],
         ders[2] if need_jerk else None,
@@ -389,7 +391,7 @@ def segment_samples(
     )
 
 
-def _body_rate_bound(smp: _Samples, params: Any) -> FloatArray:
+def body_rate_bound(smp: Samples, params: Any) -> FloatArray:
     """Cheap upper bound of ``|omega_frd|`` (rad/s) per sample, without the attitude.
 
     With the thrust vector t (norm T, axis z_b = t / T) and its derivative t', the flatness
@@ -405,7 +407,7 @@ def _body_rate_bound(smp: _Samples, params: Any) -> FloatArray:
 
 
 def _rate_bound(tv: FloatArray, td: FloatArray, yaw_rate: FloatArray, params: Any) -> FloatArray:
-    """:func:`_body_rate_bound` from the thrust vector tv, its derivative td (N, 3) and the
+    """:func:`body_rate_bound` from the thrust vector tv, its derivative td (N, 3) and the
     yaw rate (N,)."""
     t2 = np.einsum("ij,ij->i", tv, tv)
     ok = t2 > 1e-12 * (float(params.mass) * float(params.g)) ** 2
@@ -434,7 +436,7 @@ class TimeScaledRatio:
 
     def __init__(
         self,
-        smp: _Samples,
+        smp: Samples,
         limits: Limits,
         params: Any,
         margin: float,
@@ -502,7 +504,7 @@ class TimeScaledRatio:
                 sub = smp.time_scaled(alpha)
                 assert sub.jerk is not None and sub.snap is not None
                 exact = _body_rate_norm(
-                    _Samples(
+                    Samples(
                         sub.vel[idx],
                         sub.acc[idx],
                         sub.jerk[idx],
@@ -534,15 +536,15 @@ def axis_acc_ratio(acc: FloatArray, limits: Limits) -> FloatArray:
     return axis_ratio(acc, limits.max_acc_axes_m_s2)
 
 
-def _screened_body_rate(smp: _Samples, params: Any, threshold: float) -> FloatArray:
+def _screened_body_rate(smp: Samples, params: Any, threshold: float) -> FloatArray:
     """``|omega_frd|`` where its cheap bound exceeds ``threshold``, else the bound (<= the
     threshold): the flatness map runs only on the samples that could matter."""
-    bound = _body_rate_bound(smp, params)
+    bound = body_rate_bound(smp, params)
     idx = np.flatnonzero(bound > threshold)
     if idx.shape[0] == 0:
         return bound
     assert smp.jerk is not None and smp.snap is not None
-    sub = _Samples(
+    sub = Samples(
         smp.vel[idx],
         smp.acc[idx],
         smp.jerk[idx],
@@ -557,7 +559,7 @@ def _screened_body_rate(smp: _Samples, params: Any, threshold: float) -> FloatAr
 
 
 def segment_worst(
-    smp: _Samples,
+    smp: Samples,
     num_segments: int,
     limits: Limits | RoverLimits,
     params: Any = None,
@@ -566,7 +568,7 @@ def segment_worst(
     """Per-segment worst sampled value (M,) of every active limit (used by the planner).
 
     ``screen`` (e.g. the planner's margin 0.995): the body rate is computed through the
-    flatness map only at samples whose cheap upper bound (:func:`_body_rate_bound`) exceeds
+    flatness map only at samples whose cheap upper bound (:func:`body_rate_bound`) exceeds
     ``screen * max_body_rate_rad_s``; elsewhere the bound stands in. A segment's value is then
     exact whenever it exceeds ``screen * limit`` and otherwise an upper bound that does not."""
     table = _limit_table(limits)
@@ -604,7 +606,7 @@ def check(
     evaluated below ``ROVER_MIN_SPEED_M_S`` (singular at rest); rover maxima also include
     :func:`rover_extrema` (critical points), which sees peaks narrower than the grid.
     """
-    _validate(traj, limits, params)
+    validate_limits(traj, limits, params)
     table = _limit_table(limits)
     names = [n for n, _, _ in table]
     t, seg = _sample_times(traj, SAMPLES_PER_SEGMENT)
@@ -649,172 +651,3 @@ def check(
             kind=kind,
         )
     return reports
-
-
-# --------------------------------------------------------------------------- rover extrema
-#: Evenly spaced normalised times added to the critical points (robustness against root error).
-_ROVER_GRID = np.linspace(0.0, 1.0, 17)
-
-
-#: Powers 0, 1, 2, ... as floats (derivatives and power matrices of the polynomials below).
-_POWERS = np.arange(64, dtype=np.float64)
-
-
-# Lean equivalents of numpy.polynomial's polyder / polymul / polysub / polyadd / polyroots
-# for 1-D float64 coefficient arrays (ascending): the same floating-point operations in the
-# same order, so the same bits, without the wrappers' argument handling (which dominated
-# the rover allocation's time: thousands of tiny polynomials per plan).
-def _trim(c: FloatArray) -> FloatArray:
-    """Trailing exact zeros dropped, at least one coefficient kept (``polyutils.trimseq``)."""
-    if c.shape[0] == 0 or c[-1] != 0:
-        return c
-    nz = np.flatnonzero(c)
-    return c[: int(nz[-1]) + 1] if nz.shape[0] else c[:1]
-
-
-def _pder(c: FloatArray) -> FloatArray:
-    """First derivative (``polyder``: coefficient j times j)."""
-    n = c.shape[0]
-    if n <= 1:
-        return np.asarray(c[:1] * 0, dtype=np.float64)
-    return np.asarray(c[1:] * _POWERS[1:n], dtype=np.float64)
-
-
-def _pmul(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Product (``polymul``)."""
-    return _trim(np.asarray(np.convolve(_trim(a), _trim(b)), dtype=np.float64))
-
-
-def _padd(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Sum (``polyadd``)."""
-    a, b = _trim(a), _trim(b)
-    if a.shape[0] > b.shape[0]:
-        r = a.copy()
-        r[: b.shape[0]] += b
-    else:
-        r = b.copy()
-        r[: a.shape[0]] += a
-    return _trim(r)
-
-
-def _psub(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Difference a - b (``polysub``: a + (-b) rounds exactly as a - b)."""
-    return _padd(a, -b)
-
-
-def _proots(c: FloatArray) -> NDArray[np.complex128] | FloatArray:
-    """Roots, sorted, of the polynomial ``c`` whose last coefficient is non-zero and which
-    has at least two (``polyroots``: eigenvalues of the companion matrix)."""
-    n = c.shape[0] - 1
-    if n == 1:
-        return np.array([-c[0] / c[1]])
-    mat = np.zeros((n, n), dtype=np.float64)
-    mat.reshape(-1)[n :: n + 1] = 1
-    mat[:, -1] -= c[:-1] / c[-1]
-    r = np.linalg.eigvals(mat)
-    r.sort()
-    return r
-
-
-def _root_candidates(coef: FloatArray) -> FloatArray:
-    """Real parts, clipped to [0, 1], of all roots of the polynomial with ascending
-    coefficients ``coef``. Complex roots are kept: a pair close to the real axis marks a
-    near-double root (a narrow peak) whose computed roots are not real to round-off, and
-    extra candidates can only raise the maximum found, never lower it."""
-    scale = float(np.max(np.abs(coef))) if coef.shape[0] else 0.0
-    if scale == 0.0:
-        return np.zeros(0)
-    keep = np.flatnonzero(np.abs(coef) > 1e-13 * scale)
-    c = coef[: int(keep[-1]) + 1] / scale
-    if c.shape[0] < 2:
-        return np.zeros(0)
-    r = np.clip(_proots(c).real, 0.0, 1.0)
-    # Newton polish (near-double roots come out of the eigenvalue solver with ~sqrt(eps)
-    # error); raw and polished both kept
-    dc = _pder(c)
-    x = r.copy()
-    # 3 steps: the zoom around the best candidate in `rover_extrema` covers what is left
-    for _ in range(3):
-        d = _polyval01(x, dc)
-        step = np.where(d != 0.0, _polyval01(x, c) / np.where(d != 0.0, d, 1.0), 0.0)
-        x = np.clip(x - step, 0.0, 1.0)
-    return np.asarray(np.concatenate([r, x]), dtype=np.float64)
-
-
-def _polyval01(x: FloatArray, coef: FloatArray) -> FloatArray:
-    """The polynomial with ascending coefficients ``coef`` at ``x`` in [0, 1], as one
-    power-matrix product (numpy's ``polyval`` loops over the coefficients in Python, and this
-    runs thousands of times per rover plan; on [0, 1] the powers lose nothing)."""
-    return np.asarray(np.power.outer(x, _POWERS[: coef.shape[0]]) @ coef, dtype=np.float64)
-
-
-#: Offsets (normalised time) around the best candidate evaluated as well, against root error.
-_ZOOM = np.concatenate([-np.logspace(-10.0, -2.0, 17), np.logspace(-10.0, -2.0, 17)])
-
-
-def rover_extrema(
-    traj: PiecewiseBezier, min_speed_m_s: float = ROVER_MIN_SPEED_M_S
-) -> dict[str, tuple[FloatArray, FloatArray]]:
-    """Per-segment maxima of the rover quantities, from their critical points (no sampling).
-
-    For each segment (normalised time tau in [0, 1], velocity v, acceleration a, cross
-    ``c = x' y'' - y' x''``) the speed ``V``, yaw rate ``|c| / V^2`` and lateral acceleration
-    ``|c| / V`` are evaluated where V >= ``min_speed_m_s`` at the roots in [0, 1] of
-    ``(V^2)'``, ``c' V^2 - c (V^2)'``, ``2 c' V^2 - c (V^2)'`` (the derivatives of V^2,
-    c / V^2 and c^2 / V^2), of ``V^2 - min_speed^2`` (the edge of the evaluated set), at both
-    ends and on a 17-point grid. Critical points do not move when the durations are scaled
-    uniformly, so these are the maxima of the (guarded) quantities in ``check`` up to root
-    accuracy, however narrow a peak is. Returns ``{name: (worst (M,), tau_worst (M,))}``.
-    """
-    if traj.dim != 2:
-        raise ValueError(f"rover quantities need a 2-D trajectory, this one is {traj.dim}-D")
-    cp = traj.control_points
-    n = cp.shape[1] - 1
-    mono = np.einsum("kj,mjd->mkd", _monomial_matrix(n), cp)  # ascending in tau
-    names = ("speed", "yaw_rate", "lat_acc")
-    out = {nm: (np.zeros(cp.shape[0]), np.zeros(cp.shape[0])) for nm in names}
-    for k in range(cp.shape[0]):
-        h = float(traj.durations[k])
-        vx, vy = _pder(mono[k, :, 0]), _pder(mono[k, :, 1])
-        ax, ay = _pder(vx), _pder(vy)
-        c = _psub(_pmul(vx, ay), _pmul(vy, ax))
-        v2 = _padd(_pmul(vx, vx), _pmul(vy, vy))
-        dv2, dc = _pder(v2), _pder(c)
-        dc_v2, c_dv2 = _pmul(dc, v2), _pmul(c, dv2)
-        cands = [_ROVER_GRID, _root_candidates(dv2)]
-        cands.append(_root_candidates(_psub(dc_v2, c_dv2)))
-        cands.append(_root_candidates(_psub(2.0 * dc_v2, c_dv2)))
-        edge = v2.copy()
-        edge[0] -= (min_speed_m_s * h) ** 2
-        cands.append(_root_candidates(edge))
-        tau0 = np.concatenate(cands)
-        vals0 = _rover_values(tau0, v2, c, h, min_speed_m_s)
-        for nm in names:
-            i = int(np.argmax(vals0[nm]))
-            best_v, best_t = float(vals0[nm][i]), float(tau0[i])
-            for _ in range(2):  # zoom around the best candidate (root error on narrow peaks)
-                tz = np.clip(best_t + _ZOOM, 0.0, 1.0)
-                vz = _rover_values(tz, v2, c, h, min_speed_m_s)[nm]
-                j = int(np.argmax(vz))
-                if vz[j] > best_v:
-                    best_v, best_t = float(vz[j]), float(tz[j])
-            out[nm][0][k] = best_v
-            out[nm][1][k] = best_t
-    return out
-
-
-def _rover_values(
-    tau: FloatArray, v2: FloatArray, c: FloatArray, h: float, min_speed_m_s: float
-) -> dict[str, FloatArray]:
-    """Speed, yaw rate and lateral acceleration at normalised times tau of a segment of
-    duration h with ``V^2`` and ``v x a`` given as polynomials in tau (ascending)."""
-    speed = np.sqrt(np.maximum(_polyval01(tau, v2), 0.0)) / h  # m/s
-    ct = np.abs(_polyval01(tau, c)) / h**3  # |v x a|, m^2/s^3
-    # the edge roots sit on V = min speed up to round-off: keep them (conservative)
-    ok = speed >= min_speed_m_s * (1.0 - 1e-9)
-    sv = np.where(ok, speed, 1.0)
-    return {
-        "speed": np.asarray(speed, dtype=np.float64),
-        "yaw_rate": np.asarray(np.where(ok, ct / (sv * sv), 0.0), dtype=np.float64),
-        "lat_acc": np.asarray(np.where(ok, ct / sv, 0.0), dtype=np.float64),
-    }

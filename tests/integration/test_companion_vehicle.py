@@ -31,9 +31,9 @@ from companion.aio import (
 from companion.mavlink import (
     AttitudeSetpoint,
     FlightMode,
-    MissionItem,
     RatesSetpoint,
     TelemetrySnapshot,
+    WireMissionItem,
 )
 from companion.trajectory import PiecewiseBezier, hermite
 
@@ -277,7 +277,7 @@ async def test_sigint_switches_to_hold(mock_px4: MockFactory, tmp_path: Path) ->
 async def test_mission_upload_download_clear(mock_px4: MockFactory, tmp_path: Path) -> None:
     port = mock_px4()
     items = [
-        MissionItem(
+        WireMissionItem(
             seq=i,
             frame=6,
             command=16,

@@ -20,7 +20,7 @@ import pytest
 from companion.aio import ModeChangeError, OffboardExitedError, Vehicle, VehicleConfig
 from companion.control import Reference
 from companion.flight.tracking import TrackingSource
-from companion.mavlink import FlightMode, LinkConfig, MissionItem, TelemetrySnapshot
+from companion.mavlink import FlightMode, LinkConfig, TelemetrySnapshot, WireMissionItem
 from companion.mission import load_mission, mission_upload_items
 from companion.planning.config import VehicleFile
 from companion.planning.schedule import trajectory_reference
@@ -225,7 +225,7 @@ async def test_mission_upload_download_round_trip(px4: Px4Sitl, tmp_path: Path) 
     assert empty == []
     assert len(back) == len(items)
     for sent, got in zip(items, back, strict=True):
-        assert isinstance(got, MissionItem)
+        assert isinstance(got, WireMissionItem)
         assert (got.seq, got.command) == (sent.seq, sent.command)
         # PX4 answers MISSION_REQUEST_INT with the *_INT variant of a global frame (3 -> 6)
         assert INT_FRAME.get(got.frame, got.frame) == INT_FRAME.get(sent.frame, sent.frame)

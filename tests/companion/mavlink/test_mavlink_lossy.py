@@ -14,9 +14,9 @@ from companion.mavlink import (
     CommandClient,
     CommandFinished,
     MissionClient,
-    MissionItem,
     MissionResult,
     MissionTransferDone,
+    WireMissionItem,
 )
 from tests.support.mavlink_fakes import Outbox, Px4Side, command_ack
 
@@ -129,7 +129,7 @@ def drive(mc: MissionClient, out: Outbox, server: MissionServer,
 @settings(max_examples=40, deadline=None)
 def test_mission_round_trip_over_lossy_link(seed: int, loss: float, n: int) -> None:
     rng = random.Random(seed)
-    items = [MissionItem(i, 6, 16, int(i == 0), 1, 0.0, 2.0, 0.0, float(i), 473977420 + i,
+    items = [WireMissionItem(i, 6, 16, int(i == 0), 1, 0.0, 2.0, 0.0, float(i), 473977420 + i,
                          85455940 - i, 10.0 + i) for i in range(n)]
     out = Outbox()
     mc = MissionClient(out)

@@ -12,9 +12,9 @@ from pymavlink.dialects.v20 import common as m
 from companion.mavlink import (
     MissionBusyError,
     MissionClient,
-    MissionItem,
     MissionResult,
     MissionTransferDone,
+    WireMissionItem,
 )
 from tests.support.mavlink_fakes import Outbox, Px4Side
 
@@ -22,8 +22,8 @@ TIMEOUT = 0.25
 RETRIES = 20
 
 
-def item(seq: int, mission_type: int = 0) -> MissionItem:
-    return MissionItem(seq=seq, frame=6, command=16, current=int(seq == 0), autocontinue=1,
+def item(seq: int, mission_type: int = 0) -> WireMissionItem:
+    return WireMissionItem(seq=seq, frame=6, command=16, current=int(seq == 0), autocontinue=1,
                        param1=1.0, param2=2.0, param3=3.0, param4=4.0, x=473977420 + seq,
                        y=85455940, z=10.0 + seq, mission_type=mission_type)
 
@@ -45,7 +45,7 @@ def ack(px4: Px4Side, result: int, mission_type: int = 0) -> object:
     return px4.msg(m.MAVLink_mission_ack_message(1, 191, result, mission_type))
 
 
-def item_matches(msg: Any, it: MissionItem) -> bool:
+def item_matches(msg: Any, it: WireMissionItem) -> bool:
     got = {f: getattr(msg, f) for f in ("seq", "frame", "command", "current", "autocontinue",
                                          "param1", "param2", "param3", "param4", "x", "y", "z",
                                          "mission_type")}
@@ -69,7 +69,7 @@ def only(events: list[MissionTransferDone]) -> MissionTransferDone:
         ([item(0), dataclasses.replace(item(1), current=1)], 0, MissionResult.CURRENT_INVALID),
     ],
 )
-def test_upload_rejects_bad_items_locally(items: list[MissionItem], mission_type: int,
+def test_upload_rejects_bad_items_locally(items: list[WireMissionItem], mission_type: int,
                                           expected: MissionResult) -> None:
     mc, out, _ = make()
     done = only(mc.upload(items, 0.0, mission_type))

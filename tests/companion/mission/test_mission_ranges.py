@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from companion.mission import MissionError, loaders, mission_to_flight_plan, parse_plan, parse_wpl
+from companion.mission import MissionError, checks, mission_to_flight_plan, parse_plan, parse_wpl
 from companion.mission.geofence import Geofence
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "examples" / "missions"
@@ -81,10 +81,10 @@ def test_wpl_altitude_is_bounded_too() -> None:
 @pytest.mark.parametrize(
     "mutate",
     [
-        _set(1, 6, loaders.MAX_HEIGHT_M),
-        _set(1, 0, loaders.MAX_HOLD_S),
-        _set(1, 1, loaders.MAX_ACCEPT_RADIUS_M),
-        _speed_item(loaders.MAX_SPEED_M_S),
+        _set(1, 6, checks.MAX_HEIGHT_M),
+        _set(1, 0, checks.MAX_HOLD_S),
+        _set(1, 1, checks.MAX_ACCEPT_RADIUS_M),
+        _speed_item(checks.MAX_SPEED_M_S),
     ],
 )
 def test_values_at_the_limits_load_and_plan(mutate: Callable[[dict[str, Any]], None]) -> None:

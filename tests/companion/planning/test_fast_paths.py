@@ -22,7 +22,7 @@ def test_schedule_reference_fast_path_equals_general_path() -> None:
     origin = np.array([0.25, -1.5, -0.125])
     kinds = set()
     for t in np.linspace(-1.0, sched.duration_s + 1.0, 157).tolist():
-        kinds.add(sched._piece_at(t).kind)
+        kinds.add(sched.piece_at(t).kind)
         fast = sched.reference(t, origin=origin)
         # an origin given as a list takes the general path (numpy broadcasting, constructor)
         fields_equal(fast, sched.reference(t, origin=origin.tolist()))  # type: ignore[arg-type]

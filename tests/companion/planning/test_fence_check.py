@@ -10,9 +10,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.mavlink.mission_client import MissionItem
+from companion.mavlink.mission_client import WireMissionItem
 from companion.mavlink.telemetry import HomePosition
-from companion.mission import FlightPlan, MissionError, load_mission, mission_to_flight_plan
+from companion.mission import (
+    FlightPlan,
+    GeoPoint,
+    MissionError,
+    geofence_from_wire,
+    load_mission,
+    mission_to_flight_plan,
+)
 from companion.planning.fence_check import (
     CHECK_DT_S,
     CHECK_STEP_M,
@@ -23,7 +30,7 @@ from companion.planning.fence_check import (
 )
 from companion.planning.schedule import Schedule, build_schedule
 from companion.replay.runner import DEFAULT_QUAD
-from companion.serve.service import ServeService, ServiceConfig, geofence_from_items, plan_program
+from companion.serve.service import ServeService, ServiceConfig, plan_program
 from tests.support.fence_plans import HOME, box, latlon, write_plan
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "examples" / "missions"
@@ -143,17 +150,17 @@ def test_flown_positions_through_an_exclusion_zone_are_a_breach_on_their_leg(
 
 
 def _fence_items(polygons: list[tuple[bool, list[tuple[float, float]]]],
-                 circles: list[tuple[bool, tuple[float, float], float]]) -> list[MissionItem]:
-    items: list[MissionItem] = []
+                 circles: list[tuple[bool, tuple[float, float], float]]) -> list[WireMissionItem]:
+    items: list[WireMissionItem] = []
     for inc, verts in polygons:
         for v in verts:
             lat, lon = latlon(v)
-            items.append(MissionItem(len(items), 0, 5001 if inc else 5002, 0, 1,
+            items.append(WireMissionItem(len(items), 0, 5001 if inc else 5002, 0, 1,
                                      float(len(verts)), 0.0, 0.0, 0.0, round(lat * 1e7),
                                      round(lon * 1e7), 0.0, 1))
     for inc, c, r in circles:
         lat, lon = latlon(c)
-        items.append(MissionItem(len(items), 0, 5003 if inc else 5004, 0, 1, r, 0.0, 0.0, 0.0,
+        items.append(WireMissionItem(len(items), 0, 5003 if inc else 5004, 0, 1, r, 0.0, 0.0, 0.0,
                                  round(lat * 1e7), round(lon * 1e7), 0.0, 1))
     return items
 
@@ -168,7 +175,7 @@ def test_vehicle_fence_items_give_the_same_zones_as_the_plan_file(tmp_path: Path
     circs = [(False, (-30.0, -30.0), 10.0), (True, (0.0, 0.0), 100.0)]
     plan = write_plan(tmp_path / "zones.plan", [(60, 0)], polygons=polys, circles=circs)
     from_file = load_mission(plan).geofence
-    from_items = geofence_from_items(_fence_items(polys, circs), _home())
+    from_items = geofence_from_wire(_fence_items(polys, circs), GeoPoint(*HOME))
     rng = np.random.default_rng(3)
     pts = np.column_stack([rng.uniform(-120, 120, 4000), rng.uniform(-120, 120, 4000),
                            np.zeros(4000)])
@@ -186,7 +193,7 @@ def test_serve_refuses_a_vehicle_mission_that_breaches_the_vehicle_fence() -> No
     for seq, (ne, cmd) in enumerate(zip(wps, (22, 16, 16), strict=True)):
         lat, lon = latlon(ne)
         m = mission_item(seq, cmd, lat, lon, 10.0)
-        items.append(MissionItem(m.seq, m.frame, m.command, m.current, m.autocontinue,
+        items.append(WireMissionItem(m.seq, m.frame, m.command, m.current, m.autocontinue,
                                  m.param1, m.param2, m.param3, m.param4, m.x, m.y, m.z))
     fence = _fence_items([(False, box(50, 70, 20, 34))], [])
     cfg = ServiceConfig()

@@ -33,7 +33,7 @@ def _derivs(s, t):  # type: ignore[no-untyped-def]
 def test_scalar_evaluation_matches_piecewise_bezier(schedule) -> None:  # type: ignore[no-untyped-def]
     _, s = schedule
     for t in np.linspace(0.0, s.duration_s, 97):
-        piece = s._piece_at(t)
+        piece = s.piece_at(t)
         if piece.kind != "traj":
             continue
         r = s.reference(t)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
-from companion.mavlink import FlightMode, MissionItem
+from companion.mavlink import FlightMode, WireMissionItem
 from companion.mavlink.telemetry import HomePosition, LocalPosition, MissionCurrent
 from companion.mission import load_mission, mission_to_flight_plan, mission_upload_items
 from companion.planning.config import VehicleFile
@@ -31,11 +31,11 @@ from companion.serve.service import (
 MISSIONS = Path(__file__).resolve().parents[2] / "data" / "missions"
 
 
-def wire_items(path: Path) -> tuple[list[MissionItem], HomePosition]:
+def wire_items(path: Path) -> tuple[list[WireMissionItem], HomePosition]:
     """A mission file as PX4 would return it on download (MISSION_ITEM_INT), and its home."""
     m = load_mission(path)
     # mission_upload_items gives exactly the MISSION_ITEM_INTs PX4 stores and returns
-    items = [MissionItem(i, u.frame, u.command, int(i == 0), u.autocontinue, u.param1,
+    items = [WireMissionItem(i, u.frame, u.command, int(i == 0), u.autocontinue, u.param1,
                          u.param2, u.param3, u.param4, u.x, u.y, u.z)
              for i, u in enumerate(mission_upload_items(m))]
     home = HomePosition(0.0, m.home.lat_deg, m.home.lon_deg, m.home.alt_amsl_m, (0.0, 0.0, 0.0))

@@ -374,11 +374,12 @@ def test_analytic_duration_gradients_match_finite_differences() -> None:
     """dJ*/dh (envelope theorem) and the limit-penalty gradient (adjoint) used by the time
     allocation, against central differences of re-solved problems."""
     from companion.flatness import MultirotorParams
-    from companion.trajectory import planner as P
+    from companion.trajectory.allocation import Planner
+    from companion.trajectory.penalty import LimitPenalty
 
     wp, h = _random_problem(5, seed=3)
     joints_mask = np.ones(6, dtype=bool)
-    pl = P._Planner(wp, joints_mask, 4, {}, {}, {}, None, None)
+    pl = Planner(wp, joints_mask, 4, {}, {}, {}, None, None)
     params = MultirotorParams(mass=1.5, inertia=np.diag([0.02, 0.02, 0.04]), drag=0.3)
     lim = Limits(
         max_speed_m_s=2.0,
@@ -388,7 +389,7 @@ def test_analytic_duration_gradients_match_finite_differences() -> None:
         max_thrust_n=15.5,
         min_thrust_n=14.0,
     )
-    pen = P._Penalty(pl.system, lim, params)
+    pen = LimitPenalty(pl.system, lim, params)
 
     def cost(hh: np.ndarray) -> float:
         return pl.system.solve(hh)[1]

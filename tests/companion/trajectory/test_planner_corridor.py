@@ -14,16 +14,18 @@ import pytest
 
 from companion.flatness import MultirotorParams
 from companion.trajectory import Limits, check, plan, plan_with_info
-from companion.trajectory.planner import (
-    CORRIDOR_SAMPLES_PER_SEGMENT,
+from companion.trajectory.allocation import (
     REFINE_MAXITER,
     REFINE_MIN_ITER,
     REFINE_WORK_BUDGET,
-    _corridor_breaches,
-    _Problem,
-    _split_breaches,
     refine_iterations,
 )
+from companion.trajectory.corridor import (
+    CORRIDOR_SAMPLES_PER_SEGMENT,
+    corridor_breaches,
+    split_breaches,
+)
+from companion.trajectory.joints import PlanProblem
 
 G = 9.80665
 PARAMS = MultirotorParams(mass=1.5, inertia=np.diag([0.03, 0.03, 0.05]), drag=0.4)
@@ -139,7 +141,7 @@ def test_segment_wise_breach_check_matches_pointwise_reference(seed: int) -> Non
     acc = rng.uniform(0.0, 4.0, n)
     seg = np.array(seg_leg)
     for corridor in (0.1, 0.5, 1.0, 3.0):
-        got = _corridor_breaches(traj, wp, seg, corridor, acc)
+        got = corridor_breaches(traj, wp, seg, corridor, acc)
         np.testing.assert_array_equal(got, pointwise_breaches(traj, wp, seg, corridor, acc))
 
 
@@ -148,7 +150,7 @@ def test_split_puts_two_joints_on_the_leg_and_shares_the_duration() -> None:
     seg_leg = np.array([0, 0, 1, 2, 2, 2])
     bad = np.array([False, True, True, False, True, False])
     h = np.array([1.0, 3.0, 6.0, 2.0, 1.2, 5.0])
-    new, h_new = _split_breaches(fracs, seg_leg, bad, h)
+    new, h_new = split_breaches(fracs, seg_leg, bad, h)
     assert new == [[0.0, 0.5, 0.5 + 0.5 / 3, 0.5 + 1.0 / 3],
                    [0.0, 1.0 / 3, 2.0 / 3],
                    [0.0, 0.2, 0.2 + 0.4 / 3, 0.2 + 0.8 / 3, 0.6]]
@@ -176,12 +178,12 @@ def test_coarse_feasibility_look_gives_the_dense_verdict(seed: int) -> None:
     rng = np.random.default_rng(20 + seed)
     wp = zigzag(rng, 6)
     fracs = [[0.0, 1.0 / 3.0, 2.0 / 3.0] for _ in range(len(wp) - 1)]
-    planner, _, _ = _Problem(wp, 4, {}, {}, {}, None, None, None, LIMITS).planner(fracs)
+    planner, _, _ = PlanProblem(wp, 4, {}, {}, {}, None, None, None, LIMITS).planner(fracs)
     h = planner.refined(LIMITS, PARAMS)
     seen = set()
     for k in np.linspace(0.8, 1.6, 17):
-        coarse = planner._max_ratio(h * k, LIMITS, PARAMS, coarse=True)
-        dense = planner._max_ratio(h * k, LIMITS, PARAMS)
+        coarse = planner.max_ratio(h * k, LIMITS, PARAMS, coarse=True)
+        dense = planner.max_ratio(h * k, LIMITS, PARAMS)
         seen.add(dense[0] <= 1.0)
         if coarse[0] <= 1.0:  # a feasible verdict is the dense check's own
             assert coarse[0] == dense[0]
@@ -204,7 +206,7 @@ def _scalar_distance(p: list[float], a: list[float], b: list[float]) -> float:
 def test_segment_distances_broadcast_match_scalar_projection(dim: int) -> None:
     # points (5, 1, d) against segments (1, 4, d), one of zero length: every pair equals the
     # textbook projection (clamped to the segment; a zero-length segment is its point)
-    from companion.trajectory.planner import segment_distances
+    from companion.trajectory.corridor import segment_distances
 
     rng = np.random.default_rng(7 + dim)
     p = rng.normal(size=(5, 1, dim)) * 20.0

@@ -18,7 +18,7 @@ from companion.trajectory import (
     plan,
     plan_with_info,
 )
-from companion.trajectory.limits import rover_extrema
+from companion.trajectory.rover_extrema import rover_extrema
 
 LIM = RoverLimits(max_speed_m_s=2.0, max_yaw_rate_rad_s=0.8, max_lat_acc_m_s2=1.0)
 #: Speeds below this (m/s) leave the heading undefined: yaw rate and lateral acceleration are
@@ -150,12 +150,12 @@ def test_rover_time_scaling_lowers_every_rover_quantity() -> None:
 
 
 def test_power_matrix_evaluation_matches_numpy_polyval() -> None:
-    from companion.trajectory.limits import _polyval01
+    from companion.trajectory.rover_extrema import polyval01
 
     rng = np.random.default_rng(3)
     for deg in (0, 1, 5, 12, 24):
         coef = rng.normal(size=deg + 1) * 10.0 ** rng.uniform(-3, 3, size=deg + 1)
         x = np.concatenate([[0.0, 1.0], rng.uniform(0.0, 1.0, 50)])
         want = np.polynomial.polynomial.polyval(x, coef)
-        assert np.allclose(_polyval01(x, coef), want, rtol=1e-12,
+        assert np.allclose(polyval01(x, coef), want, rtol=1e-12,
                            atol=1e-12 * float(np.sum(np.abs(coef))))

@@ -13,9 +13,9 @@ from scipy.spatial.transform import Rotation
 from companion.flatness import MultirotorParams, multirotor_setpoint
 from companion.trajectory import Limits, PiecewiseBezier, plan
 from companion.trajectory.limits import (
+    Samples,
     TimeScaledRatio,
-    _body_rate_bound,
-    _Samples,
+    body_rate_bound,
     segment_samples,
     segment_worst,
     thin_matmul,
@@ -61,11 +61,11 @@ def test_grid_samples_match_each_segments_own_evaluation(seed: int) -> None:
             np.testing.assert_allclose(got_y[rows], want_y, rtol=1e-9, atol=1e-9)
 
 
-def _random_samples(rng: np.random.Generator, n: int) -> _Samples:
+def _random_samples(rng: np.random.Generator, n: int) -> Samples:
     """Flat-output samples with large horizontal accelerations (tilts up to ~80 deg), climbs
     and dives, jerks and yaw motion, to exercise the bound well away from hover."""
     acc = rng.normal(size=(n, 3)) * [12.0, 12.0, 4.0]
-    return _Samples(
+    return Samples(
         vel=rng.normal(size=(n, 3)) * 5.0,
         acc=acc,
         jerk=rng.normal(size=(n, 3)) * 20.0,
@@ -83,7 +83,7 @@ def test_body_rate_bound_is_an_upper_bound_of_the_flatness_body_rate() -> None:
         smp.vel, smp.acc, smp.jerk, smp.snap, smp.yaw, smp.yaw_rate, smp.yaw_acc, PARAMS
     )
     exact = np.linalg.norm(sp.omega_frd, axis=1)
-    bound = _body_rate_bound(smp, PARAMS)
+    bound = body_rate_bound(smp, PARAMS)
     assert np.all(bound >= exact * (1.0 - 1e-12))
     finite = np.isfinite(bound)
     assert finite.mean() > 0.99
@@ -97,7 +97,7 @@ def test_body_rate_bound_against_rotation_derivatives() -> None:
     tr = _trajectory(11)
     t = np.linspace(0.0, tr.duration, 4001)
     assert tr.yaw is not None
-    smp = _Samples(
+    smp = Samples(
         tr.evaluate(t, 1),
         tr.evaluate(t, 2),
         tr.evaluate(t, 3),
@@ -112,7 +112,7 @@ def test_body_rate_bound_against_rotation_derivatives() -> None:
     rot = Rotation.from_quat(np.asarray(sp.q_wxyz)[:, [1, 2, 3, 0]])
     dt = t[1] - t[0]
     rate = np.linalg.norm((rot[:-1].inv() * rot[1:]).as_rotvec(), axis=1) / dt
-    bound = _body_rate_bound(smp, PARAMS)
+    bound = body_rate_bound(smp, PARAMS)
     mid_bound = np.maximum(bound[:-1], bound[1:])
     # finite-difference rate over one step is the mean rate: below the larger end bound + O(dt)
     assert np.all(rate <= mid_bound * (1.0 + 1e-3) + 1e-3)

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from scipy.interpolate import BPoly
 
 from companion.trajectory import PiecewiseBezier
-from companion.trajectory.bezier import ScalarEvaluator, _horner_fn
+from companion.trajectory.bezier import ScalarEvaluator, horner_fn
 
 
 @st.composite
@@ -118,7 +118,7 @@ def test_refuses_nan_time_and_negative_order() -> None:
 def test_horner_kernel_matches_numpy_polyval(lengths: tuple[int, ...]) -> None:
     rng = np.random.default_rng(len(lengths))
     rows = [rng.uniform(-3.0, 3.0, n) for n in lengths]  # descending coefficients
-    fn = _horner_fn(lengths)
+    fn = horner_fn(lengths)
     for s in (0.0, 0.3, 1.0, -0.7):
         got = fn(s, tuple(float(x) for r in rows for x in r))
         ref = [np.polyval(r, s) for r in rows]
