@@ -58,7 +58,7 @@ from companion.replay.config import (
     ReplayConfig,
     self_lands,
 )
-from companion.replay.lockstep import LockstepLink, make_autopilot
+from companion.replay.lockstep import LockstepLink, make_sim
 
 
 class Flight:
@@ -207,10 +207,10 @@ def fly_schedule(
 
     `progress(now_s, expected_s)` is called every 100 setpoint cycles with the simulated time
     and the expected end of the flight (the schedule plus the start-up and landing)."""
-    ap = make_autopilot(config, home)
+    sim = make_sim(config, home)
     link = VehicleLink(LinkConfig())
     log = FlightLog()
-    lk = LockstepLink(ap, link, tlog)
+    lk = LockstepLink(sim, link, tlog)
     lk.on_message = functools.partial(record_message, log)
     flight = Flight(config, schedule, lk, log)
     dt = 1.0 / config.rate_hz
@@ -259,10 +259,10 @@ def fly_px4_mission(
 ) -> tuple[str, FlightLog]:
     """Upload `mission` to a fresh mock and fly it in PX4's own AUTO.MISSION; returns
     ("ok" or the failure reason, log)."""
-    ap = make_autopilot(config, home)
+    sim = make_sim(config, home)
     link = VehicleLink(LinkConfig())
     log = FlightLog()
-    lk = LockstepLink(ap, link, None)
+    lk = LockstepLink(sim, link, None)
     lk.on_message = functools.partial(record_message, log)
     dt = 0.02
     t = 0.0

@@ -15,6 +15,7 @@ from companion.mavlink.link import LinkConfig, VehicleLink
 from companion.mavlink.params import ParamReadDone, ParamType
 from companion.mission.px4_params import PLANNING_PARAM_NAMES
 from companion.replay.config import TLOG_EPOCH_S, ReplayConfig
+from sitl_mock.lockstep import LockstepSim
 
 #: Messages the companion acts on during a replay; others (ATTITUDE at 100 Hz, ODOMETRY,
 #: GLOBAL_POSITION_INT, targets, battery...) go to the tlog undecoded to save CPU.
@@ -42,49 +43,52 @@ def _msgid(frame: bytes) -> int | None:
 
 
 class LockstepLink:
-    """In-memory link between a `VehicleLink` and a `sitl_mock` autopilot, with a tlog tap.
+    """The companion's `VehicleLink` on `sitl_mock`'s lockstep pipe (`LockstepSim`), with a
+    tlog tap: every frame both ways is logged at the simulated time it crossed.
 
     Each datagram of the mock is one frame; frames whose id is not in `wanted` are logged but
-    not decoded (None decodes everything).
+    not decoded (None decodes everything). `on_message(msg, t)` sees every decoded message.
     """
 
     def __init__(
         self,
-        autopilot: Any,
+        sim: LockstepSim,
         link: VehicleLink,
         tlog: TlogWriter | None,
         wanted: frozenset[int] | None = COMPANION_MSG_IDS,
     ) -> None:
         self.wanted = wanted
-        self.ap = autopilot
+        self.sim = sim
         self.link = link
         self.tlog = tlog
-        self.now = 0.0
         self.on_message: Callable[[Any, float], None] | None = None
 
+    @property
+    def now(self) -> float:
+        """Simulated seconds since the mock booted."""
+        return self.sim.now
+
     def to_vehicle(self, frames: list[bytes]) -> None:
-        now = self.now
-        tlog = self.tlog
-        receive = self.ap.receive_datagram
-        if tlog is not None:
-            tlog.write_many(frames, TLOG_EPOCH_S + now)
+        """Deliver the companion's frames to the mock now (one datagram each)."""
+        sim = self.sim
+        if self.tlog is not None:
+            self.tlog.write_many(frames, TLOG_EPOCH_S + sim.now)
         for fr in frames:
-            receive(fr, "companion", now)
+            sim.send(fr)
 
     def advance(self, t: float) -> list[Any]:
         """Advance both sides to `t`; returns the link events produced."""
-        self.now = t
-        self.ap.advance(t)
+        sim = self.sim
+        sim.step_until(t)
         events: list[Any] = []
         tlog = self.tlog
         wanted = self.wanted
         on_message = self.on_message
         link = self.link
-        t_log = TLOG_EPOCH_S + t
-        out = self.ap.datagrams_to_send(t)
+        out = sim.recv()
         if tlog is not None and out:
-            tlog.write_many([data for data, _addr in out], t_log)
-        for data, _addr in out:
+            tlog.write_many(out, TLOG_EPOCH_S + t)
+        for data in out:
             if wanted is not None and _msgid(data) not in wanted:
                 continue
             for msg in link.codec.decode(data):
@@ -98,10 +102,9 @@ class LockstepLink:
         return events
 
 
-def make_autopilot(config: ReplayConfig, home: tuple[float, float, float]) -> Any:
-    """A fresh mock autopilot for `config` (its mock parameters, start offset, link faults and
-    wind) booting at `home` (lat [deg], lon [deg], alt AMSL [m]) at simulated t = 0."""
-    from sitl_mock.autopilot import Autopilot
+def make_sim(config: ReplayConfig, home: tuple[float, float, float]) -> LockstepSim:
+    """A fresh mock for `config` (its mock parameters, start offset, link faults and wind)
+    booting at `home` (lat [deg], lon [deg], alt AMSL [m]) at simulated t = 0."""
     from sitl_mock.faults import LinkFaults
     from sitl_mock.params import ParamStore
 
@@ -112,25 +115,16 @@ def make_autopilot(config: ReplayConfig, home: tuple[float, float, float]) -> An
         home = ned_to_geodetic((n, e, 0.0), home)  # the vehicle boots (and PX4's home is) here
     faults = None
     if config.latency_s or config.jitter_s or config.loss_pct:
-        # Autopilot's view: rx = companion -> vehicle (setpoints, commands), tx = telemetry
+        # the mock's view: in = companion -> vehicle (setpoints, commands), out = telemetry
         f_in = LinkFaults(loss_pct=config.loss_pct)
         f_out = LinkFaults(loss_pct=config.loss_pct, latency_s=config.latency_s,
                            jitter_s=config.jitter_s)
-        faults = {"offboard": (f_in, f_out)}
-    ap = Autopilot(
-        config.vehicle,
-        ParamStore(dict(config.mock_params)),
-        home,
-        config.seed,
-        physics_hz=config.physics_hz,
-        now=0.0,
-        remotes={"offboard": "companion"},
-        link_faults=faults,
-    )
+        faults = (f_in, f_out)
+    sim = LockstepSim(config.vehicle, ParamStore(dict(config.mock_params)), home, config.seed,
+                      physics_hz=config.physics_hz, faults=faults)
     if config.wind_m_s > 0.0:
-        ap.vehicle.set_wind(config.wind_ned())
-    return ap
-
+        sim.autopilot.vehicle.set_wind(config.wind_ned())
+    return sim
 
 
 def read_mock_params(
@@ -147,9 +141,9 @@ def read_mock_params(
     way `fly` reads them from PX4: PARAM_REQUEST_READ by name over the lockstep link, with the
     client's retries, on simulated time (`floats`: each must come back as REAL32;
     `second_pass`: names not answered are asked for once more, as `Vehicle` does)."""
-    ap = make_autopilot(config, home)
+    sim = make_sim(config, home)
     link = VehicleLink(LinkConfig())
-    lk = LockstepLink(ap, link, None, wanted=frozenset({22}))  # PARAM_VALUE only
+    lk = LockstepLink(sim, link, None, wanted=frozenset({22}))  # PARAM_VALUE only
     expect = {n: ParamType.REAL32 for n in names} if floats else None
     t = 0.0
 
