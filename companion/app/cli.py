@@ -14,7 +14,7 @@ import logging
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 from rich.markup import escape
@@ -28,6 +28,7 @@ from companion.app.replay_options import add_perturbation_options, mock_param
 
 if TYPE_CHECKING:
     from companion.flight.report import FlightReport
+    from companion.replay.runner import ReplayConfig
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -89,21 +90,20 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _replay_one(
-    path: str, out: str, config_kw: dict[str, object], queue: object | None, plot: bool = True
+    path: str, out: str, config: ReplayConfig, queue: Any, plot: bool = True
 ) -> tuple[str, FlightReport | None, str | None]:
     """Worker: replay one file (with flight.png if `plot`); returns (path, report or None,
     error message or None)."""
     from companion.app.plotting import replay_drawer
     from companion.mission import MissionError
-    from companion.replay.runner import ReplayConfig, replay_file
+    from companion.replay.runner import replay_file
 
     def progress(t: float, expected: float) -> None:
         if queue is not None:
-            queue.put((path, t, expected))  # type: ignore[attr-defined]
+            queue.put((path, t, expected))
 
     try:
-        result = replay_file(path, out, ReplayConfig(**config_kw),  # type: ignore[arg-type]
-                             progress, replay_drawer() if plot else None)
+        result = replay_file(path, out, config, progress, replay_drawer() if plot else None)
     except (MissionError, ValueError, OSError) as exc:
         return path, None, str(exc)
     return path, result.report, None
@@ -119,10 +119,9 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     from companion.mission import load_mission, mission_to_flight_plan
     from companion.replay.runner import ReplayConfig
 
-    config_kw: dict[str, object] = replay_config_kwargs(args)
-    config_kw["compare_px4_mission"] = args.compare_px4_mission
-
-    ReplayConfig(**config_kw)  # type: ignore[arg-type]  # validate options before any work
+    # validates the options before any work
+    config = ReplayConfig(**replay_config_kwargs(args),
+                          compare_px4_mission=args.compare_px4_mission)
     plot = not args.no_plot
     if plot and not available("plot"):
         plot = False  # the flight still runs: tlog and report.json are written
@@ -163,8 +162,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
                     try:
                         r = replay_file(
-                            f, args.out, ReplayConfig(**config_kw), cb,  # type: ignore[arg-type]
-                            replay_drawer(plotter) if plot else None,
+                            f, args.out, config, cb, replay_drawer(plotter) if plot else None,
                         )
                         results[f] = (r.report, None)
                     except (MissionError, ValueError, OSError) as exc:
@@ -173,7 +171,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         else:
             with mp.Manager() as manager, ProcessPoolExecutor(max_workers=args.jobs) as pool:
                 queue = manager.Queue()
-                futures = [pool.submit(_replay_one, f, args.out, config_kw, queue, plot)
+                futures = [pool.submit(_replay_one, f, args.out, config, queue, plot)
                            for f in args.files]
                 pending = set(futures)
                 while pending:
