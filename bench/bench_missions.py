@@ -189,7 +189,7 @@ def mock_mission(path: Path, config: ReplayConfig, corridor_m: float,
     legs = fp.points_ned_m() + origin
     corners, acc = corner_points(fp)
     wps = sched.waypoints_ned + origin
-    comp_ok = run.report["result"]
+    comp_ok = run.report.result
     out: dict[str, Any] = {
         "file": path.name, "vehicle": config.vehicle,
         "companion": {"result": comp_ok, "time_s": t1 - t0,
@@ -200,7 +200,7 @@ def mock_mission(path: Path, config: ReplayConfig, corridor_m: float,
                                         acc, corridor_m)},
         "planned_s": sched.duration_s, "item_indices": list(sched.item_indices),
         "acceptance_m": list(sched.acceptance_m), "warnings": list(prep.warnings),
-        "report_closest_m": [w["closest_approach_m"] for w in run.report["waypoints"]],
+        "report_closest_m": [w.closest_approach_m for w in run.report.waypoints],
         "wall_s": wall, "limits": dataclasses.asdict(config.limits),
         "mock_params": dict(config.mock_params),
     }

@@ -22,7 +22,7 @@ sys.path.insert(0, str(ROOT))
 from benchmarks_md import write_section  # noqa: E402
 
 from companion.app.cli import main as cli_main  # noqa: E402
-from companion.app.plotting import PlotWorker  # noqa: E402
+from companion.app.plotting import PlotWorker, replay_drawer  # noqa: E402
 from companion.replay.runner import ReplayConfig, replay_file  # noqa: E402
 
 FIVE_MIN = ROOT / "examples" / "missions" / "five_minute.plan"
@@ -42,14 +42,14 @@ def run_single(mode: str) -> dict[str, float]:
         t0 = time.perf_counter()
         with PlotWorker() as plotter:
             r = replay_file(FIVE_MIN, out, ReplayConfig(mode=mode),  # type: ignore[arg-type]
-                            plotter=plotter)
+                            draw=replay_drawer(plotter))
         wall = time.perf_counter() - t0
         cpu = time.process_time() - c0
         ch1 = resource.getrusage(resource.RUSAGE_CHILDREN)
         if plotter.failures:
             raise SystemExit(f"plot helper not used: {plotter.failures}")
     helper = (ch1.ru_utime + ch1.ru_stime) - (ch0.ru_utime + ch0.ru_stime)
-    sim = float(r.report["simulated_s"])
+    sim = float(r.report.simulated_s)
     return {"sim_s": sim, "wall_s": wall, "factor": sim / wall, "cpu_s": cpu,
             "helper_cpu_s": helper, "cpu_factor": sim / (cpu + helper), "load1": load,
             "ok": float(r.ok)}

@@ -10,7 +10,7 @@ import argparse
 import time
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 from rich.markup import escape
@@ -18,6 +18,9 @@ from rich.markup import escape
 from companion.app.extras import require
 from companion.app.paths import output_folder
 from companion.campaign.perturb import PerturbationRanges
+
+if TYPE_CHECKING:
+    from companion.campaign.runner import Keep
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 MODES = ("position", "attitude", "rates")
@@ -53,7 +56,7 @@ class CampaignOptions:
     out: str = "campaign_out"
     scheduler: str | None = None
     workers: int | None = None
-    keep: str = "failed"
+    keep: Keep = "failed"
     require: float = 0.95
 
 
@@ -164,7 +167,7 @@ def run_campaign(
     out = Path(opts.out)
     store = ResultStore(out)
     tasks = make_tasks(opts.files, opts.modes, opts.runs, opts.seed, opts.ranges,
-                       rate_hz=opts.rate_hz, keep=opts.keep)  # type: ignore[arg-type]
+                       rate_hz=opts.rate_hz, keep=opts.keep)
     prog = CampaignProgress()
     t0 = time.perf_counter()
     with Progress(

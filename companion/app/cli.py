@@ -14,6 +14,7 @@ import logging
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 from rich.markup import escape
@@ -24,6 +25,10 @@ from companion.app.extras import MissingExtraError, available, install_line, req
 from companion.app.link_options import add_signing_option
 from companion.app.paths import output_file, output_folder
 from companion.app.replay_options import add_perturbation_options, mock_param
+
+if TYPE_CHECKING:
+    from companion.flight.report import FlightReport
+    from companion.replay.runner import ReplayConfig
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -85,20 +90,20 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _replay_one(
-    path: str, out: str, config_kw: dict[str, object], queue: object | None, plot: bool = True
-) -> tuple[str, dict[str, object] | None, str | None]:
+    path: str, out: str, config: ReplayConfig, queue: Any, plot: bool = True
+) -> tuple[str, FlightReport | None, str | None]:
     """Worker: replay one file (with flight.png if `plot`); returns (path, report or None,
     error message or None)."""
+    from companion.app.plotting import replay_drawer
     from companion.mission import MissionError
-    from companion.replay.runner import ReplayConfig, replay_file
+    from companion.replay.runner import replay_file
 
     def progress(t: float, expected: float) -> None:
         if queue is not None:
-            queue.put((path, t, expected))  # type: ignore[attr-defined]
+            queue.put((path, t, expected))
 
     try:
-        result = replay_file(path, out, ReplayConfig(**config_kw),  # type: ignore[arg-type]
-                             progress, plot=plot)
+        result = replay_file(path, out, config, progress, replay_drawer() if plot else None)
     except (MissionError, ValueError, OSError) as exc:
         return path, None, str(exc)
     return path, result.report, None
@@ -114,10 +119,9 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     from companion.mission import load_mission, mission_to_flight_plan
     from companion.replay.runner import ReplayConfig
 
-    config_kw: dict[str, object] = replay_config_kwargs(args)
-    config_kw["compare_px4_mission"] = args.compare_px4_mission
-
-    ReplayConfig(**config_kw)  # type: ignore[arg-type]  # validate options before any work
+    # validates the options before any work
+    config = ReplayConfig(**replay_config_kwargs(args),
+                          compare_px4_mission=args.compare_px4_mission)
     plot = not args.no_plot
     if plot and not available("plot"):
         plot = False  # the flight still runs: tlog and report.json are written
@@ -133,7 +137,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
             totals[f] = fp.nominal_duration_s() + 30.0
         except Exception:
             totals[f] = 1.0
-    results: dict[str, tuple[dict[str, object] | None, str | None]] = {}
+    results: dict[str, tuple[FlightReport | None, str | None]] = {}
     with Progress(
         TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[sim]}"),
         TimeElapsedColumn(), console=console, transient=False,
@@ -143,7 +147,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
             for f in args.files
         }
         if args.jobs <= 1:
-            from companion.app.plotting import PlotWorker
+            from companion.app.plotting import PlotWorker, replay_drawer
             from companion.mission import MissionError
             from companion.replay.runner import replay_file
 
@@ -158,8 +162,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
                     try:
                         r = replay_file(
-                            f, args.out, ReplayConfig(**config_kw), cb,  # type: ignore[arg-type]
-                            plotter=plotter, plot=plot,
+                            f, args.out, config, cb, replay_drawer(plotter) if plot else None,
                         )
                         results[f] = (r.report, None)
                     except (MissionError, ValueError, OSError) as exc:
@@ -168,7 +171,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         else:
             with mp.Manager() as manager, ProcessPoolExecutor(max_workers=args.jobs) as pool:
                 queue = manager.Queue()
-                futures = [pool.submit(_replay_one, f, args.out, config_kw, queue, plot)
+                futures = [pool.submit(_replay_one, f, args.out, config, queue, plot)
                            for f in args.files]
                 pending = set(futures)
                 while pending:
@@ -210,29 +213,29 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         ok, verdict = _verdict(rep)
         if not ok and exit_code == EXIT_OK:
             exit_code = EXIT_FAILURE
-        rms = rep["rms_error_m"]
-        mx = rep["max_error_m"]
+        rms = rep.rms_error_m
+        mx = rep.max_error_m
         table.add_row(
             escape(Path(f).name),
             "[green]ok[/green]" if ok else f"[yellow]{escape(verdict)}[/yellow]",
-            f"{rep['duration_s']:.1f}",
+            f"{rep.duration_s:.1f}",
             "-" if rms is None else f"{rms:.2f}",
             "-" if mx is None else f"{mx:.2f}",
-            f"{rep['waypoints_reached']}/{len(rep['waypoints'])}",  # type: ignore[arg-type]
-            f"{rep['max_tilt_deg']:.1f}",
-            f"{rep['real_time_factor']}",
+            f"{rep.waypoints_reached}/{len(rep.waypoints)}",
+            f"{rep.max_tilt_deg:.1f}",
+            f"{rep.real_time_factor}",
         )
-        px4 = rep.get("px4_mission")
-        if isinstance(px4, dict):
+        px4 = rep.px4_mission
+        if px4 is not None:
             px4_ok, px4_verdict = _verdict(px4)
             if not px4_ok and exit_code == EXIT_OK:
                 exit_code = EXIT_FAILURE
             table.add_row(
                 _PX4_ROW,
                 "ok" if px4_ok else f"[yellow]{escape(px4_verdict)}[/yellow]",
-                f"{px4['duration_s']:.1f}", "-", "-",
-                f"{px4['waypoints_reached']}/{len(px4['waypoints'])}",
-                f"{px4['max_tilt_deg']:.1f}", "",
+                f"{px4.duration_s:.1f}", "-", "-",
+                f"{px4.waypoints_reached}/{len(px4.waypoints)}",
+                f"{px4.max_tilt_deg:.1f}", "",
             )
     console.print(table)
     _print_leg_lines(args.files, results)
@@ -242,7 +245,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _print_leg_lines(
-    files: Sequence[str], results: dict[str, tuple[dict[str, object] | None, str | None]]
+    files: Sequence[str], results: dict[str, tuple[FlightReport | None, str | None]]
 ) -> None:
     """Below the summary table: per file, the worst leg (path deviation, speeds, time vs the
     bound) and every geofence breach (per-leg detail is in report.json)."""
@@ -253,15 +256,14 @@ def _print_leg_lines(
         if rep is None:
             continue
         name = escape(Path(f).name)
-        legs = rep.get("legs")
-        if isinstance(legs, list) and legs:
-            bound = rep.get("bound_s")
-            planned = (f"planned {rep['planned_duration_s']:.1f} s (bound "
+        legs = rep.legs
+        if legs:
+            bound = rep.bound_s
+            planned = (f"planned {rep.planned_duration_s:.1f} s (bound "
                        f"{'-' if bound is None else format(bound, '.1f')} s); ")
             console.print(f"{name}: {planned}{escape(worst_leg_text(legs))}", soft_wrap=True)
-        breaches = rep.get("geofence_breaches")
-        if isinstance(breaches, list):
-            for b in breaches:
+        if rep.geofence_breaches is not None:
+            for b in rep.geofence_breaches:
                 console.print(f"[red]{name}: geofence breach in flight:[/red] "
                               f"{escape(str(b['message']))}", soft_wrap=True)
 
@@ -269,13 +271,11 @@ def _print_leg_lines(
 _PX4_ROW = "  (PX4 AUTO.MISSION)"
 
 
-def _verdict(rep: dict[str, object]) -> tuple[bool, str]:
+def _verdict(rep: FlightReport) -> tuple[bool, str]:
     """(flown completely, what went wrong) of a replay report (or its PX4 mission part)."""
-    wps = rep["waypoints"]
-    assert isinstance(wps, list)
-    missed = len(wps) - int(rep["waypoints_reached"])  # type: ignore[call-overload]
-    if rep["result"] != "ok":
-        return False, str(rep["result"])
+    missed = len(rep.waypoints) - rep.waypoints_reached
+    if rep.result != "ok":
+        return False, rep.result
     return missed == 0, f"missed {missed} waypoint(s)"
 
 

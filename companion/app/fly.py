@@ -23,7 +23,13 @@ from rich.table import Table
 
 from companion.control import Reference
 from companion.flight.policy import HANDOVER_HEIGHT_M, lands_at_end, plan_touchdown
-from companion.flight.report import FloatArray, SetpointLimits, TrackRecorder
+from companion.flight.report import (
+    FlightReport,
+    FloatArray,
+    SetpointLimits,
+    TrackRecorder,
+    breach_failure,
+)
 from companion.flight.tracking import TOUCHDOWN_FROM_M, Touchdown, TrackingSource
 from companion.mavlink import FlightMode, LinkConfig
 from companion.mission import (
@@ -276,15 +282,16 @@ async def _home_offset_m(v: Any, mission: Mission,
     return math.hypot(off[0], off[1]), shift
 
 
-def mission_figures(planned: PlannedFlight, recorder: TrackRecorder, origin: FloatArray,
-                    fence_shift_ned: FloatArray | None) -> dict[str, Any]:
-    """Per-leg figures and geofence breaches of a flown mission (empty for a pattern).
+def mission_figures(report: FlightReport, planned: PlannedFlight, recorder: TrackRecorder,
+                    origin: FloatArray, fence_shift_ned: FloatArray | None) -> FlightReport:
+    """`report` with the per-leg figures and geofence breaches of a flown mission (unchanged
+    for a pattern).
 
     ``origin``: the plan's frame in local NED (local = plan + origin); ``fence_shift_ned``:
     local -> mission frame for the geofence (None: ``-origin``, the plan's frame)."""
     fp, schedule = planned.flight_plan, planned.schedule
     if fp is None or schedule is None:
-        return {}
+        return report
     t = np.asarray(recorder.t_s, dtype=np.float64)
     pos = np.asarray(recorder.pos_ned, dtype=np.float64).reshape(-1, 3)
     shift = -np.asarray(origin, float) if fence_shift_ned is None else fence_shift_ned
@@ -299,26 +306,16 @@ def mission_figures(planned: PlannedFlight, recorder: TrackRecorder, origin: Flo
     legs = [all_legs[k] for k in flown]
     pt, pp = sample_schedule(schedule)
     keep = pt >= planned.t_off_s
-    return {
-        "geofence_violations": int(sum(int(np.count_nonzero(m)) for _, m in masks)),
-        "geofence_violation_zones": sorted(z for z, m in masks if m.any()),
-        "geofence_breaches": breach_report(found),
-        "planned_s": round(schedule.duration_s, 3),
-        "bound_s": round(bound, 3),
-        "legs": leg_figures(legs, t, pos - origin, planned_t_s=pt[keep], planned_ned=pp[keep],
-                            bounds_s=[leg_bounds[k] for k in flown]),
-    }
-
-
-def breach_failure(report: dict[str, Any]) -> str | None:
-    """``"geofence breach: ..."`` if the flight breached the fence, else None."""
-    found = report.get("geofence_breaches") or []
-    if found:
-        more = f" (+{len(found) - 1} more)" if len(found) > 1 else ""
-        return f"geofence breach: {found[0]['message']}{more}"
-    if report.get("geofence_violations"):
-        return "geofence breach: " + ", ".join(report.get("geofence_violation_zones") or [])
-    return None
+    return dataclasses.replace(
+        report,
+        geofence_violations=int(sum(int(np.count_nonzero(m)) for _, m in masks)),
+        geofence_violation_zones=tuple(sorted(z for z, m in masks if m.any())),
+        geofence_breaches=tuple(breach_report(found)),
+        planned_s=round(schedule.duration_s, 3),
+        bound_s=round(bound, 3),
+        legs=tuple(leg_figures(legs, t, pos - origin, planned_t_s=pt[keep],
+                               planned_ned=pp[keep], bounds_s=[leg_bounds[k] for k in flown])),
+    )
 
 
 def print_planning_params(console: Console, resolved: ResolvedPlanningParams,
@@ -330,25 +327,25 @@ def print_planning_params(console: Console, resolved: ResolvedPlanningParams,
         console.print(f"  {escape(line)}", soft_wrap=True)
 
 
-def write_report(log_path: str, report: dict[str, Any]) -> Path:
+def write_report(log_path: str, report: FlightReport) -> Path:
     """Write `report` as `<tlog>.report.json` next to the flight log; returns its path."""
     path = Path(f"{log_path}.report.json")
-    path.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    path.write_text(json.dumps(report.to_dict(), indent=2) + "\n", encoding="utf-8")
     return path
 
 
-def summary_table(report: dict[str, Any]) -> Table:
+def summary_table(report: FlightReport) -> Table:
     """A replay-like summary of one flight."""
     t = Table(title="flight summary", show_header=False)
-    n = len(report["waypoints"])
-    t.add_row("result", str(report["result"]))
-    t.add_row("waypoints reached", f"{report['waypoints_reached']}/{n}")
-    for key, label in (("rms_error_m", "RMS error \\[m]"), ("max_error_m", "max error \\[m]")):
-        val = report.get(key)
+    n = len(report.waypoints)
+    t.add_row("result", report.result)
+    t.add_row("waypoints reached", f"{report.waypoints_reached}/{n}")
+    for val, label in ((report.rms_error_m, "RMS error \\[m]"),
+                       (report.max_error_m, "max error \\[m]")):
         t.add_row(label, "-" if val is None else f"{val:.2f}")
-    t.add_row("duration \\[s]", f"{report['duration_s']:.1f} (planned "
-              f"{report['planned_duration_s']:.1f})")
-    legs = report.get("legs")
+    t.add_row("duration \\[s]", f"{report.duration_s:.1f} (planned "
+              f"{report.planned_duration_s:.1f})")
+    legs = report.legs
     if legs:
         t.add_row("worst leg", escape(worst_leg_text(legs).removeprefix("worst leg ")))
     return t
@@ -373,7 +370,7 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                             stream_cpu=opts.sender_cpu,
                             connect_timeout_s=opts.connect_timeout_s)
     recorder = TrackRecorder()
-    report: dict[str, Any] | None = None
+    report: FlightReport | None = None
     fence_shift: FloatArray | None = None
     async with contextlib.AsyncExitStack() as stack:
         url = opts.connect
@@ -485,24 +482,26 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                                     disarm=rover or landing)
                 ended = loop.time()
                 console.print(f"Trajectory flown in {mode} mode: {flown.duration_s:.1f} s")
-                report = recorder.summary(planned.waypoints_rel + origin, planned.acceptance_m,
-                                          duration_s=flown.duration_s,
-                                          planned_duration_s=planned.duration_s)
-                report.update(result="ok", mode=mode, target=opts.target,
-                              final_action=planned.final_action)
-                if px4 is not None:
-                    report["px4_params"] = px4.as_report()
-                report.update(mission_figures(planned, recorder, origin, fence_shift))
-                report["setpoint_quality"] = source.quality.report()
+                report = dataclasses.replace(
+                    recorder.summary(planned.waypoints_rel + origin, planned.acceptance_m,
+                                     duration_s=flown.duration_s,
+                                     planned_duration_s=planned.duration_s),
+                    result="ok", mode=mode, target=opts.target,
+                    final_action=planned.final_action,
+                    px4_params=None if px4 is None else px4.as_report())
+                report = mission_figures(report, planned, recorder, origin, fence_shift)
                 bad = source.quality.failure()
-                report["result"] = breach_failure(report) or (
-                    f"setpoints: {bad}" if bad is not None else "ok")
+                report = dataclasses.replace(
+                    report, setpoint_quality=source.quality.figures(),
+                    result=breach_failure(report) or (
+                        f"setpoints: {bad}" if bad is not None else "ok"))
             except Exception as exc:
                 if recorder.t_s:  # what was flown before the failure, for the post-mortem
-                    report = recorder.summary(None, (), duration_s=recorder.t_s[-1]
-                                              - recorder.t_s[0],
-                                              planned_duration_s=planned.duration_s)
-                    report.update(result=f"failed: {exc}", mode=mode, target=opts.target)
+                    report = dataclasses.replace(
+                        recorder.summary(None, (), duration_s=recorder.t_s[-1]
+                                         - recorder.t_s[0],
+                                         planned_duration_s=planned.duration_s),
+                        result=f"failed: {exc}", mode=mode, target=opts.target)
                     write_report(log_path, report)
                 raise
             finally:
@@ -513,13 +512,13 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                             await task
                 live.update(_status_table(v, source, started, ended or 0.0))
     if report is not None:
-        report["ok"] = bool(report["result"] == "ok")
+        report = dataclasses.replace(report, ok=report.result == "ok")
         console.print(summary_table(report))
-        for b in report.get("geofence_breaches") or []:
+        for b in report.geofence_breaches or ():
             console.print(f"[red]geofence breach in flight:[/red] {escape(str(b['message']))}")
         console.print(f"Report: {escape(str(write_report(log_path, report)))}")
     console.print(f"Done. Log: {escape(str(Path(log_path).resolve()))}")
-    return 0 if report is None or report["result"] == "ok" else 1
+    return 0 if report is None or report.result == "ok" else 1
 
 
 async def status(url: str, console: Console, timeout_s: float = 10.0,

@@ -18,10 +18,13 @@ import traceback
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:  # the helper process imports this module: it stays light
+    from companion.replay.runner import Draw, FlightPicture
 
 FloatArray = NDArray[np.float64]
 
@@ -90,6 +93,46 @@ def draw_flight_png(path: str | Path, d: PlotData) -> None:
         fig.savefig(path, dpi=80)
     finally:
         plt.close(fig)
+
+
+def replay_plot_data(p: FlightPicture) -> PlotData:
+    """What flight.png shows for a replay: the plan sampled at 20 Hz, the flown positions and
+    the tracking error (all NED, shifted by the flight's `origin`), and the per-leg figures of
+    its report, if any."""
+    schedule, log, origin = p.schedule, p.log, p.origin
+    ts = np.linspace(0.0, schedule.duration_s, max(int(schedule.duration_s * 20), 2))
+    te, err = p.tracking_error()
+    p4 = None
+    if p.px4_log is not None and p.px4_log.pos:
+        p4 = np.asarray(p.px4_log.pos, dtype=np.float64).reshape(-1, 3)
+    return PlotData(
+        title=p.title,
+        plan_t=ts,
+        plan_ned=schedule.sample(ts) + origin,
+        t=np.asarray(log.t, dtype=np.float64),
+        pos_ned=np.asarray(log.pos, dtype=np.float64).reshape(-1, 3),
+        px4_pos_ned=p4,
+        waypoints_ned=schedule.waypoints_ned + origin,
+        acceptance_m=tuple(schedule.acceptance_m),
+        t_fly0=log.fly_t0 or 0.0,
+        err_t=te,
+        err_m=err,
+        legs=tuple(p.legs or ()),
+    )
+
+
+def replay_drawer(plotter: PlotWorker | None = None) -> Draw:
+    """A replay's `draw` (`companion.replay.runner.replay_file`): flight.png drawn by
+    `plotter`'s helper process, or in this process when None."""
+
+    def draw(path: Path, picture: FlightPicture) -> None:
+        data = replay_plot_data(picture)
+        if plotter is not None:
+            plotter.draw(path, data)
+        else:
+            draw_flight_png(path, data)
+
+    return draw
 
 
 def _leg_tick(leg: dict[str, Any], k: int) -> str:

@@ -21,9 +21,14 @@ import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, cast
 
 from companion.campaign.perturb import Perturbation, PerturbationRanges, sample
+
+if TYPE_CHECKING:
+    from companion.flight.report import FlightReport
+    from companion.replay.config import Mode
+    from companion.replay.runner import PreparedMission, ReplayConfig, ReplayRun
 
 Keep = Literal["all", "failed", "none"]
 RESULTS_FILE = "runs.jsonl"
@@ -117,7 +122,7 @@ def execute_run(task: RunTask) -> RunOutcome:
     from companion.replay.runner import ReplayConfig, prepare_mission
 
     config = task.perturbation.replay_config(
-        ReplayConfig(vehicle="quad", mode=task.mode, rate_hz=task.rate_hz)  # type: ignore[arg-type]
+        ReplayConfig(vehicle="quad", mode=_mode(task.mode), rate_hz=task.rate_hz)
     )
     tlog_bytes = None
     with tempfile.TemporaryDirectory(prefix="ecca-run-") as tmp:
@@ -144,7 +149,14 @@ def execute_run(task: RunTask) -> RunOutcome:
     return RunOutcome(row, tlog_bytes)
 
 
-def _fly(prep: Any, config: Any, tlog_path: Path | None) -> Any:
+def _mode(mode: str) -> Mode:
+    """A task's setpoint mode, checked."""
+    if mode not in ("position", "attitude", "rates"):
+        raise ValueError(f"mode must be position, attitude or rates, got {mode!r}")
+    return cast("Mode", mode)
+
+
+def _fly(prep: PreparedMission, config: ReplayConfig, tlog_path: Path | None) -> ReplayRun:
     from companion.aio.tlog import TlogWriter
     from companion.replay.runner import run_prepared
 
@@ -154,12 +166,12 @@ def _fly(prep: Any, config: Any, tlog_path: Path | None) -> Any:
         return run_prepared(prep, config, tlog)
 
 
-def _flight_metrics(rep: dict[str, Any]) -> dict[str, Any]:
-    return {k: v for k, v in rep.items()
+def _flight_metrics(rep: FlightReport) -> dict[str, Any]:
+    return {k: v for k, v in rep.to_dict().items()
             if k not in ("wall_s", "real_time_factor", "tlog_frames")}
 
 
-def _row(task: RunTask, rep: dict[str, Any] | None, ok: bool, error: str = "") -> dict[str, Any]:
+def _row(task: RunTask, rep: FlightReport | None, ok: bool, error: str = "") -> dict[str, Any]:
     """One flat row of the results table (keys carry units)."""
     row: dict[str, Any] = {
         "run_id": task.run_id,
@@ -174,32 +186,37 @@ def _row(task: RunTask, rep: dict[str, Any] | None, ok: bool, error: str = "") -
         for k in _METRICS:
             row[k] = None
     else:
-        wps = rep["waypoints"]
-        margins = [w["acceptance_radius_m"] - w["closest_approach_m"] for w in wps]
+        wps = rep.waypoints
+        margins = [w.acceptance_radius_m - _approach(w.closest_approach_m) for w in wps]
         row.update({
-            "result": rep["result"],
+            "result": rep.result,
             "ok": bool(ok),
-            "rms_error_m": rep["rms_error_m"],
-            "max_error_m": rep["max_error_m"],
-            "waypoints_reached": int(rep["waypoints_reached"]),
+            "rms_error_m": rep.rms_error_m,
+            "max_error_m": rep.max_error_m,
+            "waypoints_reached": int(rep.waypoints_reached),
             "waypoints_total": len(wps),
             "min_waypoint_margin_m": _finite(min(margins)) if margins else None,
-            "max_tilt_deg": rep["max_tilt_deg"],
-            "max_thrust_norm": rep["max_thrust_norm"],
-            "max_body_rate_rad_s": rep["max_body_rate_rad_s"],
-            "max_speed_m_s": rep["max_speed_m_s"],
-            "duration_s": rep["duration_s"],
-            "planned_duration_s": rep["planned_duration_s"],
-            "geofence_violations": int(rep["geofence_violations"]),
-            "failsafes": len(rep["failsafes"]),
-            "max_waypoint_miss_geo_m": rep.get("max_waypoint_miss_geo_m"),
-            "simulated_s": rep["simulated_s"],
-            "wall_s": rep["wall_s"],
-            "real_time_factor": rep["real_time_factor"],
+            "max_tilt_deg": rep.max_tilt_deg,
+            "max_thrust_norm": rep.max_thrust_norm,
+            "max_body_rate_rad_s": rep.max_body_rate_rad_s,
+            "max_speed_m_s": rep.max_speed_m_s,
+            "duration_s": rep.duration_s,
+            "planned_duration_s": rep.planned_duration_s,
+            "geofence_violations": int(rep.geofence_violations or 0),
+            "failsafes": len(rep.failsafes),
+            "max_waypoint_miss_geo_m": rep.max_waypoint_miss_geo_m,
+            "simulated_s": rep.simulated_s,
+            "wall_s": rep.wall_s,
+            "real_time_factor": rep.real_time_factor,
         })
     row["command"] = task.command
     row["tlog"] = None
     return row
+
+
+def _approach(c: float | None) -> float:
+    """A waypoint's closest approach [m] (None: never approached, inf)."""
+    return math.inf if c is None else c
 
 
 def _finite(x: float) -> float | None:

@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass, field, fields
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,6 +31,34 @@ THRUST_STEP_FAIL = 0.25
 TILT_MARGIN_DEG = 0.5
 #: A commanded body rate above the vehicle's limit by more than this share fails the flight.
 RATE_MARGIN = 0.02
+
+
+@dataclass(frozen=True)
+class SetpointQualityFigures:
+    """The setpoint figures of one flight (`SetpointQuality.figures`): setpoints counted,
+    the largest thrust step over 10 ms in the air and how many exceeded `thrust_step_goal`,
+    the largest commanded tilt [deg] and body rates FRD [rad/s] against the vehicle's limits,
+    and the time spent over each limit [s]."""
+
+    setpoints: int
+    max_thrust_step_10ms: float
+    thrust_steps_over_goal: int
+    thrust_step_goal: float
+    max_tilt_cmd_deg: float
+    tilt_limit_deg: float
+    time_over_tilt_limit_s: float
+    max_body_rate_cmd_rad_s: tuple[float, float, float]
+    body_rate_limit_rad_s: tuple[float, float, float]
+    time_over_body_rate_limit_s: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """The figures as report.json writes them (field names are the keys)."""
+        return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v)
+                for f in fields(self)}
+
+
+def _rates3(r: Sequence[float]) -> tuple[float, float, float]:
+    return (round(r[0], 3), round(r[1], 3), round(r[2], 3))
 
 
 @dataclass(frozen=True)
@@ -126,21 +154,25 @@ class SetpointQuality:
         if over:
             self.over_rate_s += dt
 
-    def report(self) -> dict[str, Any]:
-        """The figures for a flight report (keys carry units)."""
+    def figures(self) -> SetpointQualityFigures:
+        """The figures for a flight report (rounded as reported)."""
         lim = self.limits
-        return {
-            "setpoints": self.setpoints,
-            "max_thrust_step_10ms": round(self.max_thrust_step, 4),
-            "thrust_steps_over_goal": self.thrust_steps_over_goal,
-            "thrust_step_goal": THRUST_STEP_GOAL,
-            "max_tilt_cmd_deg": round(math.degrees(self.max_tilt_rad), 2),
-            "tilt_limit_deg": round(math.degrees(lim.tilt_max_rad), 2),
-            "time_over_tilt_limit_s": round(self.over_tilt_s, 3),
-            "max_body_rate_cmd_rad_s": [round(r, 3) for r in self.max_rate_frd],
-            "body_rate_limit_rad_s": [round(r, 3) for r in lim.rate_max_frd],
-            "time_over_body_rate_limit_s": round(self.over_rate_s, 3),
-        }
+        return SetpointQualityFigures(
+            setpoints=self.setpoints,
+            max_thrust_step_10ms=round(self.max_thrust_step, 4),
+            thrust_steps_over_goal=self.thrust_steps_over_goal,
+            thrust_step_goal=THRUST_STEP_GOAL,
+            max_tilt_cmd_deg=round(math.degrees(self.max_tilt_rad), 2),
+            tilt_limit_deg=round(math.degrees(lim.tilt_max_rad), 2),
+            time_over_tilt_limit_s=round(self.over_tilt_s, 3),
+            max_body_rate_cmd_rad_s=_rates3(self.max_rate_frd),
+            body_rate_limit_rad_s=_rates3(lim.rate_max_frd),
+            time_over_body_rate_limit_s=round(self.over_rate_s, 3),
+        )
+
+    def report(self) -> dict[str, Any]:
+        """The figures for a flight report as JSON (keys carry units)."""
+        return self.figures().to_dict()
 
     def failure(self) -> str | None:
         """Why the setpoints make the flight not "ok" (None: they do not): a commanded tilt or
@@ -193,9 +225,10 @@ class TrackRecorder:
         *,
         duration_s: float,
         planned_duration_s: float,
-    ) -> dict[str, Any]:
-        """Report dict (keys carry units): duration, RMS/max error of flown vs reference,
-        closest approach to and reached flag of every waypoint (within its acceptance radius)."""
+    ) -> FlightReport:
+        """A `fly` report of the samples (result still empty): duration, RMS/max error of
+        flown vs reference, closest approach to and reached flag of every waypoint (within
+        its acceptance radius)."""
         pos = np.asarray(self.pos_ned, dtype=np.float64).reshape(-1, 3)
         ref = np.asarray(self.ref_ned, dtype=np.float64).reshape(-1, 3)
         err = np.linalg.norm(pos - ref, axis=1)
@@ -205,18 +238,250 @@ class TrackRecorder:
         if len(acc) != len(wps):
             raise ValueError(f"{len(wps)} waypoints but {len(acc)} acceptance radii")
         closest = closest_approach(pos, wps)
-        return {
-            "duration_s": round(float(duration_s), 3),
-            "planned_duration_s": round(float(planned_duration_s), 3),
-            "samples": len(err),
-            "rms_error_m": float(np.sqrt(np.mean(err**2))) if len(err) else None,
-            "max_error_m": float(np.max(err)) if len(err) else None,
-            "waypoints": [
-                {"north_m": float(w[0]), "east_m": float(w[1]), "down_m": float(w[2]),
-                 "acceptance_radius_m": float(a),
-                 "closest_approach_m": float(c) if math.isfinite(c) else None,
-                 "reached": bool(c <= a)}
+        return FlightReport(
+            kind="fly",
+            result="",
+            duration_s=round(float(duration_s), 3),
+            planned_duration_s=round(float(planned_duration_s), 3),
+            samples=len(err),
+            rms_error_m=float(np.sqrt(np.mean(err**2))) if len(err) else None,
+            max_error_m=float(np.max(err)) if len(err) else None,
+            waypoints=tuple(
+                WaypointResult(float(w[0]), float(w[1]), float(w[2]), float(a),
+                               float(c) if math.isfinite(c) else None, bool(c <= a))
                 for w, a, c in zip(wps, acc, closest, strict=True)
-            ],
-            "waypoints_reached": int(np.count_nonzero(closest <= acc)),
+            ),
+            waypoints_reached=int(np.count_nonzero(closest <= acc)),
+        )
+
+
+# ----------------------------------------------------------------------------- the flight report
+
+#: Which report: a lockstep replay of the companion's flight, the mock's own AUTO.MISSION flight
+#: of the same file (replay --compare-px4-mission), or a `fly` flight.
+ReportKind = Literal["replay", "px4_mission", "fly"]
+
+
+@dataclass(frozen=True)
+class WaypointResult:
+    """One planned waypoint against the flown track: its position (NED [m], the flight's
+    frame), acceptance radius [m], the track's closest approach [m] (None or inf: no track)
+    and whether it came within the radius. `item_index`: the mission item (None: a pattern's
+    waypoint, or a `fly` report, which does not name items)."""
+
+    north_m: float
+    east_m: float
+    down_m: float
+    acceptance_radius_m: float
+    closest_approach_m: float | None
+    reached: bool
+    item_index: int | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The waypoint as report.json writes it."""
+        d: dict[str, Any] = {} if self.item_index is None else {"item_index": self.item_index}
+        d.update(north_m=self.north_m, east_m=self.east_m, down_m=self.down_m,
+                 acceptance_radius_m=self.acceptance_radius_m,
+                 closest_approach_m=self.closest_approach_m, reached=self.reached)
+        return d
+
+
+@dataclass(frozen=True)
+class Failsafe:
+    """A STATUSTEXT naming a failsafe or a loss, at simulated time `t_s` [s]."""
+
+    t_s: float
+    text: str
+
+
+@dataclass(frozen=True, kw_only=True)
+class FlightReport:
+    """The report of one flight (replay, `fly`), typed; `to_dict` is its report.json.
+
+    Common to every kind: `result` ("ok" or what went wrong), the flight's duration and the
+    plan's [s], the RMS and largest tracking error [m] (None: no sample), the waypoints and how
+    many were reached, the setpoint figures, the PX4 planning parameters used (None: not read).
+    Geofence and per-leg figures are None where not checked (a `fly` pattern). Fields of other
+    kinds keep their defaults and are not written; see `to_dict` for each kind's keys.
+
+    `ok`: the flight's verdict as written (None: not judged, a `fly` report written after a
+    failure). A replay's is `result == "ok"` with every waypoint reached (`report_ok`)."""
+
+    kind: ReportKind
+    result: str
+    duration_s: float
+    planned_duration_s: float
+    waypoints: tuple[WaypointResult, ...]
+    waypoints_reached: int
+    rms_error_m: float | None = None
+    max_error_m: float | None = None
+    ok: bool | None = None
+    setpoint_quality: SetpointQualityFigures | None = None
+    px4_params: dict[str, Any] | None = None
+    # flown figures (replay, px4_mission)
+    path_length_m: float = 0.0
+    max_speed_m_s: float = 0.0
+    max_tilt_deg: float = 0.0
+    max_thrust_norm: float | None = None
+    max_body_rate_rad_s: float = 0.0
+    failsafes: tuple[Failsafe, ...] = ()
+    # the geofence (violations None: not checked) and the legs of a mission
+    geofence_violations: int | None = None
+    geofence_violation_zones: tuple[str, ...] = ()
+    geofence_breaches: tuple[dict[str, Any], ...] | None = None
+    legs: tuple[dict[str, Any], ...] | None = None
+    bound_s: float | None = None
+    """Time-optimal bound of the whole plan [s] (None: unknown)."""
+    planned_over_bound: float | None = None
+    planned_s: float | None = None
+    """`fly`: the whole schedule's duration [s], takeoff included."""
+    # the replay run
+    file: str | None = None
+    vehicle: str | None = None
+    mode: str | None = None
+    setpoint_rate_hz: float | None = None
+    setpoints_sent: int = 0
+    tlog_frames: int | None = None
+    simulated_s: float = 0.0
+    wall_s: float = 0.0
+    real_time_factor: float | None = None
+    warnings: tuple[str, ...] = ()
+    max_waypoint_miss_geo_m: float | None = None
+    """Farthest miss of the mission's geodetic waypoints [m] (replay with a start offset)."""
+    px4_mission: FlightReport | None = None
+    # fly
+    samples: int | None = None
+    target: str | None = None
+    final_action: str | None = None
+
+    @property
+    def reached_all(self) -> bool:
+        """Every waypoint reached."""
+        return self.waypoints_reached == len(self.waypoints)
+
+    def to_dict(self) -> dict[str, Any]:
+        """report.json: the keys (with units) and values, in the order each kind writes them."""
+        if self.kind == "fly":
+            return self._fly_dict()
+        d: dict[str, Any] = {
+            "duration_s": self.duration_s,
+            "planned_duration_s": self.planned_duration_s,
+            "path_length_m": self.path_length_m,
         }
+        if self.kind == "replay":  # PX4's own mission follows no plan of the companion's
+            d["rms_error_m"] = self.rms_error_m
+            d["max_error_m"] = self.max_error_m
+        d.update({
+            "waypoints": [w.to_dict() for w in self.waypoints],
+            "waypoints_reached": self.waypoints_reached,
+            "max_speed_m_s": self.max_speed_m_s,
+            "max_tilt_deg": self.max_tilt_deg,
+            "max_thrust_norm": self.max_thrust_norm,
+            "max_body_rate_rad_s": self.max_body_rate_rad_s,
+            "geofence_violations": self.geofence_violations,
+            "geofence_violation_zones": list(self.geofence_violation_zones),
+            "failsafes": [{"t_s": f.t_s, "text": f.text} for f in self.failsafes],
+            "bound_s": self.bound_s,
+            "planned_over_bound": self.planned_over_bound,
+        })
+        if self.geofence_breaches is not None:
+            d["geofence_breaches"] = list(self.geofence_breaches)
+        if self.legs is not None:
+            d["legs"] = list(self.legs)
+        if self.kind == "px4_mission":
+            d["result"] = self.result
+            d["ok"] = self.ok
+            return d
+        d.update({
+            "file": self.file,
+            "vehicle": self.vehicle,
+            "mode": self.mode,
+            "setpoint_rate_hz": self.setpoint_rate_hz,
+            "setpoints_sent": self.setpoints_sent,
+            "tlog_frames": self.tlog_frames,
+            "result": self.result,
+            "simulated_s": self.simulated_s,
+            "wall_s": self.wall_s,
+            "real_time_factor": self.real_time_factor,
+            "warnings": list(self.warnings),
+        })
+        if self.px4_params is not None:
+            d["px4_params"] = self.px4_params
+        d["setpoint_quality"] = (None if self.setpoint_quality is None
+                                 else self.setpoint_quality.to_dict())
+        d["ok"] = self.ok
+        if self.max_waypoint_miss_geo_m is not None:
+            d["max_waypoint_miss_geo_m"] = self.max_waypoint_miss_geo_m
+        if self.px4_mission is not None:
+            d["px4_mission"] = self.px4_mission.to_dict()
+        return d
+
+    def _fly_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {
+            "duration_s": self.duration_s,
+            "planned_duration_s": self.planned_duration_s,
+            "samples": self.samples,
+            "rms_error_m": self.rms_error_m,
+            "max_error_m": self.max_error_m,
+            "waypoints": [w.to_dict() for w in self.waypoints],
+            "waypoints_reached": self.waypoints_reached,
+            "result": self.result,
+            "mode": self.mode,
+            "target": self.target,
+        }
+        if self.final_action is not None:
+            d["final_action"] = self.final_action
+        if self.px4_params is not None:
+            d["px4_params"] = self.px4_params
+        if self.geofence_violations is not None:  # a mission's figures
+            d.update({
+                "geofence_violations": self.geofence_violations,
+                "geofence_violation_zones": list(self.geofence_violation_zones),
+                "geofence_breaches": list(self.geofence_breaches or ()),
+                "planned_s": self.planned_s,
+                "bound_s": self.bound_s,
+                "legs": list(self.legs or ()),
+            })
+        if self.setpoint_quality is not None:
+            d["setpoint_quality"] = self.setpoint_quality.to_dict()
+        if self.ok is not None:
+            d["ok"] = self.ok
+        return d
+
+
+def report_ok(report: FlightReport) -> bool:
+    """A replay's verdict: result "ok" (no abort, no geofence breach), every waypoint reached."""
+    return report.result == "ok" and report.reached_all
+
+
+def breach_result(report: FlightReport) -> str:
+    """The report's result, failed by a geofence breach: ``"geofence breach: ..."`` if the
+    flight otherwise ended "ok" and breached the fence (a breach is never ok)."""
+    if report.result != "ok":
+        return report.result
+    return breach_failure(report) or report.result
+
+
+def breach_failure(report: FlightReport) -> str | None:
+    """``"geofence breach: ..."`` if the flight breached the fence (the first breach, or the
+    zones entered when the breaches were not found per leg), else None."""
+    found = report.geofence_breaches or ()
+    if found:
+        more = f" (+{len(found) - 1} more)" if len(found) > 1 else ""
+        return f"geofence breach: {found[0]['message']}{more}"
+    if report.geofence_violations:
+        return "geofence breach: " + ", ".join(report.geofence_violation_zones)
+    return None
+
+
+def missed_result(report: FlightReport) -> str:
+    """The report's result, failed by missed waypoints: ``"missed N waypoint(s): item I by D m,
+    ..."`` if the flight otherwise ended "ok" and passed a waypoint farther than its
+    acceptance radius."""
+    missed = [w for w in report.waypoints if not w.reached]
+    if report.result != "ok" or not missed:
+        return report.result
+    where = ", ".join(f"item {w.item_index} by {w.closest_approach_m:.1f} m"
+                      for w in missed[:3])
+    more = f" (+{len(missed) - 3} more)" if len(missed) > 3 else ""
+    return f"missed {len(missed)} waypoint(s): {where}{more}"

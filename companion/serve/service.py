@@ -586,7 +586,7 @@ class ServeService:
                 *([Announce(f"ecca: setpoints: {bad}", MAV_SEVERITY_WARNING)] if bad else []),
                 LogEvent("mission_complete", {"reached": self.reached,
                                               "final_action": prog.final_action,
-                                              "setpoint_quality": quality.report(),
+                                              "setpoint_quality": quality.figures().to_dict(),
                                               "setpoints_ok": bad is None}),
                 *self._request_final(obs)]
 

@@ -276,9 +276,9 @@ def test_rover_planned_above_its_top_speed_misses_corners_and_says_so(
 ) -> None:
     """Without the speed cap (5 m/s legs for a 1.5 m/s rover) the rover falls behind and cuts
     the corners: the replay exits 1 and the summary names the missed waypoints."""
-    import companion.replay.runner as replay
+    import companion.replay.config as replay_config
 
-    monkeypatch.setattr(replay, "ROVER_SPEED_FRACTION", 4.0)  # cap 6 m/s: legs at 5 m/s
+    monkeypatch.setattr(replay_config, "ROVER_SPEED_FRACTION", 4.0)  # cap 6 m/s: legs at 5 m/s
     code = cli_main(["replay", str(ROVER_MISSION), "--vehicle", "rover", "--out", str(tmp_path),
                      "--mock-param", "RO_MAX_SPEED=1.5"])
     assert code == 1

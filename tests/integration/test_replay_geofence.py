@@ -132,9 +132,10 @@ def test_time_optimal_bounds_given_to_the_replay_appear_per_leg_and_per_flight(
     bounds = tuple([None] + [4.0] * (n - 1))
     prep = dataclasses.replace(prep, leg_bounds_s=bounds, bound_s=20.0)
     rep = run_prepared(prep, config, None).report
-    assert rep["bound_s"] == 20.0
-    assert rep["planned_over_bound"] == pytest.approx(rep["planned_duration_s"] / 20.0, rel=1e-3)
-    legs = rep["legs"]
+    assert rep.bound_s == 20.0
+    assert rep.planned_over_bound == pytest.approx(rep.planned_duration_s / 20.0, rel=1e-3)
+    legs = rep.legs
+    assert legs is not None
     assert legs[0]["bound_s"] is None and legs[0]["time_over_bound"] is None
     for g in legs[1:]:
         assert g["bound_s"] == 4.0

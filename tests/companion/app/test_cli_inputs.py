@@ -14,6 +14,7 @@ import pytest
 import companion.app.fly
 import companion.replay.runner
 from companion.app.cli import EXIT_BAD_INPUT, EXIT_FAILURE, build_parser, main
+from companion.flight.report import FlightReport, WaypointResult
 from companion.mission import MissionError, load_mission, mission_to_flight_plan
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -132,12 +133,13 @@ def test_replay_prints_each_warning_once(
 def test_px4_compare_row_is_not_ok_with_missed_waypoints(
     capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
-    wps = [{"index": i} for i in range(11)]
-    report = {"result": "ok", "waypoints": wps, "waypoints_reached": 11, "duration_s": 10.0,
-              "rms_error_m": 0.1, "max_error_m": 0.2, "max_tilt_deg": 10.0,
-              "real_time_factor": 20.0,
-              "px4_mission": {"result": "ok", "waypoints": wps, "waypoints_reached": 9,
-                              "duration_s": 12.0, "max_tilt_deg": 11.0}}
+    wps = tuple(WaypointResult(float(i), 0.0, -5.0, 1.0, 0.5, True, i) for i in range(11))
+    px4 = FlightReport(kind="px4_mission", result="ok", waypoints=wps, waypoints_reached=9,
+                       duration_s=12.0, planned_duration_s=10.0, max_tilt_deg=11.0)
+    report = FlightReport(kind="replay", result="ok", waypoints=wps, waypoints_reached=11,
+                          duration_s=10.0, planned_duration_s=10.0, rms_error_m=0.1,
+                          max_error_m=0.2, max_tilt_deg=10.0, real_time_factor=20.0,
+                          px4_mission=px4)
 
     def stub(path: str, out: str, *_a: Any, **_k: Any) -> Any:
         return companion.replay.runner.ReplayResult(Path(path).stem, Path(out), report, True)

@@ -11,12 +11,11 @@ import pytest
 
 from companion.app.fly import (
     FlyOptions,
-    breach_failure,
     check_inputs,
     mission_figures,
     plan_flight,
 )
-from companion.flight.report import TrackRecorder
+from companion.flight.report import FlightReport, TrackRecorder, breach_failure
 from companion.planning.fence_check import sample_schedule
 from tests.support.fence_plans import box, write_plan
 
@@ -40,13 +39,19 @@ def _record(planned, shift_ne: tuple[float, float], origin: np.ndarray) -> Track
     return rec
 
 
+def _report(rec: TrackRecorder) -> FlightReport:
+    return rec.summary(None, (), duration_s=rec.t_s[-1] - rec.t_s[0], planned_duration_s=0.0)
+
+
 def test_track_on_the_plan_has_no_breach_and_legs_after_the_takeoff(tmp_path: Path) -> None:
     planned = _planned(tmp_path)
     origin = np.array([3.0, -2.0, -0.5])  # PX4's local frame is not the mission's
-    fig = mission_figures(planned, _record(planned, (0.0, 0.0), origin), origin, None)
-    assert fig["geofence_breaches"] == [] and fig["geofence_violations"] == 0
+    rec = _record(planned, (0.0, 0.0), origin)
+    fig = mission_figures(_report(rec), planned, rec, origin, None)
+    assert fig.geofence_breaches == () and fig.geofence_violations == 0
     assert breach_failure(fig) is None
-    legs = fig["legs"]
+    legs = fig.legs
+    assert legs is not None
     # PX4 flies the takeoff: the legs start at item 1
     assert [(g["from_item"], g["to_item"]) for g in legs] == [(1, 2), (2, 3)]
     for g in legs:
@@ -58,14 +63,15 @@ def test_track_shifted_over_the_zone_is_a_failed_result(tmp_path: Path) -> None:
     origin = np.zeros(3)
     rec = _record(planned, (0.0, 6.0), origin)  # flown 6 m east of the plan
     # the fence in the mission frame: local + shift (here the local frame is the mission's)
-    fig = mission_figures(planned, rec, origin, np.zeros(3))
-    (b,) = fig["geofence_breaches"]
+    fig = mission_figures(_report(rec), planned, rec, origin, np.zeros(3))
+    assert fig.geofence_breaches is not None and fig.legs is not None
+    (b,) = fig.geofence_breaches
     assert (b["from_item"], b["to_item"], b["zone"]) == (1, 2, "exclusion polygon 0")
     failure = breach_failure(fig)
     assert failure is not None and failure.startswith(
         "geofence breach: the leg from item 1 to item 2 crosses exclusion polygon 0")
     # in the plan frame the same track is 6 m off its leg
-    assert max(g["max_deviation_m"] for g in fig["legs"]) >= 6.0 - 0.1
+    assert max(g["max_deviation_m"] for g in fig.legs) >= 6.0 - 0.1
     # measured against a geodetic shift that puts it back on the plan: no breach
-    fig2 = mission_figures(planned, rec, origin, np.array([0.0, -6.0, 0.0]))
-    assert fig2["geofence_breaches"] == []
+    fig2 = mission_figures(_report(rec), planned, rec, origin, np.array([0.0, -6.0, 0.0]))
+    assert fig2.geofence_breaches == ()
