@@ -12,7 +12,9 @@ Nothing here reads a clock or does I/O: the caller feeds
 and performs the actions returned, in order: :class:`Stream` (send one setpoint now: replay
 sends it, a fixed-rate sender thread streams on its own while :attr:`FlightSequence.streaming`),
 :class:`SendCommand`, :class:`PhaseChanged`, :class:`Finished`. Used by the lockstep replay
-(`companion.replay.runner`) and by `Vehicle.fly` (`companion.aio`), which `fly` drives.
+(`companion.replay.runner`), by `Vehicle.fly` (`companion.aio`), which `fly` drives, and by
+`serve` (`companion.serve.service`), one sequence per OFFBOARD entry of the pilot
+(:attr:`SequenceConfig.pilot_start`; serve streams its own setpoints and ignores :class:`Stream`).
 """
 
 from __future__ import annotations
@@ -154,7 +156,10 @@ class EndPolicy:
     disarmed once in Hold); else the flight is done when the handover command finished.
     land_timeout_s: after the handover the landing and disarm must end within this long [s]
     from the vehicle being in LAND (or the disarm in Hold being sent), else the flight fails
-    (NO_LAND); None: no limit (the caller bounds the flight)."""
+    (NO_LAND); None: no limit (the caller bounds the flight).
+    handover_retry_s: with ``land_and_disarm`` False and ``stream_handover`` False: send the
+    handover command again this often [s] while the HEARTBEAT still shows OFFBOARD (its results
+    are not needed); the flight is done once the HEARTBEAT shows another mode. None: sent once."""
 
     handover_mode: FlightMode = FlightMode.HOLD
     touchdown_from_s: float | None = None
@@ -170,6 +175,7 @@ class EndPolicy:
     disarm_on_ground: bool = True
     mode_wait_s: float = 3.0
     land_timeout_s: float | None = None
+    handover_retry_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -178,7 +184,9 @@ class SequenceConfig:
     least 90 % of the expected setpoints, no gap); arm: arm in OFFBOARD (else the vehicle is
     already armed); confirm_arm_s: after an accepted ARM wait at most this long for the
     HEARTBEAT to show armed before the trajectory's time starts (None: the ack starts it);
-    duration_s: the trajectory [s]."""
+    duration_s: the trajectory [s]; pilot_start: the pilot switches to OFFBOARD (serve): the
+    trajectory's time starts when the HEARTBEAT first shows OFFBOARD, nothing is primed,
+    requested or armed (the caller streams)."""
 
     rate_hz: float
     duration_s: float
@@ -187,6 +195,7 @@ class SequenceConfig:
     prime_timeout_s: float = 3.0
     arm: bool = True
     confirm_arm_s: float | None = None
+    pilot_start: bool = False
 
 
 _STREAM_PHASES = frozenset({Phase.PRIME, Phase.REQUEST_OFFBOARD, Phase.ARM, Phase.CONFIRM_ARM,
@@ -213,6 +222,7 @@ class FlightSequence:
         self._t_disarm_ack: float | None = None
         self._handover_cmd: int | None = None
         self._handover_mode = FlightMode.HOLD
+        self._t_handover_sent = 0.0
 
     # -- state --------------------------------------------------------------------------------
     @property
@@ -300,6 +310,12 @@ class FlightSequence:
             self.offboard_seen = True
         ph = self.phase
         if ph is Phase.WAIT_READY:
+            if self.config.pilot_start:
+                if view.mode is not FlightMode.OFFBOARD:
+                    return []
+                self.machine.fire(OffboardTrigger.PILOT_ENTERED_OFFBOARD, now,
+                                  "pilot entered OFFBOARD")
+                return self._start_fly(now)
             if view.ready and view.mode is not None:
                 self.machine.start(now)
                 return self._go(Phase.PRIME, now)
@@ -385,17 +401,32 @@ class FlightSequence:
         self.t_plan_end = now
         if not self.end.stream_handover:
             self.machine.stop(now, why)
-        if mode is FlightMode.LAND and self.end.land_command:
-            cmd = SendCommand.land()
-        else:
-            cmd = SendCommand.set_mode(mode)
+        cmd = self._handover_command(mode)
         self._handover_mode = mode
         self._handover_cmd = cmd.command
+        self._t_handover_sent = now
         return [*out, cmd]
+
+    def _handover_command(self, mode: FlightMode) -> SendCommand:
+        if mode is FlightMode.LAND and self.end.land_command:
+            return SendCommand.land()
+        return SendCommand.set_mode(mode)
+
+    def _retry_handover(self, now: float, view: VehicleView) -> list[SequenceAction]:
+        """EndPolicy.handover_retry_s: again while still in OFFBOARD, done once out of it."""
+        retry = self.end.handover_retry_s
+        if retry is None or view.mode is None:
+            return []
+        if view.mode is not FlightMode.OFFBOARD:
+            return self._finish(now, f"handed over (now {view.mode.name})")
+        if now - self._t_handover_sent >= retry:
+            self._t_handover_sent = now
+            return [self._handover_command(self._handover_mode)]
+        return []
 
     def _after_handover(self, now: float, view: VehicleView) -> list[SequenceAction]:
         if not self.end.land_and_disarm:
-            return []
+            return self._retry_handover(now, view)
         if self.phase is Phase.HANDOVER:
             if self._handover_mode is not FlightMode.LAND:
                 if view.mode is self._handover_mode or now - self.t_phase > self.end.mode_wait_s:

@@ -1,4 +1,5 @@
-"""Offboard state machine: IDLE -> PRIMING -> REQUESTED -> ACTIVE -> EXITED / LOST.
+"""Offboard state machine: IDLE -> PRIMING -> REQUESTED -> ACTIVE -> EXITED / LOST, or
+IDLE -> ACTIVE when the pilot switched the vehicle into OFFBOARD (serve streams on its own).
 
 Transitions are data (``TRANSITIONS``). PRIMING streams setpoints; the OFFBOARD request is only
 allowed once the stream has run continuously for ``prime_s`` (default 0.5 s) at the configured
@@ -34,6 +35,7 @@ class OffboardTrigger(Enum):
     MODE_LEFT = "mode_left"
     LINK_LOST = "link_lost"
     STOP = "stop"
+    PILOT_ENTERED_OFFBOARD = "pilot_entered_offboard"  # the pilot switched to OFFBOARD
 
 
 S, T = OffboardState, OffboardTrigger
@@ -41,6 +43,7 @@ S, T = OffboardState, OffboardTrigger
 #: (state, trigger) -> next state. Pairs not listed are ignored (no transition).
 TRANSITIONS: dict[tuple[OffboardState, OffboardTrigger], OffboardState] = {
     (S.IDLE, T.START): S.PRIMING,
+    (S.IDLE, T.PILOT_ENTERED_OFFBOARD): S.ACTIVE,
     (S.EXITED, T.START): S.PRIMING,
     (S.LOST, T.START): S.PRIMING,
     (S.PRIMING, T.REQUEST): S.REQUESTED,

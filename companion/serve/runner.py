@@ -371,7 +371,8 @@ async def serve(opts: ServeOptions, console: Console) -> int:
     folder = Path(opts.log_dir)
     folder.mkdir(parents=True, exist_ok=True)
     config = ServiceConfig(setpoint_mode=opts.mode, params=vf.params,  # type: ignore[arg-type]
-                           limits=vf.limits, tracking=vf.tracking_config(math.radians(50.0)))
+                           limits=vf.limits, tracking=vf.tracking_config(math.radians(50.0)),
+                           rate_hz=opts.rate_hz)
     service = ServeService(config)
     events = EventLog(folder / "events.jsonl", console)
     tlog = RotatingTlog(folder, opts.tlog_max_bytes, opts.tlog_keep)

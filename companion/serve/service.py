@@ -13,7 +13,9 @@ the RC or the ground station. It:
   to the nearest point of the leg towards the first waypoint not yet reached, then the plan;
   leaving OFFBOARD stops the mission stream at once (back to hold); re-entering resumes from the
   current position. At the end of the plan it requests the mission's final action (Land, RTL or
-  Hold) while still streaming.
+  Hold) while still streaming. Each OFFBOARD entry that flies the mission is one
+  :class:`companion.flight.FlightSequence` started by the pilot: it decides when the plan has
+  settled and requests (and re-requests) the final mode; the hold stream stays here.
 
 ``ServeService.update(obs)`` takes one :class:`Observation` (all times are the caller's
 monotonic seconds; nothing here reads a clock or does I/O) and returns actions
@@ -39,6 +41,14 @@ from companion.control import Reference, TrackingConfig
 from companion.flatness import MultirotorParams
 from companion.flight.policy import final_mode
 from companion.flight.report import SetpointLimits
+from companion.flight.sequence import (
+    EndPolicy,
+    FlightSequence,
+    SendCommand,
+    SequenceAction,
+    SequenceConfig,
+    VehicleView,
+)
 from companion.flight.tracking import SetpointMode, TrackingSource
 from companion.mavlink.mission_client import WireMissionItem
 from companion.mavlink.px4_mode import FlightMode
@@ -85,6 +95,7 @@ class ServiceConfig:
     settle_s: float = 3.0  # ... or this long after the plan ended
     mode_retry_s: float = 3.0  # re-request the final action if PX4 is still in OFFBOARD
     px4: Px4PlanningParams | None = None  # the vehicle's planning parameters (None: defaults)
+    rate_hz: float = 50.0  # the sender's setpoint rate [Hz]
 
 
 # -- observations and actions ------------------------------------------------------------------
@@ -294,8 +305,7 @@ class ServeService:
         self.reached = 0  # waypoints reached on this flight, in order
         self.t_progress = 0.0  # schedule time flown so far on this flight [s]
         self.done = False  # the final action was requested on this flight
-        self._end_since: float | None = None
-        self._final_requested_at: float | None = None
+        self._seq: FlightSequence | None = None  # this OFFBOARD entry's flight (mission, finishing)
         self._last_mode: FlightMode | None = None
         self._link_ok = False
 
@@ -331,10 +341,13 @@ class ServeService:
         if not flying:
             if self.state != "idle":
                 out.append(LogEvent("state", {"state": "idle", "why": "not flying"}))
-            self.state, self.stream = "idle", None
+            self.state, self.stream, self._seq = "idle", None, None
             return out
         offboard = obs.mode is FlightMode.OFFBOARD
         if not offboard:
+            if self._seq is not None:  # the entry ends (a pause, or the final mode took over)
+                self._seq.update(obs.now_s, self._view(obs, fresh))
+                self._seq = None
             if self.state == "mission":
                 out.append(Announce(f"ecca: paused at {self._progress_text()}, holding stream"))
                 out.append(LogEvent("state", {"state": "hold", "why": "left OFFBOARD",
@@ -351,10 +364,8 @@ class ServeService:
             out += self._enter_offboard(obs, fresh)
         elif self.state == "mission":
             out += self._fly(obs, fresh)
-        elif self.state == "finishing":
-            t_req = self._final_requested_at
-            if t_req is None or obs.now_s - t_req >= self.config.mode_retry_s:
-                out += self._request_final(obs)
+        elif self.state == "finishing" and self._seq is not None:
+            out += self._final_requests(self._seq.update(obs.now_s, self._view(obs, fresh)))
         return out
 
     def on_downloaded(self, key: tuple[int, int], n_items: int) -> list[Action]:
@@ -384,7 +395,7 @@ class ServeService:
                                             vel_ned=(0.0, 0.0, 0.0), yaw=_yaw_of(r))
             if hold is not None:
                 self.stream = HoldStream(hold)
-            self.state = "offboard_hold"
+            self.state, self._seq = "offboard_hold", None
             out.append(Announce("ecca: mission changed in flight: holding, re-enter OFFBOARD "
                                 "to fly the new one", MAV_SEVERITY_WARNING))
         self._reset_progress()
@@ -416,8 +427,6 @@ class ServeService:
         self.reached = 0
         self.t_progress = 0.0
         self.done = False
-        self._end_since = None
-        self._final_requested_at = None
 
     def _progress_text(self) -> str:
         prog = self.program
@@ -478,7 +487,7 @@ class ServeService:
                     LogEvent("join_failed", {"why": str(exc)})]
         self.stream = stream
         self.state = "mission"
-        self._end_since = None
+        self._seq = self._sequence(prog, stream, obs)
         out += [Announce(f"ecca: flying mission from {self._progress_text()}"),
                 LogEvent("state", {"state": "mission", "t_join": round(stream.t_join, 3),
                                    "join_s": round(stream.join_s, 3),
@@ -566,15 +575,12 @@ class ServeService:
         while self.reached < len(prog.wp_times) and prog.wp_times[self.reached] <= t \
                 and obs.now_s - ms.t0_s >= ms.join_s:
             self.reached += 1
-        if t < prog.t_end:
+        seq = self._seq
+        requests = [] if seq is None else self._final_requests(
+            seq.update(obs.now_s, self._view(obs, fresh)))
+        if not requests:  # the plan has not ended and settled yet
             return []
-        if self._end_since is None:
-            self._end_since = obs.now_s
         end = prog.reference(prog.t_end).pos_ned
-        close = fresh and obs.position is not None and float(
-            np.linalg.norm(np.asarray(obs.position.pos_ned) - end)) <= self.config.settle_m
-        if not close and obs.now_s - self._end_since < self.config.settle_s:
-            return []
         self.done = True
         self.state = "finishing"
         self.stream = HoldStream(PositionSetpoint(
@@ -588,10 +594,37 @@ class ServeService:
                                               "final_action": prog.final_action,
                                               "setpoint_quality": quality.figures().to_dict(),
                                               "setpoints_ok": bad is None}),
-                *self._request_final(obs)]
+                *requests]
 
-    def _request_final(self, obs: Observation) -> list[Action]:
+    def _sequence(self, prog: MissionProgram, ms: MissionStream, obs: Observation
+                  ) -> FlightSequence:
+        """The flight sequence of this OFFBOARD entry, started now (with the mission stream):
+        its trajectory runs until the stream's schedule time reaches the plan's end (at once if
+        the join ends there), then it hands over to the final mode once within settle_m of the
+        plan's end or settle_s later, re-requesting it every mode_retry_s while in OFFBOARD."""
+        cfg = self.config
+        to_end = 0.0 if ms.t_join >= prog.t_end else ms.join_s + (prog.t_end - ms.t_join)
+        end = prog.reference(prog.t_end).pos_ned
+        seq = FlightSequence(SequenceConfig(
+            rate_hz=cfg.rate_hz, duration_s=to_end, pilot_start=True,
+            end=EndPolicy(handover_mode=final_mode(prog.final_action), settle_s=cfg.settle_s,
+                          settle_m=cfg.settle_m,
+                          end_ned=(float(end[0]), float(end[1]), float(end[2])),
+                          land_command=False, land_and_disarm=False,
+                          handover_retry_s=cfg.mode_retry_s)))
+        seq.update(obs.now_s, self._view(obs, True))
+        assert seq.t_fly0 == ms.t0_s
+        return seq
+
+    def _view(self, obs: Observation, fresh: bool) -> VehicleView:
+        """What the flight sequence sees: a position only when fresh."""
+        pos = obs.position
+        return VehicleView(armed=obs.armed, mode=obs.mode,
+                           pos_ned=pos.pos_ned if fresh and pos is not None else None)
+
+    def _final_requests(self, acts: list[SequenceAction]) -> list[Action]:
+        """The sequence's handover commands as mode requests (results are not awaited)."""
         prog = self.program
         action = prog.final_action if prog is not None else "loiter"
-        self._final_requested_at = obs.now_s
-        return [RequestMode(final_mode(action), f"mission end: {action}")]
+        return [RequestMode(a.mode, f"mission end: {action}") for a in acts
+                if isinstance(a, SendCommand) and a.mode is not None]

@@ -8,6 +8,7 @@ from companion.flight.sequence import (
     Finished,
     FlightSequence,
     Phase,
+    PhaseChanged,
     SendCommand,
     SequenceAction,
     SequenceConfig,
@@ -195,3 +196,79 @@ def test_rover_disarmed_in_hold_and_a_refusal_fails() -> None:
     acts = seq.on_command_result(MAV_CMD_COMPONENT_ARM_DISARM, False, "DENIED", t + DT, 4)
     fin = [a for a in acts if isinstance(a, Finished)]
     assert fin and fin[0].failure is Failure.DISARM_REFUSED and fin[0].result == 4
+
+
+def pilot_seq(duration_s: float = 2.0, **end: object) -> FlightSequence:
+    return FlightSequence(SequenceConfig(
+        rate_hz=RATE, duration_s=duration_s, pilot_start=True,
+        end=EndPolicy(handover_mode=FlightMode.LAND, land_command=False, land_and_disarm=False,
+                      settle_s=3.0, settle_m=0.5, end_ned=(10.0, 0.0, -5.0),
+                      handover_retry_s=3.0, **end)))  # type: ignore[arg-type]
+
+
+OFFBOARD = VehicleView(armed=True, mode=FlightMode.OFFBOARD)
+
+
+def test_pilot_start_flies_when_offboard_is_seen_without_requesting_or_arming() -> None:
+    seq = pilot_seq()
+    _, acts = run(seq, 0.0, 1.0, VehicleView(armed=True, mode=FlightMode.POSCTL))
+    assert not acts and seq.phase is Phase.WAIT_READY and not seq.streaming
+    acts = seq.update(1.5, OFFBOARD)
+    assert seq.phase is Phase.FLY and seq.t_fly0 == 1.5 and not commands(acts)
+    assert seq.machine.state.value == "active"  # the pilot's OFFBOARD: IDLE -> ACTIVE
+    t, acts = run(seq, 1.5, 3.0, OFFBOARD)
+    assert not commands(acts)
+    streams = [a for a in acts if isinstance(a, Stream)]
+    assert streams and all(s.t_s is not None for s in streams)
+    # the pilot leaves OFFBOARD mid-trajectory: this entry ends, nothing is requested
+    acts = seq.update(t + DT, VehicleView(armed=True, mode=FlightMode.POSCTL))
+    assert seq.failure is Failure.LEFT_OFFBOARD and not commands(acts)
+
+
+def test_pilot_start_hands_over_once_settled_near_the_end() -> None:
+    seq = pilot_seq()
+    seq.update(0.0, OFFBOARD)
+    near = VehicleView(armed=True, mode=FlightMode.OFFBOARD, pos_ned=(10.2, 0.0, -5.0))
+    _, acts = run(seq, 0.0, 2.0 - 2 * DT, near)
+    assert not commands(acts)  # close, but the trajectory has not ended
+    _, acts = run(seq, 2.0 - 2 * DT, 2.0 + 2 * DT, near)
+    assert commands(acts) == [SendCommand.set_mode(FlightMode.LAND)]
+    assert seq.phase is Phase.HANDOVER
+
+
+def test_stale_position_hands_over_after_settle_s() -> None:
+    seq = pilot_seq()
+    seq.update(0.0, OFFBOARD)
+    t, acts = run(seq, 0.0, 4.9, OFFBOARD)  # no position: only the timeout
+    assert not commands(acts)
+    t, acts = run(seq, t, 5.0 + 2 * DT, OFFBOARD)
+    assert commands(acts) == [SendCommand.set_mode(FlightMode.LAND)]
+
+
+def test_final_mode_is_retried_while_in_offboard_until_px4_switches() -> None:
+    seq = pilot_seq(duration_s=0.0)
+    seq.update(0.0, OFFBOARD)
+    t, acts = run(seq, 0.0, 3.0 + 2 * DT, OFFBOARD)
+    sent = commands(acts)
+    assert sent == [SendCommand.set_mode(FlightMode.LAND)]
+    t_sent = next(a.t_s for a in acts if isinstance(a, PhaseChanged) and a.new is Phase.HANDOVER)
+    # the results do not matter: a refusal changes nothing
+    assert not seq.on_command_result(MAV_CMD_DO_SET_MODE, False, "DENIED", t)
+    t, acts = run(seq, t, t_sent + 3.0 - DT, OFFBOARD)
+    assert not commands(acts)
+    t, acts = run(seq, t, t_sent + 3.0 + DT, OFFBOARD)
+    assert commands(acts) == [SendCommand.set_mode(FlightMode.LAND)]
+    t, acts = run(seq, t, t + 6.0 + DT, OFFBOARD)
+    assert len(commands(acts)) == 2 and not seq.finished
+    acts = seq.update(t + DT, VehicleView(armed=True, mode=FlightMode.LAND))
+    fin = [a for a in acts if isinstance(a, Finished)]
+    assert fin and fin[0].ok and seq.phase is Phase.DONE and not commands(acts)
+
+
+def test_without_retry_the_handover_is_sent_once() -> None:
+    seq = FlightSequence(SequenceConfig(
+        rate_hz=RATE, duration_s=0.0, pilot_start=True,
+        end=EndPolicy(handover_mode=FlightMode.HOLD, land_and_disarm=False, settle_s=0.5)))
+    seq.update(0.0, OFFBOARD)
+    _, acts = run(seq, 0.0, 10.0, OFFBOARD)
+    assert commands(acts) == [SendCommand.set_mode(FlightMode.HOLD)]

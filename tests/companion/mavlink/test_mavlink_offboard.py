@@ -45,6 +45,16 @@ def test_happy_path() -> None:
     assert [h.new for h in sm.history] == [S.PRIMING, S.REQUESTED, S.ACTIVE, S.EXITED]
 
 
+def test_pilot_entering_offboard_activates_an_idle_machine_only() -> None:
+    sm = OffboardMachine(rate_hz=50.0)
+    ev = sm.fire(T.PILOT_ENTERED_OFFBOARD, 1.0, "pilot")
+    assert ev is not None and ev.old is S.IDLE and ev.new is S.ACTIVE and sm.streaming
+    sm.on_heartbeat_offboard(False, 2.0, "POSCTL")
+    assert sm.state is S.EXITED
+    assert sm.fire(T.PILOT_ENTERED_OFFBOARD, 3.0) is None  # a new entry is a new machine
+    assert sm.state is S.EXITED
+
+
 @pytest.mark.parametrize("rate", [20.0, 100.0, 250.0])
 def test_request_refused_before_half_a_second_of_streaming(rate: float) -> None:
     sm = OffboardMachine(rate_hz=rate)
@@ -94,12 +104,14 @@ def test_rate_must_exceed_px4_minimum() -> None:
 
 
 def test_table_never_leads_back_to_offboard_without_a_new_start() -> None:
-    """From EXITED/LOST only START (a new session, by the user) leaves; never REQUEST/CONFIRMED."""
+    """From EXITED/LOST only START (a new session, by the user) leaves; never REQUEST/CONFIRMED.
+    ACTIVE is reached by a confirmed request, or from IDLE when the pilot switched to OFFBOARD."""
     for (state, trig), new in TRANSITIONS.items():
         if state in (S.EXITED, S.LOST):
             assert trig in (T.START, T.STOP)
         if new is S.ACTIVE:
-            assert (state, trig) == (S.REQUESTED, T.CONFIRMED)
+            assert (state, trig) in ((S.REQUESTED, T.CONFIRMED),
+                                     (S.IDLE, T.PILOT_ENTERED_OFFBOARD))
         if new is S.REQUESTED:
             assert (state, trig) == (S.PRIMING, T.REQUEST)
 

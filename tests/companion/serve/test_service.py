@@ -251,3 +251,31 @@ def test_a_new_mission_in_flight_stops_the_old_one_and_holds(
     svc.update(obs(2.3, mode=FlightMode.HOLD, pos=p0))
     svc.update(obs(2.4, mode=FlightMode.OFFBOARD, pos=p0))
     assert isinstance(svc.stream, MissionStream)
+
+
+def test_final_action_is_requested_again_every_3_s_while_still_in_offboard(
+        program_and_key: tuple[object, tuple[int, int]]) -> None:
+    prog, key = program_and_key
+    svc = ServeService()
+    svc.on_planned(key, prog, 0.0)  # type: ignore[arg-type]
+    end = prog.reference(prog.t_end).pos_ned  # type: ignore[attr-defined]
+    pe = (float(end[0]), float(end[1]), float(end[2]))
+    svc.update(obs(0.0, pos=pe))
+    svc.reached = len(prog.waypoints) - 1  # type: ignore[attr-defined]
+    svc.t_progress = prog.t_end - 0.01  # type: ignore[attr-defined]
+    svc.update(obs(0.05, mode=FlightMode.OFFBOARD, pos=pe))
+    times: list[float] = []
+    for i in range(2, 400):  # 20 s at 20 Hz, PX4 never switches
+        t = i * 0.05
+        acts = svc.update(obs(t, mode=FlightMode.OFFBOARD, pos=pe))
+        times += [t for a in acts if isinstance(a, RequestMode)
+                  and a.mode is FlightMode.LAND and a.why == "mission end: land"]
+    assert len(times) >= 5 and svc.state == "finishing"
+    gaps = np.diff(times)
+    assert np.all(gaps >= 3.0 - 1e-9) and np.all(gaps <= 3.0 + 0.05 + 1e-9)
+    # PX4 switched: no more requests, re-entering OFFBOARD holds
+    svc.update(obs(20.1, mode=FlightMode.LAND, pos=pe))
+    for t in (20.2, 24.0, 28.0):
+        acts = svc.update(obs(t, mode=FlightMode.OFFBOARD, pos=pe))
+        assert not any(isinstance(a, RequestMode) for a in acts)
+    assert svc.state == "offboard_hold"
