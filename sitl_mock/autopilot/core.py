@@ -154,6 +154,11 @@ class Autopilot:
         return self._boot + self.clock.t
 
     @property
+    def handled_messages(self) -> frozenset[str]:
+        """The inbound MAVLink message types this autopilot handles (upper-case names)."""
+        return frozenset(self.comms.handlers)
+
+    @property
     def t_boot(self) -> float:
         """Simulated seconds since boot."""
         return self.clock.t

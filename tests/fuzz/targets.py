@@ -246,8 +246,10 @@ class MockTarget:
 
         self._autopilot_cls = Autopilot
         self.param_names = list(PARAMS)
-        handled = [n[4:].upper() for n in dir(Autopilot) if n.startswith("_on_")]
+        handled = sorted(Autopilot(now=0.0, remotes={"offboard": self.CLIENT}).handled_messages)
         self.classes = _message_classes(handled)
+        if not self.classes:
+            raise RuntimeError("the mock handles no message type pymavlink knows")
         self.renew_every = renew_every
         self.check_every = check_every
         self.inputs = 0
