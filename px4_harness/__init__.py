@@ -38,7 +38,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 READY_MARK = "Ready for takeoff"
 _FAIL_MARKS = ("Startup script returned with return value", "PX4 server already running",
                "ERROR [px4] Startup script", "Permission denied")

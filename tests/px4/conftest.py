@@ -2,12 +2,14 @@
 
 Every test gets a fresh PX4 (`px4_harness.Px4Sitl`: its own instance, ports, parameters and
 estimator) that is stopped in the fixture's finally. Without a PX4 SITL (`$ECCA_PX4_SITL`, else
-`../shared/px4_sitl`), every test here is skipped with the reason; CI has one. On a failure the
+`../shared/px4_sitl`), every test here is skipped with the reason; CI has one, and sets
+`ECCA_REQUIRE_PX4=1` so that a lost PX4 fails the run instead of skipping the set. On a failure the
 tail of PX4's console is printed with the test's output.
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -21,6 +23,9 @@ _LOCATION, _WHY = find_px4_sitl()
 
 def pytest_collection_modifyitems(config: Any, items: list[pytest.Item]) -> None:
     here = Path(__file__).parent
+    if _LOCATION is None and os.environ.get("ECCA_REQUIRE_PX4"):
+        # CI sets this: there a missing PX4 is a broken set-up, not a reason to skip the set
+        raise pytest.UsageError(f"ECCA_REQUIRE_PX4 is set but there is no PX4 SITL: {_WHY}")
     for item in items:
         if Path(str(item.fspath)).parent == here:
             item.add_marker(pytest.mark.px4)
