@@ -23,6 +23,7 @@ import contextlib
 import dataclasses
 import logging
 import math
+import threading
 import time
 from collections.abc import Callable, Generator
 from dataclasses import dataclass
@@ -40,6 +41,7 @@ from companion.flight.sequence import (
     SequenceConfig,
     VehicleView,
 )
+from companion.flight.tracking import FlightClock
 from companion.mavlink import (
     ExtendedState,
     FlightMode,
@@ -221,13 +223,24 @@ class Vehicle(VehicleBase):
         sm = seq.machine
         state: dict[str, Any] = {"hold": None, "error": ""}
         link = self.link
+        # the sequence and the reference run on flight time, which follows the autopilot's
+        # clock (FlightClock: a PX4 SITL slowed by its host slows the reference with it)
+        fclock = FlightClock()
+        fclock_lock = threading.Lock()
+
+        def flight_now(local: float) -> float:
+            pos = self._snapshot.position
+            with fclock_lock:
+                if pos is not None:
+                    fclock.observe(pos.time_boot_s, pos.t_s)
+                return fclock.now(local)
 
         def producer(now: float) -> bytes | None:
             snap = dataclasses.replace(self._snapshot, now_s=now)
             hold: PositionSetpoint | None = state["hold"]
             if hold is None:
                 t0 = seq.t_fly0
-                t = 0.0 if t0 is None else now - t0
+                t = 0.0 if t0 is None else max(flight_now(now) - t0, 0.0)
                 try:
                     sp: SetpointCommand = source(t, snap)
                     return link.encode_setpoint(sp, now)
@@ -267,8 +280,12 @@ class Vehicle(VehicleBase):
             self._changed.set()
 
         def pump() -> None:
-            while streamer.sent_times:
-                seq.on_setpoint_sent(streamer.sent_times.popleft())
+            if not streamer.sent_times:
+                return
+            mono = time.monotonic()
+            f = flight_now(mono)
+            while streamer.sent_times:  # send times on the flight clock (it runs <= local)
+                seq.on_setpoint_sent(f - max(mono - streamer.sent_times.popleft(), 0.0))
 
         t_start = time.monotonic()
         t_stop: float | None = None  # the stream stopped: the flown part ended
@@ -276,7 +293,8 @@ class Vehicle(VehicleBase):
         done: Finished | None = None
         try:
             # the sequence's priming starts with the first setpoint sent
-            now = await self._first_setpoint(streamer, state, rate)
+            mono = await self._first_setpoint(streamer, state, rate)
+            now = flight_now(mono)
             while done is None:
                 actions: list[SequenceAction] = []
                 while results:
@@ -297,7 +315,7 @@ class Vehicle(VehicleBase):
                         elif act.new is Phase.FLY:
                             if not arm:
                                 log.info("OFFBOARD active (%s mode, %g Hz)", mode, rate)
-                            t_start = now
+                            t_start = mono
                         elif act.new is Phase.HANDOVER:
                             log.info("%s: switching to %s", act.reason,
                                      (FlightMode.LAND if seq.disarm_sent or touchdown
@@ -316,11 +334,12 @@ class Vehicle(VehicleBase):
                         f"setpoint source failed ({state['error']}); vehicle told to hold")
                 if seq.phase is Phase.FLY:
                     stale_since = await self._check_stale(streamer, sm, state, stale_since,
-                                                          now)
+                                                          mono)
                 self._changed.clear()
                 await wait_event(self._changed, 0.02)
                 pump()
-                now = time.monotonic()
+                mono = time.monotonic()
+                now = flight_now(mono)
             await self._fly_failed(done, streamer, rate)
         except asyncio.CancelledError:
             if sm.state in (OffboardState.ACTIVE, OffboardState.REQUESTED):

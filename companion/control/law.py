@@ -6,8 +6,12 @@ Pure: every call takes `now` [s] (the companion clock, the same clock the teleme
 Multirotor pipeline (`TrackingController`):
 
 1. Latency compensation: the last state estimate (stamped `t_s`) is extrapolated to `now` with
-   its velocity and the acceleration (measured if given, else the last commanded one); the
-   attitude with the body rates.
+   its velocity and its acceleration: measured if given, else the one its measured attitude and
+   the thrust applied at `t_s` (commanded `thrust_delay_s` earlier) give. Never the command
+   being computed: extrapolating with the last command fed each command back into the next
+   with gain -(kd age + kp age^2 / 2), which passes -1 once telemetry is ~0.1-0.17 s old (a
+   PX4 SITL clock stall) and made the thrust alternate between its bounds every setpoint. The
+   attitude is extrapolated with the body rates.
 2. Acceleration command `a = a_ref + Kp e_p + Kd e_v + Ki int(e_p)` (errors reference minus
    extrapolated estimate), optionally with the reference feed-forward shifted ahead by
    `attitude_lead_s` in attitude mode (compensates PX4's attitude-loop lag): the reference
@@ -148,12 +152,12 @@ class TrackingController:
         }
         self._kp_l, self._kd_l, self._ki_l, self._imax_l = self._gain_lists[False]
         self._integ_l = [0.0, 0.0, 0.0]
+        self._tilt_rad = config.max_tilt_rad
         self._cos_tilt = math.cos(config.max_tilt_rad)
         self._tan_tilt = math.tan(config.max_tilt_rad)
         self._t_last_update: float | None = None
         self._last_est: StateEstimate | None = None
         self._prev_est: StateEstimate | None = None
-        self._last_acc_cmd: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self._thrust_hist: deque[tuple[float, float]] = deque(maxlen=256)
         self._last_yaw = 0.0
         self._last_diag: TrackingDiagnostics | None = None
@@ -182,8 +186,25 @@ class TrackingController:
         self._t_last_update = None
         self._last_est = None
         self._prev_est = None
-        self._last_acc_cmd = (0.0, 0.0, 0.0)
         self._thrust_hist.clear()
+
+    @property
+    def tilt_limit_rad(self) -> float:
+        """Tilt limit of the commanded thrust vector in force [rad]."""
+        return self._tilt_rad
+
+    def limit_tilt(self, max_tilt_rad: float | None) -> None:
+        """From the next update on, limit the commanded tilt to `max_tilt_rad` [rad] where that
+        is tighter than `config.max_tilt_rad` (a landing: PX4's MPC_TILTMAX_LND); None restores
+        the configured limit."""
+        c = self.config.max_tilt_rad
+        tilt = c if max_tilt_rad is None else min(c, max_tilt_rad)
+        if not 0.0 < tilt < math.pi / 2:
+            raise ValueError(f"tilt limit must be in (0, 90) deg, got {math.degrees(tilt)}")
+        if tilt != self._tilt_rad:
+            self._tilt_rad = tilt
+            self._cos_tilt = math.cos(tilt)
+            self._tan_tilt = math.tan(tilt)
 
     @property
     def last(self) -> TrackingDiagnostics | None:
@@ -385,8 +406,10 @@ class TrackingController:
         tau = min(max(age, 0.0), c.max_extrapolation_s) if c.latency_compensation else 0.0
         if acc0:
             ax0, ay0, az0 = acc0
+        elif tau > 0.0:
+            ax0, ay0, az0 = self._sample_acc(est.t_s, q_est, vel0)
         else:
-            ax0, ay0, az0 = self._last_acc_cmd
+            ax0 = ay0 = az0 = 0.0
         h2 = 0.5 * tau * tau
         pos = (px0 + vx0 * tau + ax0 * h2, py0 + vy0 * tau + ay0 * h2, pz0 + vz0 * tau + az0 * h2)
         vel = (vx0 + ax0 * tau, vy0 + ay0 * tau, vz0 + az0 * tau)
@@ -443,7 +466,6 @@ class TrackingController:
                 if sat and di * integ[i] >= 0.0:
                     continue  # saturated: only let the integrator unwind
                 integ[i] = min(max(integ[i] + di, -imax[i]), imax[i])
-        self._last_acc_cmd = a_sat
 
         # 4. flatness map
         params = self._params_for_drag(D)
@@ -471,6 +493,28 @@ class TrackingController:
                       "singular flatness point" if singular else "")
         self.last_q_des = q_des
         return q_des, thrust, omega_ff, sat
+
+    def _sample_acc(self, t_s: float, q_wxyz: list[float],
+                    vel: list[float]) -> tuple[float, float, float]:
+        """The vehicle's acceleration at telemetry time `t_s` [m/s^2, NED]:
+        a = g e3 - (u g / h) z_b - D v / m with the measured attitude `q_wxyz` (its body z axis
+        z_b), the velocity `vel` and the thrust u commanded `thrust_delay_s` before `t_s`
+        (the hover thrust before any was commanded). Only past commands enter it, so the
+        extrapolation that uses it does not feed the command being computed back into itself."""
+        p = self.config.params
+        g0 = p.g
+        h = self.hover_thrust
+        d = self.config.thrust_delay_s
+        u = self._mean_thrust(t_s - d - 0.01, t_s - d + 0.01)
+        if not math.isfinite(u):
+            u = h
+        qw, qx, qy, qz = q_wxyz
+        zx = 2.0 * (qx * qz + qw * qy)
+        zy = 2.0 * (qy * qz - qw * qx)
+        zz = 1.0 - 2.0 * (qx * qx + qy * qy)
+        f = u * g0 / h
+        dm = self.drag / p.mass
+        return (-f * zx - dm * vel[0], -f * zy - dm * vel[1], g0 - f * zz - dm * vel[2])
 
     def _feedback_jerk(
         self,

@@ -125,6 +125,67 @@ class SampleClock:
             self._b = statistics.median(slopes)
 
 
+class FlightClock:
+    """Flight time that follows the autopilot's clock, for the reference a flight streams.
+
+    PX4 SITL's lockstep clock runs slower than the wall clock while its host is busy (on a
+    2-core host, 2-30 %, plus stalls of 0.1-0.3 s in which its simulation does not advance). A
+    reference timed by the wall clock then runs ahead of a vehicle that cannot follow it in
+    its own time: on real PX4 SITL a 6 m/s figure-8 in rates mode was 1.3-1.7 m off (5.6 m at
+    worst) with the thrust at its bounds while PX4 ran at ~70 % speed. On a real autopilot the
+    two clocks agree and this changes nothing.
+
+    `now(local)` [s] advances with the local clock, slowed smoothly when it gets more than
+    `lead_s` ahead of the newest telemetry sample's own time (its time_boot), at a rate
+    ``1 - gain_per_s * excess`` (clamped to [0, 1]): a clock that runs slow by a fraction r
+    settles `r / gain_per_s` beyond the lead, and a stall freezes flight time within about
+    ``lead_s + 1 / gain_per_s`` of the last sample. It never runs backwards and never faster
+    than the local clock. `lead_s` covers the link's latency and the sample interval, so at
+    full speed it only shifts the origin. Before the first sample it is the local clock. Not
+    thread-safe: one caller at a time.
+    """
+
+    def __init__(self, lead_s: float = 0.08, gain_per_s: float = 20.0) -> None:
+        if not (lead_s >= 0.0 and math.isfinite(lead_s)):
+            raise ValueError(f"lead_s must be >= 0, got {lead_s}")
+        if not (gain_per_s > 0.0 and math.isfinite(gain_per_s)):
+            raise ValueError(f"gain_per_s must be > 0, got {gain_per_s}")
+        self.lead_s = lead_s
+        self.gain_per_s = gain_per_s
+        self._boot: float | None = None  # newest sample's time_boot [s]
+        self._offset = 0.0  # flight time - time_boot origin: flight time is local-clock-like
+        self._t_local: float | None = None
+        self._t_flight = 0.0
+
+    def observe(self, time_boot_s: float, t_receive_s: float) -> None:
+        """A telemetry sample stamped `time_boot_s` [s] by the vehicle, received at local time
+        `t_receive_s` [s]."""
+        if not (math.isfinite(time_boot_s) and math.isfinite(t_receive_s)):
+            return
+        if self._boot is None or time_boot_s < self._boot - 0.5:  # first, or a reboot
+            # flight time origin: the sample's time on the local clock (received then)
+            self._offset = (t_receive_s if self._t_local is None else self._t_flight) - time_boot_s
+            self._boot = time_boot_s
+        elif time_boot_s > self._boot:
+            self._boot = time_boot_s
+
+    def now(self, local_s: float) -> float:
+        """Flight time at local time `local_s` [s] (calls in time order)."""
+        if self._t_local is None:
+            self._t_local, self._t_flight = local_s, local_s
+            return local_s
+        dt = local_s - self._t_local
+        if dt <= 0.0:
+            return self._t_flight
+        rate = 1.0
+        if self._boot is not None:
+            excess = self._t_flight - (self._boot + self._offset) - self.lead_s
+            rate = min(max(1.0 - self.gain_per_s * excess, 0.0), 1.0)
+        self._t_local = local_s
+        self._t_flight += rate * dt
+        return self._t_flight
+
+
 def estimate_from_telemetry(
     snap: TelemetrySnapshot, clock: SampleClock | None = None
 ) -> StateEstimate | None:
@@ -170,8 +231,12 @@ class Touchdown:
     by +-0.2 m/s on the ground). Then (attitude and rates modes) the attitude goes level at the
     current yaw and the thrust ramps from its last value to zero over `ramp_s` [s], so PX4's
     land detector sees low thrust and no motion (its three stages take LNDMC_TRIG_TIME or more)
-    and accepts a disarm. Position mode only descends: PX4's own controller and land detector
-    finish it."""
+    and accepts a disarm. Throughout the touchdown the commanded tilt stays within
+    `max_tilt_rad` (PX4's MPC_TILTMAX_LND, 12 deg by default): near the ground the thrust is
+    low, and the air limit (45 deg) then lets a small horizontal correction tip the vehicle
+    over as its feet touch (seen on real PX4 SITL: 44 deg commanded at contact, the vehicle on
+    its back). Position mode only descends: PX4's own controller and land detector finish
+    it."""
 
     from_s: float
     descent_m_s: float = 0.7
@@ -182,10 +247,11 @@ class Touchdown:
     gap_m: float = 0.2
     contact_s: float = 0.3
     ramp_s: float = 0.5
+    max_tilt_rad: float = math.radians(12.0)
 
     def __post_init__(self) -> None:
         for name in ("descent_m_s", "accel_m_s2", "jerk_m_s3", "still_m_s", "gap_m", "contact_s",
-                     "ramp_s"):
+                     "ramp_s", "max_tilt_rad"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0.0):
                 raise ValueError(f"Touchdown.{name} must be a positive number, got {v}")
@@ -430,11 +496,13 @@ class TrackingSource:
             )
         assert self.controller is not None
         quality = self.quality
-        touched = self.touchdown is not None and self._touched_down(t_s, now, est, ref)
+        td = self.touchdown
+        if td is not None:
+            self.controller.limit_tilt(td.max_tilt_rad if t_s > td.from_s else None)
+        touched = td is not None and self._touched_down(t_s, now, est, ref)
         # in the air for the setpoint figures: PX4 says so, and the vehicle has not stopped
         # under a touchdown reference that goes on down (its first contact with the ground:
         # the velocity feedback then lowers the thrust at once, as it should)
-        td = self.touchdown
         airborne = est.airborne and not touched and not (
             td is not None and t_s > td.from_s + td.ramp_in_s
             and abs(float(est.vel_ned[2])) < td.still_m_s)

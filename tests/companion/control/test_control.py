@@ -216,6 +216,64 @@ def test_latency_compensation_matches_current_state() -> None:
     assert ra.thrust_norm == pytest.approx(rb.thrust_norm, abs=1e-12)
 
 
+@pytest.mark.parametrize("mode", ["attitude", "rates"])
+@pytest.mark.parametrize("age_s", [0.05, 0.12, 0.2, 0.25])
+def test_old_telemetry_does_not_make_the_thrust_alternate(mode: str, age_s: float) -> None:
+    """A telemetry stall: the same sample, `age_s` old at the first call, is all the controller
+    gets for 0.2 s at 100 Hz. The vehicle cannot respond at 50 Hz, so consecutive thrust
+    commands must not alternate (before the fix the extrapolation used the last command and the
+    thrust swung between its bounds once the age passed ~0.15 s)."""
+    ref = Reference(np.array([0.0, 0.0, -5.0]), np.zeros(3), yaw=0.0)
+    c = TrackingController(TrackingConfig(params=_params(drag=1.0)))
+    # a vehicle 5 cm below and beside the reference, sinking at 0.1 m/s (commands well inside
+    # the thrust and tilt bounds)
+    pos, vel = [0.05, 0.0, -4.95], [0.0, 0.0, 0.1]
+    for k in range(50):  # fresh telemetry at 100 Hz
+        getattr(c, mode)(0.01 * k, _est(0.01 * k, pos, vel), ref)
+    t_stall = 0.49
+    est0 = _est(t_stall, pos, vel)
+    thrusts, tilts = [], []
+    for k in range(20):
+        now = t_stall + age_s + 0.01 * k
+        out = getattr(c, mode)(now, est0, ref)
+        assert not out.fallback
+        thrusts.append(out.thrust_norm)
+        if mode == "attitude":
+            tilts.append(math.degrees(_rot(out.q_wxyz).as_euler("ZYX")[2]))
+    steps = np.abs(np.diff(thrusts))
+    assert steps.max() < 0.05, thrusts
+    if tilts:
+        assert np.abs(np.diff(tilts)).max() < 2.0, tilts
+
+
+def test_latency_compensation_from_the_measured_attitude() -> None:
+    """Without a measured acceleration the extrapolation uses the one the measured attitude and
+    the thrust applied at the sample give (Newton: a = g e3 - T z_b / m - D v / m). A vehicle
+    holding a 20 deg tilt at the thrust it commanded: its 0.1 s old sample extrapolated = the
+    true state now."""
+    p = _params(drag=1.0)
+    ref = Reference(np.array([2.0, 1.0, -5.0]), np.array([1.0, 0.5, 0.0]), yaw=0.0)
+    q = _wxyz(Rotation.from_euler("ZYX", [0.0, math.radians(-20.0), 0.0]))
+    cfg = TrackingConfig(params=p, estimate_hover_thrust=False, thrust_delay_s=0.05)
+    a = TrackingController(cfg)
+    b = TrackingController(cfg)
+    thrust = 0.55  # normalised: T = thrust / hover * m g
+    for ctrl in (a, b):  # the same thrust command history, held since t = 4.0 s
+        for k in range(100):
+            ctrl._record_thrust(4.0 + 0.01 * k, thrust)
+    z_b = _rot(q).as_matrix()[:, 2]
+    v0 = np.array([1.5, 0.2, -0.1])
+    acc = G * E3 - (thrust / p.hover_thrust) * p.mass * G * z_b / p.mass - p.drag * v0 / p.mass
+    p0 = np.array([0.3, 0.4, -4.8])
+    tau = 0.1
+    p1 = p0 + v0 * tau + 0.5 * acc * tau**2
+    v1 = v0 + acc * tau
+    ra = a.attitude(5.0, _est(5.0 - tau, p0, v0, q), ref)
+    rb = b.attitude(5.0, _est(5.0, p1, v1, q, acc=acc), ref)
+    np.testing.assert_allclose(ra.q_wxyz, rb.q_wxyz, atol=1e-9)
+    assert ra.thrust_norm == pytest.approx(rb.thrust_norm, abs=1e-9)
+
+
 @pytest.mark.parametrize(
     ("est", "reason"),
     [

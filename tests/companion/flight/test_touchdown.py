@@ -11,7 +11,7 @@ import pytest
 
 from companion.control import Reference
 from companion.flatness import MultirotorParams
-from companion.flight.tracking import Touchdown, TrackingSource
+from companion.flight.tracking import Touchdown, TrackingSource, tilt_of_q
 from companion.mavlink.setpoints import AttitudeSetpoint, RatesSetpoint
 from companion.mavlink.telemetry import Attitude, ExtendedState, LocalPosition, TelemetrySnapshot
 
@@ -131,3 +131,41 @@ def test_no_contact_while_the_vehicle_follows_the_descent() -> None:
         sp = src(t, snap(t, z, vz))
         assert src.contact_s is None and sp.thrust_norm > 0.3
     assert src.touching_down
+
+
+def snap_off(now: float, z: float, vz: float, off_ne: tuple[float, float],
+             v_ne: tuple[float, float]) -> TelemetrySnapshot:
+    q = (math.cos(YAW / 2), 0.0, 0.0, math.sin(YAW / 2))
+    return TelemetrySnapshot(
+        position=LocalPosition(now, now, (1.0 + off_ne[0], 2.0 + off_ne[1], z),
+                               (v_ne[0], v_ne[1], vz), "LOCAL_POSITION_NED"),
+        attitude=Attitude(now, q, (0.0, 0.0, 0.0)),
+        extended=ExtendedState(now, 2, 0),
+        now_s=now)
+
+
+@pytest.mark.parametrize("mode", ["attitude", "rates"])
+def test_touchdown_keeps_the_landing_tilt_limit_when_the_feet_touch_off_target(mode: str) -> None:
+    """The vehicle descends 0.3 m beside the reference drifting at 0.3 m/s and stops on the
+    ground: the horizontal feedback then meets a thrust the vertical loop is lowering, and the
+    commanded tilt (of the attitude sent, or in rates mode of the attitude the rates steer to)
+    must stay within the touchdown's 12 deg (PX4's MPC_TILTMAX_LND), not the 45 deg of the air
+    (a real-PX4 flight was commanded 44 deg there and tipped over). Before the touchdown the
+    same offset is corrected with more tilt than that (the limit is the touchdown's only)."""
+    td = Touchdown(END_S, descent_m_s=0.7)
+    src = TrackingSource(plan, mode, PARAMS, touchdown=td)  # type: ignore[arg-type]
+    before, during = [], []
+    for k in range(1, 501):
+        t = 0.01 * k
+        depth = td.offset(t - END_S)[0] if t > END_S else 0.0
+        z = min(-0.5 + depth, 0.0)
+        vz = td.offset(t - END_S)[1] if t > END_S and z < 0.0 else 0.0
+        sp = src(t, snap_off(t, z, vz, (0.3, -0.3), (0.3, -0.3)))
+        if isinstance(sp, AttitudeSetpoint):
+            q = sp.q_wxyz
+        else:
+            assert src.controller is not None
+            q = tuple(float(c) for c in src.controller.last_q_des)  # type: ignore[assignment]
+        (during if t > END_S else before).append(math.degrees(tilt_of_q(q)))  # type: ignore[arg-type]
+    assert max(before) > 15.0  # the air limit allows it, and the offset asks for it
+    assert max(during) <= 12.0 + 1e-6
