@@ -434,7 +434,10 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                     continue
                 ref = source.last_reference
                 if ref is not None and v.mode is FlightMode.OFFBOARD:
-                    recorder.add(p.t_s, p.pos_ned, ref.pos_ned)
+                    # stamped with the vehicle's own sample time: a PX4 SITL that stalls
+                    # delivers a burst of samples whose receive times made leg speeds of
+                    # 12-18 m/s out of a 5-8 m/s flight
+                    recorder.add(p.time_boot_s, p.pos_ned, ref.pos_ned)
 
         with Live(_status_table(v, None, None), console=console, refresh_per_second=5) as live:
             loop = asyncio.get_running_loop()

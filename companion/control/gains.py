@@ -126,6 +126,9 @@ class TrackingConfig:
         the flatness body rates forward instead.
     thrust_delay_s: delay between a thrust command and its effect, used to pair commands with
         measured accelerations for the hover-thrust estimator [s].
+    prediction_delay_s: the latency compensation's Smith predictor takes the acceleration at
+        time t to be the one commanded this long before [s] (0: from the moment it was sent;
+        the command being computed never enters).
     max_tilt_rad: tilt limit of the commanded thrust vector.
     thrust_min / thrust_max: normalised thrust bounds.
     feedback_rate_ff: `rates` mode, share (0..1) of the feedback part of the commanded
@@ -158,6 +161,7 @@ class TrackingConfig:
     stale_after_s: float = 0.5
     attitude_lead_s: float = 0.15
     thrust_delay_s: float = 0.05
+    prediction_delay_s: float = 0.0
     max_tilt_rad: float = math.radians(60.0)
     thrust_min: float = 0.08
     thrust_max: float = 1.0
@@ -173,6 +177,8 @@ class TrackingConfig:
             raise ValueError("params.hover_thrust must be in (0, 1)")
         if not 0.0 <= self.feedback_rate_ff <= 1.0:
             raise ValueError("feedback_rate_ff must be in [0, 1]")
+        if not (math.isfinite(self.prediction_delay_s) and self.prediction_delay_s >= 0.0):
+            raise ValueError("prediction_delay_s must be >= 0")
         if not (math.isfinite(self.rates_separation) and self.rates_separation >= 0.0):
             raise ValueError("rates_separation must be >= 0 (0: no cap)")
 

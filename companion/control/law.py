@@ -6,12 +6,13 @@ Pure: every call takes `now` [s] (the companion clock, the same clock the teleme
 Multirotor pipeline (`TrackingController`):
 
 1. Latency compensation: the last state estimate (stamped `t_s`) is extrapolated to `now` with
-   its velocity and its acceleration: measured if given, else the one its measured attitude and
-   the thrust applied at `t_s` (commanded `thrust_delay_s` earlier) give. Never the command
-   being computed: extrapolating with the last command fed each command back into the next
-   with gain -(kd age + kp age^2 / 2), which passes -1 once telemetry is ~0.1-0.17 s old (a
-   PX4 SITL clock stall) and made the thrust alternate between its bounds every setpoint. The
-   attitude is extrapolated with the body rates.
+   its velocity and its acceleration: measured if given, else a Smith predictor: the
+   accelerations commanded up to `prediction_delay_s` before each instant of [t_s, now] (only
+   commands already sent; before any, the one the measured attitude gives). Never the
+   command being computed: extrapolating the whole age with the last command fed each command
+   back into the next with gain -(kd age + kp age^2 / 2), which passes -1 once telemetry is
+   ~0.1-0.17 s old (a PX4 SITL clock stall) and made the thrust alternate between its bounds
+   every setpoint. The attitude is extrapolated with the body rates.
 2. Acceleration command `a = a_ref + Kp e_p + Kd e_v + Ki int(e_p)` (errors reference minus
    extrapolated estimate), optionally with the reference feed-forward shifted ahead by
    `attitude_lead_s` in attitude mode (compensates PX4's attitude-loop lag): the reference
@@ -159,6 +160,8 @@ class TrackingController:
         self._last_est: StateEstimate | None = None
         self._prev_est: StateEstimate | None = None
         self._thrust_hist: deque[tuple[float, float]] = deque(maxlen=256)
+        # (time, ax, ay, az): the (saturated) acceleration commanded at each update [s, m/s^2]
+        self._acc_hist: deque[tuple[float, float, float, float]] = deque(maxlen=256)
         self._last_yaw = 0.0
         self._last_diag: TrackingDiagnostics | None = None
         self._diag_pending: tuple[FloatArray | None, FloatArray | None] | None = None
@@ -187,6 +190,7 @@ class TrackingController:
         self._last_est = None
         self._prev_est = None
         self._thrust_hist.clear()
+        self._acc_hist.clear()
 
     @property
     def tilt_limit_rad(self) -> float:
@@ -404,15 +408,14 @@ class TrackingController:
         # single samples, where numpy's per-operation overhead dominates.
         # 1. latency compensation
         tau = min(max(age, 0.0), c.max_extrapolation_s) if c.latency_compensation else 0.0
-        if acc0:
-            ax0, ay0, az0 = acc0
-        elif tau > 0.0:
-            ax0, ay0, az0 = self._sample_acc(est.t_s, q_est, vel0)
+        if acc0 or tau <= 0.0:
+            ax0, ay0, az0 = acc0 if acc0 else (0.0, 0.0, 0.0)
+            h2 = 0.5 * tau * tau
+            pos = (px0 + vx0 * tau + ax0 * h2, py0 + vy0 * tau + ay0 * h2,
+                   pz0 + vz0 * tau + az0 * h2)
+            vel = (vx0 + ax0 * tau, vy0 + ay0 * tau, vz0 + az0 * tau)
         else:
-            ax0 = ay0 = az0 = 0.0
-        h2 = 0.5 * tau * tau
-        pos = (px0 + vx0 * tau + ax0 * h2, py0 + vy0 * tau + ay0 * h2, pz0 + vz0 * tau + az0 * h2)
-        vel = (vx0 + ax0 * tau, vy0 + ay0 * tau, vz0 + az0 * tau)
+            pos, vel = self._predict(est.t_s, tau, (px0, py0, pz0), (vx0, vy0, vz0), q_est)
         self._q_now = (
             quat_integrate_f(q_est, w_est, tau) if tau > 0 else quat_normalize_f(*q_est)
         )
@@ -466,6 +469,7 @@ class TrackingController:
                 if sat and di * integ[i] >= 0.0:
                     continue  # saturated: only let the integrator unwind
                 integ[i] = min(max(integ[i] + di, -imax[i]), imax[i])
+        self._acc_hist.append((now, a_sat[0], a_sat[1], a_sat[2]))
 
         # 4. flatness map
         params = self._params_for_drag(D)
@@ -493,6 +497,44 @@ class TrackingController:
                       "singular flatness point" if singular else "")
         self.last_q_des = q_des
         return q_des, thrust, omega_ff, sat
+
+    def _predict(self, t_s: float, tau: float, p0: tuple[float, float, float],
+                 v0: tuple[float, float, float], q_wxyz: list[float]
+                 ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """Position and velocity [m, m/s, NED] `tau` [s] after the sample taken at `t_s`
+        (p0, v0), integrating the acceleration the vehicle has in between: at time t the one
+        commanded at t - `prediction_delay_s` (zero-order hold; a Smith predictor: only commands
+        already sent enter, and the telemetry that later shows their effect replaces them);
+        before the first command known, the one the measured attitude gives (`_sample_acc`)."""
+        d = self.config.prediction_delay_s
+        t0, t1 = t_s, t_s + tau
+        segs: list[tuple[float, float, float, float]] = []  # (start, ax, ay, az), newest first
+        cur: tuple[float, float, float] | None = None
+        for tc, ax, ay, az in reversed(self._acc_hist):
+            st = tc + d
+            if st <= t0:
+                cur = (ax, ay, az)
+                break
+            if st < t1:
+                segs.append((st, ax, ay, az))
+        a = cur if cur is not None else self._sample_acc(t_s, q_wxyz, list(v0))
+        px, py, pz = p0
+        vx, vy, vz = v0
+        t = t0
+        for st, bx, by, bz in reversed(segs):
+            h = st - t
+            h2 = 0.5 * h * h
+            px += vx * h + a[0] * h2
+            py += vy * h + a[1] * h2
+            pz += vz * h + a[2] * h2
+            vx += a[0] * h
+            vy += a[1] * h
+            vz += a[2] * h
+            a, t = (bx, by, bz), st
+        h = t1 - t
+        h2 = 0.5 * h * h
+        return ((px + vx * h + a[0] * h2, py + vy * h + a[1] * h2, pz + vz * h + a[2] * h2),
+                (vx + a[0] * h, vy + a[1] * h, vz + a[2] * h))
 
     def _sample_acc(self, t_s: float, q_wxyz: list[float],
                     vel: list[float]) -> tuple[float, float, float]:

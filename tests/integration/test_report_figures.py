@@ -3,8 +3,9 @@ stored in tests/data/report_figures.json, to round-off.
 
 This is a regression snapshot, not a correctness oracle: the figures were recorded from the
 replays of commit d133c5d (before the issue-25 redesign), and re-recorded when the tracking
-law stopped extrapolating telemetry with its own last command (session 13: RMS 10-15 % lower,
-largest thrust step 0.016 -> 0.012 on the mock). Their correctness is asserted by the
+law's latency compensation became a Smith predictor over the commands sent since the sample,
+instead of the last command over the whole age (session 13: the mock's RMS errors within 1 %
+of the old ones, largest thrust steps 0.011-0.018). Their correctness is asserted by the
 other replay tests (waypoints from the tlog, setpoint quality, touchdown). A change of flight
 behaviour must show up here and be re-recorded on purpose, with the reason in the commit:
 

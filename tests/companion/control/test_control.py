@@ -246,11 +246,34 @@ def test_old_telemetry_does_not_make_the_thrust_alternate(mode: str, age_s: floa
         assert np.abs(np.diff(tilts)).max() < 2.0, tilts
 
 
+def test_latency_compensation_integrates_the_commands_sent_since_the_sample() -> None:
+    """The Smith predictor: a 0.15 s old sample is carried forward with the accelerations the
+    controller commanded since (each from the moment it was sent, zero-order hold), compared
+    with a fine-step integration of the same command history (an independent integrator)."""
+    c = TrackingController(TrackingConfig(params=_params(drag=1.0)))
+    rng = np.random.default_rng(4)
+    t_cmd = np.arange(4.5, 5.0, 0.01)
+    accs = rng.normal(0.0, 2.0, size=(len(t_cmd), 3))
+    for t, a in zip(t_cmd, accs, strict=True):
+        c._acc_hist.append((float(t), float(a[0]), float(a[1]), float(a[2])))
+    t_s, tau = 4.853, 0.15  # sample time and age, between command times
+    p0, v0 = np.array([1.0, -2.0, -5.0]), np.array([3.0, 0.5, -0.2])
+    pos, vel = c._predict(t_s, tau, tuple(p0), tuple(v0), [1.0, 0.0, 0.0, 0.0])
+    p, v = p0.copy(), v0.copy()
+    h = 1e-5
+    for t in np.arange(t_s, t_s + tau - h / 2, h):
+        a = accs[np.searchsorted(t_cmd, t + h / 2, side="right") - 1]
+        p += v * h + 0.5 * a * h * h
+        v += a * h
+    np.testing.assert_allclose(vel, v, atol=1e-6)
+    np.testing.assert_allclose(pos, p, atol=1e-6)
+
+
 def test_latency_compensation_from_the_measured_attitude() -> None:
-    """Without a measured acceleration the extrapolation uses the one the measured attitude and
-    the thrust applied at the sample give (Newton: a = g e3 - T z_b / m - D v / m). A vehicle
-    holding a 20 deg tilt at the thrust it commanded: its 0.1 s old sample extrapolated = the
-    true state now."""
+    """Without a measured acceleration, and before any acceleration was commanded, the
+    extrapolation uses the one the measured attitude and the thrust applied at the sample give
+    (Newton: a = g e3 - T z_b / m - D v / m). A vehicle holding a 20 deg tilt at the thrust it
+    commanded: its 0.1 s old sample extrapolated = the true state now."""
     p = _params(drag=1.0)
     ref = Reference(np.array([2.0, 1.0, -5.0]), np.array([1.0, 0.5, 0.0]), yaw=0.0)
     q = _wxyz(Rotation.from_euler("ZYX", [0.0, math.radians(-20.0), 0.0]))
