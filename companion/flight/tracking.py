@@ -141,18 +141,26 @@ class FlightClock:
     settles `r / gain_per_s` beyond the lead, and a stall freezes flight time within about
     ``lead_s + 1 / gain_per_s`` of the last sample. It never runs backwards and never faster
     than the local clock. `lead_s` covers the link's latency and the sample interval, so at
-    full speed it only shifts the origin. Before the first sample it is the local clock. Not
+    full speed it only shifts the origin. Before the first sample it is the local clock, and
+    it is again while samples keep arriving with a time_boot that has not advanced for
+    `frozen_s` [s] (a broken vehicle clock must not hold a flight at its start). Not
     thread-safe: one caller at a time.
     """
 
-    def __init__(self, lead_s: float = 0.08, gain_per_s: float = 20.0) -> None:
+    def __init__(self, lead_s: float = 0.08, gain_per_s: float = 20.0,
+                 frozen_s: float = 1.0) -> None:
         if not (lead_s >= 0.0 and math.isfinite(lead_s)):
             raise ValueError(f"lead_s must be >= 0, got {lead_s}")
         if not (gain_per_s > 0.0 and math.isfinite(gain_per_s)):
             raise ValueError(f"gain_per_s must be > 0, got {gain_per_s}")
+        if not (frozen_s > 0.0 and math.isfinite(frozen_s)):
+            raise ValueError(f"frozen_s must be > 0, got {frozen_s}")
         self.lead_s = lead_s
         self.gain_per_s = gain_per_s
+        self.frozen_s = frozen_s
         self._boot: float | None = None  # newest sample's time_boot [s]
+        self._boot_rx = 0.0  # receive time of the sample that last advanced time_boot [s]
+        self._last_rx = 0.0  # receive time of the newest sample [s]
         self._offset = 0.0  # flight time - time_boot origin: flight time is local-clock-like
         self._t_local: float | None = None
         self._t_flight = 0.0
@@ -165,9 +173,12 @@ class FlightClock:
         if self._boot is None or time_boot_s < self._boot - 0.5:  # first, or a reboot
             # flight time origin: the sample's time on the local clock (received then)
             self._offset = (t_receive_s if self._t_local is None else self._t_flight) - time_boot_s
-            self._boot = time_boot_s
+            self._boot, self._boot_rx = time_boot_s, t_receive_s
         elif time_boot_s > self._boot:
-            self._boot = time_boot_s
+            if t_receive_s - self._boot_rx > self.frozen_s:  # thawed: re-anchor, no jump
+                self._offset = self._t_flight - time_boot_s
+            self._boot, self._boot_rx = time_boot_s, t_receive_s
+        self._last_rx = max(self._last_rx, t_receive_s)
 
     def now(self, local_s: float) -> float:
         """Flight time at local time `local_s` [s] (calls in time order)."""
@@ -178,7 +189,7 @@ class FlightClock:
         if dt <= 0.0:
             return self._t_flight
         rate = 1.0
-        if self._boot is not None:
+        if self._boot is not None and self._last_rx - self._boot_rx <= self.frozen_s:
             excess = self._t_flight - (self._boot + self._offset) - self.lead_s
             rate = min(max(1.0 - self.gain_per_s * excess, 0.0), 1.0)
         self._t_local = local_s

@@ -64,7 +64,7 @@ def _replay_all(out: Path) -> dict[str, dict[str, Any]]:
     for i, (args, batch) in enumerate(batches):
         batch_out = out / str(i)
         rc = cli_main(["replay", *(str(MISSIONS / f) for _, f in batch), "--out", str(batch_out),
-                       "--jobs", "2", *args])
+                       "--jobs", "2", "--no-plot", *args])
         assert rc == 0, f"replay of {[f for _, f in batch]} exited {rc}"
         for name, file in batch:
             report = json.loads((batch_out / Path(file).stem / "report.json").read_text())

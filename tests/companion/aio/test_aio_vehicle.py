@@ -109,6 +109,7 @@ class FakePx4(asyncio.DatagramProtocol):
 
     async def run(self) -> None:
         k = 0
+        t0 = time.monotonic()
         while True:
             k += 1
             if k % 6 == 0 and self.s.landed_state is not None:
@@ -117,7 +118,8 @@ class FakePx4(asyncio.DatagramProtocol):
                 self.send(m.MAVLink_heartbeat_message(
                     2, 12, 29 | (128 if self.armed else 0), self.custom_mode, 4, 3))
             if k % 2 == 0 and self.s.send_position:
-                self.send(m.MAVLink_local_position_ned_message(k, 1.0, 2.0, -3.0, 0, 0, 0))
+                boot_ms = int((time.monotonic() - t0) * 1000.0)  # a clock at PX4's pace
+                self.send(m.MAVLink_local_position_ned_message(boot_ms, 1.0, 2.0, -3.0, 0, 0, 0))
             await asyncio.sleep(1 / 60)
 
 

@@ -75,6 +75,20 @@ def test_a_stall_freezes_flight_time_without_a_jump() -> None:
     assert lost == pytest.approx(0.3, abs=0.08)
 
 
+def test_a_vehicle_clock_that_does_not_advance_is_not_followed() -> None:
+    """Samples keep arriving, their time_boot stuck: after `frozen_s` flight time runs with the
+    local clock again (a flight must not hold at its start forever)."""
+    c = FlightClock(frozen_s=1.0)
+    t_fl = []
+    for k in range(300):  # 3 s at 100 Hz
+        t = 0.01 * k
+        c.observe(0.5, t)
+        t_fl.append(c.now(t))
+    late = np.diff(t_fl[200:])
+    assert late.min() == pytest.approx(0.01)
+    assert t_fl[-1] < 3.0  # it did stop while the stall was plausible
+
+
 def test_before_any_sample_it_is_the_local_clock_and_never_runs_back() -> None:
     c = FlightClock()
     assert c.now(10.0) == 10.0
@@ -83,7 +97,7 @@ def test_before_any_sample_it_is_the_local_clock_and_never_runs_back() -> None:
 
 
 @pytest.mark.parametrize("kw", [{"lead_s": -1.0}, {"gain_per_s": 0.0},
-                                {"lead_s": float("nan")}])
+                                {"lead_s": float("nan")}, {"frozen_s": 0.0}])
 def test_refuses_bad_settings(kw: dict[str, float]) -> None:
     with pytest.raises(ValueError):
         FlightClock(**kw)
