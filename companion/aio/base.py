@@ -447,7 +447,11 @@ class VehicleBase:
 
     async def takeoff(self, alt_m: float = 2.5, wait: bool = True) -> None:
         """NAV_TAKEOFF to ``alt_m`` above the current position; waits until the vehicle is within
-        max(0.3 m, 10 %) of it and the climb has ended (AUTO.TAKEOFF left, or |vz| < 0.2 m/s)."""
+        max(0.3 m, 10 %) of it and the climb has ended (AUTO.TAKEOFF left, or |vz| < 0.2 m/s), or
+        until PX4 itself ended the takeoff (AUTO.TAKEOFF left, |vz| < 0.2 m/s) within its own
+        acceptance, NAV_MC_ALT_RAD (0.8 m by default): its target is AMSL from the global
+        altitude, which EKF2 may put 0.3 m or more off the local frame, and SIH's takeoff then
+        ended 2.6-2.8 m above the start of a 3 m one (this waited until its timeout)."""
         tel = self.link.telemetry
         pos0 = tel.position
         alt_amsl = math.nan
@@ -458,12 +462,17 @@ class VehicleBase:
         if not wait or pos0 is None:
             return
         z_goal = pos0.pos_ned[2] - alt_m + max(0.3, 0.1 * alt_m)
+        z_px4 = pos0.pos_ned[2] - alt_m + max(0.8, 0.1 * alt_m)  # NAV_MC_ALT_RAD's default
 
         def done() -> bool:
             # near the altitude, and the climb finished (PX4 leaves AUTO.TAKEOFF for Hold)
             p = self.link.telemetry.position
-            return (p is not None and p.pos_ned[2] <= z_goal
-                    and (self.mode is not FlightMode.TAKEOFF or abs(p.vel_ned[2]) < 0.2))
+            if p is None:
+                return False
+            still = abs(p.vel_ned[2]) < 0.2
+            left = self.mode is not None and self.mode is not FlightMode.TAKEOFF
+            return ((p.pos_ned[2] <= z_goal and (left or still))
+                    or (p.pos_ned[2] <= z_px4 and left and still))
 
         await self._wait_for(done, self.config.takeoff_timeout_s, f"the takeoff to {alt_m:g} m")
 
