@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -517,7 +518,7 @@ class TrackingController:
                 break
             if st < t1:
                 segs.append((st, ax, ay, az))
-        a = cur if cur is not None else self._sample_acc(t_s, q_wxyz, list(v0))
+        a = cur if cur is not None else self._sample_acc(t_s, q_wxyz, v0)
         px, py, pz = p0
         vx, vy, vz = v0
         t = t0
@@ -536,25 +537,29 @@ class TrackingController:
         return ((px + vx * h + a[0] * h2, py + vy * h + a[1] * h2, pz + vz * h + a[2] * h2),
                 (vx + a[0] * h, vy + a[1] * h, vz + a[2] * h))
 
-    def _sample_acc(self, t_s: float, q_wxyz: list[float],
-                    vel: list[float]) -> tuple[float, float, float]:
+    def _sample_acc(self, t_s: float, q_wxyz: Sequence[float],
+                    vel: Sequence[float]) -> tuple[float, float, float]:
         """The vehicle's acceleration at telemetry time `t_s` [m/s^2, NED]:
         a = g e3 - (u g / h) z_b - D v / m with the measured attitude `q_wxyz` (its body z axis
         z_b), the velocity `vel` and the thrust u commanded `thrust_delay_s` before `t_s`
         (the hover thrust before any was commanded). Only past commands enter it, so the
         extrapolation that uses it does not feed the command being computed back into itself."""
-        p = self.config.params
-        g0 = p.g
-        h = self.hover_thrust
         d = self.config.thrust_delay_s
         u = self._mean_thrust(t_s - d - 0.01, t_s - d + 0.01)
-        if not math.isfinite(u):
-            u = h
+        return self._acc_of(q_wxyz, u if math.isfinite(u) else self.hover_thrust, vel)
+
+    def _acc_of(self, q_wxyz: Sequence[float], u: float,
+                vel: Sequence[float]) -> tuple[float, float, float]:
+        """Newton: a = g e3 - (u g / h) z_b - D v / m [m/s^2, NED] at attitude `q_wxyz` (body z
+        axis z_b), normalised thrust `u` (h: the hover thrust in use) and velocity `vel`."""
+        p = self.config.params
+        g0 = p.g
         qw, qx, qy, qz = q_wxyz
+        # body z axis (third column of C_eb) in NED
         zx = 2.0 * (qx * qz + qw * qy)
         zy = 2.0 * (qy * qz - qw * qx)
         zz = 1.0 - 2.0 * (qx * qx + qy * qy)
-        f = u * g0 / h
+        f = u * g0 / self.hover_thrust
         dm = self.drag / p.mass
         return (-f * zx - dm * vel[0], -f * zy - dm * vel[1], g0 - f * zz - dm * vel[2])
 
@@ -575,18 +580,7 @@ class TrackingController:
         rotation forward (share 1: exactly; tests/companion/control/test_control.py checks it
         against finite differences), so the P attitude loop only corrects what the rate loop
         missed."""
-        p = self.config.params
-        g0 = p.g
-        h = self.hover_thrust
-        u = self._thrust_hist[-1][1]
-        qw, qx, qy, qz = self._q_now
-        # body z axis (third column of C_eb) in NED
-        zx = 2.0 * (qx * qz + qw * qy)
-        zy = 2.0 * (qy * qz - qw * qx)
-        zz = 1.0 - 2.0 * (qx * qx + qy * qy)
-        f = u * g0 / h
-        dm = self.drag / p.mass
-        a = (-f * zx - dm * vel[0], -f * zy - dm * vel[1], g0 - f * zz - dm * vel[2])
+        a = self._acc_of(self._q_now, self._thrust_hist[-1][1], vel)
         kp, kd, ki = self._kp_l, self._kd_l, self._ki_l
         return (
             j_ref[0] + share * (kp[0] * e_v[0] + kd[0] * (a_ref[0] - a[0]) + ki[0] * e_p[0]),
