@@ -18,7 +18,8 @@ As root, PX4 gets a private /tmp (its lock and socket files) through `unshare -m
 `with-px4` wrapper does; otherwise the instance's files in /tmp are used. Each instance is
 reserved with a lock file, so parallel test sessions cannot pick the same one. Everything PX4
 writes (console, parameters, ULog) stays in a temporary folder that is removed at `stop()`; the
-console is copied to `log` (if given) first.
+console is copied to `log` (if given) first, and PX4's ULog files (`.ulg`: its estimator,
+setpoints and the simulator's ground truth) to `$ECCA_PX4_ULOG_DIR` when that is set.
 """
 
 from __future__ import annotations
@@ -264,6 +265,12 @@ class Px4Sitl:
             if self.log is not None:
                 with contextlib.suppress(OSError):
                     shutil.copyfile(self.console_path, self.log)
+            keep = os.environ.get("ECCA_PX4_ULOG_DIR")
+            if keep:  # PX4's own flight logs (.ulg), for a look at its internals afterwards
+                with contextlib.suppress(OSError):
+                    Path(keep).mkdir(parents=True, exist_ok=True)
+                    for f in sorted((self._run / "rootfs" / "log").rglob("*.ulg")):
+                        shutil.copyfile(f, Path(keep) / f"{self._run.name}-{f.name}")
             shutil.rmtree(self._run, ignore_errors=True)
             self._run = None
         if self._lock is not None:

@@ -68,7 +68,7 @@ from companion.planning.schedule import (
     build_schedule,
     trajectory_reference,
 )
-from companion.trajectory import Limits, plan
+from companion.trajectory import Limits, check, plan
 
 FloatArray = NDArray[np.float64]
 
@@ -78,6 +78,20 @@ NO_MISSION_TOTAL = 65535
 FLYING_STATES = (2, 3, 4)
 MAV_SEVERITY_WARNING = 4
 MAV_SEVERITY_INFO = 6
+#: The joining trajectory (ServeService._join_trajectory): its shortest duration [s], the factor
+#: between the durations tried and how many are tried (0.5 s to ~100 s), the samples of its
+#: velocity, and how fast [m/s] it may move back along the line to the plan beyond what its
+#: ends do (a vehicle moving away from the plan must first stop).
+JOIN_MIN_S = 0.5
+JOIN_STRETCH = 1.15
+JOIN_TRIES = 40
+JOIN_SAMPLES = 64
+JOIN_BACKUP_M_S = 0.05
+#: The join may use this much more acceleration and tilt than the plan (which may sit at its
+#: limits where the join ends on it); 1.1 x the default 35 deg is 38.5 deg, under PX4's 45 deg.
+JOIN_LIMIT_MARGIN = 1.1
+#: A join ending on the plan's velocity but not its acceleration counts this much later [s].
+JOIN_ACC_STEP_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -503,14 +517,18 @@ class ServeService:
         yaw_here = obs.yaw
         # join ahead of the nearest point, far enough to reach the plan's speed there without
         # backing up (distance >= v^2 / (2 a)); farther ahead if the join cannot be planned
-        # within the limits
-        # candidates: two lead-in distances, ending on the plan's velocity and acceleration
-        # or on its velocity only (an acceleration step the controller absorbs); the quickest
-        # feasible one wins (each plan takes ~10-50 ms)
+        # within the limits. Candidates: three lead-in distances and the next waypoint, each
+        # ending on the plan's velocity and acceleration or on its velocity only (an
+        # acceleration step the controller absorbs, counted as JOIN_ACC_STEP_S later); the
+        # earliest end of the mission wins (each candidate takes ~5-50 ms)
         best: tuple[float, tuple[Callable[[float], Reference], float] | None] | None = None
+        best_end = math.inf
         last: Exception | None = None
-        for frac in (0.5, 0.25):
-            t_cand = prog.lead_in(here, t_near, frac * cfg.limits.max_acc_m_s2)
+        t_cands = [prog.lead_in(here, t_near, frac * cfg.limits.max_acc_m_s2)
+                   for frac in (0.5, 0.25, 0.125)]
+        if self.reached < len(prog.wp_times):  # and the next waypoint itself
+            t_cands.append(max(float(prog.wp_times[self.reached]), t_near))
+        for t_cand in sorted(set(t_cands)):
             for with_acc in (True, False):
                 try:
                     cand = self._join_trajectory(here, vel, yaw_here, prog.reference(t_cand),
@@ -518,8 +536,10 @@ class ServeService:
                 except ValueError as exc:
                     last = exc
                     continue
-                if best is None or (cand[1] if cand else 0.0) < (best[1][1] if best[1] else 0.0):
-                    best = (t_cand, cand)
+                t_mission_end = ((cand[1] if cand else 0.0) + prog.t_end - t_cand
+                                 + (0.0 if with_acc else JOIN_ACC_STEP_S))
+                if t_mission_end < best_end:
+                    best, best_end = (t_cand, cand), t_mission_end
         if best is None:
             assert last is not None
             raise last
@@ -546,23 +566,40 @@ class ServeService:
                          target: Reference, with_acc: bool
                          ) -> tuple[Callable[[float], Reference], float] | None:
         """(reference function, duration [s]) from ``here`` moving at ``vel`` to ``target``
-        (its position, velocity and acceleration), or None when already there."""
+        (its position, velocity and, with ``with_acc``, acceleration), or None when already
+        there. One degree-7 segment (its ends fixed through jerk), the shortest of a geometric
+        series of durations that keeps the speed, acceleration and tilt limits and never backs
+        up along the way: its velocity along the line to the target stays above the lower of
+        the start's and the end's (ValueError if none does)."""
         cfg = self.config
-        if float(np.linalg.norm(target.pos_ned - here)) < 0.05:
+        chord = target.pos_ned - here
+        dist = float(np.linalg.norm(chord))
+        if dist < 0.05:
             return None
+        along = chord / dist
         yaw0 = yaw_here if yaw_here is not None else target.yaw
         yaw1 = target.yaw + 2.0 * math.pi * round((yaw0 - target.yaw) / (2.0 * math.pi))
         # the join may end (or start) faster than its cruise speed: allow that speed
         v_max = max(cfg.join_speed_m_s, 1.5 * float(np.linalg.norm(target.vel_ned)),
                     1.1 * float(np.linalg.norm(vel)))
-        lim = Limits(max_speed_m_s=v_max, max_acc_m_s2=cfg.limits.max_acc_m_s2,
-                     max_tilt_rad=cfg.limits.max_tilt_rad)
-        traj = plan(np.vstack([here, target.pos_ned]), limits=lim, params=cfg.params,
-                    start={1: vel},
-                    end={1: target.vel_ned, 2: target.acc_ned} if with_acc
-                    else {1: target.vel_ned},
-                    yaw=[yaw0, yaw1])
-        return trajectory_reference(traj, yaw0), float(traj.duration)
+        # the plan itself may run at its acceleration and tilt limits where the join ends
+        tilt = cfg.limits.max_tilt_rad
+        lim = Limits(max_speed_m_s=v_max, max_acc_m_s2=JOIN_LIMIT_MARGIN * cfg.limits.max_acc_m_s2,
+                     max_tilt_rad=None if tilt is None else JOIN_LIMIT_MARGIN * tilt)
+        floor = min(0.0, float(vel @ along), float(target.vel_ned @ along)) - JOIN_BACKUP_M_S
+        end = {1: target.vel_ned, 2: target.acc_ned} if with_acc else {1: target.vel_ned}
+        waypoints = np.vstack([here, target.pos_ned])
+        duration = max(JOIN_MIN_S, dist / v_max)
+        for _ in range(JOIN_TRIES):
+            traj = plan(waypoints, durations=[duration], start={1: vel}, end=end,
+                        yaw=[yaw0, yaw1])
+            v_along = traj.evaluate(np.linspace(0.0, duration, JOIN_SAMPLES), 1) @ along
+            if float(np.min(v_along)) >= floor and not any(
+                    r.exceeded for r in check(traj, lim, cfg.params).values()):
+                return trajectory_reference(traj, yaw0), duration
+            duration *= JOIN_STRETCH
+        raise ValueError(f"no joining trajectory to the plan {dist:.1f} m away within the "
+                         f"limits without backing up")
 
     def _fly(self, obs: Observation, fresh: bool) -> list[Action]:
         ms = self.stream

@@ -102,8 +102,18 @@ async def test_px4_serve_flies_pauses_resumes_and_lands(px4: Px4Sitl, tmp_path: 
             print(f"resume: closest to wp 2 {closest:.2f} m, to wp 1 {back:.2f} m "
                   f"(held {held_from_wp1:.2f} m from it)")
             assert closest < 1.5 and back > min(1.0, held_from_wp1 - 0.2)
+            # the service's part: it hands over at the land point (PX4's LAND lands where it
+            # begins): the first position the ground station sees in LAND
+            await gcs.wait_for(lambda: gcs.track[-1].mode == "LAND", 5.0, "a position in LAND")
+            handover = next(s.pos_ned for s in gcs.track[i_resume:] if s.mode == "LAND")
+            print(f"handover to LAND {dist_xy(handover, WP2):.2f} m from the land point")
+            assert dist_xy(handover, WP2) < 0.5
             await gcs.wait_for(lambda: not gcs.armed, 40.0, "landing and disarm")
-            assert dist_xy(gcs.track[-1].pos_ned, WP2) < 2.0
+            # PX4's part: its LAND holds the entry point on EKF2's estimate, which on SIH drifts
+            # 1.0-1.4 m during the descent after a flight (ULog, truth and estimate alike: a
+            # 2-3 deg roll estimate error; PX4's own AUTO.MISSION of this file drifted 1.0 m in
+            # its descent); CI saw 2.45 m once, after a resume that swung back and forth
+            assert dist_xy(gcs.track[-1].pos_ned, WP2) < 2.5
             ev = events(logs)
             flights = [e for e in ev if e["event"] == "state" and e["state"] == "mission"]
             assert len(flights) == 2

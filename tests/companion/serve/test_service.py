@@ -3,6 +3,7 @@ helpers (mission from downloaded items, rotating tlogs). No sockets, no clock.""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -279,3 +280,44 @@ def test_final_action_is_requested_again_every_3_s_while_still_in_offboard(
         acts = svc.update(obs(t, mode=FlightMode.OFFBOARD, pos=pe))
         assert not any(isinstance(a, RequestMode) for a in acts)
     assert svc.state == "offboard_hold"
+
+
+@pytest.mark.parametrize("y_held", [0.6, 1.5, 2.4, 3.4, 4.5, 5.5])
+@pytest.mark.parametrize("speed", [0.0, 0.3, 1.0])
+def test_the_resume_join_never_backs_up_along_the_leg(
+        program_and_key: tuple[object, tuple[int, int]], y_held: float, speed: float) -> None:
+    """Paused on the leg wp 1 (10, 0) -> wp 2 (10, 8) of px4_short.plan (the leg points along
+    +y, east) and resumed: the reference must move on toward wp 2, never back toward wp 1
+    (real PX4, CI: the old join was planned as a three-piece time allocation whose last piece
+    swung the vehicle 0.45 m back at -0.85 m/s, and the EKF's accelerometer bias estimate went
+    from 0 to -0.2 m/s^2 in those swings, which drifted the landing after it by 1.4-2.5 m).
+    Oracles: the east velocity of the reference is never negative (beyond the vehicle's own at
+    the start); it stays within 1.1 x the planning limits of acceleration; position and velocity
+    are continuous where the join meets the plan."""
+    prog, key = program_and_key
+    svc = ServeService()
+    svc.on_planned(key, prog, 0.0)  # type: ignore[arg-type]
+    svc.reached = 2  # wp 0 (takeoff point) and wp 1 passed  # type: ignore[attr-defined]
+    p = (9.3, y_held, -4.15)
+    v = (0.2, speed, 0.1)  # drifting on in Hold, as PX4 brakes
+    o = Observation(now_s=0.0, link_ok=True, armed=True, mode=FlightMode.HOLD, landed_state=2,
+                    position=LocalPosition(0.0, 0.0, p, v, "LOCAL_POSITION_NED"), yaw=1.57)
+    svc.update(o)
+    svc.update(dataclasses.replace(o, now_s=0.05, mode=FlightMode.OFFBOARD))
+    ms = svc.stream
+    assert isinstance(ms, MissionStream)
+    ts = np.linspace(0.0, ms.join_s + (prog.t_end - ms.t_join), 400)  # type: ignore[attr-defined]
+    refs = [ms.source.reference(float(t)) for t in ts]
+    vel = np.array([r.vel_ned for r in refs])
+    acc = np.array([r.acc_ned for r in refs])
+    assert np.linalg.norm(refs[0].pos_ned - np.asarray(p)) < 0.05
+    assert vel[:, 1].min() >= min(0.0, speed) - 0.05, vel[:, 1].min()
+    limits = ServiceConfig().limits
+    assert np.linalg.norm(acc, axis=1).max() <= 1.1 * limits.max_acc_m_s2 + 1e-6
+    # the join meets the plan: no jump in position or velocity across join_s
+    a, b = ms.source.reference(ms.join_s - 1e-6), ms.source.reference(ms.join_s + 1e-6)
+    assert np.linalg.norm(a.pos_ned - b.pos_ned) < 1e-3
+    assert np.linalg.norm(a.vel_ned - b.vel_ned) < 1e-2
+    # it ends on wp 2
+    end = ms.source.reference(float(ts[-1])).pos_ned
+    assert math.hypot(end[0] - 10.0, end[1] - 8.0) < 0.1
