@@ -286,6 +286,7 @@ class MissionServer:
         self._expected = 0
         self._use_int = False
         self._pending: list[MissionItem] = []
+        self._uploaded = False  # idle after an upload of _count items from _partner
         self._last_recv = 0.0
         self._last_sent = 0.0
         self.retries = 0
@@ -308,6 +309,7 @@ class MissionServer:
     def _idle(self) -> None:
         self.state = "idle"
         self._pending = []
+        self._uploaded = False  # set again by a finished upload
 
     def next_timer(self) -> float:
         """Next time `update` has work to do (inf if idle)."""
@@ -369,12 +371,18 @@ class MissionServer:
         self._request(now)
 
     def _on_item(self, msg: Msg, src: tuple[int, int], now: float, is_int: bool) -> None:
+        mtype = int(getattr(msg, "mission_type", 0))
+        if (self.state == "idle" and self._uploaded and src == self._partner
+                and mtype == self._type and int(msg.seq) == self._count - 1):
+            # as PX4 (mavlink_mission.cpp): the last item again after a finished upload is the
+            # client's retry after a lost ACK: accept it again, with the mission's id
+            self._ack(src, mavlink.MAV_MISSION_ACCEPTED, mtype, self.opaque_id[mtype])
+            return
         if self.state != "upload" or src != self._partner:
             self.errors += 1
             self._ack(src, mavlink.MAV_MISSION_ERROR, int(getattr(msg, "mission_type", 0)))
             return
         self._last_recv = now
-        mtype = int(getattr(msg, "mission_type", 0))
         if mtype != self._type:
             self.errors += 1
             self._ack(src, mavlink.MAV_MISSION_INVALID, mtype)
@@ -384,9 +392,8 @@ class MissionServer:
             self._use_int = True
         seq = int(msg.seq)
         if seq != self._expected:
-            # duplicate or out of order: ignore it and ask again for the expected one
+            # duplicate or out of order: ignored, as PX4 does (the retry timer asks again)
             self.errors += 1
-            self._request(now)
             return
         item = item_from_message(msg)
         result = validate_item(item)
@@ -406,6 +413,7 @@ class MissionServer:
             self._store(mtype, self._pending)
             self._ack(src, mavlink.MAV_MISSION_ACCEPTED, mtype, self.opaque_id[mtype])
             self._idle()
+            self._uploaded = True
         else:
             self._request(now)
 

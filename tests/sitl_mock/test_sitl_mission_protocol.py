@@ -129,16 +129,36 @@ def test_nack_of_float_request_switches_to_int_requests() -> None:
     assert requests(h) == [("MISSION_REQUEST", 0), ("MISSION_REQUEST_INT", 0)]
 
 
-def test_wrong_sequence_is_ignored_and_expected_item_re_requested() -> None:
+def test_wrong_sequence_is_ignored_and_the_retry_timer_asks_again() -> None:
+    """As PX4 (mavlink_mission.cpp, MAVLINK_WPM_STATE_GETLIST): an item out of sequence is
+    ignored; the 250 ms retry asks for the expected one again."""
     h = Harness()
     h.run(0.1)
     h.send(mavlink.MAVLink_mission_count_message(1, 1, 3, 0))
     h.send(SIMPLE[0])
+    n = len(requests(h))
     h.send(SIMPLE[2])  # out of order: seq 1 expected
-    assert requests(h)[-2:] == [("MISSION_REQUEST_INT", 1), ("MISSION_REQUEST_INT", 1)]
+    assert len(requests(h)) == n and not h.msgs("MISSION_ACK")
+    h.run(0.3)
+    assert requests(h)[-1] == ("MISSION_REQUEST_INT", 1)
     h.send(SIMPLE[1])
     h.send(SIMPLE[2])
     assert h.msgs("MISSION_ACK")[-1].type == mavlink.MAV_MISSION_ACCEPTED
+    assert [m.seq for m in download(h)] == [0, 1, 2]
+
+
+def test_the_last_item_again_after_the_upload_is_accepted_again() -> None:
+    """As PX4: a client whose ACK was lost sends the last item again and gets ACCEPTED again,
+    not an error; any other item without a transfer is an error."""
+    h = Harness()
+    h.run(0.1)
+    assert upload(h, SIMPLE) == mavlink.MAV_MISSION_ACCEPTED
+    n = len(h.msgs("MISSION_ACK"))
+    h.send(SIMPLE[2])
+    acks = h.msgs("MISSION_ACK")
+    assert len(acks) == n + 1 and acks[-1].type == mavlink.MAV_MISSION_ACCEPTED
+    h.send(SIMPLE[1])
+    assert h.msgs("MISSION_ACK")[-1].type == mavlink.MAV_MISSION_ERROR
     assert [m.seq for m in download(h)] == [0, 1, 2]
 
 
