@@ -9,7 +9,8 @@ its GCS link to 127.0.0.1:14550; its MAVLink system id is N+1 (PX4's multi-insta
 
 Where PX4 comes from: `$ECCA_PX4_SITL` (a folder with bin/px4 and etc/, e.g. a PX4 build's
 `build/px4_sitl_default`), else `shared/px4_sitl` beside the repository (`../shared/px4_sitl`)
-or beside any folder above it. `find_px4_sitl()`
+or beside any folder above it; PX4 built from main (the SIH Ackermann rover,
+`find_px4_sitl("main")`): `$ECCA_PX4_MAIN_SITL`, else `shared/px4_main_sitl`. `find_px4_sitl()`
 says why none was found. A copy whose `bin/px4-*` command links were flattened into plain files
 (as in an archive without symlinks) is repaired in the run folder: PX4's start script runs
 `px4-param` etc. from the folder of the `px4` binary it was started as.
@@ -41,6 +42,7 @@ from typing import IO
 
 REPO = Path(__file__).resolve().parents[1]
 READY_MARK = "Ready for takeoff"
+STARTED_MARK = "Startup script returned successfully"
 _FAIL_MARKS = ("Startup script returned with return value", "PX4 server already running",
                "ERROR [px4] Startup script", "Permission denied")
 
@@ -64,11 +66,21 @@ class Px4Location:
         return self.root / "etc"
 
 
-def find_px4_sitl() -> tuple[Px4Location | None, str]:
-    """The PX4 SITL to use and, when there is none, why (for pytest's skip reason)."""
-    env = os.environ.get("ECCA_PX4_SITL")
-    # ../shared/px4_sitl next to the repository, or next to any folder above it (a CI clone)
-    candidates = [Path(env)] if env else [d / "shared" / "px4_sitl" for d in REPO.parents]
+#: The PX4 SITL builds: name -> (environment variable, folder beside the repository's parents).
+#: "v1.16": PX4 v1.16.0 (SIH quadrotor, the quad's yardstick); "main": PX4 built from main
+#: (SIH Ackermann rover `sihsim_rover_ackermann` and quadrotor; its uORB layouts are not v1.16's).
+BUILDS = {"v1.16": ("ECCA_PX4_SITL", "px4_sitl"), "main": ("ECCA_PX4_MAIN_SITL", "px4_main_sitl")}
+#: The SIH model each build's tests fly by default.
+DEFAULT_MODEL = {"v1.16": "sihsim_quadx", "main": "sihsim_rover_ackermann"}
+
+
+def find_px4_sitl(build: str = "v1.16") -> tuple[Px4Location | None, str]:
+    """The PX4 SITL of `build` (see BUILDS) to use and, when there is none, why (for pytest's
+    skip reason)."""
+    var, folder = BUILDS[build]
+    env = os.environ.get(var)
+    # ../shared/<folder> next to the repository, or next to any folder above it (a CI clone)
+    candidates = [Path(env)] if env else [d / "shared" / folder for d in REPO.parents]
     whys = []
     for root in candidates:
         loc = Px4Location(root.resolve())
@@ -80,7 +92,7 @@ def find_px4_sitl() -> tuple[Px4Location | None, str]:
             whys.append(f"{loc.binary} is not executable")
         else:
             return loc, ""
-    src = "ECCA_PX4_SITL" if env else "set ECCA_PX4_SITL to a PX4 build's px4_sitl_default"
+    src = var if env else f"set {var} to a PX4 build's px4_sitl_default"
     return None, f"{whys[0]} ({src})"
 
 
@@ -112,13 +124,15 @@ class Px4Sitl:
     PX4_SIM_SPEED_FACTOR (>1 runs the simulation faster than real time; the companion keeps wall
     time, so use it only where timing and tracking are not judged). params: PX4 parameters set
     at boot (PX4_PARAM_<NAME> in PX4's environment; MAV_SYS_ID stays instance + 1).
-    startup_timeout_s: how long to wait for "Ready for takeoff". log: where to copy PX4's
-    console at stop.
+    startup_timeout_s: how long to wait for `ready_mark` in PX4's console ("Ready for takeoff",
+    which the rover of PX4 main prints only once armable; STARTED_MARK there, and the caller
+    retries arming). log: where to copy PX4's console at stop.
     """
 
     def __init__(self, *, model: str = "sihsim_quadx", speed_factor: float = 1.0,
                  params: dict[str, float] | None = None, startup_timeout_s: float = 40.0,
-                 log: str | Path | None = None, location: Px4Location | None = None) -> None:
+                 log: str | Path | None = None, location: Px4Location | None = None,
+                 ready_mark: str = READY_MARK) -> None:
         if location is None:
             location, why = find_px4_sitl()
             if location is None:
@@ -129,6 +143,7 @@ class Px4Sitl:
         self.params = dict(params or {})
         self.startup_timeout_s = startup_timeout_s
         self.log = Path(log) if log is not None else None
+        self.ready_mark = ready_mark
         self.instance = 0
         self._lock: IO[str] | None = None
         self._run: Path | None = None
@@ -231,7 +246,7 @@ class Px4Sitl:
         try:
             while True:
                 text = self.console_text()
-                if READY_MARK in text:
+                if self.ready_mark in text:
                     break
                 bad = next((m for m in _FAIL_MARKS if m in text), None)
                 if bad is not None or self._proc.poll() is not None:
