@@ -126,7 +126,9 @@ class Vehicle(VehicleBase):
                   setpoint_source: SetpointSource | None = None, rate_hz: float | None = None,
                   duration_s: float | None = None, feedforward: str = "acc",
                   arm: bool = False, end_action: str = "hold",
-                  disarm: bool = False) -> FlightReport:
+                  disarm: bool = False, end_ned: tuple[float, float, float] | None = None,
+                  settle_m: float | None = None,
+                  settle_s: float | None = None) -> FlightReport:
         """Fly ``trajectory`` (or ``setpoint_source`` for ``duration_s``) in OFFBOARD, then Hold
         (or Land).
 
@@ -147,6 +149,12 @@ class Vehicle(VehicleBase):
         ground (a refusal leaves it to PX4's auto-disarm) and return when disarmed; after "hold"
         (a rover) disarm once in Hold (CommandError if refused). The report's ``duration_s``
         still ends where the stream stopped.
+        end_ned, settle_m, settle_s: the end ("hold", "land") comes once the trajectory is
+        complete and the vehicle within ``settle_m`` [m] of ``end_ned`` (default: the
+        trajectory's end, ``VehicleConfig.settle_m``), or ``settle_s`` [s] after it is
+        complete (default ``VehicleConfig.settle_s``; 0 without an end position). A source
+        that governs its reference time (``reference_time_s``, e.g. a rover's
+        ``TrackingSource``) says when the trajectory is complete.
         """
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -190,20 +198,23 @@ class Vehicle(VehicleBase):
                     f"{self.config.max_start_error_m:g} m): fly there first")
         self._flying = True
         try:
-            end_pos: tuple[float, float, float] | None = None
-            if trajectory is not None and math.isfinite(total):
+            end_pos: tuple[float, float, float] | None = end_ned
+            if end_pos is None and trajectory is not None and math.isfinite(total):
                 pe = trajectory.evaluate(total, 0)
                 end_pos = (float(pe[0]), float(pe[1]), float(pe[2]))
             return await self._fly(source, mode, rate_hz or self.config.rate_hz, total, end_pos,
                                    arm, FlightMode.HOLD if end_action == "hold" else
-                                   FlightMode.LAND, end_action == "touchdown", disarm)
+                                   FlightMode.LAND, end_action == "touchdown", disarm,
+                                   settle_m, settle_s)
         finally:
             self._flying = False
 
     async def _fly(self, source: SetpointSource, mode: str, rate: float, total_s: float,
                    end_pos: tuple[float, float, float] | None, arm: bool = False,
                    end_mode: FlightMode = FlightMode.HOLD,
-                   touchdown: bool = False, disarm: bool = False) -> FlightReport:
+                   touchdown: bool = False, disarm: bool = False,
+                   settle_m: float | None = None,
+                   settle_s: float | None = None) -> FlightReport:
         """Drive the one flight sequence (`companion.flight.FlightSequence`) in real time: a
         sender thread streams while it says so, its commands are sent and their results fed
         back; stale telemetry and a failing source are handled here (hold, then Hold)."""
@@ -214,8 +225,10 @@ class Vehicle(VehicleBase):
             end=EndPolicy(handover_mode=end_mode,
                           touchdown_from_s=total_s if touchdown else None,
                           touchdown_timeout_s=cfg.touchdown_timeout_s,
-                          settle_s=cfg.settle_s if end_pos is not None else 0.0,
-                          settle_m=cfg.settle_m, end_ned=end_pos, land_command=False,
+                          settle_s=(0.0 if end_pos is None else cfg.settle_s if settle_s is None
+                                    else settle_s),
+                          settle_m=cfg.settle_m if settle_m is None else settle_m,
+                          end_ned=end_pos, land_command=False,
                           stream_handover=True, land_and_disarm=disarm,
                           disarm_at_hold=disarm and end_mode is FlightMode.HOLD,
                           disarm_on_ground=end_mode is not FlightMode.HOLD,
@@ -300,7 +313,8 @@ class Vehicle(VehicleBase):
                 while results:
                     command, ok, reason, result = results.popleft()
                     actions += seq.on_command_result(command, ok, reason, now, result)
-                actions += seq.update(now, self._flight_view())
+                actions += seq.update(now, self._flight_view(
+                    getattr(source, "reference_time_s", None)))
                 for act in actions:
                     if isinstance(act, SendCommand):
                         tasks.append(asyncio.get_running_loop().create_task(run_command(act)))
@@ -373,8 +387,9 @@ class Vehicle(VehicleBase):
             await asyncio.sleep(0.005)
         return streamer.sent_times[0]
 
-    def _flight_view(self) -> VehicleView:
-        """The vehicle as the flight sequence sees it now."""
+    def _flight_view(self, traj_time_s: float | None = None) -> VehicleView:
+        """The vehicle as the flight sequence sees it now (``traj_time_s``: the source's own
+        reference time, if it governs it)."""
         tel = self.link.telemetry
         ext: ExtendedState | None = tel.extended
         pos = tel.position
@@ -382,7 +397,7 @@ class Vehicle(VehicleBase):
             link_ok=self._link_lost_at is None and self.link_ok, armed=self.is_armed,
             mode=self.mode,
             on_ground=ext is not None and ext.landed_state == LANDED_STATE_ON_GROUND,
-            pos_ned=None if pos is None else pos.pos_ned)
+            pos_ned=None if pos is None else pos.pos_ned, traj_time_s=traj_time_s)
 
     async def _send_command(self, a: SendCommand) -> tuple[int, bool, str, int | None]:
         """Send one command of the flight sequence; (command, ok, reason, MAV_RESULT)."""

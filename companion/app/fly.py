@@ -22,13 +22,19 @@ from rich.markup import escape
 from rich.table import Table
 
 from companion.control import Reference
-from companion.flight.policy import HANDOVER_HEIGHT_M, lands_at_end, plan_touchdown
+from companion.flight.policy import (
+    HANDOVER_HEIGHT_M,
+    ROVER_SETTLE_S,
+    lands_at_end,
+    plan_touchdown,
+)
 from companion.flight.report import (
     FlightReport,
     FloatArray,
     SetpointLimits,
     TrackRecorder,
     breach_failure,
+    missed_result,
 )
 from companion.flight.tracking import TOUCHDOWN_FROM_M, Touchdown, TrackingSource
 from companion.mavlink import FlightMode, LinkConfig
@@ -395,7 +401,8 @@ async def fly(opts: FlyOptions, console: Console) -> int:
         # second) and compare the mission's home with where the vehicle is
         px4: ResolvedPlanningParams | None = None
         if mission is not None:
-            px4 = await read_planning_params(v.fetch_params, inputs.vehicle.px4_overrides)
+            px4 = await read_planning_params(v.fetch_params, inputs.vehicle.px4_overrides,
+                                             vehicle="rover" if rover else "quad")
             print_planning_params(console, px4)
         # a multicopter mission from the ground: the plan flies the takeoff too, armed in
         # OFFBOARD (PX4's NAV_TAKEOFF spool-up and the switch after it cost ~5 s)
@@ -476,19 +483,29 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                     touchdown=td, limits=limits)
                 rec = loop.create_task(record())
                 started = loop.time()
+                # a rover's reference waits for it (TrackingSource's ProgressGovernor): it ends
+                # once within the last waypoint's acceptance radius, or ROVER_SETTLE_S after
+                # its reference ended (then the report names the waypoints it missed)
+                wps = planned.waypoints_rel + origin
+                rover_end = rover and len(wps) > 0
                 flown = await v.fly(mode=mode, setpoint_source=source,
                                     duration_s=planned.duration_s if td is None else td.from_s,
                                     arm=fly_takeoff,
                                     end_action=("touchdown" if source.touchdown is not None
                                                 else "land" if landing else "hold"),
                                     # landed and disarmed (a rover: disarmed in Hold)
-                                    disarm=rover or landing)
+                                    disarm=rover or landing,
+                                    end_ned=(tuple(float(x) for x in wps[-1])  # type: ignore[arg-type]
+                                             if rover_end else None),
+                                    settle_m=(float(planned.acceptance_m[-1]) if rover_end
+                                              else None),
+                                    settle_s=ROVER_SETTLE_S if rover_end else None)
                 ended = loop.time()
                 console.print(f"Trajectory flown in {mode} mode: {flown.duration_s:.1f} s")
                 report = dataclasses.replace(
                     recorder.summary(planned.waypoints_rel + origin, planned.acceptance_m,
                                      duration_s=flown.duration_s,
-                                     planned_duration_s=planned.duration_s),
+                                     planned_duration_s=planned.duration_s, horizontal=rover),
                     result="ok", mode=mode, target=opts.target,
                     final_action=planned.final_action,
                     px4_params=None if px4 is None else px4.as_report())
@@ -498,6 +515,8 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                     report, setpoint_quality=source.quality.figures(),
                     result=breach_failure(report) or (
                         f"setpoints: {bad}" if bad is not None else "ok"))
+                # a flight that missed a waypoint is not "ok"
+                report = dataclasses.replace(report, result=missed_result(report))
             except Exception as exc:
                 if recorder.t_s:  # what was flown before the failure, for the post-mortem
                     report = dataclasses.replace(

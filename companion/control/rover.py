@@ -18,9 +18,6 @@ from companion.flatness.reference import Reference
 FloatArray = npt.NDArray[np.float64]
 
 
-
-
-
 @dataclass(frozen=True)
 class RoverGains:
     """Rover path-following gains.
@@ -44,6 +41,7 @@ class RoverController:
     def __init__(self, gains: RoverGains | None = None) -> None:
         self.gains = gains or RoverGains()
         self._last_heading: float | None = None
+        self.last_lag_m = 0.0  # along-track error of the last update: > 0 behind [m]
 
     def update(self, now: float, est: StateEstimate, ref: Reference) -> PositionCommand:
         """Velocity (NED, z NaN), yaw and yaw-rate setpoint at `now`.
@@ -81,6 +79,7 @@ class RoverController:
         n_hat = np.array([-math.sin(psi_ref), math.cos(psi_ref)])
         e_at = float(e @ t_hat)
         e_ct = float(e @ n_hat)
+        self.last_lag_m = e_at
         speed_cmd = min(max(speed + k.k_along * e_at, 0.0), k.max_speed)
         heading_cmd = psi_ref + math.atan(k.k_cross * e_ct)
         yaw_now = yaw_of_dcm(quat_to_dcm(est.q_wxyz))

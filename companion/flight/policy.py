@@ -13,12 +13,16 @@ from companion.mavlink.px4_mode import FlightMode
 from companion.planning.schedule import Schedule
 
 __all__ = [
-    "HANDOVER_HEIGHT_M", "TOUCHDOWN_FROM_M", "TOUCHDOWN_TIMEOUT_S", "final_mode",
+    "HANDOVER_HEIGHT_M", "ROVER_SETTLE_S", "TOUCHDOWN_FROM_M", "TOUCHDOWN_TIMEOUT_S", "final_mode",
     "handover_height_m", "handover_mode", "lands_at_end", "plan_touchdown", "self_lands",
 ]
 
 #: Height above the ground [m] where a mission's planned descent ends when PX4 lands it.
 HANDOVER_HEIGHT_M = 1.0
+#: A rover whose (governed) reference has ended gets this long [s] to come within the last
+#: waypoint's acceptance radius before it is switched to Hold anyway; its report then names the
+#: waypoint it missed.
+ROVER_SETTLE_S = 20.0
 
 Vehicle = Literal["quad", "rover"]
 

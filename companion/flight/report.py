@@ -192,14 +192,17 @@ class SetpointQuality:
         return None
 
 
-def closest_approach(points: FloatArray, wps: FloatArray) -> FloatArray:
+def closest_approach(points: FloatArray, wps: FloatArray, horizontal: bool = False
+                     ) -> FloatArray:
     """Smallest distance [m] of `points` (N, 3) to each waypoint of `wps` (K, 3); inf if no
-    points."""
+    points. ``horizontal``: north and east only (a rover: its height estimate drifts with the
+    GPS's vertical error, 0.2-0.7 m over a 60 s drive of PX4's SIH rover)."""
     if len(points) == 0 or len(wps) == 0:
         return np.full(len(wps), math.inf)
+    k = 2 if horizontal else 3
     out = np.empty(len(wps))
     for i, w in enumerate(wps):
-        out[i] = float(np.min(np.linalg.norm(points - w, axis=1)))
+        out[i] = float(np.min(np.linalg.norm(points[:, :k] - w[:k], axis=1)))
     return out
 
 
@@ -225,19 +228,22 @@ class TrackRecorder:
         *,
         duration_s: float,
         planned_duration_s: float,
+        horizontal: bool = False,
     ) -> FlightReport:
         """A `fly` report of the samples (result still empty): duration, RMS/max error of
         flown vs reference, closest approach to and reached flag of every waypoint (within
-        its acceptance radius)."""
+        its acceptance radius); ``horizontal``: errors and distances in north and east only (a
+        rover)."""
         pos = np.asarray(self.pos_ned, dtype=np.float64).reshape(-1, 3)
         ref = np.asarray(self.ref_ned, dtype=np.float64).reshape(-1, 3)
-        err = np.linalg.norm(pos - ref, axis=1)
+        k = 2 if horizontal else 3
+        err = np.linalg.norm(pos[:, :k] - ref[:, :k], axis=1)
         wps = (np.zeros((0, 3)) if waypoints_ned is None
                else np.asarray(waypoints_ned, dtype=np.float64).reshape(-1, 3))
         acc = np.asarray(list(acceptance_m), dtype=np.float64)
         if len(acc) != len(wps):
             raise ValueError(f"{len(wps)} waypoints but {len(acc)} acceptance radii")
-        closest = closest_approach(pos, wps)
+        closest = closest_approach(pos, wps, horizontal)
         return FlightReport(
             kind="fly",
             result="",
@@ -478,10 +484,12 @@ def missed_result(report: FlightReport) -> str:
     """The report's result, failed by missed waypoints: ``"missed N waypoint(s): item I by D m,
     ..."`` if the flight otherwise ended "ok" and passed a waypoint farther than its
     acceptance radius."""
-    missed = [w for w in report.waypoints if not w.reached]
+    missed = [(i, w) for i, w in enumerate(report.waypoints) if not w.reached]
     if report.result != "ok" or not missed:
         return report.result
-    where = ", ".join(f"item {w.item_index} by {w.closest_approach_m:.1f} m"
-                      for w in missed[:3])
+    where = ", ".join(
+        f"{'waypoint ' + str(i + 1) if w.item_index is None else 'item ' + str(w.item_index)} "
+        f"by {w.closest_approach_m if w.closest_approach_m is not None else math.inf:.1f} m"
+        for i, w in missed[:3])
     more = f" (+{len(missed) - 3} more)" if len(missed) > 3 else ""
     return f"missed {len(missed)} waypoint(s): {where}{more}"

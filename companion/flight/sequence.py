@@ -78,6 +78,9 @@ class VehicleView:
     have_state: bool = True  # position and attitude known: no setpoint is streamed without
     on_ground: bool = False  # EXTENDED_SYS_STATE landed_state ON_GROUND
     pos_ned: tuple[float, float, float] | None = None  # local position [m NED]
+    # the trajectory's own time [s] when the setpoint source governs it (it waits for a vehicle
+    # that falls behind, e.g. `TrackingSource` in rover mode); None: flight time since it began
+    traj_time_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -223,6 +226,7 @@ class FlightSequence:
         self._handover_cmd: int | None = None
         self._handover_mode = FlightMode.HOLD
         self._t_handover_sent = 0.0
+        self._t_traj_end: float | None = None  # when the trajectory's time reached its end
 
     # -- state --------------------------------------------------------------------------------
     @property
@@ -389,11 +393,24 @@ class FlightSequence:
             if ack is not None and now - ack > end.disarm_confirm_s:
                 return self._handover(now, FlightMode.LAND, "disarm not shown by the HEARTBEAT")
             return []
-        if now - self.t_fly0 >= self.config.duration_s + end.settle_s or (
-                t >= self.config.duration_s and end.settle_m is not None
-                and end.end_ned is not None and view.pos_ned is not None
-                and math.dist(view.pos_ned, end.end_ned) <= end.settle_m):
+        if view.traj_time_s is not None:  # governed: settle_s counts from its end
+            t = view.traj_time_s
+            if self._t_traj_end is None and t >= self.config.duration_s:
+                self._t_traj_end = now
+            settled = self._t_traj_end is not None and now - self._t_traj_end >= end.settle_s
+        else:
+            settled = now - self.t_fly0 >= self.config.duration_s + end.settle_s
+        if t < self.config.duration_s and not settled:
+            return []
+        if end.settle_m is not None and end.end_ned is not None and view.pos_ned is not None \
+                and math.dist(view.pos_ned, end.end_ned) <= end.settle_m:
             return self._handover(now, end.handover_mode, "trajectory complete")
+        if settled:
+            why = "trajectory complete"
+            if end.settle_m is not None and end.end_ned is not None and view.pos_ned is not None:
+                why = (f"trajectory complete, {math.dist(view.pos_ned, end.end_ned):.1f} m from "
+                       f"its end after {end.settle_s:g} s")
+            return self._handover(now, end.handover_mode, why)
         return []
 
     def _handover(self, now: float, mode: FlightMode, why: str) -> list[SequenceAction]:

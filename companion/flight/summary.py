@@ -53,6 +53,9 @@ class FlightLog:
     modes: list[tuple[float, str]] = field(default_factory=list)
     armed_t: float | None = None
     disarmed_t: float | None = None
+    ref_clock: list[tuple[float, float]] = field(default_factory=list)
+    """(time [s], the reference's own time [s]) of each setpoint of a source that governs its
+    reference time (a rover's `ProgressGovernor`); empty: the reference ran on flight time."""
 
 
 def record_message(log: FlightLog, msg: Any, t: float) -> None:
@@ -78,7 +81,8 @@ def tracking_error(
     log: FlightLog, schedule: Schedule, origin: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
     """(t [s], |flown - planned| [m]) at every position sample taken while flying the plan,
-    the plan evaluated at the sample's own time."""
+    the plan evaluated at the sample's own time (mapped to the reference's own time through
+    ``log.ref_clock`` when the source governed it)."""
     if log.fly_t0 is None:
         return np.zeros(0), np.zeros(0)
     t = np.asarray(log.t)
@@ -87,7 +91,11 @@ def tracking_error(
     if not sel.any():
         return np.zeros(0), np.zeros(0)
     pos = np.asarray(log.pos, dtype=np.float64)[sel]
-    planned = schedule.sample(t[sel] - log.fly_t0) + origin
+    t_ref = t[sel] - log.fly_t0
+    if log.ref_clock:
+        clock = np.asarray(log.ref_clock, dtype=np.float64)
+        t_ref = np.interp(t[sel], clock[:, 0], clock[:, 1])
+    planned = schedule.sample(t_ref) + origin
     return t[sel], np.linalg.norm(pos - planned, axis=1)
 
 

@@ -3,7 +3,9 @@ in, one MAVLink setpoint out. Pure: used by `Vehicle.fly` (real time) and by the
 (simulated time) alike, so both fly exactly the same code.
 
 A source follows the `companion.aio` contract: `source(t_s, telemetry) -> SetpointCommand`,
-with `t_s` the reference time [s] and `telemetry.now_s` the local clock of the cycle.
+with `t_s` the flight time [s] and `telemetry.now_s` the local clock of the cycle. The reference
+is sampled at `t_s`, except where a source governs its own reference time (a rover's
+`ProgressGovernor`; `TrackingSource.reference_time_s`).
 """
 
 from __future__ import annotations
@@ -197,6 +199,51 @@ class FlightClock:
         return self._t_flight
 
 
+class ProgressGovernor:
+    """Reference time that waits for a vehicle falling behind it (a rover that cannot drive the
+    planned speed: its own speed limit, a slope, a PX4 speed loop that lags).
+
+    `update(t, lag_m)` maps the flight time `t` [s] to the reference time: it advances at
+    ``rate = (stop_m - lag_m) / (stop_m - free_m)`` (clamped to [0, 1]) times the flight time,
+    where `lag_m` is how far [m] the vehicle is behind the reference along its path (the
+    along-track error of the last setpoint). Up to `free_m` of lag it runs with flight time
+    (the controller's along-track feedback closes such lags); from `stop_m` on it stops until
+    the vehicle has caught up. It never runs backwards nor faster than flight time, so a plan's
+    speeds stay its upper bound and the path stays the plan's.
+    """
+
+    def __init__(self, free_m: float = 1.0, stop_m: float = 3.0) -> None:
+        if not (0.0 <= free_m < stop_m and math.isfinite(stop_m)):
+            raise ValueError(f"need 0 <= free_m < stop_m, got {free_m}, {stop_m}")
+        self.free_m = free_m
+        self.stop_m = stop_m
+        self._t: float | None = None  # last flight time [s]
+        self.t_ref = 0.0  # reference time [s]
+        self.rate = 1.0  # the last rate [0, 1]
+
+    def reset(self) -> None:
+        """Start again: the next `update`'s flight time is taken as the reference time (a new
+        OFFBOARD entry starts its flight time at 0)."""
+        self._t = None
+        self.t_ref = 0.0
+        self.rate = 1.0
+
+    def update(self, t_s: float, lag_m: float) -> float:
+        """Reference time [s] at flight time `t_s` [s] (calls in time order; the first is taken
+        as it is), given the lag [m] seen at the previous call."""
+        if self._t is None:
+            self._t, self.t_ref = t_s, max(t_s, 0.0)
+            return self.t_ref
+        dt = t_s - self._t
+        self._t = t_s
+        if dt <= 0.0 or not math.isfinite(dt):
+            return self.t_ref
+        lag = lag_m if math.isfinite(lag_m) else 0.0
+        self.rate = min(max((self.stop_m - lag) / (self.stop_m - self.free_m), 0.0), 1.0)
+        self.t_ref += self.rate * dt
+        return self.t_ref
+
+
 def estimate_from_telemetry(
     snap: TelemetrySnapshot, clock: SampleClock | None = None
 ) -> StateEstimate | None:
@@ -381,6 +428,8 @@ class TrackingSource:
             cfg = tracking or TrackingConfig(params=params, max_tilt_rad=max_tilt_rad)  # type: ignore[arg-type]
             self.controller = TrackingController(vehicle_limited(cfg, self.limits))
         self.rover = RoverController() if mode == "rover" else None
+        # a rover's reference waits for it (ProgressGovernor); other modes fly the clock
+        self.governor = ProgressGovernor() if mode == "rover" else None
         # position mode: the drag PX4 does not model goes into the acceleration feed-forward
         known = params if params is not None else tracking.params if tracking is not None else None
         self.drag_per_kg = known.drag / known.mass if known is not None else 0.0
@@ -413,7 +462,15 @@ class TrackingSource:
         """Forget controller state (call when OFFBOARD is (re-)entered)."""
         if self.controller is not None:
             self.controller.reset()
+        if self.governor is not None:
+            self.governor.reset()
         self.contact_s = self._still_since = None
+
+    @property
+    def reference_time_s(self) -> float | None:
+        """The reference's own time [s] of the last setpoint when this source governs it (rover
+        mode: it waits for a vehicle that falls behind); None: the flight time it was given."""
+        return None if self.governor is None else self.governor.t_ref
 
     def ref(self, t_s: float) -> Reference:
         """The reference at `t_s` (cached for repeated calls at the same time)."""
@@ -486,6 +543,9 @@ class TrackingSource:
     def __call__(self, t_s: float, telemetry: TelemetrySnapshot) -> SetpointCommand:
         self.calls += 1
         now = telemetry.now_s
+        if self.governor is not None and t_s > 0.0:
+            assert self.rover is not None
+            t_s = self.governor.update(t_s, self.rover.last_lag_m)
         ref = self.ref(t_s)
         est = self._estimate(telemetry)
         if self.controller is not None and not self._engaged:

@@ -270,14 +270,16 @@ def mission_to_flight_plan(
     fly at ground level (typically a ground-vehicle mission flown with ``vehicle="quad"``).
 
     ``px4``: the vehicle's parameters (read at connect); when given they replace the defaults
-    above (MIS_TAKEOFF_ALT, NAV_ACC_RAD, MPC_XY_CRUISE, RTL_RETURN_ALT, MPC_TKO_SPEED,
-    MPC_LAND_SPEED) and travel with the plan to the planner (``FlightPlan.px4``).
+    above (MIS_TAKEOFF_ALT, NAV_ACC_RAD, MPC_XY_CRUISE (a rover: RO_SPEED_LIM, PX4's rover
+    mission speed), RTL_RETURN_ALT, MPC_TKO_SPEED, MPC_LAND_SPEED) and travel with the plan to
+    the planner (``FlightPlan.px4``).
     """
     src = mission.source
     if px4 is not None:
         takeoff_alt_default = max(px4.MIS_TAKEOFF_ALT, 0.1)
         acceptance_default = px4.NAV_ACC_RAD
-        cruise_speed_default = min(px4.MPC_XY_CRUISE, px4.MPC_XY_VEL_MAX)
+        cruise_speed_default = (px4.RO_SPEED_LIM if vehicle == "rover"
+                                else min(px4.MPC_XY_CRUISE, px4.MPC_XY_VEL_MAX))
         rtl_return_alt_m = px4.RTL_RETURN_ALT
         takeoff_speed_m_s = px4.MPC_TKO_SPEED
         land_speed_m_s = px4.MPC_LAND_SPEED

@@ -124,14 +124,16 @@ def leg_speed_caps(
     chunk: FlightChunk, pts: FloatArray, px4: Px4PlanningParams, rover: bool
 ) -> FloatArray:
     """Speed cap along each leg of `pts` [m/s]: the leg's horizontal speed (its mission speed,
-    at most MPC_XY_VEL_MAX) on the horizontal part and the climb (MPC_Z_VEL_MAX_UP, or
-    MPC_TKO_SPEED in the takeoff) or descent rate (MPC_Z_VEL_MAX_DN) on the vertical part."""
+    at most MPC_XY_VEL_MAX; a rover's at most RO_SPEED_LIM) on the horizontal part and the
+    climb (MPC_Z_VEL_MAX_UP, or MPC_TKO_SPEED in the takeoff) or descent rate
+    (MPC_Z_VEL_MAX_DN) on the vertical part."""
     legs = np.diff(pts, axis=0)
     lengths = np.linalg.norm(legs, axis=1)
     speeds = list(chunk.leg_speed_m_s)
     caps = np.empty(len(legs))
     for i, (d, n) in enumerate(zip(legs, lengths, strict=True)):
-        v_h = min(speeds[min(i, len(speeds) - 1)], px4.MPC_XY_VEL_MAX)
+        v_h = min(speeds[min(i, len(speeds) - 1)],
+                  px4.RO_SPEED_LIM if rover else px4.MPC_XY_VEL_MAX)
         if rover or n <= 0.0:
             caps[i] = max(v_h, 0.1)
             continue
@@ -242,6 +244,102 @@ def _rover_corridor_deviation(traj: PiecewiseBezier, pts: FloatArray,
     return float(np.max(dev))
 
 
+#: A rover plans at this share of PX4's RO_SPEED_LIM (the along-track feedback needs room above
+#: the plan) and of its RO_ACCEL_LIM / RO_DECEL_LIM (the norm of the acceleration: speeding up,
+#: braking and turning together).
+ROVER_SPEED_SHARE = 0.9
+ROVER_ACC_SHARE = 0.8
+
+
+def rover_limits(limits: VehicleLimits, px4: Px4PlanningParams, speed_m_s: float) -> RoverLimits:
+    """A rover's planning limits: ``speed_m_s`` (the chunk's fastest leg) within
+    ROVER_SPEED_SHARE of RO_SPEED_LIM (and the vehicle file's cap), the companion's yaw-rate and
+    lateral-acceleration caps within RO_YAW_RATE_LIM, ROVER_ACC_SHARE of the smaller of
+    RO_ACCEL_LIM and RO_DECEL_LIM, and the Ackermann curvature tan(RA_MAX_STR_ANG) /
+    RA_WHEEL_BASE."""
+    v = min(speed_m_s, ROVER_SPEED_SHARE * px4.RO_SPEED_LIM)
+    if limits.rover_max_speed_m_s is not None:
+        v = min(v, limits.rover_max_speed_m_s)
+    return RoverLimits(
+        max_speed_m_s=max(v, 0.1),
+        max_yaw_rate_rad_s=min(limits.rover_max_yaw_rate_rad_s, math.radians(px4.RO_YAW_RATE_LIM)),
+        max_lat_acc_m_s2=limits.rover_max_lat_acc_m_s2,
+        max_acc_m_s2=ROVER_ACC_SHARE * min(px4.RO_ACCEL_LIM, px4.RO_DECEL_LIM),
+        max_curvature_1_m=px4.rover_max_curvature_1_m,
+    )
+
+
+def _plan_rover_chunk(chunk: FlightChunk, pts: FloatArray, limits: VehicleLimits,
+                      caps: FloatArray, speed: float, px4: Px4PlanningParams) -> PiecewiseBezier:
+    """A rover chunk (see :func:`plan_chunk`) under :func:`rover_limits`; SteeringError when
+    its path turns tighter than the rover can steer."""
+    lim = rover_limits(limits, px4, speed)
+    caps = np.minimum(caps, lim.max_speed_m_s)
+    whole = len(pts) == len(chunk.points_ned_m)
+    corridor = limits.rover_corridor_m if whole else None
+    if corridor is not None:
+        traj = plan(pts[:, :2], limits=lim, yaw="velocity", speed_caps=caps,
+                    corridor_m=corridor, acceptance_m=chunk.acceptance_radius_m)
+        _require_steerable(traj, lim, chunk)
+        return traj
+    # joints on the straight legs: one polynomial per leg has a bell-shaped speed profile (a
+    # 30 m leg at 2.7 m/s took 24 s) and bulges off the leg (7.6 m on the rover square); joints
+    # let it cruise between the turns and pin it to the legs. The first pattern whose path keeps
+    # within the corridor (and within the steering) is flown; if none does, the closer one,
+    # with a warning (the planner's corridor refinement is rover_corridor_m's: seconds per
+    # chunk).
+    check_m = limits.corridor_m if whole else None
+    best: tuple[float, PiecewiseBezier] | None = None
+    tries = (ROVER_JOINT_PATTERNS if len(pts) - 1 <= ROVER_RETRY_MAX_LEGS
+             else ROVER_JOINT_PATTERNS[:1])
+    steer_error: SteeringError | None = None
+    for fractions in tries:
+        jp, jc, seg_leg = _rover_joints(pts, caps, fractions)
+        traj = plan(jp[:, :2], limits=lim, yaw="velocity", speed_caps=jc)
+        try:
+            _require_steerable(traj, lim, chunk)
+        except SteeringError as exc:
+            steer_error = exc
+            continue
+        if check_m is None:
+            return traj
+        dev = _rover_corridor_deviation(traj, pts, seg_leg, chunk.acceptance_radius_m)
+        if dev <= check_m:
+            return traj
+        if best is None or dev < best[0]:
+            best = (dev, traj)
+    if best is None:
+        assert steer_error is not None
+        raise steer_error
+    _log.warning("the rover's path leaves the %g m corridor around the legs by up to "
+                 "%.1f m (legs of %.0f m at most; set VehicleLimits.rover_corridor_m "
+                 "to plan it inside, slower)", check_m, best[0],
+                 float(np.max(np.linalg.norm(np.diff(pts[:, :2], axis=0), axis=1))))
+    return best[1]
+
+
+class SteeringError(ValueError):
+    """A rover's path turns tighter than it can steer (stopping at the corners would not help:
+    a car-like rover cannot turn in place)."""
+
+
+def _require_steerable(traj: PiecewiseBezier, lim: RoverLimits, chunk: FlightChunk) -> None:
+    """ValueError naming the chunk's items when `traj` turns tighter than ``lim``'s curvature
+    (a car-like rover cannot follow it: it has a smallest turning radius)."""
+    k_max = lim.max_curvature_1_m
+    if k_max is None:
+        return
+    rep = check(traj, lim)["curvature"]
+    if not rep.exceeded:
+        return
+    items = ", ".join(str(i) for i in chunk.item_indices if i is not None)
+    raise SteeringError(
+        f"the rover's path through items {items} turns with a radius of {1.0 / rep.worst:.2f} m "
+        f"at t = {rep.time_s:.1f} s, tighter than it can steer (smallest turning radius "
+        f"{1.0 / k_max:.2f} m: RA_WHEEL_BASE / tan(RA_MAX_STR_ANG)); add waypoints that "
+        f"round the corner")
+
+
 def plan_chunk(
     chunk: FlightChunk,
     pts: FloatArray,
@@ -259,47 +357,7 @@ def plan_chunk(
     speed = max(float(np.max(caps)), 0.1)
     lim: Limits | RoverLimits
     if rover:
-        if limits.rover_max_speed_m_s is not None:
-            caps = np.minimum(caps, limits.rover_max_speed_m_s)
-            speed = min(speed, limits.rover_max_speed_m_s)
-        lim = RoverLimits(
-            max_speed_m_s=speed,
-            max_yaw_rate_rad_s=limits.rover_max_yaw_rate_rad_s,
-            max_lat_acc_m_s2=limits.rover_max_lat_acc_m_s2,
-        )
-        whole = len(pts) == len(chunk.points_ned_m)
-        corridor = limits.rover_corridor_m if whole else None
-        if corridor is None:
-            # joints on the straight legs: one polynomial per leg has a bell-shaped speed
-            # profile (a 30 m leg at 2.7 m/s took 24 s) and bulges off the leg (7.6 m on the
-            # rover square); joints let it cruise between the turns and pin it to the legs.
-            # The first pattern whose path keeps within the corridor is flown; if none does,
-            # the closer one, with a warning (the planner's corridor refinement below is
-            # rover_corridor_m's: seconds per chunk).
-            check = limits.corridor_m if whole else None
-            best: tuple[float, PiecewiseBezier] | None = None
-            tries = (ROVER_JOINT_PATTERNS if len(pts) - 1 <= ROVER_RETRY_MAX_LEGS
-                     else ROVER_JOINT_PATTERNS[:1])
-            for fractions in tries:
-                jp, jc, seg_leg = _rover_joints(pts, caps, fractions)
-                traj = plan(jp[:, :2], limits=lim, yaw="velocity", speed_caps=jc)
-                if check is None:
-                    return traj
-                dev = _rover_corridor_deviation(traj, pts, seg_leg, chunk.acceptance_radius_m)
-                if dev <= check:
-                    return traj
-                if best is None or dev < best[0]:
-                    best = (dev, traj)
-            assert best is not None
-            _log.warning("the rover's path leaves the %g m corridor around the legs by up to "
-                         "%.1f m (legs of %.0f m at most; set VehicleLimits.rover_corridor_m "
-                         "to plan it inside, slower)", check, best[0],
-                         float(np.max(np.linalg.norm(np.diff(pts[:, :2], axis=0), axis=1))))
-            return best[1]
-        return plan(
-            pts[:, :2], limits=lim, yaw="velocity", speed_caps=caps, corridor_m=corridor,
-            acceptance_m=chunk.acceptance_radius_m,
-        )
+        return _plan_rover_chunk(chunk, pts, limits, caps, speed, px4)
     vertical = chunk.phase in ("takeoff", "land")
     hover_n = params.mass * params.g if params is not None else None
     acc = limits.max_acc_m_s2

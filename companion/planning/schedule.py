@@ -43,6 +43,7 @@ from companion.planning.chunks import (
     STRAIGHT_TILT_MARGIN,
     TILT_FEEDBACK_MARGIN_DEG,
     TURN_RATE_RAD_S,
+    SteeringError,
     VehicleLimits,
     axis_ratios,
     land_descent_rate,
@@ -428,6 +429,8 @@ def build_schedule(
                 chunk.acceptance_radius_m, len(chunk.points_ned_m), chunk.phase, pts, params,
                 limits, rover, yaw_spec, caps, flight.px4)), run)
         except ValueError as exc:
+            if isinstance(exc, SteeringError):  # stops would not help a car-like rover
+                raise SteeringError(f"{flight.source}: {exc}") from exc
             if len(chunk.points_ned_m) <= 2:
                 leg = f"{np.round(pts[0], 1)} to {np.round(pts[-1], 1)} m"
                 raise ValueError(f"{flight.source}: cannot plan the leg {leg}: {exc}") from exc

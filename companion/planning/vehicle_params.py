@@ -22,7 +22,12 @@ from dataclasses import dataclass
 from typing import Literal, Protocol
 
 from companion.mavlink.params import ParamReadDone
-from companion.mission.px4_params import PLANNING_PARAM_NAMES, Px4PlanningParams
+from companion.mission.px4_params import (
+    ALL_PARAM_NAMES,
+    PLANNING_PARAM_NAMES,
+    Px4PlanningParams,
+    planning_param_names,
+)
 
 __all__ = [
     "ParamReader", "ParamSource", "ResolvedPlanningParams", "check_overrides",
@@ -38,10 +43,10 @@ _MARK: dict[ParamSource, str] = {"vehicle": "", "file": " (vehicle file)", "defa
 def check_overrides(overrides: Mapping[str, float], where: str = "[px4]") -> dict[str, float]:
     """The ``[px4]`` table as {PX4 name: value}; ValueError naming unknown names (and listing the
     known ones) or an invalid value."""
-    unknown = sorted(set(overrides) - set(PLANNING_PARAM_NAMES))
+    unknown = sorted(set(overrides) - set(ALL_PARAM_NAMES))
     if unknown:
         raise ValueError(f"{where}: unknown PX4 parameter(s) {', '.join(unknown)}; known: "
-                         f"{', '.join(PLANNING_PARAM_NAMES)}")
+                         f"{', '.join(ALL_PARAM_NAMES)}")
     out: dict[str, float] = {}
     for name, value in overrides.items():
         if isinstance(value, bool) or not isinstance(value, int | float):
@@ -60,21 +65,24 @@ class ResolvedPlanningParams:
 
     params: Px4PlanningParams
     source: dict[str, ParamSource]
-    """PX4 name -> "vehicle" (read from it), "file" (vehicle file override), "default"."""
+    """PX4 name -> "vehicle" (read from it), "file" (vehicle file override), "default"; for
+    ``names`` and the overridden names (others plan with PX4's default, unreported)."""
     vehicle_values: dict[str, float]
     """What the vehicle answered (also for overridden names)."""
     warnings: tuple[str, ...] = ()
+    names: tuple[str, ...] = PLANNING_PARAM_NAMES
+    """The names this vehicle's plan reads (``planning_param_names``), in their order."""
 
     @property
     def defaulted(self) -> tuple[str, ...]:
         """Names planned with PX4's default because the vehicle did not answer them."""
-        return tuple(n for n in PLANNING_PARAM_NAMES if self.source[n] == "default")
+        return tuple(n for n in self.names if self.source[n] == "default")
 
     def lines(self, per_line: int = 4) -> list[str]:
         """``NAME = value`` entries, ``per_line`` to a line; overridden and defaulted values are
         marked, an override shows the vehicle's own value too."""
         entries = []
-        for name, value in self.params.as_dict().items():
+        for name, value in self.params.as_dict(self.names).items():
             src = self.source[name]
             text = f"{name} = {value:g}{_MARK[src]}"
             if src == "file" and name in self.vehicle_values:
@@ -84,7 +92,8 @@ class ResolvedPlanningParams:
 
     def as_report(self) -> dict[str, dict[str, float | str]]:
         """{name: {"value": v, "source": s}} for report.json."""
-        return {n: {"value": v, "source": self.source[n]} for n, v in self.params.as_dict().items()}
+        return {n: {"value": v, "source": self.source[n]}
+                for n, v in self.params.as_dict(self.names).items()}
 
 
 def resolve_planning_params(
@@ -93,10 +102,13 @@ def resolve_planning_params(
     *,
     wrong_type: Mapping[str, str] | None = None,
     where: str = "the vehicle",
+    vehicle: str = "quad",
 ) -> ResolvedPlanningParams:
     """Combine the values read from ``where`` with the vehicle file's ``overrides`` (see the
-    module doc). ValueError naming the parameter for an invalid or wrongly typed value that the
+    module doc) for the names ``vehicle``'s plan reads (an override of another name applies
+    too). ValueError naming the parameter for an invalid or wrongly typed value that the
     vehicle file does not override."""
+    names = planning_param_names(vehicle)
     over = check_overrides(overrides or {})
     bad = {n: why for n, why in (wrong_type or {}).items() if n not in over}
     if bad:
@@ -104,7 +116,7 @@ def resolve_planning_params(
                          + " (set it in the vehicle file's [px4] table to override)")
     source: dict[str, ParamSource] = {}
     values: dict[str, float] = {}
-    for name in PLANNING_PARAM_NAMES:
+    for name in dict.fromkeys([*names, *over]):
         if name in over:
             source[name], values[name] = "file", over[name]
         elif name in read:
@@ -118,7 +130,7 @@ def resolve_planning_params(
             source[name] = "default"
     params = dataclasses.replace(Px4PlanningParams(), **values)
     warnings: list[str] = []
-    defaulted = [n for n in PLANNING_PARAM_NAMES if source[n] == "default"]
+    defaulted = [n for n in names if source[n] == "default"]
     if defaulted and not read:
         warnings.append(f"{where} answered no parameter request: planning with PX4's defaults "
                         "(and the vehicle file's [px4] table)")
@@ -127,8 +139,8 @@ def resolve_planning_params(
                         f"on the link): planning with PX4's default "
                         f"({', '.join(f'{getattr(params, n):g}' for n in defaulted)})")
     return ResolvedPlanningParams(params, source, {n: float(v) for n, v in read.items()
-                                                   if n in PLANNING_PARAM_NAMES},
-                                  tuple(warnings))
+                                                   if n in ALL_PARAM_NAMES},
+                                  tuple(warnings), names)
 
 
 class ParamReader(Protocol):
@@ -141,23 +153,25 @@ class ParamReader(Protocol):
 
 
 async def read_planning_params(read: ParamReader, overrides: Mapping[str, float] | None = None,
-                               timeout_s: float = 10.0) -> ResolvedPlanningParams:
-    """The PX4 parameters the mission planner uses (``PLANNING_PARAM_NAMES``, all REAL32 in PX4)
-    read with ``read`` (names not answered are asked for once more: tells a lossy link from a
-    parameter PX4 lacks), combined with the vehicle file's ``[px4]`` ``overrides``
+                               timeout_s: float = 10.0, *, vehicle: str = "quad"
+                               ) -> ResolvedPlanningParams:
+    """The PX4 parameters the mission planner uses for ``vehicle`` ("quad":
+    ``PLANNING_PARAM_NAMES``, "rover": ``ROVER_PARAM_NAMES``; all REAL32 in PX4) read with
+    ``read`` (names not answered are asked for once more: tells a lossy link from a parameter
+    PX4 lacks), combined with the vehicle file's ``[px4]`` ``overrides``
     (:func:`resolve_planning_params`); its warnings are logged too. ``timeout_s`` [s] per pass.
     ValueError for a value the planner cannot use (wrong type, out of range) unless overridden.
 
         resolved = await read_planning_params(vehicle.fetch_params, overrides)
     """
-    names = list(PLANNING_PARAM_NAMES)
+    names = list(planning_param_names(vehicle))
     done = await read(names, timeout_s, floats_only=True)
     values, wrong = dict(done.values), dict(done.wrong_type)
     if done.missing:  # a second pass
         again = await read(list(done.missing), timeout_s, floats_only=True)
         values.update(again.values)
         wrong.update(again.wrong_type)
-    resolved = resolve_planning_params(values, overrides, wrong_type=wrong)
+    resolved = resolve_planning_params(values, overrides, wrong_type=wrong, vehicle=vehicle)
     for w in resolved.warnings:
         _log.warning("%s", w)
     return resolved

@@ -19,7 +19,7 @@ import numpy as np
 
 from companion.aio.tlog import TlogWriter
 from companion.control import Reference
-from companion.flight.policy import handover_mode, plan_touchdown
+from companion.flight.policy import ROVER_SETTLE_S, handover_mode, plan_touchdown
 from companion.flight.report import SetpointLimits
 from companion.flight.sequence import (
     EndPolicy,
@@ -90,12 +90,20 @@ class Flight:
                                      touchdown=self.touchdown,
                                      limits=SetpointLimits.of_px4(schedule.px4))
         rover = config.vehicle == "rover"
+        # a rover's reference waits for it (ProgressGovernor): it ends within the last
+        # waypoint's acceptance radius, or ROVER_SETTLE_S after its reference ended (as `fly`)
+        self._rover_end = rover and len(schedule.waypoints_ned) > 0
+        end_ned = (tuple(float(x) for x in schedule.waypoints_ned[-1])
+                   if self._rover_end else None)
         self.seq = FlightSequence(SequenceConfig(
             rate_hz=config.rate_hz, duration_s=schedule.duration_s, prime_s=PRIME_S,
             end=EndPolicy(
                 handover_mode=handover_mode(config.vehicle, schedule.final_action),
                 touchdown_from_s=None if self.touchdown is None else self.touchdown.from_s,
-                settle_s=SETTLE_S, disarm_at_hold=rover, disarm_on_ground=not rover)))
+                settle_s=ROVER_SETTLE_S if self._rover_end else SETTLE_S,
+                settle_m=float(schedule.acceptance_m[-1]) if self._rover_end else None,
+                end_ned=end_ned,  # type: ignore[arg-type]
+                disarm_at_hold=rover, disarm_on_ground=not rover)))
         self.setpoints_sent = 0
         self._armed_seen = False  # a HEARTBEAT showed armed (disarmed_t is after it)
 
@@ -130,6 +138,9 @@ class Flight:
             # stamps it first.
             object.__setattr__(snap, "now_s", now)
             sp = self.source(t_s, snap)
+            t_ref = self.source.reference_time_s
+            if t_ref is not None:
+                self.log.ref_clock.append((now, t_ref))
         self.lk.to_vehicle([self.link.encode_setpoint(sp, now)])
         self.seq.on_setpoint_sent(now)
         self.setpoints_sent += 1
@@ -184,10 +195,16 @@ class Flight:
         have_state = tel.position is not None and tel.attitude is not None
         st = tel.sys_status
         ext = tel.extended
+        rel: tuple[float, float, float] | None = None
+        if self._rover_end and tel.position is not None:  # relative to the plan's origin
+            p = tel.position.pos_ned
+            o = self.origin
+            rel = (p[0] - float(o[0]), p[1] - float(o[1]), p[2] - float(o[2]))
         view = VehicleView(
             link_ok=self.link.heartbeat.link_up, armed=armed, mode=self.link.mode,
             ready=have_state and st is not None and st.armable, have_state=have_state,
-            on_ground=ext is not None and ext.landed_state == 1)
+            on_ground=ext is not None and ext.landed_state == 1, pos_ned=rel,
+            traj_time_s=self.source.reference_time_s)
         self.perform(self.seq.update(now, view), now)
 
     def abort(self, now: float, reason: str) -> None:

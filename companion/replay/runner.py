@@ -47,6 +47,7 @@ from companion.mission import (
     load_mission,
     mission_to_flight_plan,
 )
+from companion.mission.px4_params import planning_param_names
 from companion.planning.fence_check import require_plan_inside
 from companion.planning.legs import plan_bounds
 from companion.planning.schedule import Schedule, build_schedule
@@ -129,8 +130,9 @@ def prepare_mission(path: str | os.PathLike[str], config: ReplayConfig) -> Prepa
     src = Path(path)
     mission = load_mission(src)
     home = (mission.home.lat_deg, mission.home.lon_deg, mission.home.alt_amsl_m)
-    read = read_mock_params(config, home)
-    px4 = resolve_planning_params(read.values, wrong_type=read.wrong_type, where="the mock")
+    read = read_mock_params(config, home, planning_param_names(config.vehicle))
+    px4 = resolve_planning_params(read.values, wrong_type=read.wrong_type, where="the mock",
+                                  vehicle=config.vehicle)
     flight_plan = mission_to_flight_plan(mission, vehicle=config.vehicle, px4=px4.params)
     params = None if config.vehicle == "rover" else config.params
     schedule = build_schedule(

@@ -185,8 +185,11 @@ class _Session:
         from companion.aio import VehicleError
 
         try:
+            hb = self.v.link.heartbeat.last
+            kind = "rover" if hb is not None and hb.vehicle_type == 10 else "quad"
             r: ResolvedPlanningParams = await read_planning_params(self.v.fetch_params,
-                                                                   self.px4_overrides)
+                                                                   self.px4_overrides,
+                                                                   vehicle=kind)
         except ValueError as exc:
             self.events.write("px4_params_refused", why=str(exc))
             return f"PX4 parameters: {exc}"
@@ -194,7 +197,7 @@ class _Session:
             self.events.write("px4_params_refused", why=f"read failed: {exc}")
             return f"PX4 parameters could not be read: {exc}"
         self.events.write(
-            "px4_params", **{n: round(v, 4) for n, v in r.params.as_dict().items()},
+            "px4_params", **{n: round(v, 4) for n, v in r.params.as_dict(r.names).items()},
             vehicle_file=sorted(n for n, s in r.source.items() if s == "file"),
             defaulted=list(r.defaulted))
         for w in r.warnings:

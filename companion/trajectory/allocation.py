@@ -24,7 +24,10 @@ meet the limits by one exact uniform time scaling of the shorter of the refined 
 durations: the maxima come from the critical points of each segment's polynomials
 (``limits.rover_extrema``), and scaling all durations by k keeps the path while speed and yaw
 rate scale by 1/k and lateral acceleration by 1/k^2 (``Planner._rover_stretch``), so the
-result always exists and meets every limit.
+result always exists and meets every limit. An optional limit on the norm of the acceleration
+(``RoverLimits.max_acc_m_s2``) scales by 1/k^2 too; its maximum is sampled
+(``ROVER_ACC_SAMPLES`` per segment). The curvature limit of a car-like rover is geometric (no
+scaling changes it): the caller checks it.
 
 Cost. One refinement is capped at ``REFINE_WORK_BUDGET`` iterations x segments (plans of up to
 300 segments get the full ``REFINE_MAXITER``). The feasibility passes look at 16 samples per
@@ -77,6 +80,8 @@ ROVER_REFINE_MAXITER = 60
 #: Rover: passes that shorten the segments with slack (exact per-segment ratio < 1) before
 #: the uniform scaling again; kept only while the total duration drops.
 ROVER_LOCAL_PASSES = 6
+#: Samples per segment for a rover's acceleration limit (its uniform-scaling factor).
+ROVER_ACC_SAMPLES = 33
 REFINE_FTOL = 1e-5
 #: Work cap of one multirotor refinement: iterations x segments (each iteration costs a
 #: banded solve and a penalty evaluation per segment). Plans of up to
@@ -356,7 +361,7 @@ class Planner:
         raise ValueError(
             "rover time allocation could not satisfy the limits: the fixed start/end or "
             "waypoint derivatives are not reachable within max_speed / max_yaw_rate / "
-            "max_lat_acc"
+            "max_lat_acc / max_acc"
         )
 
     def _allocate_rover(self, h0: FloatArray, limits: RoverLimits) -> FloatArray:
@@ -388,18 +393,23 @@ class Planner:
         r = exact maximum (:func:`limits.rover_extrema`) / (margin * limit), of the
         trajectory with durations h (> 1: over a limit)."""
         x, _ = self.solve(h)
-        ex = rover_extrema(PiecewiseBezier.from_control_points(self.system.control_points(x, h), h))
+        traj = PiecewiseBezier.from_control_points(self.system.control_points(x, h), h)
+        ex = rover_extrema(traj)
         m = ALLOCATION_MARGIN
-        return np.asarray(
+        k = np.maximum(
             np.maximum(
-                np.maximum(
-                    ex["speed"][0] / (limits.max_speed_m_s * m * self._scale()),
-                    ex["yaw_rate"][0] / (limits.max_yaw_rate_rad_s * m),
-                ),
-                np.sqrt(ex["lat_acc"][0] / (limits.max_lat_acc_m_s2 * m)),
+                ex["speed"][0] / (limits.max_speed_m_s * m * self._scale()),
+                ex["yaw_rate"][0] / (limits.max_yaw_rate_rad_s * m),
             ),
-            dtype=np.float64,
+            np.sqrt(ex["lat_acc"][0] / (limits.max_lat_acc_m_s2 * m)),
         )
+        if limits.max_acc_m_s2 is not None:
+            # |a| scales by 1/k^2: the largest of each segment's samples (ROVER_ACC_SAMPLES)
+            tau = np.linspace(0.0, 1.0, ROVER_ACC_SAMPLES)
+            t = traj.breaks[:-1, None] + traj.durations[:, None] * tau[None, :]
+            acc = np.linalg.norm(traj.evaluate(t.ravel(), 2), axis=1).reshape(t.shape)
+            k = np.maximum(k, np.sqrt(acc.max(axis=1) / (limits.max_acc_m_s2 * m)))
+        return np.asarray(k, dtype=np.float64)
 
     def _refine(
         self,

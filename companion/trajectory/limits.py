@@ -20,6 +20,10 @@ from numpy.typing import NDArray
 from companion.trajectory.bezier import PiecewiseBezier, monomial_matrix
 from companion.trajectory.rover_extrema import ROVER_MIN_SPEED_M_S, rover_extrema
 
+#: A rover path's curvature is checked where the path moves faster than this [m/s]: at a stop
+#: the polynomial's direction may turn freely, and a car-like rover crawls through its turns.
+ROVER_CURVATURE_MIN_SPEED_M_S = 0.3
+
 FloatArray = NDArray[np.float64]
 
 __all__ = ["LimitReport", "Limits", "RoverLimits", "check"]
@@ -107,16 +111,24 @@ class Limits:
 
 @dataclass(frozen=True)
 class RoverLimits:
-    """Rover (unicycle) limits: speed (m/s), yaw rate (rad/s), lateral acceleration (m/s^2)."""
+    """Rover limits: speed (m/s), yaw rate (rad/s), lateral acceleration (m/s^2); optional: the
+    norm of the acceleration (m/s^2, covers speeding up and braking: PX4's RO_ACCEL_LIM /
+    RO_DECEL_LIM) and, for a car-like (Ackermann) rover, the path curvature (1/m: tan(largest
+    steering angle) / wheel base). Curvature is geometric: slowing down does not reduce it, so
+    the time allocation cannot meet it; ``check`` reports it (``curvature``)."""
 
     max_speed_m_s: float
     max_yaw_rate_rad_s: float
     max_lat_acc_m_s2: float
+    max_acc_m_s2: float | None = None
+    max_curvature_1_m: float | None = None
 
     def __post_init__(self) -> None:
         _positive("max_speed_m_s", self.max_speed_m_s, optional=False)
         _positive("max_yaw_rate_rad_s", self.max_yaw_rate_rad_s, optional=False)
         _positive("max_lat_acc_m_s2", self.max_lat_acc_m_s2, optional=False)
+        _positive("max_acc_m_s2", self.max_acc_m_s2, optional=True)
+        _positive("max_curvature_1_m", self.max_curvature_1_m, optional=True)
 
 
 @dataclass(frozen=True)
@@ -141,14 +153,19 @@ class LimitReport:
 
 # --------------------------------------------------------------------------- metrics
 def _limit_table(
-    limits: Limits | RoverLimits,
+    limits: Limits | RoverLimits, geometric: bool = False
 ) -> list[tuple[str, float, str]]:
-    """(name, limit value, kind) of each active limit."""
+    """(name, limit value, kind) of each active limit; a rover's curvature (which no time
+    allocation changes) only with ``geometric``."""
     out: list[tuple[str, float, str]] = []
     if isinstance(limits, RoverLimits):
         out.append(("speed", limits.max_speed_m_s, "max"))
         out.append(("yaw_rate", limits.max_yaw_rate_rad_s, "max"))
         out.append(("lat_acc", limits.max_lat_acc_m_s2, "max"))
+        if limits.max_acc_m_s2 is not None:
+            out.append(("acc", limits.max_acc_m_s2, "max"))
+        if geometric and limits.max_curvature_1_m is not None:
+            out.append(("curvature", limits.max_curvature_1_m, "max"))
         return out
     out.append(("speed", limits.max_speed_m_s, "max"))
     out.append(("acc", limits.max_acc_m_s2, "max"))
@@ -260,13 +277,18 @@ def _metrics(smp: Samples, names: list[str], params: Any) -> dict[str, FloatArra
         out["acc"] = _norm(acc)
     if "jerk" in names and smp.jerk is not None:
         out["jerk"] = _norm(smp.jerk)
-    if "yaw_rate" in names or "lat_acc" in names:
+    if "yaw_rate" in names or "lat_acc" in names or "curvature" in names:
         speed = _norm(vel)
         cross = vel[:, 0] * acc[:, 1] - vel[:, 1] * acc[:, 0]
         ok = speed > ROVER_MIN_SPEED_M_S
         safe_v = np.where(ok, speed, 1.0)
         out["yaw_rate"] = np.where(ok, np.abs(cross) / (safe_v * safe_v), 0.0)
         out["lat_acc"] = np.where(ok, np.abs(cross) / safe_v, 0.0)
+        # curvature |v x a| / V^3 where the rover moves (ROVER_CURVATURE_MIN_SPEED_M_S): at a
+        # stop the path's direction may turn freely in the polynomial, not in the rover
+        moving = speed > ROVER_CURVATURE_MIN_SPEED_M_S
+        safe_m = np.where(moving, speed, 1.0)
+        out["curvature"] = np.where(moving, np.abs(cross) / safe_m**3, 0.0)
     if any(n in names for n in ("tilt", "max_thrust", "min_thrust")):
         tv = _thrust_vectors(vel, acc, params)
         thrust = _norm(tv)
@@ -607,7 +629,7 @@ def check(
     :func:`rover_extrema` (critical points), which sees peaks narrower than the grid.
     """
     validate_limits(traj, limits, params)
-    table = _limit_table(limits)
+    table = _limit_table(limits, geometric=True)
     names = [n for n, _, _ in table]
     t, seg = _sample_times(traj, SAMPLES_PER_SEGMENT)
     vals = _metrics(_sample(traj, t, names), names, params)
@@ -629,7 +651,7 @@ def check(
         worst, t_worst = float(v[i]), float(t[i])
         if (kind == "min" and vf[j] < worst) or (kind == "max" and vf[j] > worst):
             worst, t_worst = float(vf[j]), float(tf[j])
-        if exact is not None:
+        if exact is not None and name in exact:
             # rover: maxima at the critical points catch peaks narrower than the grid
             ke = int(np.argmax(exact[name][0]))
             if float(exact[name][0][ke]) > worst:

@@ -11,6 +11,8 @@ import pytest
 
 from companion.control import AttitudeGains, TrackingGains
 from companion.mission import load_mission, mission_to_flight_plan
+from companion.mission.px4_params import Px4PlanningParams
+from companion.planning.chunks import ROVER_SPEED_SHARE
 from companion.planning.config import load_vehicle_file
 from companion.planning.schedule import VehicleLimits, build_schedule
 
@@ -103,7 +105,9 @@ def test_missing_file_is_a_clean_error(tmp_path: Path) -> None:
 @pytest.mark.parametrize("cap", [None, 1.2, 2.7])
 def test_rover_speed_cap_bounds_the_planned_speed(cap: float | None) -> None:
     """Planned ground speed (sampled derivative of every trajectory piece) <= the cap, and
-    reaches close to it on the square's 30 m legs; without a cap, the mission's 5 m/s."""
+    reaches close to it on the square's 30 m legs; without a cap, ROVER_SPEED_SHARE of PX4's
+    RO_SPEED_LIM (the rover's mission speed; the 5 m/s of a multicopter's MPC_XY_CRUISE made a
+    plan the real rover could not drive)."""
     fp = mission_to_flight_plan(
         load_mission(ROOT / "examples" / "missions" / "rover_square.plan"), vehicle="rover"
     )
@@ -113,6 +117,6 @@ def test_rover_speed_cap_bounds_the_planned_speed(cap: float | None) -> None:
         if piece.traj is not None:
             t = np.linspace(0.0, piece.traj.duration, 4000)
             top = max(top, float(np.max(np.linalg.norm(piece.traj.evaluate(t, 1), axis=1))))
-    want = 5.0 if cap is None else cap
+    want = ROVER_SPEED_SHARE * Px4PlanningParams().RO_SPEED_LIM if cap is None else cap
     assert top <= want * (1 + 1e-6)
     assert top >= 0.8 * want

@@ -102,3 +102,37 @@ def test_read_planning_params_asks_again_for_unanswered_names() -> None:
     assert calls[1] == (["MPC_XY_CRUISE", "NAV_ACC_RAD"], True)
     assert r.params.MPC_XY_CRUISE == 7.0 and r.source["MPC_XY_CRUISE"] == "vehicle"
     assert r.defaulted == ("NAV_ACC_RAD",) and r.source["MPC_LAND_SPEED"] == "file"
+
+
+def test_a_rover_reads_its_own_parameters_not_a_multicopters() -> None:
+    """A rover (PX4's rover modules have no MPC_* limits) is asked for NAV_ACC_RAD and its
+    RO_* / RA_* parameters only; what it answers plans it, and the printed lines and the
+    report name those; a multicopter is never asked for them."""
+    import asyncio
+    from collections.abc import Sequence
+
+    from companion.mavlink.params import ParamReadDone
+    from companion.mission.px4_params import ROVER_PARAM_NAMES
+    from companion.planning.vehicle_params import read_planning_params
+
+    asked: list[list[str]] = []
+    answers = {"NAV_ACC_RAD": 0.5, "RO_SPEED_LIM": 1.8, "RO_ACCEL_LIM": 1.0,
+               "RO_DECEL_LIM": 2.0, "RO_JERK_LIM": 5.0, "RO_YAW_RATE_LIM": 90.0,
+               "RA_WHEEL_BASE": 0.5, "RA_MAX_STR_ANG": 0.4}
+
+    async def read(names: Sequence[str], timeout_s: float, *,
+                   floats_only: bool) -> ParamReadDone:
+        asked.append(list(names))
+        return ParamReadDone(0.0, {n: answers[n] for n in names if n in answers},
+                             tuple(n for n in names if n not in answers))
+
+    r = asyncio.run(read_planning_params(read, vehicle="rover"))
+    assert asked == [list(ROVER_PARAM_NAMES)] and sorted(ROVER_PARAM_NAMES) == sorted(answers)
+    assert r.params.RO_SPEED_LIM == 1.8 and r.params.RA_WHEEL_BASE == 0.5
+    assert r.defaulted == () and r.warnings == ()
+    assert set(r.as_report()) == set(ROVER_PARAM_NAMES)
+    assert "MPC" not in "\n".join(r.lines()) and "RO_SPEED_LIM = 1.8" in "\n".join(r.lines())
+    assert abs(r.params.rover_max_curvature_1_m - 0.4227932187 / 0.5) < 1e-9  # tan(0.4) / 0.5
+    asked.clear()
+    asyncio.run(read_planning_params(read))
+    assert not any(n.startswith(("RO_", "RA_")) for n in asked[0])
