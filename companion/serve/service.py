@@ -288,9 +288,15 @@ def plan_program(items: Sequence[WireMissionItem], home: HomePosition, key: tupl
                  fence_items: Sequence[WireMissionItem] = ()) -> MissionProgram:
     """Plan downloaded mission items (CPU-bound; ValueError/MissionError with the reason). A
     plan whose trajectory breaches the vehicle's geofence (``fence_items``) is refused
-    (MissionError naming the leg's mission items)."""
+    (MissionError naming the leg's mission items), and so is a rover's (the service streams a
+    multicopter's setpoints: a rover would have been sent attitude setpoints)."""
     if not items:
         raise ValueError("the vehicle has no mission")
+    if vehicle == "rover":
+        # the service's joins and setpoints are a multicopter's (attitude/rates/position); a
+        # rover's mission is driven by `fly`, whose reference waits for it
+        raise ValueError("serve flies multicopters; drive a rover's mission with "
+                         "`python -m companion fly`")
     home_pt = GeoPoint(home.lat_deg, home.lon_deg, home.alt_amsl_m)
     mission = mission_from_wire(items, home_pt)
     fp = mission_to_flight_plan(mission, vehicle=vehicle, px4=config.px4)

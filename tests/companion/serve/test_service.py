@@ -321,3 +321,11 @@ def test_the_resume_join_never_backs_up_along_the_leg(
     # it ends on wp 2
     end = ms.source.reference(float(ts[-1])).pos_ned
     assert math.hypot(end[0] - 10.0, end[1] - 8.0) < 0.1
+
+
+def test_a_rovers_mission_is_refused_with_the_reason_never_flown() -> None:
+    """The service streams a multicopter's setpoints (attitude, rates, position joins): a rover
+    (HEARTBEAT type 10) must not be sent them; its mission is refused with what to use."""
+    items, home = wire_items(MISSIONS.parents[2] / "examples" / "missions" / "rover_square.plan")
+    with pytest.raises(ValueError, match="drive a rover's mission with"):
+        plan_program(items, home, (1, len(items)), ServiceConfig(), vehicle="rover")
