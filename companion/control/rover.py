@@ -26,7 +26,8 @@ class RoverGains:
     k_cross [1/m]: heading correction atan(k_cross * cross-track error).
     k_heading [1/s]: yaw-rate correction per radian of heading error.
     max_speed [m/s], max_yaw_rate [rad/s]: command limits.
-    crab_tau_s [s]: the heading-to-course offset's filter.
+    crab_tau_s [s], speed_tau_s [s]: the heading-to-course offset's and the speed ratio's
+    filters.
     """
 
     k_along: float = 1.0
@@ -36,6 +37,8 @@ class RoverGains:
     max_yaw_rate: float = math.radians(90.0)
     crab_tau_s: float = 2.0
     """Time constant [s] of the heading-to-course offset estimate (see RoverController)."""
+    speed_tau_s: float = 2.0
+    """Time constant [s] of the speed-ratio estimate (see RoverController)."""
 
 
 #: The heading-to-course offset is learnt only while the rover drives straight this fast or
@@ -43,6 +46,11 @@ class RoverGains:
 CRAB_MIN_SPEED_M_S = 0.5
 CRAB_MAX_TURN_RAD_S = 0.15
 CRAB_MAX_RAD = math.radians(30.0)
+#: The speed ratio (driven / commanded) is learnt while the command is at least this [m/s] and
+#: changes slower than SPEED_RATIO_MAX_DCMD [m/s^2]; it is kept within SPEED_RATIO_RANGE.
+SPEED_RATIO_MIN_CMD_M_S = 0.8
+SPEED_RATIO_MAX_DCMD = 0.5
+SPEED_RATIO_RANGE = (0.5, 2.0)
 
 
 class RoverController:
@@ -54,6 +62,11 @@ class RoverController:
     cross-track feedback leaves a steady error (0.3 m at 12 deg). The offset between the
     estimated heading and the course over the ground (from the velocity) is learnt while driving
     straight (``crab_tau_s``) and added to the commanded direction.
+
+    PX4's rover drives its speed open loop on a throttle feed-forward (RO_SPEED_P 0.001 on the
+    SIH airframe): commanded speeds came out 10-40 % faster, and the along-track feedback left
+    the rover ahead of its reference. The ratio of driven to commanded speed is learnt while
+    the command is steady (``speed_tau_s``) and the command divided by it.
     """
 
     def __init__(self, gains: RoverGains | None = None) -> None:
@@ -61,7 +74,9 @@ class RoverController:
         self._last_heading: float | None = None
         self.last_lag_m = 0.0  # along-track error of the last update: > 0 behind [m]
         self.crab_rad = 0.0  # estimated heading minus course over the ground [rad]
+        self.speed_ratio = 1.0  # driven / commanded speed
         self._t_prev: float | None = None
+        self._cmd_prev: float | None = None  # the last speed sent [m/s], before the ratio
 
     def update(self, now: float, est: StateEstimate, ref: Reference) -> PositionCommand:
         """Velocity (NED, z NaN), yaw and yaw-rate setpoint at `now`.
@@ -102,7 +117,11 @@ class RoverController:
         self.last_lag_m = e_at
         speed_cmd = min(max(speed + k.k_along * e_at, 0.0), k.max_speed)
         yaw_est = yaw_of_dcm(quat_to_dcm(est.q_wxyz))
-        self._learn_crab(now, est, yaw_est)
+        dt = 0.0 if self._t_prev is None else now - self._t_prev
+        self._t_prev = now
+        self._learn_crab(dt, est, yaw_est)
+        self._learn_speed_ratio(dt, est, speed_cmd)
+        speed_cmd = min(speed_cmd / self.speed_ratio, k.max_speed)
         # the course wanted over the ground, as the heading PX4 must hold for it
         heading_cmd = psi_ref + math.atan(k.k_cross * e_ct) + self.crab_rad
         yaw_now = yaw_est + float(est.omega_frd[2]) * tau
@@ -115,11 +134,22 @@ class RoverController:
         return PositionCommand(vel_ned=vel, yaw_rate=yaw_rate)
 
 
-    def _learn_crab(self, now: float, est: StateEstimate, yaw_est: float) -> None:
+    def _learn_speed_ratio(self, dt: float, est: StateEstimate, wanted_m_s: float) -> None:
+        """Low-pass driven / commanded speed while the command is steady (see the class doc);
+        ``wanted_m_s``: this cycle's speed before the ratio."""
+        prev, self._cmd_prev = self._cmd_prev, wanted_m_s
+        if prev is None or not (0.0 < dt < 1.0) or prev < SPEED_RATIO_MIN_CMD_M_S \
+                or abs(wanted_m_s - prev) > SPEED_RATIO_MAX_DCMD * dt:
+            return
+        driven = math.hypot(float(est.vel_ned[0]), float(est.vel_ned[1]))
+        lo, hi = SPEED_RATIO_RANGE
+        # the driven speed answers the command that was sent: prev / ratio
+        sample = min(max(driven / (prev / self.speed_ratio), lo), hi)
+        self.speed_ratio += (sample - self.speed_ratio) * min(dt / self.gains.speed_tau_s, 1.0)
+
+    def _learn_crab(self, dt: float, est: StateEstimate, yaw_est: float) -> None:
         """Low-pass the estimated heading minus the course over the ground while driving
         straight (see the class doc)."""
-        dt = 0.0 if self._t_prev is None else now - self._t_prev
-        self._t_prev = now
         vx, vy = float(est.vel_ned[0]), float(est.vel_ned[1])
         if not (0.0 < dt < 1.0) or math.hypot(vx, vy) < CRAB_MIN_SPEED_M_S \
                 or abs(float(est.omega_frd[2])) > CRAB_MAX_TURN_RAD_S:

@@ -36,6 +36,11 @@ __all__ = [
 
 _log = logging.getLogger("companion.planning.vehicle_params")
 
+#: A rover's limits that PX4 reads as "not configured" at -1 (or any value <= 0): planned with
+#: the default, with a warning, instead of refusing the vehicle.
+UNSET_AT_OR_BELOW_ZERO = frozenset(
+    {"RO_SPEED_LIM", "RO_ACCEL_LIM", "RO_DECEL_LIM", "RO_JERK_LIM", "RO_YAW_RATE_LIM"})
+
 ParamSource = Literal["vehicle", "file", "default"]
 _MARK: dict[ParamSource, str] = {"vehicle": "", "file": " (vehicle file)", "default": " (default)"}
 
@@ -116,9 +121,13 @@ def resolve_planning_params(
                          + " (set it in the vehicle file's [px4] table to override)")
     source: dict[str, ParamSource] = {}
     values: dict[str, float] = {}
+    unset: list[str] = []
     for name in dict.fromkeys([*names, *over]):
         if name in over:
             source[name], values[name] = "file", over[name]
+        elif name in read and name in UNSET_AT_OR_BELOW_ZERO and float(read[name]) <= 0.0:
+            source[name] = "default"  # PX4's "not configured" (-1): no limit there
+            unset.append(name)
         elif name in read:
             source[name], values[name] = "vehicle", float(read[name])
             try:
@@ -130,7 +139,12 @@ def resolve_planning_params(
             source[name] = "default"
     params = dataclasses.replace(Px4PlanningParams(), **values)
     warnings: list[str] = []
-    defaulted = [n for n in names if source[n] == "default"]
+    defaulted = [n for n in names if source[n] == "default" and n not in unset]
+    if unset:
+        warnings.append(f"{where} has {', '.join(unset)} not configured (<= 0: no limit in "
+                        f"PX4): planning with "
+                        f"{', '.join(f'{n} = {getattr(params, n):g}' for n in unset)}; set them "
+                        "on the vehicle or in the vehicle file's [px4] table")
     if defaulted and not read:
         warnings.append(f"{where} answered no parameter request: planning with PX4's defaults "
                         "(and the vehicle file's [px4] table)")

@@ -461,6 +461,36 @@ def test_rover_drives_its_course_when_its_heading_estimate_is_off(bias_deg: floa
     assert _drive_biased(bias, learn=True) < 0.03
 
 
+def _along_track_lead(gain: float, learn: bool) -> float:
+    """Mean along-track error [m] (> 0: the rover behind its reference) over the last 5 s of a
+    straight reference north at 2 m/s, driven by a rover of our own that drives `gain` times
+    the commanded speed (PX4's open-loop throttle feed-forward), with a 0.3 s lag."""
+    ctl = RoverController()
+    if not learn:
+        ctl._learn_speed_ratio = lambda *a: None  # type: ignore[method-assign]
+    x, v, dt = 0.0, 0.0, 0.02
+    errs = []
+    for k in range(1250):
+        t = k * dt
+        ref = Reference(np.array([2.0 * t, 0.0, 0.0]), np.array([2.0, 0.0, 0.0]))
+        cmd = ctl.update(t, _est(t, [x, 0.0, 0.0], [v, 0.0, 0.0]), ref)
+        if t > 20.0:
+            errs.append(2.0 * t - x)  # as the controller sees it
+        v += (gain * float(cmd.vel_ned[0]) - v) * dt / 0.3
+        x += v * dt
+    return float(np.mean(errs))
+
+
+@pytest.mark.parametrize("gain", [1.3, 0.8])
+def test_rover_learns_how_fast_it_drives_for_a_commanded_speed(gain: float) -> None:
+    """PX4's rover drove 10-40 % faster than commanded: the along-track feedback alone leaves
+    it s (1/gain - 1) / k_along ahead of (or behind) its reference (oracle: that offset with the
+    learning off); with the learnt speed ratio it drives on its reference."""
+    off = 2.0 * (1.0 / gain - 1.0) / RoverController().gains.k_along
+    assert _along_track_lead(gain, learn=False) == pytest.approx(off, rel=0.1)
+    assert abs(_along_track_lead(gain, learn=True)) < 0.01
+
+
 def test_absurd_magnitudes_fall_back_instead_of_raising() -> None:
     """The flatness map refuses |x| > 1e12; the controller turns that into a flagged hover."""
     ctl = TrackingController(TrackingConfig(params=_params(drag=1.0)))

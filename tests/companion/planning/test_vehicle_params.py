@@ -136,3 +136,19 @@ def test_a_rover_reads_its_own_parameters_not_a_multicopters() -> None:
     asked.clear()
     asyncio.run(read_planning_params(read))
     assert not any(n.startswith(("RO_", "RA_")) for n in asked[0])
+
+
+def test_a_rover_limit_px4_leaves_unconfigured_is_planned_with_the_default_and_said() -> None:
+    """PX4's rover reads RO_SPEED_LIM / RO_ACCEL_LIM ... = -1 as "not configured" (no limit):
+    the plan uses the default and a warning names them; a wheel base of -1 is no vehicle the
+    planner can plan for: an error naming it."""
+    read = {"NAV_ACC_RAD": 0.5, "RO_SPEED_LIM": -1.0, "RO_ACCEL_LIM": 2.0, "RO_DECEL_LIM": -1.0,
+            "RO_JERK_LIM": 5.0, "RO_YAW_RATE_LIM": 90.0, "RA_WHEEL_BASE": 0.5,
+            "RA_MAX_STR_ANG": 0.4}
+    r = resolve_planning_params(read, vehicle="rover")
+    assert r.params.RO_SPEED_LIM == Px4PlanningParams().RO_SPEED_LIM
+    assert r.params.RO_ACCEL_LIM == 2.0
+    assert r.source["RO_SPEED_LIM"] == "default" and r.source["RO_ACCEL_LIM"] == "vehicle"
+    assert len(r.warnings) == 1 and "RO_SPEED_LIM, RO_DECEL_LIM not configured" in r.warnings[0]
+    with pytest.raises(ValueError, match="RA_WHEEL_BASE"):
+        resolve_planning_params({**read, "RA_WHEEL_BASE": -1.0}, vehicle="rover")
