@@ -314,7 +314,8 @@ class Vehicle(VehicleBase):
                     command, ok, reason, result = results.popleft()
                     actions += seq.on_command_result(command, ok, reason, now, result)
                 actions += seq.update(now, self._flight_view(
-                    getattr(source, "reference_time_s", None)))
+                    getattr(source, "reference_time_s", None),
+                    bool(getattr(source, "arrived", False))))
                 for act in actions:
                     if isinstance(act, SendCommand):
                         tasks.append(asyncio.get_running_loop().create_task(run_command(act)))
@@ -387,9 +388,11 @@ class Vehicle(VehicleBase):
             await asyncio.sleep(0.005)
         return streamer.sent_times[0]
 
-    def _flight_view(self, traj_time_s: float | None = None) -> VehicleView:
+    def _flight_view(self, traj_time_s: float | None = None,
+                     arrived: bool = False) -> VehicleView:
         """The vehicle as the flight sequence sees it now (``traj_time_s``: the source's own
-        reference time, if it governs it)."""
+        reference time, if it governs it; ``arrived``: the source says the vehicle reached the
+        stop its reference is at)."""
         tel = self.link.telemetry
         ext: ExtendedState | None = tel.extended
         pos = tel.position
@@ -397,7 +400,8 @@ class Vehicle(VehicleBase):
             link_ok=self._link_lost_at is None and self.link_ok, armed=self.is_armed,
             mode=self.mode,
             on_ground=ext is not None and ext.landed_state == LANDED_STATE_ON_GROUND,
-            pos_ned=None if pos is None else pos.pos_ned, traj_time_s=traj_time_s)
+            pos_ned=None if pos is None else pos.pos_ned, traj_time_s=traj_time_s,
+            arrived=arrived)
 
     async def _send_command(self, a: SendCommand) -> tuple[int, bool, str, int | None]:
         """Send one command of the flight sequence; (command, ok, reason, MAV_RESULT)."""

@@ -51,6 +51,12 @@ CRAB_MAX_RAD = math.radians(30.0)
 SPEED_RATIO_MIN_CMD_M_S = 0.8
 SPEED_RATIO_MAX_DCMD = 0.5
 SPEED_RATIO_RANGE = (0.5, 2.0)
+#: Arrived at a stop of the reference: its speed below ARRIVED_REF_SPEED_M_S and the rover at
+#: most ARRIVED_LAG_M short of it along its heading (or past it: a car cannot back up to it).
+ARRIVED_REF_SPEED_M_S = 0.05
+ARRIVED_LAG_M = 0.3
+#: Farther than ARRIVED_LAG_M behind its reference the rover is commanded at least this [m/s].
+CREEP_SPEED_M_S = 0.5
 
 
 class RoverController:
@@ -66,7 +72,11 @@ class RoverController:
     PX4's rover drives its speed open loop on a throttle feed-forward (RO_SPEED_P 0.001 on the
     SIH airframe): commanded speeds came out 10-40 % faster, and the along-track feedback left
     the rover ahead of its reference. The ratio of driven to commanded speed is learnt while
-    the command is steady (``speed_tau_s``) and the command divided by it.
+    the planned speed is steady and the command not clamped (``speed_tau_s``), and the planned
+    speed (the feed-forward) divided by it.
+
+    ``arrived``: the reference is at a stop and the rover has reached it (or passed it: a car
+    cannot back up), e.g. at the mission's end.
     """
 
     def __init__(self, gains: RoverGains | None = None) -> None:
@@ -75,8 +85,10 @@ class RoverController:
         self.last_lag_m = 0.0  # along-track error of the last update: > 0 behind [m]
         self.crab_rad = 0.0  # estimated heading minus course over the ground [rad]
         self.speed_ratio = 1.0  # driven / commanded speed
+        self.arrived = False  # at a stop of the reference, reached (or passed) and slow
         self._t_prev: float | None = None
-        self._cmd_prev: float | None = None  # the last speed sent [m/s], before the ratio
+        self._cmd_prev: float | None = None  # the last reference speed [m/s]
+        self._sent_prev: float | None = None  # the last speed sent [m/s]
 
     def update(self, now: float, est: StateEstimate, ref: Reference) -> PositionCommand:
         """Velocity (NED, z NaN), yaw and yaw-rate setpoint at `now`.
@@ -115,13 +127,21 @@ class RoverController:
         e_at = float(e @ t_hat)
         e_ct = float(e @ n_hat)
         self.last_lag_m = e_at
-        speed_cmd = min(max(speed + k.k_along * e_at, 0.0), k.max_speed)
         yaw_est = yaw_of_dcm(quat_to_dcm(est.q_wxyz))
         dt = 0.0 if self._t_prev is None else now - self._t_prev
         self._t_prev = now
         self._learn_crab(dt, est, yaw_est)
-        self._learn_speed_ratio(dt, est, speed_cmd)
-        speed_cmd = min(speed_cmd / self.speed_ratio, k.max_speed)
+        self._learn_speed_ratio(dt, est, speed)
+        # the learnt ratio scales the planned speed (the feed-forward) only: at a stop the
+        # along-track feedback alone brings the rover in
+        speed_cmd = min(max(speed / self.speed_ratio + k.k_along * e_at, 0.0), k.max_speed)
+        if e_at > ARRIVED_LAG_M and speed_cmd < CREEP_SPEED_M_S:
+            # short of the reference: never a speed the rover does not move for (PX4's SIH
+            # rover stood still 0.3 m short of the end on 0.2 m/s)
+            speed_cmd = CREEP_SPEED_M_S
+        self._sent_prev = speed_cmd
+        # position only: at rest PX4's rover reported 0.6-0.8 m/s of velocity while standing
+        self.arrived = speed < ARRIVED_REF_SPEED_M_S and e_at <= ARRIVED_LAG_M
         # the course wanted over the ground, as the heading PX4 must hold for it
         heading_cmd = psi_ref + math.atan(k.k_cross * e_ct) + self.crab_rad
         yaw_now = yaw_est + float(est.omega_frd[2]) * tau
@@ -134,17 +154,19 @@ class RoverController:
         return PositionCommand(vel_ned=vel, yaw_rate=yaw_rate)
 
 
-    def _learn_speed_ratio(self, dt: float, est: StateEstimate, wanted_m_s: float) -> None:
-        """Low-pass driven / commanded speed while the command is steady (see the class doc);
-        ``wanted_m_s``: this cycle's speed before the ratio."""
-        prev, self._cmd_prev = self._cmd_prev, wanted_m_s
-        if prev is None or not (0.0 < dt < 1.0) or prev < SPEED_RATIO_MIN_CMD_M_S \
-                or abs(wanted_m_s - prev) > SPEED_RATIO_MAX_DCMD * dt:
-            return
+    def _learn_speed_ratio(self, dt: float, est: StateEstimate, planned_m_s: float) -> None:
+        """Low-pass driven / commanded speed while the planned speed is steady and the rover
+        cruises (see the class doc); ``planned_m_s``: this cycle's reference speed."""
+        prev, self._cmd_prev = self._cmd_prev, planned_m_s
+        sent = self._sent_prev
+        if prev is None or sent is None or not (0.0 < dt < 1.0) \
+                or prev < SPEED_RATIO_MIN_CMD_M_S or sent < SPEED_RATIO_MIN_CMD_M_S \
+                or sent >= self.gains.max_speed \
+                or abs(planned_m_s - prev) > SPEED_RATIO_MAX_DCMD * dt:
+            return  # not steady, or the command was clamped (its answer is not the ratio's)
         driven = math.hypot(float(est.vel_ned[0]), float(est.vel_ned[1]))
         lo, hi = SPEED_RATIO_RANGE
-        # the driven speed answers the command that was sent: prev / ratio
-        sample = min(max(driven / (prev / self.speed_ratio), lo), hi)
+        sample = min(max(driven / sent, lo), hi)
         self.speed_ratio += (sample - self.speed_ratio) * min(dt / self.gains.speed_tau_s, 1.0)
 
     def _learn_crab(self, dt: float, est: StateEstimate, yaw_est: float) -> None:

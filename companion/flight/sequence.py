@@ -81,6 +81,9 @@ class VehicleView:
     # the trajectory's own time [s] when the setpoint source governs it (it waits for a vehicle
     # that falls behind, e.g. `TrackingSource` in rover mode); None: flight time since it began
     traj_time_s: float | None = None
+    # the source says the vehicle has reached (or passed: a car cannot back up) the stop its
+    # reference is at: with the trajectory's time at its end, the flight is complete
+    arrived: bool = False
 
 
 @dataclass(frozen=True)
@@ -402,8 +405,9 @@ class FlightSequence:
             settled = now - self.t_fly0 >= self.config.duration_s + end.settle_s
         if t < self.config.duration_s and not settled:
             return []
-        if end.settle_m is not None and end.end_ned is not None and view.pos_ned is not None \
-                and math.dist(view.pos_ned, end.end_ned) <= end.settle_m:
+        if view.arrived or (end.settle_m is not None and end.end_ned is not None
+                            and view.pos_ned is not None
+                            and math.dist(view.pos_ned, end.end_ned) <= end.settle_m):
             return self._handover(now, end.handover_mode, "trajectory complete")
         if settled:
             why = "trajectory complete"

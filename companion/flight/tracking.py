@@ -467,6 +467,11 @@ class TrackingSource:
         self.contact_s = self._still_since = None
 
     @property
+    def arrived(self) -> bool:
+        """A rover has reached (or passed) the stop its reference is at."""
+        return self.rover is not None and self.rover.arrived
+
+    @property
     def reference_time_s(self) -> float | None:
         """The reference's own time [s] of the last setpoint when this source governs it (rover
         mode: it waits for a vehicle that falls behind); None: the flight time it was given."""

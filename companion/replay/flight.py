@@ -204,7 +204,7 @@ class Flight:
             link_ok=self.link.heartbeat.link_up, armed=armed, mode=self.link.mode,
             ready=have_state and st is not None and st.armable, have_state=have_state,
             on_ground=ext is not None and ext.landed_state == 1, pos_ned=rel,
-            traj_time_s=self.source.reference_time_s)
+            traj_time_s=self.source.reference_time_s, arrived=self.source.arrived)
         self.perform(self.seq.update(now, view), now)
 
     def abort(self, now: float, reason: str) -> None:

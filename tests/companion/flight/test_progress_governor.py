@@ -166,3 +166,23 @@ def test_a_governed_flight_ends_at_the_reference_end_near_the_last_waypoint() ->
     assert not any(isinstance(a, SendCommand) for a in acts)
     acts = s.update(50.0, VehicleView(**far, traj_time_s=10.0))  # type: ignore[arg-type]
     assert any(isinstance(a, SendCommand) for a in acts) and "10.0 m from its end" in s.reason
+
+
+def test_a_rover_that_overshot_its_end_is_done_once_its_source_says_arrived() -> None:
+    """A car that ran 0.8 m past the end cannot back up into the acceptance radius: once the
+    reference is at its end and the source says the rover arrived (reached or passed it, and
+    slow), the flight hands over at once instead of waiting out settle_s."""
+    s = FlightSequence(SequenceConfig(
+        rate_hz=50.0, duration_s=10.0, pilot_start=True,
+        end=EndPolicy(handover_mode=FlightMode.HOLD, land_and_disarm=False,
+                      settle_s=20.0, settle_m=0.5, end_ned=(30.0, 0.0, 0.0))))
+    s.update(0.0, VehicleView(armed=True, mode=FlightMode.OFFBOARD))
+    past = dict(armed=True, mode=FlightMode.OFFBOARD, pos_ned=(30.8, 0.0, 0.0))
+    # arrived while the reference still runs: nothing yet (a stop mid-mission)
+    acts = s.update(5.0, VehicleView(**past, traj_time_s=5.0, arrived=True))  # type: ignore[arg-type]
+    assert not any(isinstance(a, SendCommand) for a in acts)
+    acts = s.update(12.0, VehicleView(**past, traj_time_s=10.0))  # type: ignore[arg-type]
+    assert not any(isinstance(a, SendCommand) for a in acts)
+    acts = s.update(12.5, VehicleView(**past, traj_time_s=10.0, arrived=True))  # type: ignore[arg-type]
+    assert [a for a in acts if isinstance(a, SendCommand)] == [
+        SendCommand.set_mode(FlightMode.HOLD)]
