@@ -288,6 +288,9 @@ MULTIROTOR_OUT = ("thrust_n", "thrust_dot_n_s", "thrust_ddot_n_s2", "thrust_norm
 ROVER_IN = ("vel_ned_m_s", "acc_ned_m_s2", "jerk_ned_m_s3")
 ROVER_OUT = ("yaw_rad", "speed_m_s", "speed_dot_m_s2", "yaw_rate_rad_s", "yaw_acc_rad_s2",
              "singular")
+ACKERMANN_IN = (*ROVER_IN, "wheel_base_m")
+ACKERMANN_OUT = (*ROVER_OUT, "curvature_1_m", "curvature_rate_1_m_s", "steer_angle_rad",
+                 "steer_rate_rad_s")
 
 # C layout name -> companion.flatness Function input/output name.
 _MR_IN_MAP = dict(zip(MULTIROTOR_IN, ("vel_ned", "acc_ned", "jerk_ned", "snap_ned", "yaw",
@@ -298,6 +301,9 @@ _MR_OUT_MAP = dict(zip(MULTIROTOR_OUT, ("thrust", "thrust_dot", "thrust_ddot", "
                                         "flags", "singular"), strict=True))
 _RV_OUT_MAP = dict(zip(ROVER_OUT, ("yaw", "speed", "speed_dot", "yaw_rate", "yaw_acc",
                                    "singular"), strict=True))
+_AK_OUT_MAP = {**_RV_OUT_MAP, **dict(zip(ACKERMANN_OUT[len(ROVER_OUT):],
+                                         ("curvature", "curvature_rate", "steer_angle",
+                                          "steer_rate"), strict=True))}
 
 
 def _call_by_name(f: ca.Function, args: dict[str, ca.SX]) -> dict[str, ca.SX]:
@@ -339,16 +345,35 @@ def multirotor_function(name: str, source: ca.Function) -> ca.Function:
                        list(MULTIROTOR_OUT))
 
 
-def rover_function(name: str, source: ca.Function) -> ca.Function:
-    """``source`` (companion.flatness rover) with the C layout: x, y of vel/acc/jerk (NED)."""
-    sym = {n: ca.SX.sym(n, 2) for n in ROVER_IN}
+def _rover_call(source: ca.Function, sym: dict[str, ca.SX], wheel_base: ca.SX,
+                out_map: dict[str, str]) -> list[ca.SX]:
+    """The outputs ``out_map`` (C name -> flatness name) of ``source`` (companion.flatness
+    rover) at the C inputs ``sym`` (x, y of vel/acc/jerk, NED) and ``wheel_base``."""
     res = _call_by_name(source, {"vel_xy": sym["vel_ned_m_s"], "acc_xy": sym["acc_ned_m_s2"],
-                                 "jerk_xy": sym["jerk_ned_m_s3"]})
-    for n in _RV_OUT_MAP.values():
+                                 "jerk_xy": sym["jerk_ned_m_s3"], "wheel_base": wheel_base})
+    for n in out_map.values():
         if n not in res:
             raise GeneratorError(f"companion.flatness {source.name()!r} has no output {n!r}")
-    outs = list(ca.cse([res[_RV_OUT_MAP[n]] for n in ROVER_OUT]))
+    return list(ca.cse([res[n] for n in out_map.values()]))
+
+
+def rover_function(name: str, source: ca.Function) -> ca.Function:
+    """``source`` (companion.flatness rover) with the C layout: x, y of vel/acc/jerk (NED);
+    the unicycle outputs only (the Ackermann ones, at wheel base 0, are dropped)."""
+    sym = {n: ca.SX.sym(n, 2) for n in ROVER_IN}
+    outs = _rover_call(source, sym, ca.SX(0.0), _RV_OUT_MAP)
     return ca.Function(name, [sym[n] for n in ROVER_IN], outs, list(ROVER_IN), list(ROVER_OUT))
+
+
+def ackermann_function(name: str, source: ca.Function) -> ca.Function:
+    """``source`` (companion.flatness rover) with the C layout of the Ackermann setpoint: x, y of
+    vel/acc/jerk (NED) and the wheel base (m); the unicycle outputs, then curvature, its rate,
+    the steering angle and its rate."""
+    sym = {n: ca.SX.sym(n, 2) for n in ROVER_IN}
+    sym["wheel_base_m"] = ca.SX.sym("wheel_base_m")
+    outs = _rover_call(source, sym, sym["wheel_base_m"], _AK_OUT_MAP)
+    return ca.Function(name, [sym[n] for n in ACKERMANN_IN], outs, list(ACKERMANN_IN),
+                       list(ACKERMANN_OUT))
 
 
 FULL_IN = BEZIER_IN + MULTIROTOR_IN[7:]
@@ -386,6 +411,7 @@ def library_functions(variant: str) -> list[ca.Function]:
         rover_function(f"ecca_{variant}_rover", sf.rover),
         # ~9 KB more flash per variant (drop it with --gc-sections if unused).
         full_function(f"ecca_{variant}_full", bezier, multirotor),
+        ackermann_function(f"ecca_{variant}_ackermann", sf.rover),
     ]
 
 
