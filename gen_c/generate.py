@@ -552,6 +552,19 @@ def _bezier_expect(cp: Any, ycp: Any, h: float, t: float) -> dict[str, Any]:
     return out
 
 
+def _ackermann_expect(v: Any, a: Any, j: Any, wheel_base_m: float) -> dict[str, Any]:
+    from companion.flatness import rover_setpoint
+
+    rs = rover_setpoint(v, a, j, wheel_base_m=wheel_base_m)
+    return {"yaw_rad": float(rs.yaw), "speed_m_s": float(rs.speed),
+            "speed_dot_m_s2": float(rs.speed_dot), "yaw_rate_rad_s": float(rs.yaw_rate),
+            "yaw_acc_rad_s2": float(rs.yaw_acc or 0.0), "singular": int(bool(rs.singular)),
+            "curvature_1_m": float(rs.curvature or 0.0),
+            "curvature_rate_1_m_s": float(rs.curvature_rate or 0.0),
+            "steer_angle_rad": float(rs.steer_angle or 0.0),
+            "steer_rate_rad_s": float(rs.steer_rate or 0.0)}
+
+
 def make_vectors() -> dict[str, Any]:
     """Golden input/output vectors from the Python path (companion.trajectory.Bezier,
     companion.flatness numeric). Inputs are float32-representable doubles."""
@@ -642,6 +655,36 @@ def make_vectors() -> dict[str, Any]:
                      "t_s": float(t), "params": _params_dict(c), "expect_state": st,
                      "expect": _multirotor_expect(c)})
 
+    # --- Ackermann rover (drawn after the others: their random cases stay unchanged).
+    ack_inputs = [("circle_right", [0.0, 2.0], [-0.8, 0.0], [0.0, -0.32], 0.5),
+                  ("stopped", [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], 0.5),
+                  ("from_rest", [0.0, 0.0], [-0.5, 0.75], [0.25, 0.0], 0.3),
+                  ("just_below_stop", [0.0005, -0.0002], [1.0, 2.0], [-1.0, 0.5], 0.3),
+                  ("just_above_stop", [0.00125, -0.0005], [0.5, 1.0], [-1.0, 0.5], 0.3),
+                  ("tight_left", [1.0, 0.5], [1.5, -3.0], [-2.0, -1.0], 2.0)]
+    for i in range(6):
+        ack_inputs.append((f"random_{i}", _f32(rng.uniform(-5, 5, 2)),
+                           _f32(rng.uniform(-3, 3, 2)), _f32(rng.uniform(-2, 2, 2)),
+                           float(_f32(rng.uniform(0.1, 3.0)))))
+    ackermann = []
+    for name, v, a, j, L in ack_inputs:
+        v, a, j = _lst(_f32(v)), _lst(_f32(a)), _lst(_f32(j))
+        ackermann.append({"name": name,
+                          "state": _state_dict([*v, 0.0], [*a, 0.0], [*j, 0.0], z3, 0.0, 0.0, 0.0),
+                          "wheel_base_m": L, "expect": _ackermann_expect(v, a, j, L)})
+    full_ackermann = []
+    for _ in range(4):
+        cp, ycp, h = _random_segment(rng)
+        t = _f32(rng.uniform(0.0, h))
+        L = float(_f32(rng.uniform(0.2, 2.0)))
+        st = _bezier_expect(cp, ycp, float(h), float(t))
+        full_ackermann.append({
+            "segment": {"ctrl_pts_ned_m": _lst(cp), "yaw_ctrl_pts_rad": _lst(ycp),
+                        "duration_s": float(h)},
+            "t_s": float(t), "wheel_base_m": L, "expect_state": st,
+            "expect": _ackermann_expect(st["vel_ned_m_s"][:2], st["acc_ned_m_s2"][:2],
+                                        st["jerk_ned_m_s3"][:2], L)})
+
     return {
         "about": ("Golden vectors for gen_c/ecca_setpoint, written by `python -m gen_c --vectors` "
                   "from the Python path (companion.trajectory.Bezier de Casteljau, "
@@ -654,6 +697,8 @@ def make_vectors() -> dict[str, Any]:
         "multirotor": multirotor,
         "rover": rover,
         "full": full,
+        "ackermann": ackermann,
+        "full_ackermann": full_ackermann,
     }
 
 
