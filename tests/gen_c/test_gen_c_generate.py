@@ -99,7 +99,7 @@ def test_golden_vectors_match_the_current_python_path() -> None:
     stored = json.loads((TESTS / "vectors.json").read_text())
     fresh_vectors = generate.make_vectors()
     assert stored["casadi_version"] == generate.CASADI_VERSION
-    for kind in ("bezier", "multirotor", "rover", "full"):
+    for kind in ("bezier", "multirotor", "rover", "full", "ackermann", "full_ackermann"):
         assert len(stored[kind]) == len(fresh_vectors[kind]) > 0
         for a, b in zip(stored[kind], fresh_vectors[kind], strict=True):
             for group in ("expect", "expect_state"):
