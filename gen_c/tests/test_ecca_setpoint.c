@@ -9,7 +9,8 @@
  * Every case runs in double and in float. A field passes when, per component,
  *   |got - expect| <= rtol * max(max_j |expect_j| over the field, 1)
  * with rtol = 1e-12 (double) and 1e-4 (float); flags and singular must match exactly. Also
- * checks the error paths (NaN input, bad duration/mass, NULL) leave the outputs untouched.
+ * checks the error paths (NaN input, bad duration/mass/wheel base, NULL) leave the outputs
+ * untouched.
  * Exit status 0 when everything passes; prints one line per failure and a summary.
  *
  * The JSON reader below is deliberately minimal (objects, arrays, numbers, strings, literals;
