@@ -11,6 +11,7 @@ build fails, so callers can fall back to the pure-Python path::
     if native is not None:
         sp = native.multirotor(vel, acc, jerk, snap, yaw, yaw_rate, yaw_acc, params)
         # from a PiecewiseBezier: state, sp = native.trajectory_setpoint(traj, t, params)
+        # rover (car-like with a wheel base): native.rover(vel_xy, acc_xy, jerk_xy, 0.3)
     else:
         sp = multirotor_setpoint(vel, acc, jerk, snap, yaw, yaw_rate, yaw_acc, params)
 
