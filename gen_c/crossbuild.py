@@ -24,7 +24,8 @@ ARM_FLAGS = ("-mcpu=cortex-m7", "-mfpu=fpv5-d16", "-mfloat-abi=hard", "-mthumb",
              "-fstack-usage", "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic",
              "-ffunction-sections", "-fdata-sections")
 PUBLIC = ("ecca_bezier_eval", "ecca_multirotor_setpoint", "ecca_rover_setpoint",
-          "ecca_full_setpoint", "ecca_full_rover_setpoint")
+          "ecca_full_setpoint", "ecca_full_rover_setpoint", "ecca_ackermann_setpoint",
+          "ecca_full_ackermann_setpoint")
 
 
 class CrossBuildError(RuntimeError):
@@ -116,10 +117,13 @@ def build_arm(variant: str, out_dir: Path, lib_dir: Path = LIB_DIR) -> ArmReport
         f"  ecca_multirotor_params{sfx} p = {{1, {{{{0.01, 0, 0}}, {{0, 0.01, 0}}, "
         "{0, 0, 0.02}}, 9.80665f, 0.5f, 0};\n"
         f"  ecca_flat_state{sfx} s; ecca_attitude_setpoint{sfx} a; ecca_heading_setpoint{sfx} h;\n"
+        f"  ecca_steering_setpoint{sfx} k;\n"
         f"  int rc = ecca_full_setpoint{sfx}(&seg, g_t, &p, &s, &a);\n"
         f"  rc += ecca_full_rover_setpoint{sfx}(&seg, g_t, &s, &h);\n"
         f"  rc += ecca_bezier_eval{sfx}(&seg, g_t, &s) + ecca_rover_setpoint{sfx}(&s, &h);\n"
         f"  rc += ecca_multirotor_setpoint{sfx}(&s, &p, &a);\n"
+        f"  rc += ecca_full_ackermann_setpoint{sfx}(&seg, g_t, 0.5f, &s, &k);\n"
+        f"  rc += ecca_ackermann_setpoint{sfx}(&s, 0.5f, &k);\n"
         "  return rc;\n}\n")
     flags_link = [f for f in ARM_FLAGS if f not in ("-fstack-usage", "-pedantic")]
     _run([ARM_CC, *flags_link, f"-I{lib_dir}", str(main), *map(str, objs), "-lm",

@@ -288,6 +288,9 @@ MULTIROTOR_OUT = ("thrust_n", "thrust_dot_n_s", "thrust_ddot_n_s2", "thrust_norm
 ROVER_IN = ("vel_ned_m_s", "acc_ned_m_s2", "jerk_ned_m_s3")
 ROVER_OUT = ("yaw_rad", "speed_m_s", "speed_dot_m_s2", "yaw_rate_rad_s", "yaw_acc_rad_s2",
              "singular")
+ACKERMANN_IN = (*ROVER_IN, "wheel_base_m")
+ACKERMANN_OUT = (*ROVER_OUT, "curvature_1_m", "curvature_rate_1_m_s", "steer_angle_rad",
+                 "steer_rate_rad_s")
 
 # C layout name -> companion.flatness Function input/output name.
 _MR_IN_MAP = dict(zip(MULTIROTOR_IN, ("vel_ned", "acc_ned", "jerk_ned", "snap_ned", "yaw",
@@ -298,6 +301,9 @@ _MR_OUT_MAP = dict(zip(MULTIROTOR_OUT, ("thrust", "thrust_dot", "thrust_ddot", "
                                         "flags", "singular"), strict=True))
 _RV_OUT_MAP = dict(zip(ROVER_OUT, ("yaw", "speed", "speed_dot", "yaw_rate", "yaw_acc",
                                    "singular"), strict=True))
+_AK_OUT_MAP = {**_RV_OUT_MAP, **dict(zip(ACKERMANN_OUT[len(ROVER_OUT):],
+                                         ("curvature", "curvature_rate", "steer_angle",
+                                          "steer_rate"), strict=True))}
 
 
 def _call_by_name(f: ca.Function, args: dict[str, ca.SX]) -> dict[str, ca.SX]:
@@ -339,16 +345,35 @@ def multirotor_function(name: str, source: ca.Function) -> ca.Function:
                        list(MULTIROTOR_OUT))
 
 
-def rover_function(name: str, source: ca.Function) -> ca.Function:
-    """``source`` (companion.flatness rover) with the C layout: x, y of vel/acc/jerk (NED)."""
-    sym = {n: ca.SX.sym(n, 2) for n in ROVER_IN}
+def _rover_call(source: ca.Function, sym: dict[str, ca.SX], wheel_base: ca.SX,
+                out_map: dict[str, str]) -> list[ca.SX]:
+    """The outputs ``out_map`` (C name -> flatness name) of ``source`` (companion.flatness
+    rover) at the C inputs ``sym`` (x, y of vel/acc/jerk, NED) and ``wheel_base``."""
     res = _call_by_name(source, {"vel_xy": sym["vel_ned_m_s"], "acc_xy": sym["acc_ned_m_s2"],
-                                 "jerk_xy": sym["jerk_ned_m_s3"]})
-    for n in _RV_OUT_MAP.values():
+                                 "jerk_xy": sym["jerk_ned_m_s3"], "wheel_base": wheel_base})
+    for n in out_map.values():
         if n not in res:
             raise GeneratorError(f"companion.flatness {source.name()!r} has no output {n!r}")
-    outs = list(ca.cse([res[_RV_OUT_MAP[n]] for n in ROVER_OUT]))
+    return list(ca.cse([res[n] for n in out_map.values()]))
+
+
+def rover_function(name: str, source: ca.Function) -> ca.Function:
+    """``source`` (companion.flatness rover) with the C layout: x, y of vel/acc/jerk (NED);
+    the unicycle outputs only (the Ackermann ones, at wheel base 0, are dropped)."""
+    sym = {n: ca.SX.sym(n, 2) for n in ROVER_IN}
+    outs = _rover_call(source, sym, ca.SX(0.0), _RV_OUT_MAP)
     return ca.Function(name, [sym[n] for n in ROVER_IN], outs, list(ROVER_IN), list(ROVER_OUT))
+
+
+def ackermann_function(name: str, source: ca.Function) -> ca.Function:
+    """``source`` (companion.flatness rover) with the C layout of the Ackermann setpoint: x, y of
+    vel/acc/jerk (NED) and the wheel base (m); the unicycle outputs, then curvature, its rate,
+    the steering angle and its rate."""
+    sym = {n: ca.SX.sym(n, 2) for n in ROVER_IN}
+    sym["wheel_base_m"] = ca.SX.sym("wheel_base_m")
+    outs = _rover_call(source, sym, sym["wheel_base_m"], _AK_OUT_MAP)
+    return ca.Function(name, [sym[n] for n in ACKERMANN_IN], outs, list(ACKERMANN_IN),
+                       list(ACKERMANN_OUT))
 
 
 FULL_IN = BEZIER_IN + MULTIROTOR_IN[7:]
@@ -386,6 +411,7 @@ def library_functions(variant: str) -> list[ca.Function]:
         rover_function(f"ecca_{variant}_rover", sf.rover),
         # ~9 KB more flash per variant (drop it with --gc-sections if unused).
         full_function(f"ecca_{variant}_full", bezier, multirotor),
+        ackermann_function(f"ecca_{variant}_ackermann", sf.rover),
     ]
 
 
@@ -526,6 +552,19 @@ def _bezier_expect(cp: Any, ycp: Any, h: float, t: float) -> dict[str, Any]:
     return out
 
 
+def _ackermann_expect(v: Any, a: Any, j: Any, wheel_base_m: float) -> dict[str, Any]:
+    from companion.flatness import rover_setpoint
+
+    rs = rover_setpoint(v, a, j, wheel_base_m=wheel_base_m)
+    return {"yaw_rad": float(rs.yaw), "speed_m_s": float(rs.speed),
+            "speed_dot_m_s2": float(rs.speed_dot), "yaw_rate_rad_s": float(rs.yaw_rate),
+            "yaw_acc_rad_s2": float(rs.yaw_acc or 0.0), "singular": int(bool(rs.singular)),
+            "curvature_1_m": float(rs.curvature or 0.0),
+            "curvature_rate_1_m_s": float(rs.curvature_rate or 0.0),
+            "steer_angle_rad": float(rs.steer_angle or 0.0),
+            "steer_rate_rad_s": float(rs.steer_rate or 0.0)}
+
+
 def make_vectors() -> dict[str, Any]:
     """Golden input/output vectors from the Python path (companion.trajectory.Bezier,
     companion.flatness numeric). Inputs are float32-representable doubles."""
@@ -616,6 +655,36 @@ def make_vectors() -> dict[str, Any]:
                      "t_s": float(t), "params": _params_dict(c), "expect_state": st,
                      "expect": _multirotor_expect(c)})
 
+    # --- Ackermann rover (drawn after the others: their random cases stay unchanged).
+    ack_inputs = [("circle_right", [0.0, 2.0], [-0.8, 0.0], [0.0, -0.32], 0.5),
+                  ("stopped", [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], 0.5),
+                  ("from_rest", [0.0, 0.0], [-0.5, 0.75], [0.25, 0.0], 0.3),
+                  ("just_below_stop", [0.0005, -0.0002], [1.0, 2.0], [-1.0, 0.5], 0.3),
+                  ("just_above_stop", [0.00125, -0.0005], [0.5, 1.0], [-1.0, 0.5], 0.3),
+                  ("tight_left", [1.0, 0.5], [1.5, -3.0], [-2.0, -1.0], 2.0)]
+    for i in range(6):
+        ack_inputs.append((f"random_{i}", _f32(rng.uniform(-5, 5, 2)),
+                           _f32(rng.uniform(-3, 3, 2)), _f32(rng.uniform(-2, 2, 2)),
+                           float(_f32(rng.uniform(0.1, 3.0)))))
+    ackermann = []
+    for name, v, a, j, L in ack_inputs:
+        v, a, j = _lst(_f32(v)), _lst(_f32(a)), _lst(_f32(j))
+        ackermann.append({"name": name,
+                          "state": _state_dict([*v, 0.0], [*a, 0.0], [*j, 0.0], z3, 0.0, 0.0, 0.0),
+                          "wheel_base_m": L, "expect": _ackermann_expect(v, a, j, L)})
+    full_ackermann = []
+    for _ in range(4):
+        cp, ycp, h = _random_segment(rng)
+        t = _f32(rng.uniform(0.0, h))
+        L = float(_f32(rng.uniform(0.2, 2.0)))
+        st = _bezier_expect(cp, ycp, float(h), float(t))
+        full_ackermann.append({
+            "segment": {"ctrl_pts_ned_m": _lst(cp), "yaw_ctrl_pts_rad": _lst(ycp),
+                        "duration_s": float(h)},
+            "t_s": float(t), "wheel_base_m": L, "expect_state": st,
+            "expect": _ackermann_expect(st["vel_ned_m_s"][:2], st["acc_ned_m_s2"][:2],
+                                        st["jerk_ned_m_s3"][:2], L)})
+
     return {
         "about": ("Golden vectors for gen_c/ecca_setpoint, written by `python -m gen_c --vectors` "
                   "from the Python path (companion.trajectory.Bezier de Casteljau, "
@@ -628,6 +697,8 @@ def make_vectors() -> dict[str, Any]:
         "multirotor": multirotor,
         "rover": rover,
         "full": full,
+        "ackermann": ackermann,
+        "full_ackermann": full_ackermann,
     }
 
 

@@ -11,6 +11,7 @@ build fails, so callers can fall back to the pure-Python path::
     if native is not None:
         sp = native.multirotor(vel, acc, jerk, snap, yaw, yaw_rate, yaw_acc, params)
         # from a PiecewiseBezier: state, sp = native.trajectory_setpoint(traj, t, params)
+        # rover (car-like with a wheel base): native.rover(vel_xy, acc_xy, jerk_xy, 0.3)
     else:
         sp = multirotor_setpoint(vel, acc, jerk, snap, yaw, yaw_rate, yaw_acc, params)
 
@@ -183,15 +184,20 @@ def _structs(real: type[Any]) -> dict[str, type[ctypes.Structure]]:
                     ("yaw_rate_rad_s", real), ("yaw_acc_rad_s2", real),
                     ("singular", ctypes.c_int)]
 
+    class Steering(ctypes.Structure):
+        _fields_ = [("heading", Heading), ("curvature_1_m", real),
+                    ("curvature_rate_1_m_s", real), ("steer_angle_rad", real),
+                    ("steer_rate_rad_s", real)]
+
     return {"segment": Segment, "state": FlatState, "params": Params, "attitude": Attitude,
-            "heading": Heading}
+            "heading": Heading, "steering": Steering}
 
 
 _ERRORS = {
     -1: "internal error: NULL pointer passed to the C setpoint library",
     -2: "refusing to compute a setpoint from a non-finite or out-of-range input "
         "(NaN/inf, |value| > 1e12, duration <= 0, mass <= 0, g <= 0, hover_thrust outside "
-        "(0, 1], drag < 0)",
+        "(0, 1], drag < 0, wheel base outside (0, 1e12] m)",
     -3: "the setpoint would be non-finite: inputs are far outside any flyable range",
 }
 
@@ -233,7 +239,9 @@ class NativeMultirotorSetpoint:
 
 @dataclass(frozen=True)
 class NativeRoverSetpoint:
-    """Same fields as ``companion.flatness.RoverSetpoint``."""
+    """Same fields as ``companion.flatness.RoverSetpoint`` (the Ackermann fields curvature
+    [1/m], curvature_rate [1/(m s)], steer_angle [rad], steer_rate [rad/s] are None without a
+    wheel base; the rates also without jerk)."""
 
     yaw: float
     speed: float
@@ -241,6 +249,10 @@ class NativeRoverSetpoint:
     yaw_rate: float
     yaw_acc: float | None
     singular: bool
+    curvature: float | None = None
+    curvature_rate: float | None = None
+    steer_angle: float | None = None
+    steer_rate: float | None = None
 
 
 def _quat_to_dcm(q: FloatArray) -> FloatArray:
@@ -295,6 +307,11 @@ class NativeSetpoint:
                                                 P(s["state"]), P(s["attitude"])]),
                 "full_rover": ("ecca_full_rover_setpoint",
                                [P(s["segment"]), real, P(s["state"]), P(s["heading"])]),
+                "ackermann": ("ecca_ackermann_setpoint",
+                              [P(s["state"]), real, P(s["steering"])]),
+                "full_ackermann": ("ecca_full_ackermann_setpoint",
+                                   [P(s["segment"]), real, real, P(s["state"]),
+                                    P(s["steering"])]),
             }
             for key, (cname, argtypes) in sig.items():
                 fn = getattr(self._lib, cname + sfx)
@@ -408,22 +425,55 @@ class NativeSetpoint:
             setattr(self._tls, prec, cache)
         return cache
 
+    @staticmethod
+    def _heading(hs: Any, jerk: bool, steering: Any = None) -> NativeRoverSetpoint:
+        """NativeRoverSetpoint of a heading struct (and the steering struct around it)."""
+        rates = None if steering is None or not jerk else steering
+        return NativeRoverSetpoint(
+            yaw=float(hs.yaw_rad), speed=float(hs.speed_m_s), speed_dot=float(hs.speed_dot_m_s2),
+            yaw_rate=float(hs.yaw_rate_rad_s),
+            yaw_acc=float(hs.yaw_acc_rad_s2) if jerk else None, singular=bool(hs.singular),
+            curvature=None if steering is None else float(steering.curvature_1_m),
+            curvature_rate=None if rates is None else float(rates.curvature_rate_1_m_s),
+            steer_angle=None if steering is None else float(steering.steer_angle_rad),
+            steer_rate=None if rates is None else float(rates.steer_rate_rad_s))
+
     def rover(self, vel_xy: npt.ArrayLike, acc_xy: npt.ArrayLike,
-              jerk_xy: npt.ArrayLike | None = None, *,
+              jerk_xy: npt.ArrayLike | None = None, wheel_base_m: float | None = None, *,
               precision: Precision = "double") -> NativeRoverSetpoint:
-        """Same arguments as ``companion.flatness.rover_setpoint`` (one sample)."""
+        """Same arguments as ``companion.flatness.rover_setpoint`` (one sample):
+        ``ecca_rover_setpoint``, or ``ecca_ackermann_setpoint`` with a wheel base (m)."""
         st = self._s[precision]["state"]()
         x = _view(st, precision)
         x[3:5] = _vec(vel_xy, 2, "vel_xy")
         x[6:8] = _vec(acc_xy, 2, "acc_xy")
         x[9:11] = 0.0 if jerk_xy is None else _vec(jerk_xy, 2, "jerk_xy")
-        hs = self._s[precision]["heading"]()
-        self._call(precision, "rover", ctypes.byref(st), ctypes.byref(hs))
-        return NativeRoverSetpoint(
-            yaw=float(hs.yaw_rad), speed=float(hs.speed_m_s), speed_dot=float(hs.speed_dot_m_s2),
-            yaw_rate=float(hs.yaw_rate_rad_s),
-            yaw_acc=None if jerk_xy is None else float(hs.yaw_acc_rad_s2),
-            singular=bool(hs.singular))
+        if wheel_base_m is None:
+            hs = self._s[precision]["heading"]()
+            self._call(precision, "rover", ctypes.byref(st), ctypes.byref(hs))
+            return self._heading(hs, jerk_xy is not None)
+        sp = self._s[precision]["steering"]()
+        self._call(precision, "ackermann", ctypes.byref(st), float(wheel_base_m),
+                   ctypes.byref(sp))
+        return self._heading(sp.heading, jerk_xy is not None, sp)
+
+    def full_rover(self, ctrl_pts: npt.ArrayLike, duration: float, t: float,
+                   wheel_base_m: float | None = None, *, precision: Precision = "double",
+                   ) -> tuple[NativeFlatState, NativeRoverSetpoint]:
+        """Evaluate a segment (ctrl_pts (8, 3) NED m, duration s) at local time t (s) and compute
+        the rover setpoint of its x, y derivatives in one C call: ``ecca_full_rover_setpoint``,
+        or ``ecca_full_ackermann_setpoint`` with a wheel base (m)."""
+        seg = self._segment(precision, ctrl_pts, None, duration)
+        st = self._s[precision]["state"]()
+        if wheel_base_m is None:
+            hs = self._s[precision]["heading"]()
+            self._call(precision, "full_rover", ctypes.byref(seg), float(t), ctypes.byref(st),
+                       ctypes.byref(hs))
+            return self._flat(st, precision), self._heading(hs, True)
+        sp = self._s[precision]["steering"]()
+        self._call(precision, "full_ackermann", ctypes.byref(seg), float(t),
+                   float(wheel_base_m), ctypes.byref(st), ctypes.byref(sp))
+        return self._flat(st, precision), self._heading(sp.heading, True, sp)
 
     def full(self, ctrl_pts: npt.ArrayLike, yaw_ctrl_pts: npt.ArrayLike | None, duration: float,
              t: float, params: MultirotorParamsLike, *, precision: Precision = "double",

@@ -2,7 +2,8 @@
 
 Multirotor: thrust and its derivatives, attitude (quaternion and DCM), body rates, angular
 acceleration and moments, with linear drag (docs/theory/multirotor.md). Rover: heading, speed
-and rates.
+and rates, and with a wheel base the curvature and steering of a car-like (Ackermann) rover
+(docs/theory/rover.md).
 :func:`symbolic` gives the same maps as named ``casadi.Function`` objects (for the C generator);
 :func:`multirotor_setpoint` and :func:`rover_setpoint` are the fast numeric path.
 """

@@ -66,6 +66,9 @@ class Backend:
     def cos(self, x: S) -> S:
         raise NotImplementedError
 
+    def atan(self, x: S) -> S:
+        raise NotImplementedError
+
     def atan2(self, y: S, x: S) -> S:
         raise NotImplementedError
 
@@ -106,6 +109,9 @@ class CasadiBackend(Backend):
     def cos(self, x: S) -> S:
         return self._ca.cos(x)
 
+    def atan(self, x: S) -> S:
+        return self._ca.atan(x)
+
     def atan2(self, y: S, x: S) -> S:
         return self._ca.atan2(y, x)
 
@@ -138,6 +144,9 @@ class NumpyBackend(Backend):
     def cos(self, x: S) -> S:
         return np.cos(x)
 
+    def atan(self, x: S) -> S:
+        return np.arctan(x)
+
     def atan2(self, y: S, x: S) -> S:
         return np.arctan2(y, x)
 
@@ -163,6 +172,7 @@ class FloatBackend(Backend):
     sqrt = staticmethod(math.sqrt)  # type: ignore[assignment]
     sin = staticmethod(math.sin)  # type: ignore[assignment]
     cos = staticmethod(math.cos)  # type: ignore[assignment]
+    atan = staticmethod(math.atan)  # type: ignore[assignment]
     atan2 = staticmethod(math.atan2)  # type: ignore[assignment]
     fabs = staticmethod(abs)  # type: ignore[assignment]
 
@@ -371,11 +381,18 @@ def rover(
     vel_xy: tuple[S, S],
     acc_xy: tuple[S, S],
     jerk_xy: tuple[S, S],
+    wheel_base: S | None = None,
 ) -> dict[str, S]:
-    """Rover (unicycle) flat output derivatives -> heading, speed and rates (docs/theory/rover.md).
+    """Rover flat output derivatives -> heading, speed and rates (docs/theory/rover.md).
 
-    Returns ``yaw`` (rad), ``speed`` (m/s), ``speed_dot`` (m/s^2), ``yaw_rate`` (rad/s),
-    ``yaw_acc`` (rad/s^2) and ``singular`` (float 0/1).
+    ``vel_xy``, ``acc_xy``, ``jerk_xy``: derivatives of the planar NED position (x north,
+    y east; m/s, m/s^2, m/s^3). Returns the unicycle map: ``yaw`` (rad), ``speed`` (m/s),
+    ``speed_dot`` (m/s^2), ``yaw_rate`` (rad/s), ``yaw_acc`` (rad/s^2) and ``singular`` (float
+    0/1: stopped, rates zeroed). With a ``wheel_base`` L (m, rear to front axle; car-like
+    bicycle model about the rear axle) also the Ackermann map: ``curvature`` kappa (1/m, > 0
+    turning right, i.e. clockwise seen from above as a positive NED yaw rate),
+    ``curvature_rate`` (1/(m s)), ``steer_angle`` delta = atan(L kappa) (rad, > 0 right) and
+    ``steer_rate`` (rad/s); all four 0 where ``singular``.
     """
     vx, vy = vel_xy
     ax, ay = acc_xy
@@ -393,13 +410,13 @@ def rover(
     )
     V_s = ops.where(slow, 1.0, V)
     V2_s = ops.where(slow, 1.0, V2)
-    cr = vx * ay - vy * ax  # V^2 yaw_rate
+    cr = vx * ay - vy * ax  # V^2 yaw_rate = V^3 curvature
     dt = vx * ax + vy * ay  # V speed_dot
-    cr_d = vx * jy - vy * jx
+    cr_d = vx * jy - vy * jx  # d(cr)/dt (the a x a term vanishes)
     speed_dot = ops.where(slow, 0.0, dt / V_s)
     yaw_rate = ops.where(slow, 0.0, cr / V2_s)
     yaw_acc = ops.where(slow, 0.0, (cr_d * V2 - 2.0 * cr * dt) / (V2_s * V2_s))
-    return {
+    out = {
         "yaw": yaw,
         "speed": V,
         "speed_dot": speed_dot,
@@ -407,3 +424,16 @@ def rover(
         "yaw_acc": yaw_acc,
         "singular": ops.where(slow, 1.0, 0.0),
     }
+    if wheel_base is None:
+        return out
+    # Ackermann (bicycle model, rear-axle reference): kappa = cr / V^3 and
+    # kappa' = cr' / V^3 - 3 cr V' / V^4 = (cr' V^2 - 3 cr (v . a)) / V^5.
+    V3_s = V2_s * V_s
+    kappa = ops.where(slow, 0.0, cr / V3_s)
+    kappa_d = ops.where(slow, 0.0, (cr_d * V2 - 3.0 * cr * dt) / (V3_s * V2_s))
+    Lk = wheel_base * kappa  # tan(delta); 0 where slow, so delta = delta' = 0 there
+    out["curvature"] = kappa
+    out["curvature_rate"] = kappa_d
+    out["steer_angle"] = ops.atan(Lk)
+    out["steer_rate"] = wheel_base * kappa_d / (1.0 + Lk * Lk)
+    return out

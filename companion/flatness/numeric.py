@@ -321,16 +321,37 @@ def multirotor_setpoint(
     )
 
 
+def _wheel_base(wheel_base_m: float | None) -> float | None:
+    """The wheel base as a float (m), or ValueError unless finite, > 0 and <= INPUT_LIMIT."""
+    if wheel_base_m is None:
+        return None
+    try:
+        L = float(wheel_base_m)
+    except (TypeError, ValueError):
+        raise ValueError(f"wheel_base_m must be a number (m), got {wheel_base_m!r}") from None
+    if not 0.0 < L <= INPUT_LIMIT:  # False for NaN
+        raise ValueError(
+            f"wheel_base_m must be a finite length > 0 m (at most {INPUT_LIMIT:g}), got {L}"
+        )
+    return L
+
+
 def rover_setpoint(
     vel_xy: npt.ArrayLike,
     acc_xy: npt.ArrayLike,
     jerk_xy: npt.ArrayLike | None = None,
+    wheel_base_m: float | None = None,
 ) -> RoverSetpoint:
-    """Rover (unicycle) setpoint from the derivatives of the planar NED position (x north,
-    y east): vel_xy (m/s), acc_xy (m/s^2), optional jerk_xy (m/s^3), each (2,) or (N, 2).
+    """Rover setpoint from the derivatives of the planar NED position (x north, y east):
+    vel_xy (m/s), acc_xy (m/s^2), optional jerk_xy (m/s^3), each (2,) or (N, 2).
 
-    ``yaw_acc`` is None when ``jerk_xy`` is None. Never returns NaN (stopped rover: see
-    :class:`RoverSetpoint`).
+    Unicycle map (heading, speed, yaw rate); with ``wheel_base_m`` (L > 0, m: rear to front
+    axle) also the Ackermann map of a car-like rover (bicycle model about the rear axle):
+    curvature, steering angle and their rates (docs/theory/rover.md). ``yaw_acc``,
+    ``curvature_rate`` and ``steer_rate`` are None when ``jerk_xy`` is None; the four Ackermann
+    fields are None without a wheel base. Raises ValueError on a shape mismatch, a NaN, inf or
+    |value| > 1e12 input or a wheel base that is not a finite length > 0. Never returns NaN
+    (stopped rover: see :class:`RoverSetpoint`).
     """
     v = _vec_input(vel_xy, 2, "vel_xy")
     a = _vec_input(acc_xy, 2, "acc_xy")
@@ -340,6 +361,8 @@ def rover_setpoint(
             f"vel_xy, acc_xy, jerk_xy must have the same shape, got {v.shape}, {a.shape}, {j.shape}"
         )
     _check_finite({"vel_xy": v, "acc_xy": a, "jerk_xy": j})
+    L = _wheel_base(wheel_base_m)
+    no_jerk = jerk_xy is None
     r: dict[str, Any]
     if v.ndim == 1:
         r = fm.rover(
@@ -347,22 +370,40 @@ def rover_setpoint(
             (float(v[0]), float(v[1])),
             (float(a[0]), float(a[1])),
             (float(j[0]), float(j[1])),
+            L,
         )
+        if L is None:
+            return RoverSetpoint(
+                yaw=float(r["yaw"]),
+                speed=float(r["speed"]),
+                speed_dot=float(r["speed_dot"]),
+                yaw_rate=float(r["yaw_rate"]),
+                yaw_acc=None if no_jerk else float(r["yaw_acc"]),
+                singular=bool(r["singular"]),
+            )
         return RoverSetpoint(
             yaw=float(r["yaw"]),
             speed=float(r["speed"]),
             speed_dot=float(r["speed_dot"]),
             yaw_rate=float(r["yaw_rate"]),
-            yaw_acc=None if jerk_xy is None else float(r["yaw_acc"]),
+            yaw_acc=None if no_jerk else float(r["yaw_acc"]),
             singular=bool(r["singular"]),
+            curvature=float(r["curvature"]),
+            curvature_rate=None if no_jerk else float(r["curvature_rate"]),
+            steer_angle=float(r["steer_angle"]),
+            steer_rate=None if no_jerk else float(r["steer_rate"]),
         )
     vT, aT, jT = (np.ascontiguousarray(x.T) for x in (v, a, j))
-    r = fm.rover(fm.NUMPY, (vT[0], vT[1]), (aT[0], aT[1]), (jT[0], jT[1]))
+    r = fm.rover(fm.NUMPY, (vT[0], vT[1]), (aT[0], aT[1]), (jT[0], jT[1]), L)
     return RoverSetpoint(
         yaw=r["yaw"],
         speed=r["speed"],
         speed_dot=r["speed_dot"],
         yaw_rate=r["yaw_rate"],
-        yaw_acc=None if jerk_xy is None else r["yaw_acc"],
+        yaw_acc=None if no_jerk else r["yaw_acc"],
         singular=r["singular"] != 0.0,
+        curvature=r.get("curvature"),
+        curvature_rate=None if no_jerk else r.get("curvature_rate"),
+        steer_angle=r.get("steer_angle"),
+        steer_rate=None if no_jerk else r.get("steer_rate"),
     )

@@ -61,6 +61,7 @@ ROVER_INPUTS: tuple[tuple[str, int, int], ...] = (
     ("vel_xy", 2, 1),  # m/s, NED north/east
     ("acc_xy", 2, 1),  # m/s^2
     ("jerk_xy", 2, 1),  # m/s^3
+    ("wheel_base", 1, 1),  # m, rear to front axle (Ackermann outputs); 0 (default): they are 0
 )
 ROVER_OUTPUTS: tuple[tuple[str, int, int], ...] = (
     ("yaw", 1, 1),  # rad
@@ -69,6 +70,10 @@ ROVER_OUTPUTS: tuple[tuple[str, int, int], ...] = (
     ("yaw_rate", 1, 1),  # rad/s
     ("yaw_acc", 1, 1),  # rad/s^2
     ("singular", 1, 1),  # 0 or 1
+    ("curvature", 1, 1),  # 1/m, > 0 turning right (clockwise seen from above)
+    ("curvature_rate", 1, 1),  # 1/(m s)
+    ("steer_angle", 1, 1),  # rad, atan(wheel_base * curvature), > 0 right
+    ("steer_rate", 1, 1),  # rad/s
 )
 
 
@@ -143,6 +148,7 @@ def _build_rover() -> ca.Function:
         _vec(sym["vel_xy"], 2),  # type: ignore[arg-type]
         _vec(sym["acc_xy"], 2),  # type: ignore[arg-type]
         _vec(sym["jerk_xy"], 2),  # type: ignore[arg-type]
+        sym["wheel_base"],
     )
     names_in = [n for n, _, _ in ROVER_INPUTS]
     names_out = [n for n, _, _ in ROVER_OUTPUTS]
@@ -163,7 +169,8 @@ def symbolic() -> SymbolicFlatness:
     yaw_acc, mass`` (1x1), ``inertia`` (3x3), ``g, hover_thrust, drag`` (1x1); outputs ``thrust,
     thrust_dot, thrust_ddot, thrust_norm`` (1x1), ``q_wxyz`` (4x1), ``C_eb`` (3x3), ``omega_frd,
     omega_dot_frd, moment_frd`` (3x1), ``singular, flags`` (1x1).
-    ``rover``: inputs ``vel_xy, acc_xy, jerk_xy`` (2x1); outputs ``yaw, speed, speed_dot,
-    yaw_rate, yaw_acc, singular`` (1x1).
+    ``rover``: inputs ``vel_xy, acc_xy, jerk_xy`` (2x1), ``wheel_base`` (1x1, m; a named call
+    may omit it: CasADi's default 0 gives zero steering); outputs ``yaw, speed, speed_dot,
+    yaw_rate, yaw_acc, singular, curvature, curvature_rate, steer_angle, steer_rate`` (1x1).
     """
     return SymbolicFlatness(multirotor=_build_multirotor(), rover=_build_rover())

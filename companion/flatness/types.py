@@ -114,12 +114,19 @@ class MultirotorSetpoint:
 
 @dataclass(frozen=True)
 class RoverSetpoint:
-    """Rover (unicycle) setpoint. One sample: floats; a batch of N: (N,) arrays.
+    """Rover setpoint (unicycle, plus the Ackermann steering of a car-like rover when a wheel base
+    is given). One sample: floats; a batch of N: (N,) arrays. NED: x north, y east.
 
-    yaw: heading (rad, (-pi, pi], NED: 0 north, +pi/2 east). speed: ground speed (m/s, >= 0).
+    yaw: heading (rad, (-pi, pi], 0 north, +pi/2 east). speed: ground speed (m/s, >= 0).
     speed_dot: m/s^2. yaw_rate: rad/s. yaw_acc: rad/s^2 (None when no jerk was given).
     singular: True where the rover is (nearly) stopped: heading from the velocity, else the
-    acceleration, else 0; speed_dot and the rates are 0 there.
+    acceleration, else 0; speed_dot, the rates and the four Ackermann fields are 0 there.
+
+    Ackermann fields (bicycle model about the rear axle; None without a wheel base):
+    curvature: signed path curvature kappa (1/m, > 0 turning right = clockwise seen from
+    above, the sign of yaw_rate = speed * kappa). curvature_rate: d(kappa)/dt (1/(m s); None
+    without jerk). steer_angle: front-wheel angle delta = atan(L kappa) (rad, in (-pi/2,
+    pi/2), > 0 right). steer_rate: d(delta)/dt (rad/s; None without jerk).
     """
 
     yaw: Scalar
@@ -128,3 +135,7 @@ class RoverSetpoint:
     yaw_rate: Scalar
     yaw_acc: Scalar | None
     singular: bool | BoolArray = False
+    curvature: Scalar | None = None
+    curvature_rate: Scalar | None = None
+    steer_angle: Scalar | None = None
+    steer_rate: Scalar | None = None

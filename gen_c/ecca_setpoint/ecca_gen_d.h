@@ -92,6 +92,24 @@ int ecca_d_full_work_bytes(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w);
 #define ecca_d_full_SZ_RES 18
 #define ecca_d_full_SZ_IW 0
 #define ecca_d_full_SZ_W 0
+int ecca_d_ackermann(const double** arg, double** res, int* iw, double* w, int mem);
+int ecca_d_ackermann_checkout(void);
+void ecca_d_ackermann_release(int mem);
+void ecca_d_ackermann_incref(void);
+void ecca_d_ackermann_decref(void);
+int ecca_d_ackermann_n_in(void);
+int ecca_d_ackermann_n_out(void);
+double ecca_d_ackermann_default_in(int i);
+const char* ecca_d_ackermann_name_in(int i);
+const char* ecca_d_ackermann_name_out(int i);
+const int* ecca_d_ackermann_sparsity_in(int i);
+const int* ecca_d_ackermann_sparsity_out(int i);
+int ecca_d_ackermann_work(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w);
+int ecca_d_ackermann_work_bytes(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w);
+#define ecca_d_ackermann_SZ_ARG 4
+#define ecca_d_ackermann_SZ_RES 10
+#define ecca_d_ackermann_SZ_IW 0
+#define ecca_d_ackermann_SZ_W 0
 void ecca_gen_d_casadi_version(int* major, int* minor, int* patch);
 int ecca_gen_d_casadi_int_size(void);
 int ecca_gen_d_casadi_real_size(void);

@@ -44,6 +44,7 @@ extern "C" {
 #define casadi_f1 CASADI_PREFIX(f1)
 #define casadi_f2 CASADI_PREFIX(f2)
 #define casadi_f3 CASADI_PREFIX(f3)
+#define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_fabs CASADI_PREFIX(fabs)
 #define casadi_fmax CASADI_PREFIX(fmax)
 #define casadi_fmin CASADI_PREFIX(fmin)
@@ -2396,6 +2397,202 @@ CASADI_SYMBOL_EXPORT int ecca_f_full_work(int *sz_arg, int* sz_res, int *sz_iw, 
 CASADI_SYMBOL_EXPORT int ecca_f_full_work_bytes(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w) {
   if (sz_arg) *sz_arg = 9*sizeof(const float*);
   if (sz_res) *sz_res = 18*sizeof(float*);
+  if (sz_iw) *sz_iw = 0*sizeof(int);
+  if (sz_w) *sz_w = 0*sizeof(float);
+  return 0;
+}
+
+/* ecca_f_ackermann:(vel_ned_m_s[2],acc_ned_m_s2[2],jerk_ned_m_s3[2],wheel_base_m)->(yaw_rad,speed_m_s,speed_dot_m_s2,yaw_rate_rad_s,yaw_acc_rad_s2,singular,curvature_1_m,curvature_rate_1_m_s,steer_angle_rad,steer_rate_rad_s) */
+static int casadi_f4(const float** arg, float** res, int* iw, float* w, int mem) {
+  (void)iw; (void)w; (void)mem;
+  float a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  a00=arg[0][0];
+  a01=casadi_sq(a00);
+  a02=arg[0][1];
+  a03=casadi_sq(a02);
+  a01=(a01+a03);
+  a03=sqrtf(a01);
+  a04=1.0000000000000001e-09f;
+  a04=(a03<a04);
+  a05=arg[1][0];
+  a06=casadi_sq(a05);
+  a07=arg[1][1];
+  a08=casadi_sq(a07);
+  a06=(a06+a08);
+  a08=1.0000000000000001e-18f;
+  a06=(a06<a08);
+  a08=(!a06);
+  a09=(a08?a07:0);
+  a10=1.f;
+  a06=(a06?a10:0);
+  a11=(a08?a05:0);
+  a06=(a06+a11);
+  a09=atan2f(a09,a06);
+  a08=(a08?a09:0);
+  a08=(a04?a08:0);
+  a09=(!a04);
+  a06=(a09?a02:0);
+  a04=(a04?a10:0);
+  a11=(a09?a00:0);
+  a04=(a04+a11);
+  a06=atan2f(a06,a04);
+  a09=(a09?a06:0);
+  a08=(a08+a09);
+  res[0][0]=a08;
+  res[1][0]=a03;
+  a08=1.0000000000000000e-03f;
+  a08=(a03<a08);
+  a09=(!a08);
+  a06=(a00*a05);
+  a04=(a02*a07);
+  a06=(a06+a04);
+  a08=(a08?a10:0);
+  a03=(a09?a03:0);
+  a03=(a08+a03);
+  a04=(a06/a03);
+  a04=(a09?a04:0);
+  res[2][0]=a04;
+  a07=(a00*a07);
+  a05=(a02*a05);
+  a07=(a07-a05);
+  a05=(a09?a01:0);
+  a05=(a08+a05);
+  a04=(a07/a05);
+  a04=(a09?a04:0);
+  res[3][0]=a04;
+  a04=arg[2][1];
+  a00=(a00*a04);
+  a04=arg[2][0];
+  a02=(a02*a04);
+  a00=(a00-a02);
+  a00=(a00*a01);
+  a01=(2.f*a07);
+  a01=(a01*a06);
+  a01=(a00-a01);
+  a02=casadi_sq(a05);
+  a01=(a01/a02);
+  a01=(a09?a01:0);
+  res[4][0]=a01;
+  res[5][0]=a08;
+  a03=(a05*a03);
+  a08=(a07/a03);
+  a01=(a09?a08:0);
+  res[6][0]=a01;
+  a01=3.f;
+  a01=(a01*a07);
+  a01=(a01*a06);
+  a00=(a00-a01);
+  a03=(a03*a05);
+  a00=(a00/a03);
+  a03=(a09?a00:0);
+  res[7][0]=a03;
+  a03=arg[3][0];
+  a08=(a03*a08);
+  a05=(a09?a08:0);
+  a05=atanf(a05);
+  res[8][0]=a05;
+  a03=(a03*a00);
+  a03=(a09?a03:0);
+  a08=casadi_sq(a08);
+  a08=(a09?a08:0);
+  a09=(a09?a08:0);
+  a10=(a10+a09);
+  a03=(a03/a10);
+  res[9][0]=a03;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int ecca_f_ackermann(const float** arg, float** res, int* iw, float* w, int mem){
+  return casadi_f4(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int ecca_f_ackermann_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void ecca_f_ackermann_release(int mem) {
+  (void)mem;
+}
+
+CASADI_SYMBOL_EXPORT void ecca_f_ackermann_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void ecca_f_ackermann_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT int ecca_f_ackermann_n_in(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT int ecca_f_ackermann_n_out(void) { return 10;}
+
+CASADI_SYMBOL_EXPORT float ecca_f_ackermann_default_in(int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* ecca_f_ackermann_name_in(int i) {
+  switch (i) {
+    case 0: return "vel_ned_m_s";
+    case 1: return "acc_ned_m_s2";
+    case 2: return "jerk_ned_m_s3";
+    case 3: return "wheel_base_m";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* ecca_f_ackermann_name_out(int i) {
+  switch (i) {
+    case 0: return "yaw_rad";
+    case 1: return "speed_m_s";
+    case 2: return "speed_dot_m_s2";
+    case 3: return "yaw_rate_rad_s";
+    case 4: return "yaw_acc_rad_s2";
+    case 5: return "singular";
+    case 6: return "curvature_1_m";
+    case 7: return "curvature_rate_1_m_s";
+    case 8: return "steer_angle_rad";
+    case 9: return "steer_rate_rad_s";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const int* ecca_f_ackermann_sparsity_in(int i) {
+  switch (i) {
+    case 0: return casadi_s6;
+    case 1: return casadi_s6;
+    case 2: return casadi_s6;
+    case 3: return casadi_s2;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const int* ecca_f_ackermann_sparsity_out(int i) {
+  switch (i) {
+    case 0: return casadi_s2;
+    case 1: return casadi_s2;
+    case 2: return casadi_s2;
+    case 3: return casadi_s2;
+    case 4: return casadi_s2;
+    case 5: return casadi_s2;
+    case 6: return casadi_s2;
+    case 7: return casadi_s2;
+    case 8: return casadi_s2;
+    case 9: return casadi_s2;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int ecca_f_ackermann_work(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w) {
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 10;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int ecca_f_ackermann_work_bytes(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w) {
+  if (sz_arg) *sz_arg = 4*sizeof(const float*);
+  if (sz_res) *sz_res = 10*sizeof(float*);
   if (sz_iw) *sz_iw = 0*sizeof(int);
   if (sz_w) *sz_w = 0*sizeof(float);
   return 0;

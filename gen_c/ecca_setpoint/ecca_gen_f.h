@@ -93,6 +93,24 @@ int ecca_f_full_work_bytes(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w);
 #define ecca_f_full_SZ_RES 18
 #define ecca_f_full_SZ_IW 0
 #define ecca_f_full_SZ_W 0
+int ecca_f_ackermann(const float** arg, float** res, int* iw, float* w, int mem);
+int ecca_f_ackermann_checkout(void);
+void ecca_f_ackermann_release(int mem);
+void ecca_f_ackermann_incref(void);
+void ecca_f_ackermann_decref(void);
+int ecca_f_ackermann_n_in(void);
+int ecca_f_ackermann_n_out(void);
+float ecca_f_ackermann_default_in(int i);
+const char* ecca_f_ackermann_name_in(int i);
+const char* ecca_f_ackermann_name_out(int i);
+const int* ecca_f_ackermann_sparsity_in(int i);
+const int* ecca_f_ackermann_sparsity_out(int i);
+int ecca_f_ackermann_work(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w);
+int ecca_f_ackermann_work_bytes(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w);
+#define ecca_f_ackermann_SZ_ARG 4
+#define ecca_f_ackermann_SZ_RES 10
+#define ecca_f_ackermann_SZ_IW 0
+#define ecca_f_ackermann_SZ_W 0
 void ecca_gen_f_casadi_version(int* major, int* minor, int* patch);
 int ecca_gen_f_casadi_int_size(void);
 int ecca_gen_f_casadi_real_size(void);

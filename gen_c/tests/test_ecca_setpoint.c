@@ -9,7 +9,8 @@
  * Every case runs in double and in float. A field passes when, per component,
  *   |got - expect| <= rtol * max(max_j |expect_j| over the field, 1)
  * with rtol = 1e-12 (double) and 1e-4 (float); flags and singular must match exactly. Also
- * checks the error paths (NaN input, bad duration/mass, NULL) leave the outputs untouched.
+ * checks the error paths (NaN input, bad duration/mass/wheel base, NULL) leave the outputs
+ * untouched.
  * Exit status 0 when everything passes; prints one line per failure and a summary.
  *
  * The JSON reader below is deliberately minimal (objects, arrays, numbers, strings, literals;
@@ -340,6 +341,14 @@ static void heading_d(const ecca_heading_setpoint_f *f, ecca_heading_setpoint *s
   s->singular = f->singular;
 }
 
+static void steering_d(const ecca_steering_setpoint_f *f, ecca_steering_setpoint *s) {
+  heading_d(&f->heading, &s->heading);
+  s->curvature_1_m = f->curvature_1_m;
+  s->curvature_rate_1_m_s = f->curvature_rate_1_m_s;
+  s->steer_angle_rad = f->steer_angle_rad;
+  s->steer_rate_rad_s = f->steer_rate_rad_s;
+}
+
 /* ----------------------------------------------------------------- field comparisons */
 
 static void check_state(const char *what, const ecca_flat_state *s, const char *e, double rtol) {
@@ -376,6 +385,16 @@ static void check_heading(const char *what, const ecca_heading_setpoint *s, cons
   check(what, "yaw_rate_rad_s", &s->yaw_rate_rad_s, get(e, "yaw_rate_rad_s"), 1, rtol);
   check(what, "yaw_acc_rad_s2", &s->yaw_acc_rad_s2, get(e, "yaw_acc_rad_s2"), 1, rtol);
   check_int(what, "singular", s->singular, get(e, "singular"));
+}
+
+static void check_steering(const char *what, const ecca_steering_setpoint *s, const char *e,
+                           double rtol) {
+  check_heading(what, &s->heading, e, rtol);
+  check(what, "curvature_1_m", &s->curvature_1_m, get(e, "curvature_1_m"), 1, rtol);
+  check(what, "curvature_rate_1_m_s", &s->curvature_rate_1_m_s, get(e, "curvature_rate_1_m_s"),
+        1, rtol);
+  check(what, "steer_angle_rad", &s->steer_angle_rad, get(e, "steer_angle_rad"), 1, rtol);
+  check(what, "steer_rate_rad_s", &s->steer_rate_rad_s, get(e, "steer_rate_rad_s"), 1, rtol);
 }
 
 #ifndef RTOL_D
@@ -474,6 +493,91 @@ static void run_full(const char *c, int idx) {
   attitude_d(&out_f, &out_fd);
   check_state(what, &st_fd, get(c, "expect_state"), RTOL_F);
   check_attitude(what, &out_fd, get(c, "expect"), RTOL_F);
+}
+
+static void run_ackermann(const char *c, int idx) {
+  ecca_flat_state st;
+  ecca_flat_state_f st_f;
+  ecca_steering_setpoint out, out_fd;
+  ecca_steering_setpoint_f out_f;
+  char what[64];
+  double wheel_base = num(get(c, "wheel_base_m"));
+  read_state(get(c, "state"), &st);
+  state_f(&st, &st_f);
+  sprintf(what, "ackermann[%d] double", idx);
+  expect_true(what, ecca_ackermann_setpoint(&st, wheel_base, &out) == ECCA_OK);
+  check_steering(what, &out, get(c, "expect"), RTOL_D);
+  sprintf(what, "ackermann[%d] float", idx);
+  expect_true(what, ecca_ackermann_setpoint_f(&st_f, (float)wheel_base, &out_f) == ECCA_OK);
+  steering_d(&out_f, &out_fd);
+  check_steering(what, &out_fd, get(c, "expect"), RTOL_F);
+}
+
+static void run_full_ackermann(const char *c, int idx) {
+  ecca_bezier_segment seg;
+  ecca_bezier_segment_f seg_f;
+  ecca_flat_state st, st_fd;
+  ecca_flat_state_f st_f;
+  ecca_steering_setpoint out, out_fd;
+  ecca_steering_setpoint_f out_f;
+  char what[64];
+  double t = num(get(c, "t_s"));
+  double wheel_base = num(get(c, "wheel_base_m"));
+  read_segment(get(c, "segment"), &seg);
+  segment_f(&seg, &seg_f);
+  sprintf(what, "full_ackermann[%d] double", idx);
+  expect_true(what, ecca_full_ackermann_setpoint(&seg, t, wheel_base, &st, &out) == ECCA_OK);
+  check_state(what, &st, get(c, "expect_state"), RTOL_D);
+  check_steering(what, &out, get(c, "expect"), RTOL_D);
+  sprintf(what, "full_ackermann[%d] float", idx);
+  expect_true(what, ecca_full_ackermann_setpoint_f(&seg_f, (float)t, (float)wheel_base, &st_f,
+                                                   &out_f) == ECCA_OK);
+  state_d(&st_f, &st_fd);
+  steering_d(&out_f, &out_fd);
+  check_state(what, &st_fd, get(c, "expect_state"), RTOL_F);
+  check_steering(what, &out_fd, get(c, "expect"), RTOL_F);
+}
+
+/* Ackermann: a bad wheel base or state is refused with the outputs untouched. */
+static void run_ackermann_error_paths(const char *vectors) {
+  ecca_bezier_segment seg;
+  ecca_flat_state st, sentinel_st;
+  ecca_steering_setpoint ks, sentinel_ks;
+  const double bad[] = {0.0, -0.5, 2e12, HUGE_VAL, -HUGE_VAL, 0.0};
+  int i;
+  read_segment(get(at(get(vectors, "full_ackermann"), 0), "segment"), &seg);
+  read_state(get(at(get(vectors, "ackermann"), 0), "state"), &st);
+  memset(&sentinel_st, 0x5a, sizeof sentinel_st);
+  memset(&sentinel_ks, 0x5a, sizeof sentinel_ks);
+  for (i = 0; i < 6; ++i) {
+    double wb = (i == 5) ? nan("") : bad[i];
+    ecca_flat_state so = sentinel_st;
+    ks = sentinel_ks;
+    expect_true("ackermann error: bad wheel base",
+                ecca_ackermann_setpoint(&st, wb, &ks) == ECCA_ERR_INPUT &&
+                    memcmp(&ks, &sentinel_ks, sizeof ks) == 0);
+    expect_true("full ackermann error: bad wheel base",
+                ecca_full_ackermann_setpoint(&seg, 0.5, wb, &so, &ks) == ECCA_ERR_INPUT &&
+                    memcmp(&ks, &sentinel_ks, sizeof ks) == 0 &&
+                    memcmp(&so, &sentinel_st, sizeof so) == 0);
+  }
+  st.jerk_ned_m_s3[1] = nan("");
+  expect_true("ackermann error: NaN jerk",
+              ecca_ackermann_setpoint(&st, 0.5, &ks) == ECCA_ERR_INPUT &&
+                  memcmp(&ks, &sentinel_ks, sizeof ks) == 0);
+  st.jerk_ned_m_s3[1] = 0.0;
+  st.jerk_ned_m_s3[2] = nan(""); /* z is not an input */
+  expect_true("ackermann ok: z ignored", ecca_ackermann_setpoint(&st, 0.5, &ks) == ECCA_OK);
+  seg.duration_s = -1.0;
+  ks = sentinel_ks;
+  expect_true("full ackermann error: negative duration",
+              ecca_full_ackermann_setpoint(&seg, 0.5, 0.5, NULL, &ks) == ECCA_ERR_INPUT &&
+                  memcmp(&ks, &sentinel_ks, sizeof ks) == 0);
+  expect_true("ackermann error: NULL",
+              ecca_ackermann_setpoint(NULL, 0.5, &ks) == ECCA_ERR_NULL &&
+                  ecca_ackermann_setpoint(&st, 0.5, NULL) == ECCA_ERR_NULL &&
+                  ecca_full_ackermann_setpoint(NULL, 0.5, 0.5, NULL, &ks) == ECCA_ERR_NULL &&
+                  ecca_ackermann_setpoint_f(NULL, 0.5f, NULL) == ECCA_ERR_NULL);
 }
 
 /* Invalid inputs: an error code and untouched outputs (bit-identical sentinel). */
@@ -604,7 +708,25 @@ int main(int argc, char **argv) {
     run_full(at(arr, i), i);
   }
   total += n;
+  arr = get(text, "ackermann");
+  n = length(arr);
+  for (i = 0; i < n; ++i) {
+    run_ackermann(at(arr, i), i);
+  }
+  total += n;
+  arr = get(text, "full_ackermann");
+  n = length(arr);
+  for (i = 0; i < n; ++i) {
+    run_full_ackermann(at(arr, i), i);
+  }
+  total += n;
   run_error_paths(text);
+  if (get(text, "ackermann") != NULL && get(text, "full_ackermann") != NULL) {
+    run_ackermann_error_paths(text);
+  } else {
+    printf("FAIL no ackermann vectors\n");
+    ++g_failures;
+  }
   free(text);
   if (g_parse_errors != 0) {
     printf("FAIL %d JSON parse errors\n", g_parse_errors);

@@ -91,6 +91,12 @@ def test_changed_flatness_api_fails_loudly() -> None:
     bogus = ca.Function("multirotor_setpoint", [x], [x], ["vel_ned"], ["thrust"])
     with pytest.raises(generate.GeneratorError, match="changed its inputs"):
         generate.multirotor_function("ecca_d_multirotor", bogus)
+    # a rover function without the wheel base (the pre-Ackermann API) is refused as well
+    v, a, j = (ca.SX.sym(n, 2) for n in ("vel_xy", "acc_xy", "jerk_xy"))
+    old_rover = ca.Function("rover_setpoint", [v, a, j], [v[0]], ["vel_xy", "acc_xy", "jerk_xy"],
+                            ["yaw"])
+    with pytest.raises(generate.GeneratorError, match="changed its inputs"):
+        generate.ackermann_function("ecca_d_ackermann", old_rover)
 
 
 def test_golden_vectors_match_the_current_python_path() -> None:
@@ -99,7 +105,7 @@ def test_golden_vectors_match_the_current_python_path() -> None:
     stored = json.loads((TESTS / "vectors.json").read_text())
     fresh_vectors = generate.make_vectors()
     assert stored["casadi_version"] == generate.CASADI_VERSION
-    for kind in ("bezier", "multirotor", "rover", "full"):
+    for kind in ("bezier", "multirotor", "rover", "full", "ackermann", "full_ackermann"):
         assert len(stored[kind]) == len(fresh_vectors[kind]) > 0
         for a, b in zip(stored[kind], fresh_vectors[kind], strict=True):
             for group in ("expect", "expect_state"):

@@ -251,3 +251,105 @@ def test_trajectory_setpoint_matches_python_path(lib: native.NativeSetpoint, see
     exp = multirotor_setpoint(state.vel, state.acc, state.jerk, state.snap, state.yaw,
                               state.yaw_rate, state.yaw_acc, p)
     compare_multirotor(sp, exp, RTOL_DOUBLE)
+
+
+# ------------------------------------------------------------------ rover: Ackermann
+ROVER_FIELDS = ("yaw", "speed", "speed_dot", "yaw_rate", "yaw_acc")
+ACK_FIELDS = ("curvature", "curvature_rate", "steer_angle", "steer_rate")
+
+
+def _row(sp: object) -> dict[str, float]:
+    """The fields of a batch-of-one RoverSetpoint (numpy backend) as floats."""
+    return {n: float(np.asarray(getattr(sp, n))[0]) for n in (*ROVER_FIELDS, *ACK_FIELDS)}
+
+
+def compare_ackermann(got: native.NativeRoverSetpoint, v: object, a: object, j: object,
+                      wheel_base: float, rtol: float) -> None:
+    """The C setpoint against both Python backends: float (one sample) and numpy (a batch)."""
+    exp_float = rover_setpoint(v, a, j, wheel_base_m=wheel_base)  # type: ignore[arg-type]
+    exp_numpy = rover_setpoint([v], [a], [j], wheel_base_m=wheel_base)  # type: ignore[list-item]
+    row = _row(exp_numpy)
+    for name in (*ROVER_FIELDS, *ACK_FIELDS):
+        assert_close(getattr(got, name), getattr(exp_float, name), rtol, f"{name} (float)")
+        assert_close(getattr(got, name), row[name], rtol, f"{name} (numpy)")
+    assert got.singular == exp_float.singular == bool(np.asarray(exp_numpy.singular)[0])
+
+
+@SETTINGS
+@given(v=st.lists(st.floats(-10, 10), min_size=2, max_size=2),
+       a=st.lists(st.floats(-5, 5), min_size=2, max_size=2),
+       j=st.lists(st.floats(-5, 5), min_size=2, max_size=2), wheel_base=st.floats(0.05, 5.0))
+def test_ackermann_double_matches_python(lib: native.NativeSetpoint, v: list[float],
+                                         a: list[float], j: list[float],
+                                         wheel_base: float) -> None:
+    compare_ackermann(lib.rover(v, a, j, wheel_base), v, a, j, wheel_base, RTOL_DOUBLE)
+
+
+@SETTINGS
+@given(speed=st.floats(0.5, 10.0), heading=st.floats(-np.pi, np.pi),
+       a=st.lists(st.floats(-5, 5), min_size=2, max_size=2),
+       j=st.lists(st.floats(-5, 5), min_size=2, max_size=2), wheel_base=st.floats(0.1, 3.0))
+def test_ackermann_float_matches_python(lib: native.NativeSetpoint, speed: float,
+                                        heading: float, a: list[float], j: list[float],
+                                        wheel_base: float) -> None:
+    """Float variant on a moving rover (0.5..10 m/s), float-representable inputs."""
+    v = f32([speed * np.cos(heading), speed * np.sin(heading)])
+    af, jf, L = f32(a), f32(j), float(f32(wheel_base))
+    compare_ackermann(lib.rover(v, af, jf, L, precision="float"), v, af, jf, L, RTOL_FLOAT)
+
+
+@pytest.mark.parametrize("v, a, j", [
+    ([0.0, 0.0], [0.0, 0.0], [0.0, 0.0]),  # standing still
+    ([0.0, 0.0], [-0.5, 0.75], [0.25, 0.0]),  # starting from rest
+    ([0.0005, -0.0002], [1.0, 2.0], [-1.0, 0.5]),  # below the stop threshold
+    ([0.00125, -0.0005], [0.5, 1.0], [-1.0, 0.5]),  # just above: kappa ~ 6e5 1/m
+])
+@pytest.mark.parametrize("prec", ["double", "float"])
+def test_ackermann_stopped_and_near_stop_match_python(lib: native.NativeSetpoint,
+                                                      v: list[float], a: list[float],
+                                                      j: list[float], prec: str) -> None:
+    v32, a32, j32 = f32(v), f32(a), f32(j)
+    got = lib.rover(v32, a32, j32, 0.5, precision=prec)  # type: ignore[arg-type]
+    compare_ackermann(got, v32, a32, j32, 0.5, RTOL_DOUBLE if prec == "double" else RTOL_FLOAT)
+    if got.singular:
+        assert [getattr(got, n) for n in ACK_FIELDS] == [0.0, 0.0, 0.0, 0.0]
+
+
+def test_rover_without_wheel_base_or_jerk_has_no_ackermann_fields(
+        lib: native.NativeSetpoint) -> None:
+    plain = lib.rover([1.0, 0.5], [0.25, -0.5], [0.1, 0.2])
+    assert [getattr(plain, n) for n in ACK_FIELDS] == [None] * 4
+    no_jerk = lib.rover([1.0, 0.5], [0.25, -0.5], wheel_base_m=0.5)
+    assert no_jerk.curvature is not None and no_jerk.steer_angle is not None
+    assert no_jerk.yaw_acc is None and no_jerk.curvature_rate is None
+    assert no_jerk.steer_rate is None
+    ack = lib.rover([1.0, 0.5], [0.25, -0.5], [0.1, 0.2], 0.5)
+    for name in (*ROVER_FIELDS, "singular"):  # the unicycle part is ecca_rover_setpoint's
+        assert getattr(ack, name) == getattr(plain, name), name
+    for bad in (0.0, -1.0, np.nan, np.inf, 2e12):
+        with pytest.raises(ValueError, match="wheel base"):
+            lib.rover([1.0, 0.5], [0.25, -0.5], [0.1, 0.2], bad)
+        with pytest.raises(ValueError, match="wheel_base_m"):
+            rover_setpoint([1.0, 0.5], [0.25, -0.5], [0.1, 0.2], wheel_base_m=bad)
+
+
+@settings(max_examples=25, deadline=None)
+@given(cp=st.lists(vec3(-10, 10), min_size=8, max_size=8), h=st.floats(2.0, 10.0),
+       s=st.floats(0, 1), wheel_base=st.one_of(st.none(), st.floats(0.1, 3.0)))
+def test_full_rover_is_evaluate_then_flatness(lib: native.NativeSetpoint,
+                                              cp: list[list[float]], h: float, s: float,
+                                              wheel_base: float | None) -> None:
+    """ecca_full_rover_setpoint / ecca_full_ackermann_setpoint: the Bezier state (de Casteljau)
+    and the Python rover map of that state."""
+    state, sp = lib.full_rover(cp, h, s * h, wheel_base)
+    seg = Bezier(cp, h)
+    for k, name in enumerate(("pos", "vel", "acc", "jerk", "snap")):
+        hull = max(1.0, float(seg.hull_bound(k)))
+        assert np.max(np.abs(getattr(state, name) - seg.evaluate(s * h, k))) <= RTOL_DOUBLE * hull
+    exp = rover_setpoint(state.vel[:2], state.acc[:2], state.jerk[:2], wheel_base_m=wheel_base)
+    for name in (*ROVER_FIELDS, *ACK_FIELDS):
+        if wheel_base is None and name in ACK_FIELDS:
+            assert getattr(sp, name) is None and getattr(exp, name) is None
+            continue
+        assert_close(getattr(sp, name), getattr(exp, name), RTOL_DOUBLE, name)
+    assert sp.singular == exp.singular

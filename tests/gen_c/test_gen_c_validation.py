@@ -281,3 +281,77 @@ def test_fused_full_setpoint_equals_evaluate_then_flatness(lib: native.NativeSet
         assert lib._fn[(prec, "multirotor")](ctypes.byref(st2), ctypes.byref(pr),
                                              ctypes.byref(a2)) == OK
         assert bytes(st1) == bytes(st2) and bytes(a1) == bytes(a2), (prec, t)
+
+
+# Ackermann rover: the documented rule (README "Errors"): the x, y components of vel, acc and
+# jerk are the inputs (finite, |value| <= 1e12; z, snap, yaw and pos are ignored) and the wheel
+# base must be in (0, 1e12] m.
+_ROVER_INPUTS = ("vel_ned_m_s[0]", "vel_ned_m_s[1]", "acc_ned_m_s2[0]", "acc_ned_m_s2[1]",
+                 "jerk_ned_m_s3[0]", "jerk_ned_m_s3[1]")
+_BAD_WHEEL_BASES = (*NONFINITE, 0.0, -0.0, -0.5, 2e12)
+
+
+def _wheel_base_ok(wheel_base: float, lim: float) -> bool:
+    return 0.0 < wheel_base <= lim  # False for NaN
+
+
+@pytest.mark.parametrize("prec", PRECS)
+def test_ackermann_rejects_every_bad_element(lib: native.NativeSetpoint, prec: str) -> None:
+    fn = lib._fn[(prec, "ackermann")]
+    st = _state(lib, prec, omega_zero=False)
+    out = _struct(lib, prec, "steering")
+    lim = _limit(prec)
+    assert fn(ctypes.byref(st), 0.5, ctypes.byref(out)) == OK
+    checked = 0
+    for name, setter, getter in _leaves(st):
+        good = getter()
+        for bad in _bad_values(name):
+            setter(bad)
+            expect = OK
+            if name in _ROVER_INPUTS and not abs(bad) <= lim:
+                expect = ERR_INPUT
+            before = _sentinel(out)
+            rc = fn(ctypes.byref(st), 0.5, ctypes.byref(out))
+            assert rc == expect, (prec, name, bad, rc)
+            if rc != OK:
+                assert bytes(out) == before, (prec, name, bad, "output modified")
+            else:
+                assert all(map(_finite, [out.heading.yaw_rad, out.curvature_1_m,
+                                         out.steer_rate_rad_s]))
+            checked += 1
+            setter(good)
+    for bad in _BAD_WHEEL_BASES:
+        before = _sentinel(out)
+        expect = OK if _wheel_base_ok(bad, lim) else ERR_INPUT
+        assert fn(ctypes.byref(st), bad, ctypes.byref(out)) == expect == ERR_INPUT, (prec, bad)
+        assert bytes(out) == before, (prec, bad, "output modified")
+    assert fn(ctypes.byref(st), lim, ctypes.byref(out)) == OK  # the limit itself is accepted
+    assert checked > 6 * 5
+
+
+@pytest.mark.parametrize("prec", PRECS)
+def test_full_ackermann_rejects_every_bad_element(lib: native.NativeSetpoint, prec: str) -> None:
+    fn = lib._fn[(prec, "full_ackermann")]
+    seg = _segment(lib, prec)
+    st, out = _struct(lib, prec, "state"), _struct(lib, prec, "steering")
+    lim = _limit(prec)
+    for t in (0.0, 2.1):
+        for wheel_base in (0.5, *_BAD_WHEEL_BASES):
+            for name, setter, getter in [*_leaves(seg), ("t_s", lambda _x: None, lambda: 0.0),
+                                         ("none", lambda _x: None, lambda: 0.0)]:
+                good = getter()
+                bads = _bad_values(name) if name != "none" else (0.0,)
+                for bad in bads:
+                    tt = bad if name == "t_s" else t
+                    if name not in ("t_s", "none"):
+                        setter(bad)
+                    ok = _segment_ok(seg, tt) and _wheel_base_ok(wheel_base, lim)
+                    expect = OK if ok else ERR_INPUT
+                    before_o, before_s = _sentinel(out), _sentinel(st)
+                    rc = fn(ctypes.byref(seg), tt, wheel_base, ctypes.byref(st),
+                            ctypes.byref(out))
+                    assert rc == expect, (prec, name, bad, t, wheel_base, rc)
+                    if rc != OK:
+                        assert bytes(out) == before_o and bytes(st) == before_s, (prec, name)
+                    if name not in ("t_s", "none"):
+                        setter(good)

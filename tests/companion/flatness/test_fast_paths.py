@@ -5,6 +5,8 @@
 - `multirotor_attitude_scalar` (if-branches, only the outputs the controller uses) vs the
   formula module evaluated by `multirotor_setpoint_scalar` and by the batched numpy path,
   including the low-thrust, no-direction, horizontal, heading-singular and inverted branches;
+- `rover_setpoint` of one sample (float backend) vs a batch of one (numpy backend), with and
+  without a wheel base;
 - `reference_of_arrays` (no conversions) vs the `Reference` constructor, and
   `Reference.is_finite` still catches a non-finite value anywhere.
 """
@@ -18,7 +20,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from companion.flatness import MultirotorParams, multirotor_setpoint
+from companion.flatness import MultirotorParams, multirotor_setpoint, rover_setpoint
 from companion.flatness.numeric import multirotor_attitude_scalar, multirotor_setpoint_scalar
 from companion.flatness.reference import Reference, reference_of_arrays
 from tests.support.fields import fields_equal
@@ -48,6 +50,24 @@ def test_scalar_flatness_equals_batched_numpy_path(v, a, j, s, yaw, yaw_rate, ya
         )
     assert int(fast["flags"]) == int(batch.flags[0])
     assert bool(fast["singular"]) == bool(batch.singular[0])
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.tuples(comp, comp), st.tuples(comp, comp), st.tuples(comp, comp),
+       st.one_of(st.none(), st.floats(0.05, 5.0)))
+def test_scalar_rover_equals_batched_numpy_path(v, a, j, wheel_base) -> None:  # type: ignore[no-untyped-def]
+    fast = rover_setpoint(v, a, j, wheel_base_m=wheel_base)
+    batch = rover_setpoint(np.array([v]), np.array([a]), np.array([j]), wheel_base_m=wheel_base)
+    for key in ("yaw", "speed", "speed_dot", "yaw_rate", "yaw_acc", "curvature",
+                "curvature_rate", "steer_angle", "steer_rate"):
+        f, b = getattr(fast, key), getattr(batch, key)
+        if wheel_base is None and key in ("curvature", "curvature_rate", "steer_angle",
+                                          "steer_rate"):
+            assert f is None and b is None, key
+            continue
+        assert isinstance(f, float), key
+        np.testing.assert_allclose(f, np.asarray(b)[0], rtol=1e-12, atol=1e-12, err_msg=key)
+    assert fast.singular == bool(np.asarray(batch.singular)[0])
 
 
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf, 2e12])

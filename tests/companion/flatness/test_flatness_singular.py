@@ -260,8 +260,9 @@ def test_symbolic_functions_are_named_and_nan_free_at_singularities() -> None:
         "singular",
         "flags",
     ]
-    assert g.name_in() == ["vel_xy", "acc_xy", "jerk_xy"]
-    assert g.name_out() == ["yaw", "speed", "speed_dot", "yaw_rate", "yaw_acc", "singular"]
+    assert g.name_in() == ["vel_xy", "acc_xy", "jerk_xy", "wheel_base"]
+    assert g.name_out() == ["yaw", "speed", "speed_dot", "yaw_rate", "yaw_acc", "singular",
+                            "curvature", "curvature_rate", "steer_angle", "steer_rate"]
     assert f.is_a("SXFunction") and g.is_a("SXFunction")
     assert f.size_in("inertia") == (3, 3) and f.size_out("C_eb") == (3, 3)
     assert set(fs.as_dict()) == {"multirotor_setpoint", "rover_setpoint"}
@@ -286,6 +287,8 @@ def test_symbolic_functions_are_named_and_nan_free_at_singularities() -> None:
         assert float(out["singular"]) == 1.0
     out = g(vel_xy=[0, 0], acc_xy=[0, 0], jerk_xy=[0, 0])
     assert all(np.isfinite(float(v)) for v in out.values())
+    out = g(vel_xy=[0, 0], acc_xy=[0, 1], jerk_xy=[1, 0], wheel_base=0.5)
+    assert all(float(v) == 0.0 for k, v in out.items() if k not in ("yaw", "singular"))
     # symbolic inputs accepted (composable in larger CasADi graphs, e.g. a controller)
     x = ca.MX.sym("x", 3)
     res = f(x, Z3, Z3, Z3, 0, 0, 0, 1.0, J, G, 0.5, 1.0)
