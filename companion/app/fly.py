@@ -300,6 +300,9 @@ def mission_figures(report: FlightReport, planned: PlannedFlight, recorder: Trac
         return report
     t = np.asarray(recorder.t_s, dtype=np.float64)
     pos = np.asarray(recorder.pos_ned, dtype=np.float64).reshape(-1, 3)
+    if fp.vehicle == "rover":  # on the ground: its height estimate's drift is no deviation
+        pos = pos.copy()
+        pos[:, 2] = float(origin[2])
     shift = -np.asarray(origin, float) if fence_shift_ned is None else fence_shift_ned
     fence_pos = pos + shift
     masks = zone_masks(fp.geofence, fence_pos) if len(pos) and not fp.geofence.empty else []
