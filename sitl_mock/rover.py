@@ -199,15 +199,6 @@ class Rover:
         n, e = self._north_ecef, self._east_ecef
         return self._params["SIH_KDV"] * sum(abs(c * n[i] + s * e[i]) ** 3 for i in range(3))
 
-    def steady_speed(self, throttle: float, yaw: float) -> float:
-        """Speed [m/s] at which the drive at `throttle` (0..1) balances rolling resistance and
-        drag heading `yaw` (0 if it cannot overcome static friction)."""
-        m = self._params["SIH_MASS"]
-        f = THROTTLE_FORCE_N * throttle
-        if f <= MU_STATIC * m * G:
-            return 0.0
-        return math.sqrt(max(f - MU_ROLLING * m * G, 0.0) / self.drag_coefficient(yaw))
-
     def _speed_step(self, v: float, force: float, dt: float) -> float:
         """Forward speed after `dt` with drive `force` [N] (SIH's friction regimes)."""
         p = self._params
