@@ -541,6 +541,7 @@ class MissionExecutor:
         self._jump_counts: dict[int, int] = {}
         self.active = False
         self.last_goal_ned: tuple[float, float, float] | None = None
+        self._prev_goal: tuple[float, float, float] | None = None  # start of a rover's leg
         self._takeoff_goal: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def load(self, items: list[MissionItem]) -> None:
@@ -572,6 +573,7 @@ class MissionExecutor:
             self._jump_counts = {}
         self.active = True
         self._phase = "enter"
+        self._prev_goal = None  # the first leg starts at the vehicle (PX4: no previous item)
 
     def stop(self) -> None:
         self.active = False
@@ -585,6 +587,17 @@ class MissionExecutor:
         elif item.frame in (0, 5):
             down = -(item.z - self.home[2])
         return (north, east, down)
+
+    def _next_position(self, state: Any) -> tuple[float, float, float] | None:
+        """Where the item after the current one goes (PX4's triplet `next`): the next waypoint,
+        loiter or land position past any DO_* items; None at the end, at an RTL or a DO_JUMP."""
+        for item in self.items[self.current + 1:]:
+            cmd = {85: 21}.get(item.command, item.command)
+            if cmd in (16, 17, 19, 31, 21):
+                return self._pos_of(item, state)
+            if cmd in (20, 177, 22, 84, 93):
+                return None
+        return None
 
     def _acceptance(self, item: MissionItem) -> float:
         r = item.param2
@@ -647,13 +660,17 @@ class MissionExecutor:
                     if cmd == 16 and math.isfinite(item.param4)
                     else math.nan
                 )
-                nav.goto(pos, yaw, self._acceptance(item), state)
+                hold = item.param1 if cmd in (16, 19) and math.isfinite(item.param1) else 0.0
+                stop = cmd != 16 or hold > 0.0 or not item.autocontinue
+                nav.goto(pos, yaw, self._acceptance(item), state, start_ned=self._prev_goal,
+                         next_ned=self._next_position(state), stop=stop)
                 self.last_goal_ned = pos
                 self._phase = "fly"
             elif cmd == 21:  # LAND: fly over the land point, report reached, then descend
                 pos = self._pos_of(item, state)
                 # tight acceptance: the descent starts over the land point
-                nav.goto((pos[0], pos[1], state.pos_ned[2]), math.nan, 0.5, state)
+                nav.goto((pos[0], pos[1], state.pos_ned[2]), math.nan, 0.5, state,
+                         start_ned=self._prev_goal)
                 self._phase = "fly"
             elif cmd == 20:  # RTL
                 nav.rtl(state)
@@ -706,6 +723,8 @@ class MissionExecutor:
             if not nav.reached:
                 return False
             self._on_reached(item.seq)
+            if cmd in (16, 17, 19, 31, 21):
+                self._prev_goal = self._pos_of(item, state)
             if cmd == 21:
                 nav.land(state)
                 self._phase = "landing"

@@ -16,22 +16,19 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
-from sitl_mock.setpoints import NAN3, PositionTarget, Vec3
+from sitl_mock.rover_control import (
+    RoverParams,
+    arrival_speed,
+    corner_acceptance_radius,
+    speed_from_distance,
+    transition_angle,
+)
+from sitl_mock.setpoints import NAN3, PositionTarget, RoverPositionTarget, Vec3
 from sitl_mock.vehicle_state import VehicleState
 
 _isfinite = math.isfinite
 _NAN = math.nan
 FACE_WAYPOINT_MIN_DIST_M = 1.0  # below this horizontal distance the heading is held
-
-
-def speed_from_distance(jerk: float, accel: float, distance: float, final_speed: float = 0.0
-                        ) -> float:
-    """Highest speed [m/s] from which a jerk- (`jerk` m/s^3) and acceleration-limited (`accel`
-    m/s^2) braking reaches `final_speed` within `distance` [m] (the braking law of PX4's AUTO
-    trajectories: v^2 / (2 a) + v a / j ~ distance)."""
-    b = 4.0 * accel * accel / jerk
-    c = -2.0 * accel * distance - final_speed * final_speed
-    return 0.5 * (-b + math.sqrt(b * b - 4.0 * c))
 
 
 class Navigator:
@@ -42,9 +39,13 @@ class Navigator:
     NAV_MC_ALT_RAD vertically), a landing (vehicle landed) or an RTL (landed at home) is done;
     it is always True while loitering.
 
-    ground_vehicle=True (rover): goals keep the vehicle's own height, the cruise speed is capped at
-    RO_MAX_SPEED, takeoff and land complete at once (phase "landed" = stopped), RTL drives home
-    and stops there.
+    ground_vehicle=True (rover, PX4's Ackermann AUTO mode): `update` returns a
+    RoverPositionTarget, the leg from the previous waypoint (`start_ned`, else the rover) to the
+    goal with the arrival speed and the corner acceptance radius PX4's rover computes from the
+    next waypoint (`next_ned`); a goal counts as reached within the larger of that radius and
+    the item's (or NAV_ACC_RAD). The cruise speed is RO_SPEED_LIM (DO_CHANGE_SPEED: at most
+    that); heights and yaw are ignored; takeoff and land complete at once (phase "landed" =
+    stopped); RTL drives home and stops there; while not driving a goal the target is a stop.
     """
 
     def __init__(
@@ -69,6 +70,9 @@ class Navigator:
         self._rtl_alt = 0.0
         self._land_xy: tuple[float, float] = (0.0, 0.0)
         self._cruise = math.nan
+        self._start_ne: tuple[float, float] = (_NAN, _NAN)  # ground: the leg's start
+        self._next_ne: tuple[float, float] | None = None  # ground: the waypoint after the goal
+        self._stop_at_goal = True  # ground: arrive at the goal at 0 speed
 
     def set_cruise_speed(self, speed_m_s: float) -> None:
         """Horizontal cruise speed for goto/RTL [m/s] (DO_CHANGE_SPEED); NaN or <= 0 restores
@@ -79,10 +83,11 @@ class Navigator:
     @property
     def cruise_speed(self) -> float:
         """Horizontal cruise speed in use [m/s]."""
+        if self.ground_vehicle:  # PX4's rover: the item's cruising speed within RO_SPEED_LIM
+            lim = self._p["RO_SPEED_LIM"]
+            return max(min(self._cruise, lim) if _isfinite(self._cruise) else lim, 0.1)
         c = self._cruise if _isfinite(self._cruise) else self._p["MPC_XY_CRUISE"]
         c = min(c, self._p["MPC_XY_VEL_MAX"])
-        if self.ground_vehicle:
-            c = min(c, self._p["RO_MAX_SPEED"])
         return max(c, 0.1)
 
     # ------------------------------------------------------------------ commands
@@ -116,14 +121,20 @@ class Navigator:
         self._start(state, stop, _NAN, 0.0, "loiter")
         self.reached = True
 
-    def goto(self, pos_ned: Vec3, yaw: float, acceptance_m: float, state: VehicleState) -> None:
-        """Fly to `pos_ned` [m NED]; `yaw` [rad] or NaN to face the goal; reached within radius."""
+    def goto(self, pos_ned: Vec3, yaw: float, acceptance_m: float, state: VehicleState,
+             start_ned: Vec3 | None = None, next_ned: Vec3 | None = None,
+             stop: bool = True) -> None:
+        """Fly to `pos_ned` [m NED]; `yaw` [rad] or NaN to face the goal; reached within radius.
+
+        A ground vehicle drives the leg from `start_ned` (the previous waypoint; None: from where
+        it is) and, unless `stop`, passes the goal at the corner speed towards `next_ned`."""
         if not all(_isfinite(c) for c in pos_ned):
             raise ValueError("goto position must be finite")
         acc = (
             acceptance_m if _isfinite(acceptance_m) and acceptance_m > 0 else self._p["NAV_ACC_RAD"]
         )
         self._start(state, pos_ned, yaw, acc, "goto")
+        self._ground_leg(state, start_ned, None if stop else next_ned)
 
     def rtl(self, state: VehicleState) -> None:
         """Return: climb to max(RTL_RETURN_ALT, current height), fly home, land."""
@@ -133,6 +144,7 @@ class Navigator:
         if self.ground_vehicle:
             hx, hy, _ = self.home_ned
             self._start(state, (hx, hy, state.pos_ned[2]), _NAN, 0.0, "rtl_return")
+            self._ground_leg(state, None, None)
             return
         self._start(state, (x, y, self.home_ned[2] - self._rtl_alt), _NAN, 0.0, "rtl_climb")
 
@@ -328,13 +340,51 @@ class Navigator:
             return fast
         return slow + (fast - slow) * (height_m - alt2) / (alt1 - alt2)
 
+    # ------------------------------------------------------------------ ground vehicle
+    def _ground_leg(self, state: VehicleState, start_ned: Vec3 | None,
+                    next_ned: Vec3 | None) -> None:
+        x, y, _ = state.pos_ned
+        self._start_ne = (start_ned[0], start_ned[1]) if start_ned is not None else (x, y)
+        self._next_ne = (next_ned[0], next_ned[1]) if next_ned is not None else None
+        self._stop_at_goal = next_ned is None
+
+    def ground_leg(self) -> RoverPositionTarget:
+        """The rover's target for the current leg (PX4's AckermannAutoMode: corner acceptance
+        radius and arrival speed from the waypoint transition angle)."""
+        p = RoverParams.read(self._p)
+        goal = (self._goal[0], self._goal[1])
+        angle = transition_angle(self._start_ne, goal, self._next_ne)
+        cruise = self.cruise_speed
+        return RoverPositionTarget(
+            goal, self._start_ne, cruise, arrival_speed(cruise, angle, self._stop_at_goal, p),
+            corner_acceptance_radius(angle, p))
+
+    def _update_ground(self, state: VehicleState) -> RoverPositionTarget:
+        if self.phase not in ("goto", "rtl_return"):
+            if self.phase in ("loiter", "landed", "takeoff"):
+                self.reached = True
+            return RoverPositionTarget((_NAN, _NAN))
+        tgt = self.ground_leg()
+        gx, gy = tgt.position_ne
+        dist = math.hypot(state.pos_ned[0] - gx, state.pos_ned[1] - gy)
+        if self.phase == "goto":
+            self.reached = dist <= max(self._acc_rad, tgt.acceptance_radius_m)
+        elif dist <= tgt.acceptance_radius_m:  # RTL: home reached, stop there
+            self._land_xy = (gx, gy)
+            self.phase = "landed"
+            self.reached = True
+            return RoverPositionTarget((_NAN, _NAN))
+        return tgt
+
     # ------------------------------------------------------------------ update
-    def update(self, dt: float, state: VehicleState) -> PositionTarget:
+    def update(self, dt: float, state: VehicleState) -> PositionTarget | RoverPositionTarget:
         """Advance by dt [s] and return the target for the vehicle."""
         if not dt > 0.0:
             raise ValueError("navigator dt must be positive")
         if self.phase == "idle":
             self.loiter(state)
+        if self.ground_vehicle:
+            return self._update_ground(state)
         if self._ref_pos is None:
             if self.phase == "takeoff" and (state.on_ground or state.landed):
                 # ask for a climb; the vehicle's takeoff ramp shapes the lift-off

@@ -1,4 +1,5 @@
-"""Parameters the mock models, with PX4 names and PX4 (SIH quadrotor) defaults.
+"""Parameters the mock models, with PX4 names and PX4 (SIH quadrotor) defaults; the rover's
+with the defaults of PX4 main's SIH Ackermann rover (airframe 10045, `ROVER_AIRFRAME`).
 
 Both the vehicle model (dynamics, flight control) and the autopilot core read their
 parameters from one `ParamStore`, so `--param NAME=VALUE` and MAVLink PARAM_SET reach both.
@@ -99,10 +100,11 @@ PARAMS: dict[str, ParamSpec] = {
     "SIH_KDV": ParamSpec(1.0, False, "linear drag coefficient, world frame [N/(m/s)]"),
     "SIH_KDW": ParamSpec(0.025, False, "angular drag coefficient [N m/(rad/s)]"),
     "SIH_T_TAU": ParamSpec(0.05, False, "rotor thrust time constant [s]"),
-    # Rover model
-    "RO_MAX_SPEED": ParamSpec(3.0, False, "rover maximum speed [m/s]"),
-    "RO_MAX_YAW_RATE": ParamSpec(90.0, False, "rover maximum yaw rate [deg/s]"),
-    "RO_MAX_ACCEL": ParamSpec(2.0, False, "rover maximum acceleration [m/s^2]"),
+    # Rover: the mock's first names, kept for clients that address them (ALIASES: each one is the
+    # PX4 rover parameter it stands for, value and range; setting either sets both)
+    "RO_MAX_SPEED": ParamSpec(3.0, False, "= RO_SPEED_LIM (the mock's old name) [m/s]"),
+    "RO_MAX_YAW_RATE": ParamSpec(180.0, False, "= RO_YAW_RATE_LIM (the mock's old name) [deg/s]"),
+    "RO_MAX_ACCEL": ParamSpec(3.0, False, "= RO_ACCEL_LIM (the mock's old name) [m/s^2]"),
     # Simulated battery
     "SIM_BAT_DRAIN": ParamSpec(1800.0, False, "time to drain the battery from full [s]"),
     "SIM_BAT_MIN_PCT": ParamSpec(20.0, False, "battery floor for the drain model [%]"),
@@ -137,11 +139,16 @@ PARAMS: dict[str, ParamSpec] = {
 
 
 class ParamStore(Mapping[str, float]):
-    """Mutable name -> value store over `PARAMS`; unknown names raise KeyError."""
+    """Mutable name -> value store over `PARAMS`; unknown names raise KeyError.
+
+    `set` is the user's (overrides, `--param`, PARAM_SET); `set_default` is an airframe's
+    (PX4's `param set-default`: it never replaces a value the user set). Names in ALIASES move
+    together with the parameter they stand for."""
 
     def __init__(self, overrides: Mapping[str, float] | None = None) -> None:
         self._values: dict[str, float] = {k: float(v.default) for k, v in PARAMS.items()}
-        self.version = 0  # counts `set` calls: readers re-read their cached values on change
+        self._user: set[str] = set()  # names the user set (an airframe default leaves them be)
+        self.version = 0  # counts changes: readers re-read their cached values on change
         for name, value in (overrides or {}).items():
             self.set(name, value)
 
@@ -160,8 +167,25 @@ class ParamStore(Mapping[str, float]):
         spec = PARAMS.get(name)
         if spec is None:
             raise KeyError(f"unknown parameter {name!r}")
-        self._values[name] = spec.check(name, value)
+        v = spec.check(name, value)
+        for n in _linked(name):
+            self._values[n] = v
+            self._user.add(n)
         self.version += 1
+
+    def set_default(self, name: str, value: float) -> None:
+        """An airframe's default (PX4 `param set-default`): taken unless the user set `name`."""
+        if name in self._user:
+            return
+        v = PARAMS[name].check(name, value)
+        for n in _linked(name):
+            self._values[n] = v
+        self.version += 1
+
+    def apply_airframe(self, defaults: Mapping[str, float]) -> None:
+        """`set_default` for each NAME -> value (e.g. ROVER_AIRFRAME)."""
+        for name, value in defaults.items():
+            self.set_default(name, value)
 
     def index(self, name: str) -> int:
         """Position of `name` in the stable parameter list (MAVLink param_index)."""
@@ -241,6 +265,68 @@ PARAMS.update(
         ),
     }
 )
+
+# The Ackermann rover (PX4's rover_ackermann module, lib/rover_control, lib/pure_pursuit): PX4's
+# names with the defaults of airframe 10045 `sihsim_rover_ackermann` (rc.rover_ackermann_defaults
+# and the airframe file of PX4 main); the quadrotor never reads them. Angles as PX4 has them.
+PARAMS.update(
+    {
+        "RA_WHEEL_BASE": ParamSpec(0.321, False, "wheel base (front to rear axle) [m]"),
+        "RA_MAX_STR_ANG": ParamSpec(0.5236, False, "maximum steering angle [rad]"),
+        "RA_STR_RATE_LIM": ParamSpec(360.0, False, "steering rate limit [deg/s] (-1 = none)"),
+        "RA_ACC_RAD_GAIN": ParamSpec(2.0, False, "gain on the corner-cutting acceptance radius"),
+        "RA_ACC_RAD_MAX": ParamSpec(3.0, False, "largest acceptance radius at corners [m]"),
+        "RO_YAW_RATE_P": ParamSpec(0.25, False, "yaw rate P gain [rad steering/(rad/s)]"),
+        "RO_YAW_RATE_I": ParamSpec(0.01, False, "yaw rate I gain [rad steering/rad]"),
+        "RO_YAW_RATE_LIM": ParamSpec(180.0, False, "yaw rate limit [deg/s]"),
+        "RO_YAW_ACCEL_LIM": ParamSpec(400.0, False, "yaw acceleration limit [deg/s^2] (-1 = none)"),
+        "RO_YAW_DECEL_LIM": ParamSpec(800.0, False, "yaw deceleration limit [deg/s^2] (-1 = none)"),
+        "RO_YAW_RATE_TH": ParamSpec(3.0, False, "yaw rates below this read as 0 [deg/s]"),
+        "RO_YAW_P": ParamSpec(5.0, False, "yaw P gain [1/s]"),
+        "RO_ACCEL_LIM": ParamSpec(3.0, False, "acceleration limit [m/s^2] (-1 = none)"),
+        "RO_DECEL_LIM": ParamSpec(3.0, False, "deceleration limit [m/s^2] (-1 = none)"),
+        "RO_JERK_LIM": ParamSpec(10.0, False, "jerk limit of the braking law [m/s^3] (-1 = none)"),
+        "RO_MAX_THR_SPEED": ParamSpec(3.2, False, "speed at full throttle (feed-forward) [m/s]"),
+        "RO_SPEED_LIM": ParamSpec(3.0, False, "speed limit [m/s] (-1 = not configured)"),
+        "RO_SPEED_P": ParamSpec(0.001, False, "speed P gain [throttle/(m/s)]"),
+        "RO_SPEED_I": ParamSpec(0.001, False, "speed I gain [throttle/m]"),
+        "RO_SPEED_RED": ParamSpec(1.0, False, "corner speed reduction gain (-1 = none)"),
+        "RO_SPEED_TH": ParamSpec(0.1, False, "speeds below this read as 0 [m/s]"),
+        "PP_LOOKAHD_GAIN": ParamSpec(1.0, False, "pure pursuit lookahead per speed [s]"),
+        "PP_LOOKAHD_MAX": ParamSpec(10.0, False, "pure pursuit maximum lookahead [m]"),
+        "PP_LOOKAHD_MIN": ParamSpec(1.0, False, "pure pursuit minimum lookahead [m]"),
+    }
+)
+
+#: The mock's old rover names -> the PX4 parameter each one is (one value: setting either sets
+#: both; the old names keep working for clients and scripts that address them).
+ALIASES: dict[str, str] = {
+    "RO_MAX_SPEED": "RO_SPEED_LIM",
+    "RO_MAX_YAW_RATE": "RO_YAW_RATE_LIM",
+    "RO_MAX_ACCEL": "RO_ACCEL_LIM",
+}
+_LINKS: dict[str, tuple[str, ...]] = {}
+for _old, _new in ALIASES.items():
+    _LINKS[_old] = _LINKS[_new] = (_old, _new)
+
+
+def _linked(name: str) -> tuple[str, ...]:
+    """`name` and its alias, if it has one."""
+    return _LINKS.get(name, (name,))
+
+
+#: Airframe 10045 `sihsim_rover_ackermann` (PX4 main): its `param set-default` values for the
+#: parameters the rover shares with the quadrotor (the rover's own RA_/RO_/PP_ defaults above are
+#: already this airframe's). The rover model applies them to its store (`apply_airframe`).
+ROVER_AIRFRAME: dict[str, float] = {
+    "NAV_ACC_RAD": 0.5,
+    "SIH_MASS": 20.0,
+    "SIH_IXX": 0.4333,
+    "SIH_IYY": 1.6833,
+    "SIH_IZZ": 2.0833,
+    "SIH_KDV": 50.0,
+    "SIH_KDW": 10.0,
+}
 
 # Accepted values: PX4 v1.16 parameter metadata (min, max, enumerated values; the build's
 # etc/extras/parameters.json, checked by tests/sitl_mock/test_sitl_param_ranges.py) for every
@@ -328,6 +414,29 @@ PX4_RANGES: dict[str, tuple[float | None, float | None, tuple[int, ...]]] = {
     "COM_LOW_BAT_ACT": (None, None, (0, 2, 3)),
     "IMU_GYRO_CUTOFF": (0.0, 1000.0, ()),
     "IMU_DGYRO_CUTOFF": (0.0, 1000.0, ()),
+    "RA_WHEEL_BASE": (0.0, 100.0, ()),
+    "RA_MAX_STR_ANG": (0.0, 1.5708, ()),
+    "RA_STR_RATE_LIM": (-1.0, 1000.0, ()),
+    "RA_ACC_RAD_GAIN": (1.0, 100.0, ()),
+    "RA_ACC_RAD_MAX": (-1.0, 100.0, ()),
+    "RO_YAW_RATE_P": (0.0, 100.0, ()),
+    "RO_YAW_RATE_I": (0.0, 100.0, ()),
+    "RO_YAW_RATE_LIM": (0.0, 10000.0, ()),
+    "RO_YAW_ACCEL_LIM": (-1.0, 10000.0, ()),
+    "RO_YAW_DECEL_LIM": (-1.0, 10000.0, ()),
+    "RO_YAW_RATE_TH": (0.0, 100.0, ()),
+    "RO_YAW_P": (0.0, 100.0, ()),
+    "RO_ACCEL_LIM": (-1.0, 100.0, ()),
+    "RO_DECEL_LIM": (-1.0, 100.0, ()),
+    "RO_JERK_LIM": (-1.0, 100.0, ()),
+    "RO_MAX_THR_SPEED": (0.0, 100.0, ()),
+    "RO_SPEED_LIM": (-1.0, 100.0, ()),
+    "RO_SPEED_P": (0.0, 100.0, ()),
+    "RO_SPEED_I": (0.0, 100.0, ()),
+    "RO_SPEED_TH": (0.0, 100.0, ()),
+    "PP_LOOKAHD_GAIN": (0.1, 100.0, ()),
+    "PP_LOOKAHD_MAX": (0.1, 100.0, ()),
+    "PP_LOOKAHD_MIN": (0.1, 100.0, ()),
 }
 
 _MOCK_RANGES: dict[str, tuple[float, float]] = {
@@ -355,10 +464,16 @@ _MOCK_RANGES: dict[str, tuple[float, float]] = {
     "SIH_KDV": (0.0, 100.0),
     "SIH_KDW": (0.0, 10.0),
     "SIH_T_TAU": (1e-3, 10.0),
-    # mock-only parameters
-    "RO_MAX_SPEED": (0.1, 100.0),
-    "RO_MAX_YAW_RATE": (1.0, 1800.0),
-    "RO_MAX_ACCEL": (0.1, 100.0),
+    # rover geometry: PX4 allows 0 (its rover then refuses to drive) and a steering angle a hair
+    # past pi/2 (tan < 0); the mock keeps to what an Ackermann rover can be
+    "RA_WHEEL_BASE": (0.01, 100.0),
+    "RA_MAX_STR_ANG": (0.01, 1.5),
+    # PX4 main only (not in PX4 v1.16's metadata): PX4 main's range
+    "RO_SPEED_RED": (-1.0, 100.0),
+    # mock-only parameters (the old rover names: their PX4 parameter's range, see ALIASES)
+    "RO_MAX_SPEED": (-1.0, 100.0),
+    "RO_MAX_YAW_RATE": (0.0, 10000.0),
+    "RO_MAX_ACCEL": (-1.0, 100.0),
     "SIM_POS_NOISE": (0.0, 10.0),
     "SIM_VEL_NOISE": (0.0, 10.0),
     "SIM_GYRO_NOISE": (0.0, 1.0),

@@ -82,7 +82,25 @@ class IdleTarget:
     """Motors at idle (armed on ground) or stopped (disarmed)."""
 
 
-Target = PositionTarget | AttitudeTarget | IdleTarget
+@dataclass(frozen=True)
+class RoverPositionTarget:
+    """A ground rover's AUTO-mode goal (PX4's rover_position_setpoint with the acceptance radius
+    its AUTO mode publishes): drive along the line start_ne -> position_ne (local NED north,
+    east [m]) by pure pursuit and arrive at `arrival_speed` [m/s], at most `cruising_speed`
+    [m/s]; within `acceptance_radius_m` [m] of the goal it stops.
+
+    position_ne NaN: stop where it is (Hold). start_ne NaN: the line starts at the rover (PX4's
+    fallback: it then drives straight at the goal). cruising_speed NaN: RO_SPEED_LIM.
+    """
+
+    position_ne: tuple[float, float]
+    start_ne: tuple[float, float] = (math.nan, math.nan)
+    cruising_speed: float = math.nan
+    arrival_speed: float = 0.0
+    acceptance_radius_m: float = 0.5
+
+
+Target = PositionTarget | AttitudeTarget | IdleTarget | RoverPositionTarget
 
 __all__ = [
     "NAN3",
@@ -90,6 +108,7 @@ __all__ = [
     "IdleTarget",
     "PositionTarget",
     "Quat",
+    "RoverPositionTarget",
     "Target",
     "Vec3",
     "make_attitude_target",

@@ -22,7 +22,7 @@ from sitl_mock.faults import ScenarioFaults
 from sitl_mock.mission_server import MissionExecutor
 from sitl_mock.navigator import Navigator
 from sitl_mock.params import ParamStore
-from sitl_mock.setpoints import IdleTarget, PositionTarget, Target
+from sitl_mock.setpoints import IdleTarget, PositionTarget, RoverPositionTarget, Target
 
 FAILSAFE_ACTION_DELAY_S = 0.5  # loss detected at COM_OF_LOSS_T, mode switch 0.5 s later
 NAVIGATOR_PERIOD_S = 0.01
@@ -92,7 +92,7 @@ class Commander:
         self.hold_ned: tuple[float, float, float] | None = None
         self.descend = False
         self.nav_active = False
-        self.nav_target: PositionTarget | None = None
+        self.nav_target: PositionTarget | RoverPositionTarget | None = None
         self.nav_last_t = 0.0
         self.nav_next_t = 0.0
         # housekeeping

@@ -10,7 +10,7 @@ import pytest
 from sitl_mock.navigator import Navigator, speed_from_distance
 from sitl_mock.params import ParamStore
 from sitl_mock.quad import Quadrotor
-from sitl_mock.setpoints import PositionTarget
+from sitl_mock.setpoints import PositionTarget, RoverPositionTarget
 from sitl_mock.vehicle import VehicleState, make_vehicle
 
 DT = 0.004
@@ -224,30 +224,33 @@ def test_set_cruise_speed_changes_and_restores_speed() -> None:
 
 
 def test_ground_vehicle_navigation_with_the_rover() -> None:
+    """A ground vehicle's goto is a 2-D leg (the mission altitude is ignored) driven to within
+    its acceptance radius at no more than RO_SPEED_LIM as the speed setpoint; RTL drives home and
+    stops there (NAV_ACC_RAD); takeoff and land complete at once."""
     p = ParamStore()
     rv = make_vehicle("rover", p, seed=0)
     nav = Navigator(p, ground_vehicle=True)
     nav.takeoff(10.0, rv.state)
     assert nav.reached
     nav.goto((20.0, -15.0, -30.0), math.nan, 1.0, rv.state)  # mission altitude is ignored
-    speeds = []
     for _ in range(round(40.0 / 0.01)):
         tgt = nav.update(0.01, rv.state)
-        assert tgt.pos_ned[2] == 0.0
+        assert isinstance(tgt, RoverPositionTarget) and tgt.position_ne == (20.0, -15.0)
         rv.step(0.01, tgt, True)
-        speeds.append(math.hypot(*rv.state.vel_ned[:2]))
+        assert rv.state.pos_ned[2] == 0.0
+        last = rv.last_position_target
+        assert last is not None and math.hypot(*last.vel_ned[:2]) <= p["RO_SPEED_LIM"] + 1e-9
         if nav.reached:
             break
     assert nav.reached and math.dist(rv.state.pos_ned[:2], (20.0, -15.0)) <= 1.0
-    assert max(speeds) <= p["RO_MAX_SPEED"] + 1e-9
-    assert nav.cruise_speed == p["RO_MAX_SPEED"]
+    assert nav.cruise_speed == p["RO_SPEED_LIM"]
     nav.rtl(rv.state)
     for _ in range(round(40.0 / 0.01)):
         rv.step(0.01, nav.update(0.01, rv.state), True)
         if nav.reached:
             break
     assert nav.phase == "landed" and nav.reached
-    assert math.hypot(*rv.state.pos_ned[:2]) < 1.0
+    assert math.hypot(*rv.state.pos_ned[:2]) < p["NAV_ACC_RAD"]
     nav.land(rv.state)
     assert nav.reached and nav.phase == "landed"
 

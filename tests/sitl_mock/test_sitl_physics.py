@@ -3,7 +3,7 @@
 Oracles: Newton's laws with closed-form solutions (free fall with and without linear drag,
 first-order motor lag, drift into the wind), conservation laws of a torque-free rigid body,
 rotor geometry cross products (for the mixer), great-circle distance/bearing (for the geodetic
-projection), scipy's Rotation (for attitude conventions) and unicycle kinematics (rover).
+projection) and scipy's Rotation (for attitude conventions). The rover: test_sitl_rover.py.
 """
 
 from __future__ import annotations
@@ -17,7 +17,6 @@ from scipy.spatial.transform import Rotation
 from sitl_mock.flight_control import G, mix_quad_x, quat_from_euler
 from sitl_mock.params import ParamStore
 from sitl_mock.quad import Quadrotor
-from sitl_mock.rover import Rover
 from sitl_mock.setpoints import AttitudeTarget, IdleTarget, PositionTarget
 from sitl_mock.vehicle import DEFAULT_HOME, make_vehicle, ned_to_geodetic
 
@@ -335,70 +334,7 @@ def test_attitude_helpers_match_scipy() -> None:
 
 
 # ------------------------------------------------------------------------------ rover
-def test_rover_follows_unicycle_kinematics_on_a_circle() -> None:
-    """Constant speed v and yaw rate r: circle of radius v / r about the closed-form centre."""
-    p = ParamStore({"RO_MAX_ACCEL": 100.0})
-    rv = Rover(p, seed=0)
-    rv.set_state(0.0, 0.0, 0.3, speed=2.0)
-    r = 0.5  # rad/s, below RO_MAX_YAW_RATE
-    tgt = AttitudeTarget(
-        q_wxyz=None, thrust_norm=2.0 / p["RO_MAX_SPEED"], body_rates_frd=(0.0, 0.0, r)
-    )
-    t = 0.0
-    for _ in range(1000):
-        rv.step(0.004, tgt, True)
-        t += 0.004
-        s = rv.state
-        yaw = 0.3 + r * t
-        x_exact = 2.0 / r * (math.sin(yaw) - math.sin(0.3))
-        y_exact = -2.0 / r * (math.cos(yaw) - math.cos(0.3))
-        assert s.pos_ned[0] == pytest.approx(x_exact, abs=1e-9)
-        assert s.pos_ned[1] == pytest.approx(y_exact, abs=1e-9)
-    s = rv.state
-    assert math.hypot(*s.vel_ned[:2]) == pytest.approx(2.0)
-    assert s.omega_frd[2] == pytest.approx(r)
-    assert math.remainder(s.yaw - (0.3 + r * t), 2 * math.pi) == pytest.approx(0.0, abs=1e-9)
-
-
-def test_rover_respects_speed_acceleration_and_yaw_rate_limits() -> None:
-    p = ParamStore()
-    rv = make_vehicle("rover", p, seed=0)
-    tgt = PositionTarget(pos_ned=(-40.0, 30.0, math.nan))
-    vmax, amax = p["RO_MAX_SPEED"], p["RO_MAX_ACCEL"]
-    rmax = math.radians(p["RO_MAX_YAW_RATE"])
-    prev_speed, prev_yaw = 0.0, 0.0
-    dt = 0.01
-    for _ in range(4000):
-        rv.step(dt, tgt, True)
-        s = rv.state
-        speed = math.hypot(*s.vel_ned[:2])
-        assert speed <= vmax + 1e-9
-        assert abs(speed - prev_speed) <= amax * dt + 1e-9
-        assert abs(math.remainder(s.yaw - prev_yaw, 2 * math.pi)) <= rmax * dt + 1e-9
-        # non-holonomic: velocity always along the heading
-        if speed > 1e-6:
-            assert math.atan2(s.vel_ned[1], s.vel_ned[0]) == pytest.approx(
-                math.atan2(math.sin(s.yaw), math.cos(s.yaw)), abs=1e-9
-            )
-        prev_speed, prev_yaw = speed, s.yaw
-    assert math.dist(rv.state.pos_ned[:2], (-40.0, 30.0)) < 0.3
-    assert not rv.state.landed
-    rv.step(dt, IdleTarget(), False)
-    assert rv.state.landed
-
-
-def test_rover_velocity_target_with_yaw_rate() -> None:
-    p = ParamStore()
-    rv = Rover(p, seed=0)
-    for _ in range(500):
-        rv.step(0.01, PositionTarget(vel_ned=(0.0, 1.5, math.nan)), True)
-    s = rv.state
-    assert s.vel_ned[1] == pytest.approx(1.5, abs=1e-3)
-    assert s.yaw == pytest.approx(math.pi / 2, abs=1e-3)
-    for _ in range(100):
-        rv.step(0.01, PositionTarget(yaw_rate=0.4), True)
-    assert rv.state.omega_frd[2] == pytest.approx(0.4)
-    assert rv.state.pos_ned[2] == 0.0
+# (the Ackermann rover's physics and control: tests/sitl_mock/test_sitl_rover.py)
 
 
 def test_bad_step_rejected() -> None:
