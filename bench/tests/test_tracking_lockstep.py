@@ -205,14 +205,6 @@ def test_figure8_reference_derivatives_match_finite_differences() -> None:
 # ----------------------------------------------------------------------------- rover
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "companion side (issue 29): the mock rover now drives like PX4 main's Ackermann rover, whose "
-    "speed runs open loop on its throttle feed-forward (RO_SPEED_P/I 0.001) against SIH's "
-    "heading-dependent drag, so a commanded 1.5-1.6 m/s becomes 1.95-2.2 m/s (real PX4: 1 -> "
-    "1.4-1.6, 2 -> 2.34 m/s). RoverController's proportional along-track correction "
-    "(k_along 1/s) then settles 0.4-0.5 m ahead of the reference (cross-track 0.07-0.14 m): "
-    "0.37-0.50 m over the last 10 s against the 0.3 m bound. Needs integral action on the "
-    "along-track error, or a learned speed ratio, in companion/control/rover.py."))
 def test_rover_tracks_circle_on_mock() -> None:
     radius, speed = 8.0, 2.0
     w = speed / radius

@@ -3,7 +3,6 @@ wind and link perturbations) and the constants of the replay's flight."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Literal
@@ -21,10 +20,6 @@ SETTLE_S = 1.0
 #: Simulated time a replay spends outside the schedule (waiting for the vehicle, priming,
 #: switching to OFFBOARD, the final descent and disarm), for progress reporting only [s].
 EXPECTED_OVERHEAD_S = 8.0
-#: A rover is planned at most at this fraction of the mock rover's top speed (RO_MAX_SPEED) unless
-#: `VehicleLimits.rover_max_speed_m_s` says otherwise: a plan at the top speed leaves the
-#: tracking controller nothing to catch up with, and the rover falls behind and cuts corners.
-ROVER_SPEED_FRACTION = 0.9
 #: The companion's view of the default mock quadrotor (PX4 SIH: 1 kg, 4 x 5 N, drag 1 N/(m/s)).
 DEFAULT_QUAD = MultirotorParams(
     mass=1.0, inertia=(0.025, 0.025, 0.030), hover_thrust=0.5, drag=1.0
@@ -100,16 +95,10 @@ class ReplayConfig:
 
 
 def planning_limits(config: ReplayConfig) -> VehicleLimits:
-    """`config.limits`, with a rover's speed capped at ROVER_SPEED_FRACTION of the mock rover's
-    RO_MAX_SPEED (with `config.mock_params` applied) unless the limits already set a cap."""
-    lim = config.limits
-    if config.vehicle != "rover" or lim.rover_max_speed_m_s is not None:
-        return lim
-    from sitl_mock.params import ParamStore
-
-    top = float(ParamStore(dict(config.mock_params))["RO_MAX_SPEED"])
-    return dataclasses.replace(lim, rover_max_speed_m_s=ROVER_SPEED_FRACTION * top)
-
+    """`config.limits` (a rover's speed, acceleration and steering come from its PX4
+    parameters, RO_SPEED_LIM and the others, read from the mock over MAVLink as `fly` reads
+    them from PX4)."""
+    return config.limits
 
 
 def self_lands(config: ReplayConfig, final_action: str) -> bool:

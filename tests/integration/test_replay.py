@@ -271,23 +271,22 @@ def test_rover_replay_reaches_every_corner_within_its_top_speed(tmp_path: Path) 
     assert float(np.max(speed)) <= 3.0 + 0.01
 
 
-def test_rover_planned_above_its_top_speed_is_waited_for_and_passes_every_corner(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+def test_rover_slower_than_its_plan_is_waited_for_and_passes_every_corner(
+    tmp_path: Path
 ) -> None:
-    """Without the speed cap (legs at RO_SPEED_LIM 3 m/s for a rover that tops out at 1.5 m/s)
-    the reference waits for the rover (`ProgressGovernor`) instead of running away from it: it
-    passes every waypoint of the square (it cut the corners and missed them before), takes
-    longer than planned, and its error against the reference it was given stays within the
-    governor's stop lag plus the controller's slack."""
-    import companion.replay.config as replay_config
-
-    monkeypatch.setattr(replay_config, "ROVER_SPEED_FRACTION", 4.0)  # cap 6 m/s: no cap
+    """A rover whose throttle gives half the speed PX4 expects (RO_MAX_THR_SPEED 6.4 m/s for a
+    drive that gives 3.2: at the full 3 m/s command it drives under 2 m/s, planned at 2.7 m/s)
+    is waited for (`ProgressGovernor`) instead of being run away from: it passes every
+    waypoint of the square within NAV_ACC_RAD, takes longer than planned (the 120 m of legs
+    alone take 60 s at 2 m/s), and its error against the reference it was given stays within
+    the governor's stop lag plus the controller's slack."""
     code = cli_main(["replay", str(ROVER_MISSION), "--vehicle", "rover", "--out", str(tmp_path),
-                     "--no-plot", "--mock-param", "RO_MAX_SPEED=1.5"])
+                     "--no-plot", "--mock-param", "RO_MAX_THR_SPEED=6.4"])
     assert code == 0
     report = json.loads((tmp_path / ROVER_MISSION.stem / "report.json").read_text())
     assert report["waypoints_reached"] == len(report["waypoints"])
-    assert report["duration_s"] > 1.5 * report["planned_duration_s"]
+    assert all(w["acceptance_radius_m"] == 0.5 for w in report["waypoints"])
+    assert report["duration_s"] > 60.0 > report["planned_duration_s"]
     assert report["max_error_m"] < 4.0
 
 
