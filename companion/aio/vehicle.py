@@ -127,8 +127,8 @@ class Vehicle(VehicleBase):
                   duration_s: float | None = None, feedforward: str = "acc",
                   arm: bool = False, end_action: str = "hold",
                   disarm: bool = False, end_ned: tuple[float, float, float] | None = None,
-                  settle_m: float | None = None,
-                  settle_s: float | None = None) -> FlightReport:
+                  settle_m: float | None = None, settle_s: float | None = None,
+                  stall_s: float | None = None) -> FlightReport:
         """Fly ``trajectory`` (or ``setpoint_source`` for ``duration_s``) in OFFBOARD, then Hold
         (or Land).
 
@@ -154,7 +154,9 @@ class Vehicle(VehicleBase):
         trajectory's end, ``VehicleConfig.settle_m``), or ``settle_s`` [s] after it is
         complete (default ``VehicleConfig.settle_s``; 0 without an end position). A source
         that governs its reference time (``reference_time_s``, e.g. a rover's
-        ``TrackingSource``) says when the trajectory is complete.
+        ``TrackingSource``) says when the trajectory is complete. stall_s: such a source's
+        reference standing still this long [s] (the vehicle makes no progress) ends the flight
+        too (None: never).
         """
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -205,7 +207,7 @@ class Vehicle(VehicleBase):
             return await self._fly(source, mode, rate_hz or self.config.rate_hz, total, end_pos,
                                    arm, FlightMode.HOLD if end_action == "hold" else
                                    FlightMode.LAND, end_action == "touchdown", disarm,
-                                   settle_m, settle_s)
+                                   settle_m, settle_s, stall_s)
         finally:
             self._flying = False
 
@@ -213,8 +215,8 @@ class Vehicle(VehicleBase):
                    end_pos: tuple[float, float, float] | None, arm: bool = False,
                    end_mode: FlightMode = FlightMode.HOLD,
                    touchdown: bool = False, disarm: bool = False,
-                   settle_m: float | None = None,
-                   settle_s: float | None = None) -> FlightReport:
+                   settle_m: float | None = None, settle_s: float | None = None,
+                   stall_s: float | None = None) -> FlightReport:
         """Drive the one flight sequence (`companion.flight.FlightSequence`) in real time: a
         sender thread streams while it says so, its commands are sent and their results fed
         back; stale telemetry and a failing source are handled here (hold, then Hold)."""
@@ -227,8 +229,8 @@ class Vehicle(VehicleBase):
                           touchdown_timeout_s=cfg.touchdown_timeout_s,
                           settle_s=(0.0 if end_pos is None else cfg.settle_s if settle_s is None
                                     else settle_s),
-                          settle_m=cfg.settle_m if settle_m is None else settle_m,
-                          end_ned=end_pos, land_command=False,
+                                    settle_m=cfg.settle_m if settle_m is None else settle_m,
+                          end_ned=end_pos, land_command=False, stall_s=stall_s,
                           stream_handover=True, land_and_disarm=disarm,
                           disarm_at_hold=disarm and end_mode is FlightMode.HOLD,
                           disarm_on_ground=end_mode is not FlightMode.HOLD,
@@ -313,9 +315,7 @@ class Vehicle(VehicleBase):
                 while results:
                     command, ok, reason, result = results.popleft()
                     actions += seq.on_command_result(command, ok, reason, now, result)
-                actions += seq.update(now, self._flight_view(
-                    getattr(source, "reference_time_s", None),
-                    bool(getattr(source, "arrived", False))))
+                actions += seq.update(now, self._flight_view(source))
                 for act in actions:
                     if isinstance(act, SendCommand):
                         tasks.append(asyncio.get_running_loop().create_task(run_command(act)))
@@ -388,11 +388,10 @@ class Vehicle(VehicleBase):
             await asyncio.sleep(0.005)
         return streamer.sent_times[0]
 
-    def _flight_view(self, traj_time_s: float | None = None,
-                     arrived: bool = False) -> VehicleView:
-        """The vehicle as the flight sequence sees it now (``traj_time_s``: the source's own
-        reference time, if it governs it; ``arrived``: the source says the vehicle reached the
-        stop its reference is at)."""
+    def _flight_view(self, source: object = None) -> VehicleView:
+        """The vehicle as the flight sequence sees it now, with what ``source`` says of its
+        reference if it governs it (``reference_time_s``, ``arrived``, ``stalled_s``, e.g. a
+        rover's `TrackingSource`)."""
         tel = self.link.telemetry
         ext: ExtendedState | None = tel.extended
         pos = tel.position
@@ -400,8 +399,10 @@ class Vehicle(VehicleBase):
             link_ok=self._link_lost_at is None and self.link_ok, armed=self.is_armed,
             mode=self.mode,
             on_ground=ext is not None and ext.landed_state == LANDED_STATE_ON_GROUND,
-            pos_ned=None if pos is None else pos.pos_ned, traj_time_s=traj_time_s,
-            arrived=arrived)
+            pos_ned=None if pos is None else pos.pos_ned,
+            traj_time_s=getattr(source, "reference_time_s", None),
+            arrived=bool(getattr(source, "arrived", False)),
+            stalled_s=float(getattr(source, "stalled_s", 0.0)))
 
     async def _send_command(self, a: SendCommand) -> tuple[int, bool, str, int | None]:
         """Send one command of the flight sequence; (command, ok, reason, MAV_RESULT)."""

@@ -502,7 +502,8 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                                              if rover_end else None),
                                     settle_m=(float(planned.acceptance_m[-1]) if rover_end
                                               else None),
-                                    settle_s=ROVER_SETTLE_S if rover_end else None)
+                                    settle_s=ROVER_SETTLE_S if rover_end else None,
+                                    stall_s=ROVER_SETTLE_S if rover else None)
                 ended = loop.time()
                 console.print(f"Trajectory flown in {mode} mode: {flown.duration_s:.1f} s")
                 report = dataclasses.replace(

@@ -20,8 +20,9 @@ __all__ = [
 #: Height above the ground [m] where a mission's planned descent ends when PX4 lands it.
 HANDOVER_HEIGHT_M = 1.0
 #: A rover whose (governed) reference has ended gets this long [s] to come within the last
-#: waypoint's acceptance radius before it is switched to Hold anyway; its report then names the
-#: waypoint it missed.
+#: waypoint's acceptance radius before it is switched to Hold anyway (its report then names the
+#: waypoint it missed); a rover whose reference has waited this long for it to make progress
+#: (stuck, blocked) is switched to Hold too.
 ROVER_SETTLE_S = 20.0
 
 Vehicle = Literal["quad", "rover"]

@@ -84,6 +84,8 @@ class VehicleView:
     # the source says the vehicle has reached (or passed: a car cannot back up) the stop its
     # reference is at: with the trajectory's time at its end, the flight is complete
     arrived: bool = False
+    # how long [s] the source's governed reference has stood still waiting for the vehicle
+    stalled_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -165,7 +167,10 @@ class EndPolicy:
     (NO_LAND); None: no limit (the caller bounds the flight).
     handover_retry_s: with ``land_and_disarm`` False and ``stream_handover`` False: send the
     handover command again this often [s] while the HEARTBEAT still shows OFFBOARD (its results
-    are not needed); the flight is done once the HEARTBEAT shows another mode. None: sent once."""
+    are not needed); the flight is done once the HEARTBEAT shows another mode. None: sent once.
+    stall_s: hand over when the source's governed reference has stood still this long [s]
+    (``VehicleView.stalled_s``: a vehicle that makes no progress, e.g. a stuck rover); None:
+    never."""
 
     handover_mode: FlightMode = FlightMode.HOLD
     touchdown_from_s: float | None = None
@@ -182,6 +187,7 @@ class EndPolicy:
     mode_wait_s: float = 3.0
     land_timeout_s: float | None = None
     handover_retry_s: float | None = None
+    stall_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -396,6 +402,10 @@ class FlightSequence:
             if ack is not None and now - ack > end.disarm_confirm_s:
                 return self._handover(now, FlightMode.LAND, "disarm not shown by the HEARTBEAT")
             return []
+        if end.stall_s is not None and view.stalled_s >= end.stall_s:
+            return self._handover(now, end.handover_mode,
+                                  f"no progress for {view.stalled_s:.0f} s: the vehicle does not "
+                                  "follow its reference")
         if view.traj_time_s is not None:  # governed: settle_s counts from its end
             t = view.traj_time_s
             if self._t_traj_end is None and t >= self.config.duration_s:

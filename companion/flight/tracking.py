@@ -199,6 +199,10 @@ class FlightClock:
         return self._t_flight
 
 
+#: The governed reference counts as standing still below this rate (`ProgressGovernor`).
+STALL_RATE = 0.05
+
+
 class ProgressGovernor:
     """Reference time that waits for a vehicle falling behind it (a rover that cannot drive the
     planned speed: its own speed limit, a slope, a PX4 speed loop that lags).
@@ -209,7 +213,8 @@ class ProgressGovernor:
     along-track error of the last setpoint). Up to `free_m` of lag it runs with flight time
     (the controller's along-track feedback closes such lags); from `stop_m` on it stops until
     the vehicle has caught up. It never runs backwards nor faster than flight time, so a plan's
-    speeds stay its upper bound and the path stays the plan's.
+    speeds stay its upper bound and the path stays the plan's. ``stalled_s``: how long it has
+    stood still (rate below STALL_RATE): a rover that makes no progress (stuck, blocked).
     """
 
     def __init__(self, free_m: float = 1.0, stop_m: float = 3.0) -> None:
@@ -220,6 +225,7 @@ class ProgressGovernor:
         self._t: float | None = None  # last flight time [s]
         self.t_ref = 0.0  # reference time [s]
         self.rate = 1.0  # the last rate [0, 1]
+        self.stalled_s = 0.0  # how long [s] the reference has (nearly) stood still
 
     def reset(self) -> None:
         """Start again: the next `update`'s flight time is taken as the reference time (a new
@@ -227,6 +233,7 @@ class ProgressGovernor:
         self._t = None
         self.t_ref = 0.0
         self.rate = 1.0
+        self.stalled_s = 0.0
 
     def update(self, t_s: float, lag_m: float) -> float:
         """Reference time [s] at flight time `t_s` [s] (calls in time order; the first is taken
@@ -241,6 +248,7 @@ class ProgressGovernor:
         lag = lag_m if math.isfinite(lag_m) else 0.0
         self.rate = min(max((self.stop_m - lag) / (self.stop_m - self.free_m), 0.0), 1.0)
         self.t_ref += self.rate * dt
+        self.stalled_s = self.stalled_s + dt if self.rate < STALL_RATE else 0.0
         return self.t_ref
 
 
@@ -470,6 +478,12 @@ class TrackingSource:
     def arrived(self) -> bool:
         """A rover has reached (or passed) the stop its reference is at."""
         return self.rover is not None and self.rover.arrived
+
+    @property
+    def stalled_s(self) -> float:
+        """How long [s] a governed reference has stood still waiting for the vehicle (0 for a
+        reference on flight time)."""
+        return 0.0 if self.governor is None else self.governor.stalled_s
 
     @property
     def reference_time_s(self) -> float | None:

@@ -102,6 +102,7 @@ class Flight:
                 touchdown_from_s=None if self.touchdown is None else self.touchdown.from_s,
                 settle_s=ROVER_SETTLE_S if self._rover_end else SETTLE_S,
                 settle_m=float(schedule.acceptance_m[-1]) if self._rover_end else None,
+                stall_s=ROVER_SETTLE_S if rover else None,
                 end_ned=end_ned,  # type: ignore[arg-type]
                 disarm_at_hold=rover, disarm_on_ground=not rover)))
         self.setpoints_sent = 0
@@ -204,7 +205,8 @@ class Flight:
             link_ok=self.link.heartbeat.link_up, armed=armed, mode=self.link.mode,
             ready=have_state and st is not None and st.armable, have_state=have_state,
             on_ground=ext is not None and ext.landed_state == 1, pos_ned=rel,
-            traj_time_s=self.source.reference_time_s, arrived=self.source.arrived)
+            traj_time_s=self.source.reference_time_s, arrived=self.source.arrived,
+            stalled_s=self.source.stalled_s)
         self.perform(self.seq.update(now, view), now)
 
     def abort(self, now: float, reason: str) -> None:

@@ -186,3 +186,27 @@ def test_a_rover_that_overshot_its_end_is_done_once_its_source_says_arrived() ->
     acts = s.update(12.5, VehicleView(**past, traj_time_s=10.0, arrived=True))  # type: ignore[arg-type]
     assert [a for a in acts if isinstance(a, SendCommand)] == [
         SendCommand.set_mode(FlightMode.HOLD)]
+
+
+def test_a_rover_that_makes_no_progress_is_switched_to_hold() -> None:
+    """A stuck rover: the governor stops the reference (its lag at the stop distance) and
+    counts how long it has stood still; the flight sequence hands over to Hold after
+    stall_s, saying why, instead of streaming forever."""
+    gov = ProgressGovernor()
+    gov.update(0.0, 0.0)
+    for k in range(1, 101):
+        gov.update(k * 0.1, 3.5)  # 3.5 m behind: stopped
+    assert gov.stalled_s == pytest.approx(10.0)
+    gov.update(10.1, 0.5)  # it moves again
+    assert gov.stalled_s == 0.0
+    s = FlightSequence(SequenceConfig(
+        rate_hz=50.0, duration_s=30.0, pilot_start=True,
+        end=EndPolicy(handover_mode=FlightMode.HOLD, land_and_disarm=False, stall_s=20.0)))
+    s.update(0.0, VehicleView(armed=True, mode=FlightMode.OFFBOARD))
+    view = dict(armed=True, mode=FlightMode.OFFBOARD, traj_time_s=4.0)
+    acts = s.update(25.0, VehicleView(**view, stalled_s=19.9))  # type: ignore[arg-type]
+    assert not any(isinstance(a, SendCommand) for a in acts)
+    acts = s.update(25.1, VehicleView(**view, stalled_s=20.0))  # type: ignore[arg-type]
+    assert [a for a in acts if isinstance(a, SendCommand)] == [
+        SendCommand.set_mode(FlightMode.HOLD)]
+    assert "no progress" in s.reason
