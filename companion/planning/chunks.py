@@ -16,6 +16,7 @@ import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,6 +24,7 @@ from numpy.typing import NDArray
 from companion.flatness import MultirotorParams
 from companion.mission import FlightChunk
 from companion.mission.px4_params import Px4PlanningParams
+from companion.planning.rover_path import SteeringError, rover_arc_trajectory
 from companion.trajectory import Limits, PiecewiseBezier, RoverLimits, check, plan
 from companion.trajectory.corridor import corridor_deviation
 from companion.trajectory.penalty import ALLOCATION_MARGIN
@@ -90,11 +92,15 @@ class VehicleLimits:
     on chunks of at most ``ROVER_RETRY_MAX_LEGS`` legs) and the first pattern whose path keeps
     within ``corridor_m`` is flown; if none does (e.g. legs of kilometres: the joints are
     fractions of a leg), the one closest to the legs, with a warning."""
-    rover_max_yaw_rate_rad_s: float = math.radians(60.0)
+    rover_max_yaw_rate_rad_s: float = math.radians(90.0)
     rover_max_lat_acc_m_s2: float = 1.5
     rover_max_speed_m_s: float | None = None
     """Cap on the rover's planned speed [m/s] (leave the controller headroom below the
     vehicle's top speed); None plans at the mission's leg speeds."""
+    rover_planner: Literal["arcs", "minsnap"] = "arcs"
+    """A rover's path: straight legs joined by arcs inside the corners at a speed profile
+    (:mod:`companion.planning.rover_path`), or a minimum-snap polynomial through every
+    waypoint (the joints and corridor options above)."""
 
 
 def planning_tilt_rad(limits: VehicleLimits, px4: Px4PlanningParams) -> float:
@@ -275,6 +281,11 @@ def _plan_rover_chunk(chunk: FlightChunk, pts: FloatArray, limits: VehicleLimits
     its path turns tighter than the rover can steer."""
     lim = rover_limits(limits, px4, speed)
     caps = np.minimum(caps, lim.max_speed_m_s)
+    if limits.rover_planner == "arcs":
+        traj = rover_arc_trajectory(pts[:, :2], caps, chunk.acceptance_radius_m, lim,
+                                    chunk.item_indices)
+        _require_steerable(traj, lim, chunk)
+        return traj
     whole = len(pts) == len(chunk.points_ned_m)
     corridor = limits.rover_corridor_m if whole else None
     if corridor is not None:
@@ -316,11 +327,6 @@ def _plan_rover_chunk(chunk: FlightChunk, pts: FloatArray, limits: VehicleLimits
                  "to plan it inside, slower)", check_m, best[0],
                  float(np.max(np.linalg.norm(np.diff(pts[:, :2], axis=0), axis=1))))
     return best[1]
-
-
-class SteeringError(ValueError):
-    """A rover's path turns tighter than it can steer (stopping at the corners would not help:
-    a car-like rover cannot turn in place)."""
 
 
 def _require_steerable(traj: PiecewiseBezier, lim: RoverLimits, chunk: FlightChunk) -> None:

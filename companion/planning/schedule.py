@@ -43,7 +43,6 @@ from companion.planning.chunks import (
     STRAIGHT_TILT_MARGIN,
     TILT_FEEDBACK_MARGIN_DEG,
     TURN_RATE_RAD_S,
-    SteeringError,
     VehicleLimits,
     axis_ratios,
     land_descent_rate,
@@ -54,6 +53,7 @@ from companion.planning.chunks import (
     planning_tilt_rad,
 )
 from companion.planning.memo import PlanMemo, exact_key
+from companion.planning.rover_path import SteeringError
 from companion.trajectory import PiecewiseBezier, hermite
 from companion.trajectory.bezier import ScalarEvaluator
 from companion.trajectory.bound import (
