@@ -22,19 +22,25 @@ sihsim_rover_ackermann, real time), holding the shared flight lock /tmp/ecca-px4
      PX4's local frame through HOME_POSITION). A candidate that is refused or does not move
      (< 0.5 m in 6 s) is stopped there.
 
-The tracking loop (this script's, 50 Hz, the same law for every velocity-like interface): the
+The tracking loop (this script's, 50 Hz, the same law for every interface that takes it): the
 closest path point s_c to the latest position; along-track error e_a = s_ref(t) - s_c; speed
-u = v_ref(t) + 1.0 e_a + 0.3 * integral(e_a) (clamped 0..RO_SPEED_LIM; the integral takes out
-PX4's steady speed overshoot); bearing = tangent angle at s_c + 0.3 s * u minus
-atan(0.5 * cross-track error). Then per interface:
-  position           SET_POSITION_TARGET_LOCAL_NED x, y = the reference point now (mask 3580)
-  position_lead      the same, the reference point 1 s ahead (PX4 slows down to stop at it)
+u = v_ref(t) + 1.0 e_a + 0.3 * integral(e_a) (clamped 0..RO_SPEED_LIM; the integral, kept only
+while the reference moves, takes out PX4's steady speed overshoot); course = pure pursuit
+towards the path point u * 1 s (1-10 m, PX4's own PP_LOOKAHD_* defaults) beyond s_c. Then
+per interface:
+  position           SET_POSITION_TARGET_LOCAL_NED x, y = the reference point now (mask 3580;
+                     no loop: PX4's position control drives to it)
+  position_lead      the same, the reference point 1 s ahead
+  position_loop      x, y = the path point ahead of s_c by the distance at which PX4's stopping
+                     profile allows speed u (v^2 + 4 a^2 / j v = 2 a d, RO_DECEL_LIM,
+                     RO_JERK_LIM; at least 0.6 m)
   velocity_ff        vx, vy = the reference velocity, no feedback (mask 3559): PX4 alone
-  velocity           vx, vy = u (cos, sin)(bearing) (mask 3559)
-  velocity_yaw       + yaw = bearing (mask 2535)
-  velocity_yawrate   + yaw_rate = u * curvature (mask 1511; what companion's rover mode sends)
-  attitude           SET_ATTITUDE_TARGET q = yaw bearing, thrust = u / RO_MAX_THR_SPEED (mask 7)
-  rates              SET_ATTITUDE_TARGET body yaw rate = u * curvature + 2 (bearing - yaw),
+  velocity           vx, vy = u (cos, sin)(course) (mask 3559)
+  velocity_yaw       + yaw = course (mask 2535)
+  velocity_yawrate   + yaw_rate = u * path curvature (mask 1511; the companion's rover mode
+                     sends velocity + yaw rate)
+  attitude           SET_ATTITUDE_TARGET q = yaw course, thrust = u / RO_MAX_THR_SPEED (mask 7)
+  rates              SET_ATTITUDE_TARGET body yaw rate = u * curvature + 2 (course - yaw),
                      roll/pitch rates 0, thrust as above, attitude ignored (mask 128)
   actuator_target    SET_ACTUATOR_CONTROL_TARGET controls[0] steering, [1] throttle (id 139)
   do_set_actuator    COMMAND_LONG MAV_CMD_DO_SET_ACTUATOR (187) p1 steering, p2 throttle, 10 Hz
@@ -111,9 +117,11 @@ PLANNING_PARAMS = (
 # loop gains (see the module doc)
 K_ALONG = 1.0
 K_ALONG_I = 0.3
-K_CROSS = 0.5
-BEARING_LEAD_S = 0.3
+LOOKAHEAD_S = 1.0  # pure pursuit look-ahead = speed * 1 s, within [1, 10] m (PX4's PP_* defaults)
+LOOKAHEAD_MIN_M = 1.0
+LOOKAHEAD_MAX_M = 10.0
 K_YAW = 2.0
+CRAWL_M_S = 0.3  # slowest speed commanded towards the end point (PX4 stops below ~0.2 m/s)
 LOOP_HZ = 50.0
 SETTLE_S = 4.0
 STILL_ABORT_S = 6.0
@@ -299,6 +307,22 @@ def _pos(lead_s: float) -> Callable[..., None]:
     return track
 
 
+def stopping_distance(speed: float, decel: float, jerk: float) -> float:
+    """Distance [m] to a target at which PX4's rover position control (AckermannPosControl:
+    math::trajectory::computeMaxSpeedFromDistance with RO_DECEL_LIM, RO_JERK_LIM, arrival speed
+    0) allows `speed`: the inverse of v^2 + (4 a^2 / j) v = 2 a d."""
+    return speed * (speed / (2.0 * decel) + 2.0 * decel / jerk)
+
+
+def _pos_loop(L: RoverLink, st: LoopState, path: Path2, prof: SpeedProfile,
+              p: dict[str, float]) -> None:
+    """Position setpoint on the path, ahead of the rover by the distance at which PX4 drives at
+    the loop's speed u (at least 0.6 m: inside the acceptance radius PX4 stops)."""
+    d = stopping_distance(st.u, p.get("RO_DECEL_LIM", 3.0), p.get("RO_JERK_LIM", 10.0))
+    n, e = path.point_at(min(st.s_c + max(d, 0.6), path.length_m) if st.u > 0 else st.s_c)
+    L.position_target(3580, x=n, y=e)
+
+
 def _vel_ff(L: RoverLink, st: LoopState, path: Path2, prof: SpeedProfile,
             p: dict[str, float]) -> None:
     h = path.heading_at(st.s_ref)
@@ -347,6 +371,9 @@ INTERFACES: dict[str, Interface] = {i.name: i for i in (
               lambda L, n, e, yaw: L.position_target(3580, x=n, y=e), _pos(0.0)),
     Interface("position_lead", "SET_POSITION_TARGET_LOCAL_NED x, y (mask 3580), the reference "
               "1 s ahead", lambda L, n, e, yaw: L.position_target(3580, x=n, y=e), _pos(1.0)),
+    Interface("position_loop", "SET_POSITION_TARGET_LOCAL_NED x, y (mask 3580), tracking loop: "
+              "the path point where PX4's stopping profile gives the loop's speed",
+              lambda L, n, e, yaw: L.position_target(3580, x=n, y=e), _pos_loop),
     Interface("velocity_ff", "SET_POSITION_TARGET_LOCAL_NED vx, vy (mask 3559), the reference "
               "velocity, no feedback", lambda L, n, e, yaw: L.position_target(3559), _vel_ff),
     Interface("velocity", "SET_POSITION_TARGET_LOCAL_NED vx, vy (mask 3559), tracking loop",
@@ -389,7 +416,7 @@ def _latest(L: RoverLink) -> tuple[float, float, float]:
     return s.x, s.y, (L.att[-1][2] if L.att else 0.0)
 
 
-def fly(iface: Interface, folder: Path, read_params: bool) -> dict[str, Any]:
+def fly(iface: Interface, folder: Path) -> dict[str, Any]:
     """One flight of `iface` on a fresh PX4 main rover (see the module doc)."""
     loc, why = find_px4_sitl("main")
     if loc is None:
@@ -407,11 +434,7 @@ def fly(iface: Interface, folder: Path, read_params: bool) -> dict[str, Any]:
             out["truth_interval_ack"] = L.set_message_interval(115, 50.0)
             L.set_message_interval(32, 50.0)
             L.wait(lambda: bool(L.lpos) and bool(L.att), 10.0)
-            params = {}
-            names = [n for n, _ in PLANNING_PARAMS] if read_params else \
-                ["RO_MAX_THR_SPEED", "RA_WHEEL_BASE", "RA_MAX_STR_ANG", "RO_SPEED_LIM"]
-            for name in names:
-                params[name] = L.read_param(name)
+            params = {name: L.read_param(name) for name, _ in PLANNING_PARAMS}
             out["params"] = params
             n0, e0, yaw0 = _latest(L)
             hold = Streamer(lambda: iface.hold(L, n0, e0, yaw0), iface.streamed_hz)
@@ -464,13 +487,16 @@ def run_loop(L: RoverLink, iface: Interface, out: dict[str, Any], params: dict[s
         e_a = s_ref - s_c
         if v_ref > 0.5:
             integ = min(max(integ + K_ALONG_I * e_a * period, -0.8), 0.8)
-        u = v_ref + K_ALONG * e_a + integ
-        if t >= prof.duration_s and path.length_m - s_c < 0.2:
-            u = 0.0
+        # the integral only while the reference moves: at the end, stop on the end point
+        u = v_ref + K_ALONG * e_a + (integ if v_ref > 0.0 else 0.0)
+        if t >= prof.duration_s:  # the reference stopped: crawl onto the end point
+            u = max(u, CRAWL_M_S) if path.length_m - s_c > 0.1 else 0.0
         u = min(max(u, 0.0), speed_lim)
-        bearing = path.heading_at(s_c + BEARING_LEAD_S * u) - math.atan(K_CROSS * cross)
+        look = min(max(LOOKAHEAD_S * u, LOOKAHEAD_MIN_M), LOOKAHEAD_MAX_M)
+        cn, ce = path.point_at(s_c + look)
+        bearing = math.atan2(ce - e, cn - n)  # pure pursuit: aim at the path point ahead
         st = LoopState(t, s_ref, v_ref, n, e, yaw, s_c, cross, u, bearing,
-                       path.curvature_at(s_c + BEARING_LEAD_S * u))
+                       path.curvature_at(s_c + 0.5 * look))
         with contextlib.suppress(OSError):
             iface.track(L, st, path, prof, params)
         next_t += period
@@ -721,7 +747,7 @@ def main(argv: list[str] | None = None) -> int:
             for name in args.interfaces:
                 t0 = time.perf_counter()
                 try:
-                    r = fly(INTERFACES[name], out / f"{name}-{i}", read_params=not params)
+                    r = fly(INTERFACES[name], out / f"{name}-{i}")
                 except Exception as exc:  # one failed flight must not lose the run
                     r = {"interface": name, "error": f"{type(exc).__name__}: {exc}"}
                 r["wall_s"] = time.perf_counter() - t0

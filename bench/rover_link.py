@@ -75,6 +75,8 @@ class RoverLink:
     acks: list[tuple[float, Any]] = field(default_factory=list)
     texts: list[tuple[float, str]] = field(default_factory=list)
     params: dict[str, float] = field(default_factory=dict)
+    mission_msgs: list[Any] = field(default_factory=list)
+    reached: list[tuple[float, int]] = field(default_factory=list)  # MISSION_ITEM_REACHED
     messages: dict[str, int] = field(default_factory=dict)
     _stop: threading.Event = field(default_factory=threading.Event)
     _thread: threading.Thread | None = None
@@ -137,6 +139,10 @@ class RoverLink:
                 self.home = m
             elif kind == "COMMAND_ACK":
                 self.acks.append((now, m))
+            elif kind in ("MISSION_REQUEST", "MISSION_REQUEST_INT", "MISSION_ACK"):
+                self.mission_msgs.append(m)
+            elif kind == "MISSION_ITEM_REACHED":
+                self.reached.append((now, int(m.seq)))
             elif kind == "PARAM_VALUE":
                 self.params[m.param_id] = _param_value(m)
 
@@ -223,6 +229,31 @@ class RoverLink:
                 return True, time.monotonic() - t0
             self.wait(lambda: False, 1.0, tick=tick)
         return False, time.monotonic() - t0
+
+    def upload_mission(self, items: list[Any], timeout_s: float = 15.0) -> int:
+        """Upload MISSION_ITEM_INTs (objects with seq, frame, command, current, autocontinue,
+        param1-4, x, y, z): MISSION_COUNT, answer every MISSION_REQUEST(_INT) with the item,
+        until MISSION_ACK; its MAV_MISSION_RESULT (0 accepted), -1 on timeout."""
+        self.mission_msgs.clear()
+        self.mav.mission_count_send(self.sysid, 1, len(items), 0)
+        t_end = time.monotonic() + timeout_s
+        handled, last_count = 0, time.monotonic()
+        while time.monotonic() < t_end:
+            if len(self.mission_msgs) <= handled:
+                if handled == 0 and time.monotonic() - last_count > 1.0:  # lost: ask again
+                    self.mav.mission_count_send(self.sysid, 1, len(items), 0)
+                    last_count = time.monotonic()
+                time.sleep(0.01)
+                continue
+            m = self.mission_msgs[handled]
+            handled += 1
+            if m.get_type() == "MISSION_ACK":
+                return int(m.type)
+            it = items[m.seq]
+            self.mav.mission_item_int_send(self.sysid, 1, m.seq, it.frame, it.command,
+                                           1 if m.seq == 0 else 0, it.autocontinue, it.param1,
+                                           it.param2, it.param3, it.param4, it.x, it.y, it.z, 0)
+        return -1
 
     # -- setpoints ---------------------------------------------------------------------------
     def position_target(self, type_mask: int, x: float = 0.0, y: float = 0.0, vx: float = 0.0,
