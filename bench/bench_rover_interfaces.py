@@ -26,8 +26,10 @@ The tracking loop (this script's, 50 Hz, the same law for every interface that t
 closest path point s_c to the latest position; along-track error e_a = s_ref(t) - s_c; speed
 u = v_ref(t) + 1.0 e_a + 0.3 * integral(e_a) (clamped 0..RO_SPEED_LIM; the integral, kept only
 while the reference moves, takes out PX4's steady speed overshoot); course = pure pursuit
-towards the path point u * 1 s (1-10 m, PX4's own PP_LOOKAHD_* defaults) beyond s_c. Then
-per interface:
+towards the path point u * 1 s (1-10 m, PX4's own PP_LOOKAHD_* defaults) beyond s_c, minus
+0.3 * integral(cross-track error) (at most 20 deg: PX4 steers its estimated heading, which was
+up to ~10 deg off the true one on the first leg, and pure pursuit alone then keeps a steady
+offset). Then per interface:
   position           SET_POSITION_TARGET_LOCAL_NED x, y = the reference point now (mask 3580;
                      no loop: PX4's position control drives to it)
   position_lead      the same, the reference point 1 s ahead
@@ -36,9 +38,11 @@ per interface:
                      RO_JERK_LIM; at least 0.6 m)
   velocity_ff        vx, vy = the reference velocity, no feedback (mask 3559): PX4 alone
   velocity           vx, vy = u (cos, sin)(course) (mask 3559)
-  velocity_yaw       + yaw = course (mask 2535)
-  velocity_yawrate   + yaw_rate = u * path curvature (mask 1511; the companion's rover mode
-                     sends velocity + yaw rate)
+  velocity_yaw       + yaw = course + 90 deg (mask 2535): a yaw PX4 would turn the rover
+                     sideways for, if it used it
+  velocity_yawrate   + yaw_rate = 0.5 rad/s (mask 1511): a yaw rate that would make it
+                     circle, if used (the companion's rover mode sends velocity + yaw rate)
+  acceleration       afx, afy = 1 m/s^2 along the course, speed feedback (mask 3135)
   attitude           SET_ATTITUDE_TARGET q = yaw course, thrust = u / RO_MAX_THR_SPEED (mask 7)
   rates              SET_ATTITUDE_TARGET body yaw rate = u * curvature + 2 (course - yaw),
                      roll/pitch rates 0, thrust as above, attitude ignored (mask 128)
@@ -117,6 +121,8 @@ PLANNING_PARAMS = (
 # loop gains (see the module doc)
 K_ALONG = 1.0
 K_ALONG_I = 0.3
+K_CROSS_I = 0.3  # course correction per m*s of cross-track error [rad/(m s)]
+CROSS_I_MAX = 0.35  # its limit [rad] (20 deg)
 LOOKAHEAD_S = 1.0  # pure pursuit look-ahead = speed * 1 s, within [1, 10] m (PX4's PP_* defaults)
 LOOKAHEAD_MIN_M = 1.0
 LOOKAHEAD_MAX_M = 10.0
@@ -329,13 +335,23 @@ def _vel_ff(L: RoverLink, st: LoopState, path: Path2, prof: SpeedProfile,
     L.position_target(3559, vx=st.v_ref * math.cos(h), vy=st.v_ref * math.sin(h))
 
 
+WRONG_YAW_RAD = math.pi / 2  # velocity_yaw: the yaw sent is the course + 90 deg
+WRONG_YAW_RATE = 0.5  # velocity_yawrate: the yaw rate sent [rad/s]
+
+
 def _vel(mask: int, with_yaw: bool = False, with_rate: bool = False) -> Callable[..., None]:
     def track(L: RoverLink, st: LoopState, path: Path2, prof: SpeedProfile,
               p: dict[str, float]) -> None:
         L.position_target(mask, vx=st.u * math.cos(st.bearing), vy=st.u * math.sin(st.bearing),
-                          yaw=st.bearing if with_yaw else 0.0,
-                          yaw_rate=st.u * st.curvature if with_rate else 0.0)
+                          yaw=_wrap(st.bearing + WRONG_YAW_RAD) if with_yaw else 0.0,
+                          yaw_rate=WRONG_YAW_RATE if with_rate else 0.0)
     return track
+
+
+def _acc(L: RoverLink, st: LoopState, path: Path2, prof: SpeedProfile,
+         p: dict[str, float]) -> None:
+    a = min(max(st.u - st.v_ref, -1.0), 1.0) + 1.0
+    L.position_target(3135, afx=a * math.cos(st.bearing), afy=a * math.sin(st.bearing))
 
 
 def _att(L: RoverLink, st: LoopState, path: Path2, prof: SpeedProfile,
@@ -379,11 +395,15 @@ INTERFACES: dict[str, Interface] = {i.name: i for i in (
     Interface("velocity", "SET_POSITION_TARGET_LOCAL_NED vx, vy (mask 3559), tracking loop",
               lambda L, n, e, yaw: L.position_target(3559), _vel(3559)),
     Interface("velocity_yaw", "SET_POSITION_TARGET_LOCAL_NED vx, vy, yaw (mask 2535), tracking "
-              "loop", lambda L, n, e, yaw: L.position_target(2535, yaw=yaw),
+              "loop, yaw = course + 90 deg",
+              lambda L, n, e, yaw: L.position_target(2535, yaw=_wrap(yaw + WRONG_YAW_RAD)),
               _vel(2535, with_yaw=True)),
     Interface("velocity_yawrate", "SET_POSITION_TARGET_LOCAL_NED vx, vy, yaw_rate (mask 1511), "
-              "tracking loop", lambda L, n, e, yaw: L.position_target(1511),
+              "tracking loop, yaw_rate = 0.5 rad/s",
+              lambda L, n, e, yaw: L.position_target(1511, yaw_rate=WRONG_YAW_RATE),
               _vel(1511, with_rate=True)),
+    Interface("acceleration", "SET_POSITION_TARGET_LOCAL_NED afx, afy (mask 3135), 1 m/s^2 "
+              "along the course", lambda L, n, e, yaw: L.position_target(3135), _acc),
     Interface("attitude", "SET_ATTITUDE_TARGET q (yaw), thrust = speed / RO_MAX_THR_SPEED "
               "(mask 7)", lambda L, n, e, yaw: L.attitude_target(7, _q_yaw(yaw), 0.0), _att),
     Interface("rates", "SET_ATTITUDE_TARGET body yaw rate + thrust, attitude ignored (mask 128)",
@@ -450,15 +470,20 @@ def fly(iface: Interface, folder: Path) -> dict[str, Any]:
             out["entered_offboard"] = entered
             out["texts"] = L.texts_since(t_req - 2.0)
             out["mode_after"] = mode_name(L.mode)
-            run_loop(L, iface, out, params, entered)
+            drive = run_loop(L, iface, out, params, entered)
             L.set_mode(HOLD)
             out["messages"] = dict(L.messages)
+    if drive is not None:  # the link is closed: its records no longer grow
+        path, prof, proj, t0u = drive
+        out["estimate"] = errors(L, path, prof, proj, t0u, truth=False)
+        out["truth"] = errors(L, path, prof, proj, t0u, truth=True)
+        out["est_vs_truth"] = est_vs_truth(L, t0u, t0u + prof.duration_s + SETTLE_S)
     return out
 
 
 def run_loop(L: RoverLink, iface: Interface, out: dict[str, Any], params: dict[str, float],
-             entered: bool) -> None:
-    """The tracking loop, then the analysis into `out`."""
+             entered: bool) -> tuple[Path2, SpeedProfile, Projector, float] | None:
+    """The tracking loop; what the analysis needs when the rover drove (else None)."""
     n0, e0, yaw0 = _latest(L)
     path = Path2(start=(n0, e0), heading=yaw0)
     prof = SpeedProfile(path.length_m)
@@ -469,7 +494,7 @@ def run_loop(L: RoverLink, iface: Interface, out: dict[str, Any], params: dict[s
     duration = prof.duration_s + SETTLE_S
     t0u = time.time()
     t0 = time.monotonic()
-    s_c, integ = 0.0, 0.0
+    s_c, integ, integ_c = 0.0, 0.0, 0.0
     period = 1.0 / iface.streamed_hz
     next_t = t0
     moved = 0.0
@@ -494,7 +519,11 @@ def run_loop(L: RoverLink, iface: Interface, out: dict[str, Any], params: dict[s
         u = min(max(u, 0.0), speed_lim)
         look = min(max(LOOKAHEAD_S * u, LOOKAHEAD_MIN_M), LOOKAHEAD_MAX_M)
         cn, ce = path.point_at(s_c + look)
-        bearing = math.atan2(ce - e, cn - n)  # pure pursuit: aim at the path point ahead
+        if u > CRAWL_M_S:  # PX4's heading estimate can be several degrees off: integrate
+            integ_c = min(max(integ_c + cross * period, -CROSS_I_MAX / K_CROSS_I),
+                          CROSS_I_MAX / K_CROSS_I)
+        # pure pursuit: aim at the path point ahead; minus the cross-track integral
+        bearing = math.atan2(ce - e, cn - n) - K_CROSS_I * integ_c
         st = LoopState(t, s_ref, v_ref, n, e, yaw, s_c, cross, u, bearing,
                        path.curvature_at(s_c + 0.5 * look))
         with contextlib.suppress(OSError):
@@ -508,11 +537,9 @@ def run_loop(L: RoverLink, iface: Interface, out: dict[str, Any], params: dict[s
     if not entered or moved < 0.5:
         out["outcome"] = (f"stayed in {mode_name(L.mode)}, moved {moved:.1f} m" if not entered
                           else f"OFFBOARD, stood still ({moved:.1f} m in {STILL_ABORT_S:g} s)")
-        return
+        return None
     out["outcome"] = "drove"
-    out["estimate"] = errors(L, path, prof, proj, t0u, truth=False)
-    out["truth"] = errors(L, path, prof, proj, t0u, truth=True)
-    out["est_vs_truth"] = est_vs_truth(L, t0u, t0u + prof.duration_s + SETTLE_S)
+    return path, prof, proj, t0u
 
 
 # ----------------------------------------------------------------------------- analysis
@@ -542,7 +569,22 @@ def est_vs_truth(L: RoverLink, t0u: float, t1u: float) -> dict[str, float]:
         return {}
     d = np.hypot(pe[w, 0] - np.interp(te[w], tt, tr[:, 0]),
                  pe[w, 1] - np.interp(te[w], tt, tr[:, 1]))
-    return {"rms_m": float(np.sqrt(np.mean(d**2))), "max_m": float(np.max(d))}
+    out = {"rms_m": float(np.sqrt(np.mean(d**2))), "max_m": float(np.max(d))}
+    # the last 3 s (the reference ended 1 s before): how far estimate and truth travel
+    ws = (te >= t1u - 3.0) & (te <= t1u)
+    wt = (tt >= t1u - 3.0) & (tt <= t1u)
+    if np.count_nonzero(ws) > 1 and np.count_nonzero(wt) > 1:
+        out["end_est_travel_m"] = float(np.sum(np.hypot(*np.diff(pe[ws], axis=0).T)))
+        out["end_true_travel_m"] = float(np.sum(np.hypot(*np.diff(tr[wt], axis=0).T)))
+    ta = np.array([a[0] for a in L.att])
+    wa = (ta >= t0u) & (ta <= t1u)
+    if np.any(wa):  # PX4's yaw estimate (ATTITUDE) minus the simulator's yaw
+        yt = np.unwrap(np.array([r[4] for r in L.truth]))
+        ye = np.array([a[2] for a in L.att])[wa]
+        dy = np.degrees((ye - np.interp(ta[wa], tt, yt) + np.pi) % (2 * np.pi) - np.pi)
+        out.update(yaw_rms_deg=float(np.sqrt(np.mean(dy**2))),
+                   yaw_max_deg=float(np.max(np.abs(dy))), yaw_mean_deg=float(np.mean(dy)))
+    return out
 
 
 def errors(L: RoverLink, path: Path2, prof: SpeedProfile, proj: Projector, t0u: float,
@@ -626,8 +668,9 @@ def table(results: dict[str, list[dict[str, Any]]]) -> str:
     lines = [
         "| interface | message, mask | DO_SET_MODE OFFBOARD (last ACK) | in OFFBOARD | what "
         "the rover did | cross-track RMS / max [m] | along-track RMS / max [m] (mean, + = "
-        "behind) | heading RMS / max [deg] | end error [m] | truth: cross-track RMS / max [m] "
-        "| truth: along-track RMS / max [m] | leg-1 speed / 2 m/s (truth) |",
+        "behind) | heading RMS / max [deg] | end error, estimate / truth [m] | truth: "
+        "cross-track RMS / max [m] | truth: along-track RMS / max [m] | leg-1 speed / 2 m/s "
+        "(truth) |",
         "| --- | --- | --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for name, runs in results.items():
         ok = [r for r in runs if "error" not in r]
@@ -644,7 +687,7 @@ def table(results: dict[str, list[dict[str, Any]]]) -> str:
             f"| {name} | {ok[0]['message']} | {ack} | {entered} | {did} | "
             f"{_pair(ok, 'estimate', 'cross_rms_m', 'cross_max_m')} | {along} | "
             f"{_pair(ok, 'estimate', 'heading_rms_deg', 'heading_max_deg', '.1f')} | "
-            f"{_cell(ok, 'estimate', 'end_m')} | "
+            f"{_cell(ok, 'estimate', 'end_m')} / {_cell(ok, 'truth', 'end_m')} | "
             f"{_pair(ok, 'truth', 'cross_rms_m', 'cross_max_m')} | "
             f"{_pair(ok, 'truth', 'along_rms_m', 'along_max_m')} | "
             f"{_cell(ok, 'truth', 'speed_ratio_leg1')} |")
@@ -675,8 +718,8 @@ def section(argv: str, data: dict[str, Any], load: tuple[float, float], reused: 
             "Reference: 20 m straight along the rover's heading, 90 deg right turn of radius "
             "3 m, 10 m straight, 2 m/s with 2.5 s smooth ramps (34.7 m, 19.9 s), anchored where "
             "OFFBOARD began; errors over those 19.9 s against the path geometry (see the "
-            "script's doc for the tracking loop, the same law for every velocity-like "
-            "interface); end error 4 s after the reference stopped. Estimate: "
+            "script's doc for the tracking loop, the same law for every interface that "
+            "takes it); end error 4 s after the reference stopped. Estimate: "
             "LOCAL_POSITION_NED at 50 Hz; truth: HIL_STATE_QUATERNION at 50 Hz. Cells: median "
             "(min-max) of the repeats.\n")
     notes = (
@@ -685,13 +728,16 @@ def section(argv: str, data: dict[str, Any], load: tuple[float, float], reused: 
         "(any x/y used: it drives there at up to RO_SPEED_LIM and stops within the acceptance "
         "radius, slowing down early with its jerk/decel limits) or a velocity setpoint "
         "(speed = |(vx, vy)|, course = atan2(vy, vx), always forwards); the yaw and yaw_rate "
-        "fields are ignored, so velocity, velocity_yaw and velocity_yawrate differ only by "
-        "flight-to-flight noise. SET_ATTITUDE_TARGET (attitude or rates) and an acceleration-"
-        "only setpoint are proof of life and enter OFFBOARD, but the rover module uses only "
+        "fields are ignored: velocity_yaw (a yaw 90 deg off the course) and velocity_yawrate (a "
+        "steady 0.5 rad/s) drive like velocity, within flight-to-flight noise. "
+        "SET_ATTITUDE_TARGET (attitude or rates) and an acceleration-only setpoint are proof "
+        "of life and enter OFFBOARD, but the rover module uses only "
         "position and velocity setpoints in OFFBOARD: the rover stands still. "
         "SET_ACTUATOR_CONTROL_TARGET is not handled by this build (no proof of life, OFFBOARD "
         "refused); DO_SET_ACTUATOR is acknowledged but drives PX4's \"Offboard Actuator Set\" "
-        "outputs, which this airframe does not map to its steering servo or motor.\n")
+        "outputs, which this airframe does not map to its steering servo or motor (remapped "
+        "with PWM_MAIN_FUNC1/2 = 301/302 at boot, the rover did not move either: one flight "
+        "by hand, not in this table).\n")
     floor = _floor_text(results)
     return (head + "\n" + table(results) + notes + floor
             + "\n### The rover's PX4 parameters for planning (read over MAVLink)\n\n"
@@ -705,11 +751,27 @@ def _floor_text(results: dict[str, list[dict[str, Any]]]) -> str:
           if r.get("est_vs_truth", {}).get("max_m") is not None]
     if not rms:
         return ""
+    yr = [r["est_vs_truth"]["yaw_rms_deg"] for runs in results.values() for r in runs
+          if r.get("est_vs_truth", {}).get("yaw_rms_deg") is not None]
+    ym = [r["est_vs_truth"]["yaw_max_deg"] for runs in results.values() for r in runs
+          if r.get("est_vs_truth", {}).get("yaw_max_deg") is not None]
+    yaw = (f" Its heading (ATTITUDE yaw) was {min(yr):.1f}-{max(yr):.1f} deg RMS off the "
+           f"simulator's (max {max(ym):.1f} deg), worst before the first turn: PX4 steers that "
+           "estimate, so a course command is off by as much until the loop corrects it."
+           if yr else "")
+    ee = [r["est_vs_truth"]["end_est_travel_m"] for runs in results.values() for r in runs
+          if r.get("est_vs_truth", {}).get("end_est_travel_m") is not None]
+    et = [r["est_vs_truth"]["end_true_travel_m"] for runs in results.values() for r in runs
+          if r.get("est_vs_truth", {}).get("end_true_travel_m") is not None]
+    if ee:
+        yaw += (f" Standing at the end (the last 3 s), the rover truly moved {min(et):.2f}-"
+                f"{max(et):.2f} m while its estimate wandered {min(ee):.2f}-{max(ee):.2f} m: "
+                "judge the end point from the truth.")
     return ("\nThe floor: PX4's estimate (LOCAL_POSITION_NED) differed from the truth by "
             f"{min(rms):.2f}-{max(rms):.2f} m RMS (max {max(mx):.2f} m) horizontally over "
             "these drives (SIH's GPS noise through EKF2). The reference is anchored at the "
             "estimate, so the truth columns carry that error too, and an estimate figure below "
-            "it does not mean the rover is closer to the path than that.\n")
+            f"it does not mean the rover is closer to the path than that.{yaw}\n")
 
 
 def _git_rev() -> str:

@@ -70,7 +70,8 @@ class RoverLink:
     heartbeats: list[tuple[float, int, int]] = field(default_factory=list)  # t, base, custom
     lpos: list[Sample] = field(default_factory=list)
     att: list[tuple[float, float, float]] = field(default_factory=list)  # t, boot_s, yaw [rad]
-    truth: list[tuple[float, float, float, float]] = field(default_factory=list)  # t, lat lon alt
+    # t, lat [deg], lon [deg], alt [m], yaw [rad] (HIL_STATE_QUATERNION: the simulator's truth)
+    truth: list[tuple[float, float, float, float, float]] = field(default_factory=list)
     home: Any = None
     acks: list[tuple[float, Any]] = field(default_factory=list)
     texts: list[tuple[float, str]] = field(default_factory=list)
@@ -134,7 +135,9 @@ class RoverLink:
             elif kind == "ATTITUDE":
                 self.att.append((now, m.time_boot_ms * 1e-3, m.yaw))
             elif kind == "HIL_STATE_QUATERNION":
-                self.truth.append((now, m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3))
+                w, x, y, z = m.attitude_quaternion
+                yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+                self.truth.append((now, m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3, yaw))
             elif kind == "HOME_POSITION":
                 self.home = m
             elif kind == "COMMAND_ACK":
@@ -258,10 +261,11 @@ class RoverLink:
     # -- setpoints ---------------------------------------------------------------------------
     def position_target(self, type_mask: int, x: float = 0.0, y: float = 0.0, vx: float = 0.0,
                         vy: float = 0.0, yaw: float = 0.0, yaw_rate: float = 0.0,
-                        frame: int = 1, z: float = 0.0) -> None:
+                        frame: int = 1, z: float = 0.0, afx: float = 0.0, afy: float = 0.0
+                        ) -> None:
         """SET_POSITION_TARGET_LOCAL_NED (frame 1 LOCAL_NED)."""
         self.mav.set_position_target_local_ned_send(
-            0, self.sysid, 1, frame, type_mask, x, y, z, vx, vy, 0.0, 0.0, 0.0, 0.0, yaw,
+            0, self.sysid, 1, frame, type_mask, x, y, z, vx, vy, 0.0, afx, afy, 0.0, yaw,
             yaw_rate)
 
     def attitude_target(self, type_mask: int, q_wxyz: tuple[float, float, float, float],
