@@ -816,6 +816,8 @@ def main(argv: list[str] | None = None) -> int:
                 if not params and r.get("params"):
                     params = r["params"]
                 results[name].append(r)
+                (out / "rover_interfaces.partial.json").write_text(json.dumps(
+                    {"results": results, "params": params}, indent=1, default=float))
                 est = r.get("estimate", {})
                 print(f"{name} #{i}: {r.get('outcome', r.get('error'))}; ack "
                       f"{r.get('offboard_ack')}, cross RMS {est.get('cross_rms_m', math.nan):.2f}"
