@@ -471,6 +471,8 @@ def fly(iface: Interface, folder: Path) -> dict[str, Any]:
             out["texts"] = L.texts_since(t_req - 2.0)
             out["mode_after"] = mode_name(L.mode)
             drive = run_loop(L, iface, out, params, entered)
+            if iface.name == "do_set_actuator":  # the command's own verdict
+                out["command_ack"] = L.command_ack(187, 0.0, 0.0, 0, 0, 0, 0, 0)
             L.set_mode(HOLD)
             out["messages"] = dict(L.messages)
     if drive is not None:  # the link is closed: its records no longer grow
@@ -535,8 +537,8 @@ def run_loop(L: RoverLink, iface: Interface, out: dict[str, Any], params: dict[s
     out["path"] = {"start": [n0, e0], "heading_deg": math.degrees(yaw0),
                    "length_m": path.length_m, "duration_s": prof.duration_s}
     if not entered or moved < 0.5:
-        out["outcome"] = (f"stayed in {mode_name(L.mode)}, moved {moved:.1f} m" if not entered
-                          else f"OFFBOARD, stood still ({moved:.1f} m in {STILL_ABORT_S:g} s)")
+        out["outcome"] = (f"stayed in {mode_name(L.mode)}" if not entered
+                          else "OFFBOARD, stood still")
         return None
     out["outcome"] = "drove"
     return path, prof, proj, t0u
@@ -680,6 +682,12 @@ def table(results: dict[str, list[dict[str, Any]]]) -> str:
             continue
         ack, entered = _accepted(ok)
         did = "; ".join(sorted({r.get("outcome", "?") for r in ok}))
+        if did != "drove":
+            moved = max(float(r.get("moved_m", math.nan)) for r in ok)
+            did += f" (moved <= {moved:.1f} m in {STILL_ABORT_S:g} s)"
+        acks = sorted({str(r["command_ack"]) for r in ok if "command_ack" in r})
+        if acks:
+            did += f"; its COMMAND_ACK: {', '.join(acks)}"
         along = _pair(ok, "estimate", "along_rms_m", "along_max_m")
         if along != "-":
             along += f" ({_cell(ok, 'estimate', 'along_mean_m')})"
@@ -790,6 +798,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="bench_out/rover_interfaces", help="logs and JSON")
     ap.add_argument("--reuse", default=None, metavar="JSON",
                     help="rebuild the section from an earlier run's rover_interfaces.json")
+    ap.add_argument("--refly", nargs="+", choices=list(INTERFACES), default=[],
+                    help="with --reuse: fly these interfaces again (--repeat times) and "
+                         "replace their rows")
     ap.add_argument("--write", action="store_true", help=f'update "## {SECTION}"')
     args = ap.parse_args(argv)
     if args.repeat < 1:
@@ -799,14 +810,18 @@ def main(argv: list[str] | None = None) -> int:
     load0 = os.getloadavg()
     argv_s = shlex.join(sys.argv[1:] if argv is None else argv)
     reused = ""
-    if args.reuse:
+    if args.refly and not args.reuse:
+        ap.error("--refly needs --reuse")
+    if args.reuse and not args.refly:
         data = json.loads(Path(args.reuse).read_text())
         reused = "Figures of that run, read from its JSON by `--reuse`. "
     else:
-        results: dict[str, list[dict[str, Any]]] = {n: [] for n in args.interfaces}
+        old = json.loads(Path(args.reuse).read_text()) if args.reuse else None
+        names = args.refly or args.interfaces
+        results: dict[str, list[dict[str, Any]]] = {n: [] for n in names}
         params: dict[str, float] = {}
         for i in range(args.repeat):
-            for name in args.interfaces:
+            for name in names:
                 t0 = time.perf_counter()
                 try:
                     r = fly(INTERFACES[name], out / f"{name}-{i}")
@@ -826,6 +841,15 @@ def main(argv: list[str] | None = None) -> int:
                       flush=True)
         data = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "command": argv_s,
                 "git": _git_rev(), "results": results, "params": params}
+        if old is not None:  # the other rows from the earlier run, in its order
+            data = {**old, "results": {n: results.get(n, r) for n, r in old["results"].items()},
+                    "refly": {"command": argv_s, "date": data["date"], "git": data["git"],
+                              "interfaces": names}}
+            for n in names:
+                data["results"].setdefault(n, results[n])
+            reused = (f"Rows {', '.join(names)} flown again by `.venv/bin/python "
+                      f"bench/bench_rover_interfaces.py {argv_s}` ({data['refly']['date']}, git "
+                      f"{data['refly']['git']}), the others from the run above. ")
         (out / "rover_interfaces.json").write_text(json.dumps(data, indent=1, default=float))
     text = section(argv_s, data, (load0[0], os.getloadavg()[0]), reused)
     print(text)
