@@ -684,7 +684,7 @@ def table(results: dict[str, list[dict[str, Any]]]) -> str:
         did = "; ".join(sorted({r.get("outcome", "?") for r in ok}))
         if did != "drove":
             moved = max(float(r.get("moved_m", math.nan)) for r in ok)
-            did += f" (moved <= {moved:.1f} m in {STILL_ABORT_S:g} s)"
+            did += f" (the estimate moved <= {moved:.1f} m in {STILL_ABORT_S:g} s)"
         acks = sorted({str(r["command_ack"]) for r in ok if "command_ack" in r})
         if acks:
             did += f"; its COMMAND_ACK: {', '.join(acks)}"
@@ -717,10 +717,13 @@ def _param_text(name: str, v: float) -> str:
 def section(argv: str, data: dict[str, Any], load: tuple[float, float], reused: str) -> str:
     results = data["results"]
     params = data.get("params", {})
+    ld = data.get("load") or ([] if reused.startswith("Figures of that run") else load)
+    load_text = (f", 1-min load {ld[0]:.1f} at the start, {ld[1]:.1f} at the end" if ld
+                 else "")
     head = (f"## {SECTION}\n\nCommand: `.venv/bin/python bench/bench_rover_interfaces.py "
             f"{data['command']}` ({data['date']}, git {data['git']}, {platform.machine()}, "
-            f"{os.cpu_count()} cores shared with other jobs, 1-min load {load[0]:.1f} at the "
-            f"start, {load[1]:.1f} at the end). {reused}PX4 built from main (02e73e3b6f48, "
+            f"{os.cpu_count()} cores shared with other jobs{load_text}). {reused}PX4 built from "
+            "main (02e73e3b6f48, "
             "../shared/px4_main_sitl), SIH `sihsim_rover_ackermann` (airframe 10045) with its "
             "default parameters, real time; one fresh PX4 per flight, under the flight lock. "
             "Reference: 20 m straight along the rover's heading, 90 deg right turn of radius "
@@ -767,14 +770,13 @@ def _floor_text(results: dict[str, list[dict[str, Any]]]) -> str:
            f"simulator's (max {max(ym):.1f} deg), worst before the first turn: PX4 steers that "
            "estimate, so a course command is off by as much until the loop corrects it."
            if yr else "")
-    ee = [r["est_vs_truth"]["end_est_travel_m"] for runs in results.values() for r in runs
-          if r.get("est_vs_truth", {}).get("end_est_travel_m") is not None]
-    et = [r["est_vs_truth"]["end_true_travel_m"] for runs in results.values() for r in runs
-          if r.get("est_vs_truth", {}).get("end_true_travel_m") is not None]
-    if ee:
-        yaw += (f" Standing at the end (the last 3 s), the rover truly moved {min(et):.2f}-"
-                f"{max(et):.2f} m while its estimate wandered {min(ee):.2f}-{max(ee):.2f} m: "
-                "judge the end point from the truth.")
+    still = [r["est_vs_truth"] for runs in results.values() for r in runs
+             if r.get("est_vs_truth", {}).get("end_true_travel_m", math.inf) < 0.05]
+    if still:
+        ee = [v["end_est_travel_m"] for v in still]
+        yaw += (f" In the {len(still)} flights where the rover truly stood still over the last "
+                f"3 s (truth moved < 0.05 m), its estimate still moved {min(ee):.2f}-"
+                f"{max(ee):.2f} m: judge the end point from the truth.")
     return ("\nThe floor: PX4's estimate (LOCAL_POSITION_NED) differed from the truth by "
             f"{min(rms):.2f}-{max(rms):.2f} m RMS (max {max(mx):.2f} m) horizontally over "
             "these drives (SIH's GPS noise through EKF2). The reference is anchored at the "
@@ -814,7 +816,13 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--refly needs --reuse")
     if args.reuse and not args.refly:
         data = json.loads(Path(args.reuse).read_text())
-        reused = "Figures of that run, read from its JSON by `--reuse`. "
+        reused = ("Figures of that run, read from its JSON by `.venv/bin/python "
+                  f"bench/bench_rover_interfaces.py {argv_s}`. ")
+        rf = data.get("refly")
+        if rf:
+            reused += (f"Rows {', '.join(rf['interfaces'])} flown again by `.venv/bin/python "
+                       f"bench/bench_rover_interfaces.py {rf['command']}` ({rf['date']}, git "
+                       f"{rf['git']}). ")
     else:
         old = json.loads(Path(args.reuse).read_text()) if args.reuse else None
         names = args.refly or args.interfaces
@@ -840,7 +848,8 @@ def main(argv: list[str] | None = None) -> int:
                       f"{est.get('end_m', math.nan):.2f} m ({r['wall_s']:.0f} s wall)",
                       flush=True)
         data = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "command": argv_s,
-                "git": _git_rev(), "results": results, "params": params}
+                "git": _git_rev(), "results": results, "params": params,
+                "load": [load0[0], os.getloadavg()[0]]}
         if old is not None:  # the other rows from the earlier run, in its order
             data = {**old, "results": {n: results.get(n, r) for n, r in old["results"].items()},
                     "refly": {"command": argv_s, "date": data["date"], "git": data["git"],
