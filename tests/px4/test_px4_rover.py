@@ -101,35 +101,30 @@ def frame(start: tuple[float, ...], heading: float, p: tuple[float, ...]) -> tup
 async def drive_straight(gcs: Gcs, stream: VelocityStream, start: tuple[float, ...],
                          heading: float, speed: float, until_m: float, timeout_s: float) -> bool:
     """Drive along `heading` from `start` at `speed`, steering the velocity's direction back
-    onto the line (course = heading - atan(0.5 cross)), until `until_m` along; bounded."""
+    onto the line, until `until_m` along; bounded. Course = heading - atan(cross) - 0.3 *
+    integral(cross): PX4 steers its heading estimate, which can be ~10 deg off at first (with
+    atan(0.5 cross) alone the rover ran up to 0.33 m off the line)."""
     deadline = time.monotonic() + timeout_s
+    integral, period = 0.0, 1.0 / SETPOINT_HZ
     while time.monotonic() < deadline:
         pos = gcs.position
         assert pos is not None
         along, cross = frame(start, heading, pos)
         if along >= until_m:
             return True
-        course = heading - math.atan(0.5 * cross)
+        integral = min(max(integral + cross * period, -1.0), 1.0)
+        course = heading - math.atan(cross) - 0.3 * integral
         stream.vel_ne = (speed * math.cos(course), speed * math.sin(course))
-        await asyncio.sleep(1.0 / SETPOINT_HZ)  # the steering loop's period
+        await asyncio.sleep(period)  # the steering loop's period
     return False
-
-
-def speed_over(gcs: Gcs, window_s: float = 0.5) -> float:
-    """Horizontal speed [m/s] from the LOCAL_POSITION_NED samples of the last `window_s`."""
-    tr = [s for s in gcs.track if s.t >= gcs.track[-1].t - window_s]
-    if len(tr) < 2 or tr[-1].t - tr[0].t < 0.2:
-        return math.inf
-    return math.hypot(tr[-1].pos_ned[0] - tr[0].pos_ned[0],
-                      tr[-1].pos_ned[1] - tr[0].pos_ned[1]) / (tr[-1].t - tr[0].t)
 
 
 async def test_px4_rover_offboard_velocity_drives_a_straight_leg(px4_rover: Px4Sitl) -> None:
     """Arms, enters OFFBOARD on vx/vy setpoints and drives 12 m along its heading at 1.5 m/s:
-    never more than 0.5 m off the line (PX4's estimate; the bench measured 0.1-0.35 m on its
-    20 m leg at 2 m/s) and stopped within 2 m past the mark once the setpoint is zero
-    (PX4 overshoots 1.5 m/s by 10-20 % and brakes at RO_DECEL_LIM 3 m/s^2 with RO_JERK_LIM
-    10 m/s^3: measured 1.1 m past the mark)."""
+    never more than 0.5 m off the line (PX4's estimate; the bench's loop stayed within
+    0.23-0.39 m on its 20 m leg and turn at 2 m/s), in 5-12 s, and stops within 2 m past the
+    mark once the setpoint is (0, 0) (PX4 overshoots 1.5 m/s by 10-20 % and brakes at
+    RO_DECEL_LIM 3 m/s^2 with RO_JERK_LIM 10 m/s^3: measured 1.0-1.1 m past the mark)."""
     leg_m, speed = 12.0, 1.5
     async with ground_station(px4_rover.port, px4_rover.target_system) as gcs, \
             velocity_stream(gcs) as stream:
@@ -145,21 +140,26 @@ async def test_px4_rover_offboard_velocity_drives_a_straight_leg(px4_rover: Px4S
         t_leg = time.monotonic() - t0
         leg = gcs.track[n0:]
         stream.vel_ne = (0.0, 0.0)
-        await gcs.wait_for(lambda: speed_over(gcs) < 0.2, 5.0, "the rover to stop")
-        end = gcs.position
-        assert end is not None
+        t_zero, n_zero = time.monotonic(), len(gcs.track)
+        await gcs.wait_for(lambda: gcs.track[-1].t >= t_zero + 3.0, 5.0,
+                           "3 s of positions after the zero setpoint")
+        after = gcs.track[n_zero:]
         modes = {s.mode for s in leg}
     crosses = [abs(frame(start, heading, s.pos_ned)[1]) for s in leg]
-    along_end, cross_end = frame(start, heading, end)
+    alongs = [frame(start, heading, s.pos_ned)[0] for s in after]
+    # standing, PX4's estimate wanders (0.2-0.5 m in 3 s on SIH): the stop is the furthest
+    # point reached, and "stopped" means less than 0.4 m in the last second
+    last = [a for s, a in zip(after, alongs, strict=True) if s.t >= t_zero + 2.0]
+    stop_along = max(alongs, default=math.nan)
     print(f"leg {t_leg:.1f} s, cross-track max {max(crosses, default=math.nan):.2f} m, "
-          f"stopped {along_end:.2f} m along, {cross_end:.2f} m across")
-    assert reached, f"did not cover {leg_m} m in 20 s (reached {frame(start, heading, end)})"
+          f"stopped {stop_along:.2f} m along, last second {max(last) - min(last):.2f} m")
+    assert reached, f"did not cover {leg_m} m in 20 s (reached {stop_along:.1f} m)"
     # 12 m at 1.5 m/s is 8 s; PX4 overshoots the speed by 10-20 % and ramps at 3 m/s^2
     assert 5.0 < t_leg < 12.0, f"{leg_m} m took {t_leg:.1f} s at a {speed} m/s setpoint"
     assert len(crosses) > 100  # ~30 Hz over the leg
     assert max(crosses) <= 0.5, f"cross-track up to {max(crosses):.2f} m"
-    assert leg_m <= along_end <= leg_m + 2.0, f"stopped {along_end:.2f} m along"
-    assert abs(cross_end) <= 0.5
+    assert leg_m <= stop_along <= leg_m + 2.0, f"stopped {stop_along:.2f} m along"
+    assert len(last) > 10 and max(last) - min(last) < 0.4, "still driving 2 s after (0, 0)"
     assert modes == {"OFFBOARD"}, f"left OFFBOARD during the leg: {modes}"
     assert all(s.armed for s in leg)
 
