@@ -24,6 +24,15 @@ px4 (real PX4 v1.16 SITL, real time, ../shared/px4_sitl through px4_harness.Px4S
   (the flight plan's, placed at PX4's HOME_POSITION) from PX4's LOCAL_POSITION_NED and from the
   ground truth HIL_STATE_QUATERNION (requested at 50 Hz on PX4's GCS link, UDP 14550, by a
   recorder in this process; "-" when that port is taken).
+px4 with `--build main` (PX4 built from main, ../shared/px4_main_sitl, SIH's Ackermann rover
+  `--model sihsim_rover_ackermann` by default): PX4's own AUTO.MISSION only, of every
+  examples/missions/*rover* file (or `--px4-mission`), as an outsider with pymavlink
+  (bench/rover_link.py: upload, arm in Hold retried until the estimator is ready, DO_SET_MODE
+  AUTO.MISSION, wait until the rover leaves AUTO.MISSION or disarms). From the .tlog: armed time
+  (arm COMMAND_ACK to the first HEARTBEAT out of AUTO.MISSION or disarmed), closest approach of
+  each waypoint (horizontal, LOCAL_POSITION_NED and HIL_STATE_QUATERNION at 50 Hz), deviation
+  from the straight legs (home, waypoints), MISSION_ITEM_REACHED. `--write` then replaces the
+  section "Missions: PX4 AUTO.MISSION on the rover (PX4 main)" instead.
 planning: wall time of `build_schedule` on a 100-waypoint mission with speed changes (the
   vehicle's default limits, which include every limit and the corridor once the planner has
   them) against the plain fixed-duration minimum-snap solve of the same points in the same run
@@ -90,9 +99,10 @@ from companion.replay.runner import (  # noqa: E402
 )
 
 MISSIONS_DIR = REPO / "examples" / "missions"
-ROVER_MISSIONS = ("rover_square.plan",)
+ROVER_MISSIONS = tuple(sorted(p.name for p in MISSIONS_DIR.glob("*rover*")))
 SECTION = "Missions: companion vs AUTO.MISSION"
 SECTION_BASELINE = SECTION + " (pre-change baseline)"
+SECTION_ROVER = "Missions: PX4 AUTO.MISSION on the rover (PX4 main)"
 FLIGHT_LOCK = "/tmp/ecca-px4-flights.lock"
 GOAL_RATIO = 0.8
 GOAL_WP_M = 0.5
@@ -371,8 +381,14 @@ def _home_from_tlog(tlog: Path, sysid: int) -> tuple[float, ...] | None:
 
 
 def px4_flight(kind: str, plan: Path, folder: Path, timeout_s: float, corridor_m: float,
-               mode: str) -> dict[str, Any]:
-    """One flight of `plan` on a fresh real PX4: `kind` "companion" (fly CLI) or "auto_mission"."""
+               mode: str, build: str = "v1.16", model: str | None = None) -> dict[str, Any]:
+    """One flight of `plan` on a fresh real PX4: `kind` "companion" (fly CLI) or "auto_mission";
+    `build` "main" (PX4 main's rover, `model`): AUTO.MISSION only (rover_mission_flight)."""
+    if build != "v1.16":
+        if kind != "auto_mission":
+            raise ValueError(f"build {build}: only PX4's own AUTO.MISSION is flown here")
+        return rover_mission_flight(plan, folder, timeout_s, corridor_m, build,
+                                    model or "sihsim_rover_ackermann")
     import api_harness as H  # noqa: N812
     import bench_fidelity as F  # noqa: N812
 
@@ -429,18 +445,161 @@ def px4_flight(kind: str, plan: Path, folder: Path, timeout_s: float, corridor_m
     return out
 
 
+def mission_window(tlog: Path, sysid: int) -> tuple[float, float, str]:
+    """(arm COMMAND_ACK accepted, the first HEARTBEAT after it, once AUTO.MISSION was seen, that
+    is out of it or disarmed, that HEARTBEAT's mode) from a .tlog (Unix s; NaN where
+    missing). A rover's mission ends in Hold, armed (no landing to disarm it)."""
+    from pymavlink import mavutil
+    from rover_link import MISSION, mode_name
+
+    conn = mavutil.mavlink_connection(str(tlog))
+    t_arm = t_end = math.nan
+    seen = False
+    how = ""
+    try:
+        for _ in range(10_000_000):
+            m = conn.recv_match(type=["COMMAND_ACK", "HEARTBEAT"])
+            if m is None:
+                break
+            if m.get_srcSystem() != sysid or m.get_srcComponent() != 1:
+                continue
+            t = float(m._timestamp)
+            if m.get_type() == "COMMAND_ACK":
+                if math.isnan(t_arm) and m.command == 400 and m.result == 0:
+                    t_arm = t
+                continue
+            if math.isnan(t_arm) or t < t_arm + 1.0:
+                continue
+            armed = bool(m.base_mode & 128)
+            seen = seen or (m.custom_mode == MISSION and armed)
+            if seen and (m.custom_mode != MISSION or not armed):
+                t_end = t
+                how = f"{mode_name(m.custom_mode)}, {'armed' if armed else 'disarmed'}"
+                break
+    finally:
+        conn.close()
+    return t_arm, t_end, how
+
+
+def rover_mission_flight(plan: Path, folder: Path, timeout_s: float, corridor_m: float,
+                         build: str, model: str) -> dict[str, Any]:
+    """PX4's AUTO.MISSION of `plan` on a fresh PX4 `build` running SIH `model` (a rover), flown
+    and recorded by bench/rover_link.py; the figures from its .tlog (see the module doc)."""
+    import api_harness as H  # noqa: N812
+    from rover_link import HOLD, MISSION, RoverLink
+
+    from companion.mission import load_mission, mission_upload_items
+    from px4_harness import STARTED_MARK, Px4Sitl, find_px4_sitl
+
+    loc, why = find_px4_sitl(build)
+    if loc is None:
+        raise RuntimeError(f"no PX4 {build} SITL: {why}")
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir(parents=True)
+    mission = load_mission(plan)
+    fp = mission_to_flight_plan(mission, vehicle="rover")
+    items = list(mission_upload_items(mission))
+    tlog = folder / "mission.tlog"
+    out: dict[str, Any] = {"kind": "auto_mission", "build": build, "model": model}
+    with flight_lock() as waited:
+        out["lock_wait_s"] = waited
+        with Px4Sitl(location=loc, model=model, ready_mark=STARTED_MARK,
+                     log=folder / "px4-console.log") as px4, \
+                RoverLink(px4.port, px4.target_system, tlog=tlog) as link:
+            sysid = px4.target_system
+            if not link.wait_heartbeat(20.0):
+                raise RuntimeError("no HEARTBEAT from PX4")
+            link.set_message_interval(115, 50.0)  # ground truth
+            link.set_message_interval(32, 50.0)
+            out["upload_result"] = link.upload_mission(items)
+            if out["upload_result"] != 0:
+                raise RuntimeError(f"mission upload: MAV_MISSION_RESULT {out['upload_result']}")
+            armed, out["arm_wait_s"] = link.arm(40.0)
+            if not armed:
+                raise RuntimeError("the rover did not arm")
+            out["mission_ack"] = link.set_mode(MISSION)
+            link.wait(lambda: link.mode == MISSION, 5.0)
+            link.wait(lambda: link.mode != MISSION or not link.armed, timeout_s)
+            link.wait(lambda: False, 1.5)  # the HEARTBEAT after the end, into the tlog
+            out["texts"] = [t for _, t in link.texts]
+            out["reached"] = [(t, seq) for t, seq in link.reached]
+            link.set_mode(HOLD)
+    t0, t1, how = mission_window(tlog, sysid)
+    out["time_s"] = t1 - t0
+    out["ended"] = how or f"not within {timeout_s:g} s"
+    data = H.read_flight_tlog(tlog, sysid)
+    home = _home_from_tlog(tlog, sysid)
+    off = _px4_frame(fp, mission, home)
+    flat = np.array([1.0, 1.0, 0.0])  # a rover: horizontal distances only
+    legs = (fp.points_ned_m() + off) * flat
+    corners, acc = corner_points(fp)
+    wps = (corners + off) * flat
+    end = t1 if math.isfinite(t1) else float(data.lpos_t[-1]) if len(data.lpos_t) else 0.0
+    sel = (data.lpos_t >= t0) & (data.lpos_t <= end)
+    out["estimate"] = path_metrics(data.lpos[sel, :3] * flat, wps, legs, wps, acc, corridor_m)
+    tsel = (data.truth_t >= t0) & (data.truth_t <= end)
+    out["truth"] = (path_metrics(data.truth[tsel] * flat, wps, legs, wps, acc, corridor_m)
+                    if np.any(tsel) else {"error": "no HIL_STATE_QUATERNION / HOME_POSITION"})
+    out["acceptance_m"] = [float(a) for a in acc]
+    return out
+
+
+def rover_px4_table(entries: list[dict[str, Any]]) -> str:
+    """One row per mission (median (min-max) over the repeats)."""
+    def cell(runs: list[dict[str, Any]], key: str, sub: str | None = None,
+             fmt: str = ".1f") -> str:
+        vals = []
+        for r in runs:
+            v = r.get(key) if sub is None else r.get(key, {}).get(sub)
+            if isinstance(v, (int, float)) and math.isfinite(v):
+                vals.append(float(v))
+        if not vals:
+            return "-"
+        if len(vals) == 1:
+            return format(vals[0], fmt)
+        return f"{np.median(vals):{fmt}} ({min(vals):{fmt}}-{max(vals):{fmt}})"
+
+    lines = ["| mission | armed time [s] | how it ended | closest approach per waypoint, "
+             "estimate [m] | worst waypoint, estimate / truth [m] | deviation from the legs "
+             "RMS / max, estimate [m] | RMS / max, truth [m] | MISSION_ITEM_REACHED seqs |",
+             "| --- | ---: | --- | --- | ---: | ---: | ---: | --- |"]
+    for e in entries:
+        runs = [r for r in e["runs"]["auto_mission"] if "error" not in r]
+        name = Path(e["mission"]).name
+        if not runs:
+            errs = "; ".join(r.get("error", "?") for r in e["runs"]["auto_mission"])
+            lines.append(f"| {name} | failed: {errs} | | | | | | |")
+            continue
+        per = " / ".join(", ".join(f"{c:.2f}" for c in r["estimate"]["closest_m"])
+                         for r in runs)
+        ended = "; ".join(sorted({r.get("ended", "?") for r in runs}))
+        reached = " / ".join(",".join(str(q) for q in sorted({q for _, q in r.get("reached", [])}))
+                             for r in runs)
+        lines.append(
+            f"| {name} | {cell(runs, 'time_s')} | {ended} | {per} | "
+            f"{cell(runs, 'estimate', 'max_closest_m', '.2f')} / "
+            f"{cell(runs, 'truth', 'max_closest_m', '.2f')} | "
+            f"{cell(runs, 'estimate', 'rms_dev_m', '.2f')} / "
+            f"{cell(runs, 'estimate', 'max_dev_m', '.2f')} | "
+            f"{cell(runs, 'truth', 'rms_dev_m', '.2f')} / "
+            f"{cell(runs, 'truth', 'max_dev_m', '.2f')} | {reached} |")
+    return "\n".join(lines) + "\n"
+
+
 def px4_part(args: argparse.Namespace) -> list[dict[str, Any]]:
     """Every `--px4-mission`, `--repeat` times by the companion and by AUTO.MISSION."""
     out = []
     for m, mission in enumerate(args.px4_mission):
         plan = Path(mission).resolve()
-        runs: dict[str, list[dict[str, Any]]] = {"companion": [], "auto_mission": []}
+        kinds = ("companion", "auto_mission") if args.build == "v1.16" else ("auto_mission",)
+        runs: dict[str, list[dict[str, Any]]] = {k: [] for k in kinds}
         for i in range(args.repeat):
             for kind in runs:
                 t0 = time.perf_counter()
                 try:
                     r = px4_flight(kind, plan, Path(args.out) / f"px4-{m}-{kind}-{i}",
-                                   args.px4_timeout, args.corridor, args.mode)
+                                   args.px4_timeout, args.corridor, args.mode, args.build,
+                                   args.model)
                 except Exception as exc:  # one failed flight must not lose the run
                     r = {"kind": kind, "error": f"{type(exc).__name__}: {exc}",
                          "time_s": math.nan}
@@ -453,7 +612,8 @@ def px4_part(args: argparse.Namespace) -> list[dict[str, Any]]:
                       f"{r.get('lock_wait_s', 0.0):.0f} s)", flush=True)
         out.append({"mission": str(plan.relative_to(REPO) if plan.is_relative_to(REPO)
                                    else plan),
-                    "mode": args.mode, "runs": runs,
+                    "mode": args.mode, "runs": runs, "build": args.build,
+                    "model": args.model,
                     "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())})
     return out
 
@@ -694,7 +854,20 @@ def section(title: str, argv: str, mock: list[dict[str, Any]] | None,
             "The companion plans as "
             f"`prepare_mission` does (`ReplayConfig.limits`: {_limits_text(mock)}).\n\n"
             + mock_table(mock, corridor_m, bound_name))
+    rover = [e for e in px4 or [] if e.get("build", "v1.16") != "v1.16"]
+    if rover:
+        parts.append(
+            "### Real PX4 main SITL (SIH Ackermann rover, default parameters, real time): PX4's "
+            f"AUTO.MISSION\n\n{reused}Each flight on a fresh PX4 ({rover[0]['date']}), flown "
+            "and recorded by a pymavlink client (bench/rover_link.py); armed time from the "
+            ".tlog (arm COMMAND_ACK to the first HEARTBEAT out of AUTO.MISSION or disarmed, "
+            "+-1 s); waypoints placed at PX4's HOME_POSITION; horizontal distances; deviation "
+            "from the straight legs home -> waypoints (cross-track, corners included). "
+            "Closest approach per waypoint: one group per flight.\n\n"
+            + rover_px4_table(rover))
     for entry in px4 or []:
+        if entry.get("build", "v1.16") != "v1.16":
+            continue
         parts.append(
             "### Real PX4 v1.16 SITL (SIH quad, default parameters, real time): "
             f"{entry['mission']}\n\n{reused}Each flight on a fresh PX4 ({entry['date']}); armed "
@@ -729,8 +902,14 @@ def _git_rev() -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="companion vs AUTO.MISSION (issue 13's goals)")
-    ap.add_argument("--parts", nargs="+", choices=("mock", "px4", "planning"),
-                    default=["mock", "px4", "planning"])
+    ap.add_argument("--parts", nargs="+", choices=("mock", "px4", "planning"), default=None,
+                    help="default: mock px4 planning (--build v1.16), px4 (--build main)")
+    ap.add_argument("--build", choices=("v1.16", "main"), default="v1.16",
+                    help="real PX4 build: v1.16 (SIH quad: companion and AUTO.MISSION) or main "
+                         "(SIH rover: AUTO.MISSION only; --write updates "
+                         f"\"{SECTION_ROVER}\")")
+    ap.add_argument("--model", default=None,
+                    help="SIH model of --build main (default sihsim_rover_ackermann)")
     ap.add_argument("--missions", nargs="*", default=[],
                     help="mock: only these files of examples/missions (name or stem) and any "
                          "other mission file given by its path")
@@ -739,8 +918,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--corridor", type=float, default=None,
                     help="corridor half-width along the legs [m] (default: VehicleLimits()."
                          "corridor_m if the planner has it, else 1)")
-    ap.add_argument("--px4-mission", nargs="+", default=[str(MISSIONS_DIR / "square.plan")],
-                    help="mission(s) flown on real PX4 (default examples/missions/square.plan)")
+    ap.add_argument("--px4-mission", nargs="+", default=None,
+                    help="mission(s) flown on real PX4 (default examples/missions/square.plan; "
+                         "--build main: examples/missions/*rover*)")
     ap.add_argument("--repeat", type=int, default=1,
                     help="real-PX4 flights per kind (each ~2-3 min real time)")
     ap.add_argument("--mode", default="attitude", choices=("position", "attitude", "rates"),
@@ -758,6 +938,13 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.repeat < 1:
         ap.error("--repeat must be >= 1")
+    if args.parts is None:
+        args.parts = ["mock", "px4", "planning"] if args.build == "v1.16" else ["px4"]
+    if args.px4_mission is None:
+        args.px4_mission = ([str(MISSIONS_DIR / "square.plan")] if args.build == "v1.16" else
+                            [str(MISSIONS_DIR / n) for n in ROVER_MISSIONS])
+    if args.build != "v1.16" and args.model is None:
+        args.model = "sihsim_rover_ackermann"
     if args.corridor is None:
         args.corridor = float(getattr(VehicleLimits(), "corridor_m", 1.0))
     out = Path(args.out)
@@ -783,6 +970,10 @@ def main(argv: list[str] | None = None) -> int:
          "mock": mock, "px4": px4, "planning": planning, "bound": bound_name},
         indent=1, default=float))
     title = SECTION_BASELINE if args.write_baseline else SECTION
+    if args.build != "v1.16":
+        if args.write_baseline:
+            ap.error("--write-baseline is for the quad's section (--build v1.16)")
+        title = SECTION_ROVER
     text = section(title, argv_s, mock, px4, planning, args.corridor, bound_name,
                    (load0[0], os.getloadavg()[0]), args.label, reused)
     print(text)

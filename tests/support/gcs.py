@@ -54,6 +54,7 @@ class Gcs(asyncio.DatagramProtocol):
     parser: Any = None
     heartbeat: Any = None
     heartbeat_t: float = 0.0
+    attitude: Any = None  # the latest ATTITUDE (roll, pitch, yaw [rad])
     texts: list[tuple[float, str]] = field(default_factory=list)
     track: list[Sample] = field(default_factory=list)
     acks: list[Any] = field(default_factory=list)
@@ -82,6 +83,8 @@ class Gcs(asyncio.DatagramProtocol):
                 self.heartbeat, self.heartbeat_t = m, now
             elif kind == "LOCAL_POSITION_NED" and self.heartbeat is not None:
                 self.track.append(Sample(now, (m.x, m.y, m.z), self.mode, self.armed))
+            elif kind == "ATTITUDE":
+                self.attitude = m
             elif kind == "COMMAND_ACK":
                 self.acks.append(m)
             elif kind.startswith("MISSION_") and kind not in ("MISSION_CURRENT",
