@@ -25,14 +25,16 @@ px4 (real PX4 v1.16 SITL, real time, ../shared/px4_sitl through px4_harness.Px4S
   ground truth HIL_STATE_QUATERNION (requested at 50 Hz on PX4's GCS link, UDP 14550, by a
   recorder in this process; "-" when that port is taken).
 px4 with `--build main` (PX4 built from main, ../shared/px4_main_sitl, SIH's Ackermann rover
-  `--model sihsim_rover_ackermann` by default): PX4's own AUTO.MISSION only, of every
-  examples/missions/*rover* file (or `--px4-mission`), as an outsider with pymavlink
-  (bench/rover_link.py: upload, arm in Hold retried until the estimator is ready, DO_SET_MODE
-  AUTO.MISSION, wait until the rover leaves AUTO.MISSION or disarms). From the .tlog: armed time
-  (arm COMMAND_ACK to the first HEARTBEAT out of AUTO.MISSION or disarmed), closest approach of
-  each waypoint (horizontal, LOCAL_POSITION_NED and HIL_STATE_QUATERNION at 50 Hz), deviation
-  from the straight legs (home, waypoints), MISSION_ITEM_REACHED. `--write` then replaces the
-  section "Missions: PX4 AUTO.MISSION on the rover (PX4 main)" instead.
+  `--model sihsim_rover_ackermann` by default): every examples/missions/*rover* file (or
+  `--px4-mission`) driven by `python -m companion fly` (rover mode) and by PX4's own
+  AUTO.MISSION, flown as an outsider with pymavlink (bench/rover_link.py: upload, arm in Hold
+  retried until the estimator is ready, DO_SET_MODE AUTO.MISSION, wait until the rover leaves
+  AUTO.MISSION or disarms), each on a fresh PX4. From each .tlog, the same way for both
+  (`rover_tlog_figures`): armed time (arm COMMAND_ACK to the first HEARTBEAT out of
+  AUTO.MISSION, or out of OFFBOARD for the companion, or disarmed), closest approach of each
+  waypoint (horizontal, LOCAL_POSITION_NED, and the ground truth HIL_STATE_QUATERNION at 50 Hz),
+  deviation from the straight legs (home, waypoints). `--write` then replaces the section
+  "Missions: companion vs PX4 AUTO.MISSION on the rover (PX4 main)" instead.
 planning: wall time of `build_schedule` on a 100-waypoint mission with speed changes (the
   vehicle's default limits, which include every limit and the corridor once the planner has
   them) against the plain fixed-duration minimum-snap solve of the same points in the same run
@@ -102,7 +104,7 @@ MISSIONS_DIR = REPO / "examples" / "missions"
 ROVER_MISSIONS = tuple(sorted(p.name for p in MISSIONS_DIR.glob("*rover*")))
 SECTION = "Missions: companion vs AUTO.MISSION"
 SECTION_BASELINE = SECTION + " (pre-change baseline)"
-SECTION_ROVER = "Missions: PX4 AUTO.MISSION on the rover (PX4 main)"
+SECTION_ROVER = "Missions: companion vs PX4 AUTO.MISSION on the rover (PX4 main)"
 FLIGHT_LOCK = "/tmp/ecca-px4-flights.lock"
 GOAL_RATIO = 0.8
 GOAL_WP_M = 0.5
@@ -385,10 +387,8 @@ def px4_flight(kind: str, plan: Path, folder: Path, timeout_s: float, corridor_m
     """One flight of `plan` on a fresh real PX4: `kind` "companion" (fly CLI) or "auto_mission";
     `build` "main" (PX4 main's rover, `model`): AUTO.MISSION only (rover_mission_flight)."""
     if build != "v1.16":
-        if kind != "auto_mission":
-            raise ValueError(f"build {build}: only PX4's own AUTO.MISSION is flown here")
-        return rover_mission_flight(plan, folder, timeout_s, corridor_m, build,
-                                    model or "sihsim_rover_ackermann")
+        fn = rover_companion_flight if kind == "companion" else rover_mission_flight
+        return fn(plan, folder, timeout_s, corridor_m, build, model or "sihsim_rover_ackermann")
     import api_harness as H  # noqa: N812
     import bench_fidelity as F  # noqa: N812
 
@@ -445,12 +445,16 @@ def px4_flight(kind: str, plan: Path, folder: Path, timeout_s: float, corridor_m
     return out
 
 
-def mission_window(tlog: Path, sysid: int) -> tuple[float, float, str]:
-    """(arm COMMAND_ACK accepted, the first HEARTBEAT after it, once AUTO.MISSION was seen, that
-    is out of it or disarmed, that HEARTBEAT's mode) from a .tlog (Unix s; NaN where
-    missing). A rover's mission ends in Hold, armed (no landing to disarm it)."""
+def mission_window(tlog: Path, sysid: int, flown: int | None = None
+                   ) -> tuple[float, float, str]:
+    """(arm COMMAND_ACK accepted, the first HEARTBEAT after it, once the mode `flown` (PX4
+    custom_mode; default AUTO.MISSION, OFFBOARD for the companion's drive) was seen, that is
+    out of it or disarmed, that HEARTBEAT's mode) from a .tlog (Unix s; NaN where missing). A
+    rover's mission ends in Hold, armed (no landing to disarm it)."""
     from pymavlink import mavutil
     from rover_link import MISSION, mode_name
+
+    mode_flown = MISSION if flown is None else flown
 
     conn = mavutil.mavlink_connection(str(tlog))
     t_arm = t_end = math.nan
@@ -471,8 +475,8 @@ def mission_window(tlog: Path, sysid: int) -> tuple[float, float, str]:
             if math.isnan(t_arm) or t < t_arm + 1.0:
                 continue
             armed = bool(m.base_mode & 128)
-            seen = seen or (m.custom_mode == MISSION and armed)
-            if seen and (m.custom_mode != MISSION or not armed):
+            seen = seen or (m.custom_mode == mode_flown and armed)
+            if seen and (m.custom_mode != mode_flown or not armed):
                 t_end = t
                 how = f"{mode_name(m.custom_mode)}, {'armed' if armed else 'disarmed'}"
                 break
@@ -485,7 +489,6 @@ def rover_mission_flight(plan: Path, folder: Path, timeout_s: float, corridor_m:
                          build: str, model: str) -> dict[str, Any]:
     """PX4's AUTO.MISSION of `plan` on a fresh PX4 `build` running SIH `model` (a rover), flown
     and recorded by bench/rover_link.py; the figures from its .tlog (see the module doc)."""
-    import api_harness as H  # noqa: N812
     from rover_link import HOLD, MISSION, RoverLink
 
     from companion.mission import load_mission, mission_upload_items
@@ -524,7 +527,21 @@ def rover_mission_flight(plan: Path, folder: Path, timeout_s: float, corridor_m:
             out["texts"] = [t for _, t in link.texts]
             out["reached"] = [(t, seq) for t, seq in link.reached]
             link.set_mode(HOLD)
-    t0, t1, how = mission_window(tlog, sysid)
+    out.update(rover_tlog_figures(tlog, sysid, mission, fp, timeout_s, corridor_m, MISSION))
+    return out
+
+
+def rover_tlog_figures(tlog: Path, sysid: int, mission: Any, fp: FlightPlan, timeout_s: float,
+                       corridor_m: float, flown: int, truth: Any = None) -> dict[str, Any]:
+    """A rover flight's figures from its .tlog, as an outsider would take them (the same for
+    PX4's AUTO.MISSION and the companion's OFFBOARD drive): the armed time until the vehicle
+    leaves the mode `flown`, and horizontal distances of PX4's estimate (LOCAL_POSITION_NED)
+    and of the truth (HIL_STATE_QUATERNION in the .tlog, or `truth`'s recording) to the
+    waypoints placed at PX4's HOME_POSITION and to the straight legs."""
+    import api_harness as H  # noqa: N812
+
+    out: dict[str, Any] = {}
+    t0, t1, how = mission_window(tlog, sysid, flown)
     out["time_s"] = t1 - t0
     out["ended"] = how or f"not within {timeout_s:g} s"
     data = H.read_flight_tlog(tlog, sysid)
@@ -538,9 +555,56 @@ def rover_mission_flight(plan: Path, folder: Path, timeout_s: float, corridor_m:
     sel = (data.lpos_t >= t0) & (data.lpos_t <= end)
     out["estimate"] = path_metrics(data.lpos[sel, :3] * flat, wps, legs, wps, acc, corridor_m)
     tsel = (data.truth_t >= t0) & (data.truth_t <= end)
-    out["truth"] = (path_metrics(data.truth[tsel] * flat, wps, legs, wps, acc, corridor_m)
-                    if np.any(tsel) else {"error": "no HIL_STATE_QUATERNION / HOME_POSITION"})
+    tr = (data.truth[tsel] if np.any(tsel) else
+          truth.truth_ned(t0, end) if truth is not None else np.zeros((0, 3)))
+    out["truth"] = (path_metrics(tr * flat, wps, legs, wps, acc, corridor_m) if len(tr)
+                    else {"error": "no HIL_STATE_QUATERNION / HOME_POSITION"})
     out["acceptance_m"] = [float(a) for a in acc]
+    return out
+
+
+def rover_companion_flight(plan: Path, folder: Path, timeout_s: float, corridor_m: float,
+                           build: str, model: str) -> dict[str, Any]:
+    """`python -m companion fly PLAN` (rover mode) on a fresh PX4 `build` running SIH `model`,
+    the ground truth recorded on PX4's GCS link; the figures from its .tlog as for PX4's
+    AUTO.MISSION (`rover_tlog_figures`, OFFBOARD being the mode flown)."""
+    from rover_link import OFFBOARD
+
+    from companion.mission import load_mission
+    from px4_harness import STARTED_MARK, Px4Sitl, find_px4_sitl
+
+    loc, why = find_px4_sitl(build)
+    if loc is None:
+        raise RuntimeError(f"no PX4 {build} SITL: {why}")
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir(parents=True)
+    mission = load_mission(plan)
+    fp = mission_to_flight_plan(mission, vehicle="rover")
+    tlog = folder / "flight.tlog"
+    out: dict[str, Any] = {"kind": "companion", "build": build, "model": model}
+    with flight_lock() as waited:
+        out["lock_wait_s"] = waited
+        with Px4Sitl(location=loc, model=model, ready_mark=STARTED_MARK,
+                     log=folder / "px4-console.log") as px4, \
+                TruthRecorder(px4.target_system) as truth:
+            cmd = [sys.executable, "-m", "companion", "fly", str(plan), "--connect", px4.url,
+                   "--target-system", str(px4.target_system), "--log", str(tlog),
+                   "--timeout", "30"]
+            with open(folder / "fly-output.txt", "w") as log:
+                try:
+                    rc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT,
+                                        timeout=timeout_s + 90.0, cwd=REPO).returncode
+                except subprocess.TimeoutExpired:
+                    rc = -1
+            out["exit_code"] = rc
+            sysid = px4.target_system
+            rep = Path(f"{tlog}.report.json")
+            if rep.exists():
+                r = json.loads(rep.read_text())
+                out["fly_report"] = {k: r.get(k) for k in ("result", "duration_s",
+                                                           "planned_duration_s")}
+            out.update(rover_tlog_figures(tlog, sysid, mission, fp, timeout_s, corridor_m,
+                                          OFFBOARD, truth))
     return out
 
 
@@ -559,30 +623,34 @@ def rover_px4_table(entries: list[dict[str, Any]]) -> str:
             return format(vals[0], fmt)
         return f"{np.median(vals):{fmt}} ({min(vals):{fmt}}-{max(vals):{fmt}})"
 
-    lines = ["| mission | armed time [s] | how it ended | closest approach per waypoint, "
-             "estimate [m] | worst waypoint, estimate / truth [m] | deviation from the legs "
-             "RMS / max, estimate [m] | RMS / max, truth [m] | MISSION_ITEM_REACHED seqs |",
-             "| --- | ---: | --- | --- | ---: | ---: | ---: | --- |"]
+    lines = ["| mission | flown by | armed time [s] | time / AUTO.MISSION | how it ended | "
+             "closest approach per waypoint, estimate [m] | worst waypoint, estimate / truth "
+             "[m] | deviation from the legs RMS / max, estimate [m] | RMS / max, truth [m] |",
+             "| --- | --- | ---: | ---: | --- | --- | ---: | ---: | ---: |"]
     for e in entries:
-        runs = [r for r in e["runs"]["auto_mission"] if "error" not in r]
         name = Path(e["mission"]).name
-        if not runs:
-            errs = "; ".join(r.get("error", "?") for r in e["runs"]["auto_mission"])
-            lines.append(f"| {name} | failed: {errs} | | | | | | |")
-            continue
-        per = " / ".join(", ".join(f"{c:.2f}" for c in r["estimate"]["closest_m"])
-                         for r in runs)
-        ended = "; ".join(sorted({r.get("ended", "?") for r in runs}))
-        reached = " / ".join(",".join(str(q) for q in sorted({q for _, q in r.get("reached", [])}))
+        auto = [r for r in e["runs"].get("auto_mission", []) if "error" not in r]
+        auto_t = float(np.median([r["time_s"] for r in auto])) if auto else math.nan
+        for kind, label in (("companion", "companion (fly)"), ("auto_mission", "AUTO.MISSION")):
+            all_runs = e["runs"].get(kind, [])
+            runs = [r for r in all_runs if "error" not in r]
+            if not runs:
+                errs = "; ".join(r.get("error", "?") for r in all_runs) or "not flown"
+                lines.append(f"| {name} | {label} | failed: {errs} | | | | | | |")
+                continue
+            per = " / ".join(", ".join(f"{c:.2f}" for c in r["estimate"]["closest_m"])
                              for r in runs)
-        lines.append(
-            f"| {name} | {cell(runs, 'time_s')} | {ended} | {per} | "
-            f"{cell(runs, 'estimate', 'max_closest_m', '.2f')} / "
-            f"{cell(runs, 'truth', 'max_closest_m', '.2f')} | "
-            f"{cell(runs, 'estimate', 'rms_dev_m', '.2f')} / "
-            f"{cell(runs, 'estimate', 'max_dev_m', '.2f')} | "
-            f"{cell(runs, 'truth', 'rms_dev_m', '.2f')} / "
-            f"{cell(runs, 'truth', 'max_dev_m', '.2f')} | {reached} |")
+            ended = "; ".join(sorted({r.get("ended", "?") for r in runs}))
+            ratio = (f"{np.median([r['time_s'] for r in runs]) / auto_t:.2f}"
+                     if math.isfinite(auto_t) else "-")
+            lines.append(
+                f"| {name} | {label} | {cell(runs, 'time_s')} | {ratio} | {ended} | {per} | "
+                f"{cell(runs, 'estimate', 'max_closest_m', '.2f')} / "
+                f"{cell(runs, 'truth', 'max_closest_m', '.2f')} | "
+                f"{cell(runs, 'estimate', 'rms_dev_m', '.2f')} / "
+                f"{cell(runs, 'estimate', 'max_dev_m', '.2f')} | "
+                f"{cell(runs, 'truth', 'rms_dev_m', '.2f')} / "
+                f"{cell(runs, 'truth', 'max_dev_m', '.2f')} |")
     return "\n".join(lines) + "\n"
 
 
@@ -591,7 +659,7 @@ def px4_part(args: argparse.Namespace) -> list[dict[str, Any]]:
     out = []
     for m, mission in enumerate(args.px4_mission):
         plan = Path(mission).resolve()
-        kinds = ("companion", "auto_mission") if args.build == "v1.16" else ("auto_mission",)
+        kinds = ("companion", "auto_mission")
         runs: dict[str, list[dict[str, Any]]] = {k: [] for k in kinds}
         for i in range(args.repeat):
             for kind in runs:
@@ -857,13 +925,15 @@ def section(title: str, argv: str, mock: list[dict[str, Any]] | None,
     rover = [e for e in px4 or [] if e.get("build", "v1.16") != "v1.16"]
     if rover:
         parts.append(
-            "### Real PX4 main SITL (SIH Ackermann rover, default parameters, real time): PX4's "
-            f"AUTO.MISSION\n\n{reused}Each flight on a fresh PX4 ({rover[0]['date']}), flown "
-            "and recorded by a pymavlink client (bench/rover_link.py); armed time from the "
-            ".tlog (arm COMMAND_ACK to the first HEARTBEAT out of AUTO.MISSION or disarmed, "
-            "+-1 s); waypoints placed at PX4's HOME_POSITION; horizontal distances; deviation "
-            "from the straight legs home -> waypoints (cross-track, corners included). "
-            "Closest approach per waypoint: one group per flight.\n\n"
+            "### Real PX4 main SITL (SIH Ackermann rover, default parameters, real time): the "
+            f"companion and PX4's AUTO.MISSION\n\n{reused}Each flight on a fresh PX4 "
+            f"({rover[0]['date']}): `python -m companion fly` (rover mode), and AUTO.MISSION "
+            "flown and recorded by a pymavlink client (bench/rover_link.py); armed time from "
+            "the .tlog (arm COMMAND_ACK to the first HEARTBEAT out of OFFBOARD (the companion) "
+            "or AUTO.MISSION, or disarmed, +-1 s); waypoints placed at PX4's HOME_POSITION; "
+            "horizontal distances; deviation from the straight legs home -> waypoints "
+            "(cross-track, corners included). Closest approach per waypoint: one group per "
+            "flight. Cells: median (min-max) over the flights.\n\n"
             + rover_px4_table(rover))
     for entry in px4 or []:
         if entry.get("build", "v1.16") != "v1.16":

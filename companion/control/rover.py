@@ -90,21 +90,28 @@ class RoverController:
         self._cmd_prev: float | None = None  # the last reference speed [m/s]
         self._sent_prev: float | None = None  # the last speed sent [m/s]
 
-    def update(self, now: float, est: StateEstimate, ref: Reference) -> PositionCommand:
+    def update(self, now: float, est: StateEstimate, ref: Reference,
+               path: Reference | None = None) -> PositionCommand:
         """Velocity (NED, z NaN), yaw and yaw-rate setpoint at `now`.
 
         The reference heading/speed/yaw rate come from rover flatness of the xy reference;
         the along-track error corrects the speed, the cross-track error the heading, the heading
-        error the yaw rate. Bad input -> stop (zero velocity, zero yaw rate), flagged.
+        error the yaw rate. ``path``: the reference where its path passes closest to the
+        rover (default ``ref``): the heading, the cross-track error and the planned speed come
+        from it, the along-track error from ``ref`` (a rover behind its reference time steers
+        by the path beside it, not by a point round the next corner). Bad input -> stop (zero
+        velocity, zero yaw rate), flagged.
         """
+        beside = ref if path is None else path
         k = self.gains
-        if not (math.isfinite(now) and est.is_finite() and ref.is_finite()):
+        if not (math.isfinite(now) and est.is_finite() and ref.is_finite()
+                and beside.is_finite()):
             return PositionCommand(
                 vel_ned=np.array([0.0, 0.0, math.nan]), yaw_rate=0.0,
                 fallback=True, reason="input not finite",
             )
         try:
-            rs = rover_setpoint(ref.vel_ned[:2], ref.acc_ned[:2], ref.jerk_ned[:2])
+            rs = rover_setpoint(beside.vel_ned[:2], beside.acc_ned[:2], beside.jerk_ned[:2])
         except ValueError as exc:
             return PositionCommand(
                 vel_ned=np.array([0.0, 0.0, math.nan]), yaw_rate=0.0,
@@ -114,18 +121,17 @@ class RoverController:
         psi_ref = float(np.asarray(rs.yaw).reshape(-1)[0])
         r_ref = float(np.asarray(rs.yaw_rate).reshape(-1)[0])
         if not (math.isfinite(psi_ref) and math.isfinite(r_ref) and math.isfinite(speed)):
-            psi_ref, r_ref, speed = ref.yaw, 0.0, 0.0
+            psi_ref, r_ref, speed = beside.yaw, 0.0, 0.0
         if speed < 1e-3 and self._last_heading is not None:
             psi_ref = self._last_heading
         self._last_heading = psi_ref
         # latency: extrapolate the position with the measured velocity
         tau = min(max(now - est.t_s, 0.0), 0.25)
         pos = est.pos_ned[:2] + est.vel_ned[:2] * tau
-        e = ref.pos_ned[:2] - pos
         t_hat = np.array([math.cos(psi_ref), math.sin(psi_ref)])
         n_hat = np.array([-math.sin(psi_ref), math.cos(psi_ref)])
-        e_at = float(e @ t_hat)
-        e_ct = float(e @ n_hat)
+        e_at = float((ref.pos_ned[:2] - pos) @ t_hat)
+        e_ct = float((beside.pos_ned[:2] - pos) @ n_hat)
         self.last_lag_m = e_at
         yaw_est = yaw_of_dcm(quat_to_dcm(est.q_wxyz))
         dt = 0.0 if self._t_prev is None else now - self._t_prev

@@ -201,6 +201,11 @@ class FlightClock:
 
 #: The governed reference counts as standing still below this rate (`ProgressGovernor`).
 STALL_RATE = 0.05
+#: A rover's path point (`TrackingSource._path_point`): searched from this long [s] before the
+#: last one to the reference time, on this many samples, then refined this many times.
+PATH_SEARCH_BACK_S = 0.2
+PATH_SEARCH_SAMPLES = 8
+PATH_SEARCH_REFINE = 4
 
 
 class ProgressGovernor:
@@ -438,6 +443,7 @@ class TrackingSource:
         self.rover = RoverController() if mode == "rover" else None
         # a rover's reference waits for it (ProgressGovernor); other modes fly the clock
         self.governor = ProgressGovernor() if mode == "rover" else None
+        self._path_t = 0.0  # a rover: reference time of the path point beside it [s]
         # position mode: the drag PX4 does not model goes into the acceleration feed-forward
         known = params if params is not None else tracking.params if tracking is not None else None
         self.drag_per_kg = known.drag / known.mass if known is not None else 0.0
@@ -472,6 +478,7 @@ class TrackingSource:
             self.controller.reset()
         if self.governor is not None:
             self.governor.reset()
+        self._path_t = 0.0
         self.contact_s = self._still_since = None
 
     @property
@@ -528,6 +535,31 @@ class TrackingSource:
             self._still_since = None
         return False
 
+    def _path_point(self, t_s: float, est: StateEstimate) -> Reference:
+        """The reference where its path passes closest to the vehicle, searched forward from
+        the last one up to ``t_s`` (a rover steers by the path beside it: the reference time's
+        point may lie a few metres ahead, round a corner the rover has not reached)."""
+        lo = max(self._path_t - PATH_SEARCH_BACK_S, 0.0)
+        hi = max(t_s, lo)
+        here = est.pos_ned[:2]
+
+        def dist(t: float) -> float:
+            return float(np.linalg.norm(self._reference_at(t).pos_ned[:2] - here))
+
+        ts = np.linspace(lo, hi, PATH_SEARCH_SAMPLES)
+        ds = [dist(float(t)) for t in ts]
+        i = int(np.argmin(ds))
+        a, b = float(ts[max(i - 1, 0)]), float(ts[min(i + 1, len(ts) - 1)])
+        for _ in range(PATH_SEARCH_REFINE):  # golden section on the bracket
+            c = b - 0.618 * (b - a)
+            d = a + 0.618 * (b - a)
+            if dist(c) <= dist(d):
+                b = d
+            else:
+                a = c
+        self._path_t = max(self._path_t, 0.5 * (a + b)) if hi >= self._path_t else hi
+        return self._reference_at(self._path_t)
+
     def _estimate(self, telemetry: TelemetrySnapshot) -> StateEstimate | None:
         """`estimate_from_telemetry` with this source's clock, reused while the position and
         attitude samples are the same objects (telemetry arrives slower than setpoints go out;
@@ -579,7 +611,7 @@ class TrackingSource:
             return self.position_setpoint(t_s)
         if self.mode == "rover":
             assert self.rover is not None
-            cmd = self.rover.update(now, est, ref)
+            cmd = self.rover.update(now, est, ref, self._path_point(t_s, est))
             return PositionSetpoint(
                 vel_ned=(float(cmd.vel_ned[0]), float(cmd.vel_ned[1]), 0.0),
                 yaw_rate=_opt(float(cmd.yaw_rate)),

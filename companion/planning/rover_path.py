@@ -50,6 +50,14 @@ KNOT_S = 0.2
 PROFILE_DS_M = 0.02
 #: The speed profile is smoothed over this much path [m] (`_smooth`).
 SMOOTH_M = 0.6
+#: The profile keeps this share of every limit (the stored polynomials between knots overshoot
+#: the sampled profile by up to ~0.2 %).
+PROFILE_MARGIN = 0.99
+#: The lateral acceleration takes at most this share of the limit on the acceleration's norm.
+LAT_SHARE = 0.94
+#: The profile's speeding up and braking keep this share of the acceleration limit (the stored
+#: polynomials smooth the profile's acceleration steps and overshoot them by up to ~5 %).
+ACC_MARGIN = 0.93
 #: Turns smaller than this [rad] are driven straight through.
 MIN_TURN_RAD = 1e-4
 
@@ -197,21 +205,28 @@ def _profile(s: FloatArray, kappa: FloatArray, cap: FloatArray, lim: RoverLimits
     """Speed [m/s] at each arc-length sample: the fastest rest-to-rest profile within the
     limits (forward and backward passes), the speed limits eroded over ``erode`` samples."""
     k = np.abs(kappa)
+    m = PROFILE_MARGIN
+    a_lat = min(lim.max_lat_acc_m_s2, LAT_SHARE * _amax(lim))
     with np.errstate(divide="ignore"):
-        v_lat = np.where(k > 0.0, np.sqrt(lim.max_lat_acc_m_s2 / np.maximum(k, 1e-12)), np.inf)
-        v_yaw = np.where(k > 0.0, lim.max_yaw_rate_rad_s / np.maximum(k, 1e-12), np.inf)
-    v_lim = _erode(np.minimum.reduce([cap, np.full(len(s), lim.max_speed_m_s), v_lat, v_yaw]),
-                   erode)
+        v_lat = np.where(k > 0.0, np.sqrt(m * a_lat / np.maximum(k, 1e-12)), np.inf)
+        v_yaw = np.where(k > 0.0, m * lim.max_yaw_rate_rad_s / np.maximum(k, 1e-12), np.inf)
+    v_lim = _erode(np.minimum.reduce([m * cap, np.full(len(s), m * lim.max_speed_m_s), v_lat,
+                                      v_yaw]), erode)
     return _passes(s, v_lim, _a_lon(v_lim, k, lim))
 
 
+def _amax(lim: RoverLimits) -> float:
+    """The limit on the norm of the acceleration [m/s^2] (the lateral one if none)."""
+    return lim.max_acc_m_s2 if lim.max_acc_m_s2 is not None else lim.max_lat_acc_m_s2
+
+
 def _a_lon(v_lim: FloatArray, k: FloatArray, lim: RoverLimits) -> FloatArray:
-    """Speeding-up and braking allowed at each sample [m/s^2]: the acceleration limit less the
-    lateral part at the limiting speed (at least 0.3 of it)."""
-    amax = lim.max_acc_m_s2 if lim.max_acc_m_s2 is not None else lim.max_lat_acc_m_s2
-    a_lat = v_lim**2 * k
-    return np.asarray(np.sqrt(np.maximum(amax**2 - a_lat**2, (0.3 * amax) ** 2)),
-                      dtype=np.float64)
+    """Speeding-up and braking allowed at each sample [m/s^2]: within ACC_MARGIN of the
+    acceleration limit, less the lateral part at the limiting speed (that part is at most
+    LAT_SHARE of the limit, so this leaves at least a third)."""
+    amax = ACC_MARGIN * _amax(lim)
+    a_lat = np.minimum(v_lim**2 * k, LAT_SHARE * amax)
+    return np.asarray(np.sqrt(amax**2 - a_lat**2), dtype=np.float64)
 
 
 def _passes(s: FloatArray, v_lim: FloatArray, a_lon: FloatArray) -> FloatArray:
@@ -281,9 +296,13 @@ def rover_arc_trajectory(pts: FloatArray, caps: FloatArray, acceptance_m: Sequen
     # knots every KNOT_S (the last interval stretched to end at the duration)
     n = max(math.ceil(t[-1] / KNOT_S), 1)
     tk = np.linspace(0.0, float(t[-1]), n + 1)
-    sk = np.interp(tk, t, s)
-    vk = np.interp(tk, t, v)
-    ak = np.interp(tk, 0.5 * (t[:-1] + t[1:]), a_seg)
+    # the profile is the speed linear in time between its samples (constant acceleration
+    # a_seg): distance, speed and acceleration at the knots from that one motion, so they agree
+    i = np.clip(np.searchsorted(t, tk, side="right") - 1, 0, len(ds) - 1)
+    tau = tk - t[i]
+    ak = a_seg[i]
+    vk = np.maximum(v[i] + ak * tau, 0.0)
+    sk = s[i] + v[i] * tau + 0.5 * ak * tau**2
     vk[0] = vk[-1] = 0.0
     xk = np.column_stack([np.interp(sk, s, xy[:, 0]), np.interp(sk, s, xy[:, 1])])
     hk = np.interp(sk, s, psi)
@@ -293,9 +312,10 @@ def rover_arc_trajectory(pts: FloatArray, caps: FloatArray, acceptance_m: Sequen
     ks = np.interp(sk, s, np.gradient(kappa, s))  # dkappa/ds
     vel = vk[:, None] * tang
     accel = ak[:, None] * tang + (vk**2 * kk)[:, None] * norm
-    # j = (a' - v^3 k^2) T + (3 v a k + v^3 dk/ds) N, with a' = 0 (the profile's
-    # acceleration changes in steps; the knots' polynomials smooth them)
-    jerk = (-(vk**3) * kk**2)[:, None] * tang + (3.0 * vk * ak * kk + vk**3 * ks)[:, None] * norm
+    # j = (a' - v^3 k^2) T + (3 v a k + v^3 dk/ds) N, a' from the knots' accelerations
+    a_dot = np.gradient(ak, tk)
+    jerk = ((a_dot - vk**3 * kk**2)[:, None] * tang
+            + (3.0 * vk * ak * kk + vk**3 * ks)[:, None] * norm)
     rate = vk * kk
     rate_d = ak * kk + vk**2 * ks
     rate_dd = np.gradient(rate_d, tk)

@@ -102,8 +102,9 @@ def test_missing_file_is_a_clean_error(tmp_path: Path) -> None:
         load_vehicle_file(tmp_path / "nope.toml")
 
 
+@pytest.mark.parametrize("planner", ["arcs", "minsnap"])
 @pytest.mark.parametrize("cap", [None, 1.2, 2.7])
-def test_rover_speed_cap_bounds_the_planned_speed(cap: float | None) -> None:
+def test_rover_speed_cap_bounds_the_planned_speed(cap: float | None, planner: str) -> None:
     """Planned ground speed (sampled derivative of every trajectory piece) <= the cap, and
     reaches close to it on the square's 30 m legs; without a cap, ROVER_SPEED_SHARE of PX4's
     RO_SPEED_LIM (the rover's mission speed; the 5 m/s of a multicopter's MPC_XY_CRUISE made a
@@ -111,7 +112,8 @@ def test_rover_speed_cap_bounds_the_planned_speed(cap: float | None) -> None:
     fp = mission_to_flight_plan(
         load_mission(ROOT / "examples" / "missions" / "rover_square.plan"), vehicle="rover"
     )
-    sched = build_schedule(fp, None, VehicleLimits(rover_max_speed_m_s=cap))
+    sched = build_schedule(fp, None, VehicleLimits(rover_max_speed_m_s=cap,
+                                                   rover_planner=planner))  # type: ignore[arg-type]
     top = 0.0
     for piece in sched.pieces:
         if piece.traj is not None:

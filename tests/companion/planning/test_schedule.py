@@ -152,7 +152,8 @@ def test_rover_cruises_its_straight_legs_within_the_corridor(cap: float | None) 
 
     fp = mission_to_flight_plan(load_mission(ROOT / "examples" / "missions" / "rover_square.plan"),
                                 vehicle="rover")
-    sched = build_schedule(fp, None, VehicleLimits(rover_max_speed_m_s=cap))
+    sched = build_schedule(fp, None, VehicleLimits(rover_max_speed_m_s=cap,
+                                                   rover_planner="minsnap"))
     from companion.mission.px4_params import Px4PlanningParams
     from companion.planning.chunks import ROVER_SPEED_SHARE
 
@@ -188,7 +189,8 @@ def test_rover_legs_too_long_for_the_joints_fly_the_closer_pattern_with_a_warnin
     path.write_text(json.dumps(doc))
     fp = mission_to_flight_plan(load_mission(path), vehicle="rover")
     with caplog.at_level("WARNING", logger="companion.planning.schedule"):
-        sched = build_schedule(fp, None, VehicleLimits(rover_max_speed_m_s=2.7))
+        sched = build_schedule(fp, None, VehicleLimits(rover_max_speed_m_s=2.7,
+                                                       rover_planner="minsnap"))
     msgs = [r.getMessage() for r in caplog.records if "corridor" in r.getMessage()]
     assert len(msgs) == 1 and "leaves the 1 m corridor" in msgs[0], msgs
     t = np.linspace(0.0, sched.duration_s, 200001)
