@@ -91,7 +91,8 @@ class RoverController:
         self._sent_prev: float | None = None  # the last speed sent [m/s]
 
     def update(self, now: float, est: StateEstimate, ref: Reference,
-               path: Reference | None = None) -> PositionCommand:
+               path: Reference | None = None, ahead: Reference | None = None
+               ) -> PositionCommand:
         """Velocity (NED, z NaN), yaw and yaw-rate setpoint at `now`.
 
         The reference heading/speed/yaw rate come from rover flatness of the xy reference;
@@ -99,10 +100,13 @@ class RoverController:
         error the yaw rate. ``path``: the reference where its path passes closest to the
         rover (default ``ref``): the heading, the cross-track error and the planned speed come
         from it, the along-track error from ``ref`` (a rover behind its reference time steers
-        by the path beside it, not by a point round the next corner). Bad input -> stop (zero
-        velocity, zero yaw rate), flagged.
+        by the path beside it, not by a point round the next corner). ``ahead``: the path a
+        little further on, whose planned speed is commanded (PX4's rover answers a speed
+        command ~0.5 s late: it braked 0.9 m past the end point on the planned speed beside
+        it); default ``path``. Bad input -> stop (zero velocity, zero yaw rate), flagged.
         """
         beside = ref if path is None else path
+        lead = beside if ahead is None else ahead
         k = self.gains
         if not (math.isfinite(now) and est.is_finite() and ref.is_finite()
                 and beside.is_finite()):
@@ -117,7 +121,8 @@ class RoverController:
                 vel_ned=np.array([0.0, 0.0, math.nan]), yaw_rate=0.0,
                 fallback=True, reason=f"rover flatness refused the input: {exc}",
             )
-        speed = float(np.asarray(rs.speed).reshape(-1)[0])
+        speed = float(np.hypot(lead.vel_ned[0], lead.vel_ned[1])) if lead.is_finite() \
+            else float(np.asarray(rs.speed).reshape(-1)[0])
         psi_ref = float(np.asarray(rs.yaw).reshape(-1)[0])
         r_ref = float(np.asarray(rs.yaw_rate).reshape(-1)[0])
         if not (math.isfinite(psi_ref) and math.isfinite(r_ref) and math.isfinite(speed)):

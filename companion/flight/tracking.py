@@ -206,6 +206,9 @@ STALL_RATE = 0.05
 PATH_SEARCH_BACK_S = 0.2
 PATH_SEARCH_SAMPLES = 8
 PATH_SEARCH_REFINE = 4
+#: A rover is commanded the planned speed of its path this far [s] ahead of the point beside it
+#: (PX4's rover answers a speed command ~0.5 s late).
+SPEED_LEAD_S = 0.5
 
 
 class ProgressGovernor:
@@ -611,7 +614,9 @@ class TrackingSource:
             return self.position_setpoint(t_s)
         if self.mode == "rover":
             assert self.rover is not None
-            cmd = self.rover.update(now, est, ref, self._path_point(t_s, est))
+            beside = self._path_point(t_s, est)
+            cmd = self.rover.update(now, est, ref, beside,
+                                    self._reference_at(self._path_t + SPEED_LEAD_S))
             return PositionSetpoint(
                 vel_ned=(float(cmd.vel_ned[0]), float(cmd.vel_ned[1]), 0.0),
                 yaw_rate=_opt(float(cmd.yaw_rate)),
