@@ -23,6 +23,7 @@ whole path, crawls along the straight legs at the speed the corners allow (rover
 
 from __future__ import annotations
 
+import collections
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -46,8 +47,12 @@ CORNER_SHARE = 0.4
 CORNER_SHARE_MAX = 0.8
 #: Time between the knots of the stored trajectory [s].
 KNOT_S = 0.2
-#: Arc-length step of the speed profile [m].
+#: Arc-length step of the speed profile [m]; a straight leg gets at most LINE_SAMPLES samples
+#: (its profile is exact in the squared speed at any step), and a trajectory at most MAX_KNOTS
+#: knots (on a leg of kilometres they lie on straight motion).
 PROFILE_DS_M = 0.02
+LINE_SAMPLES = 2000
+MAX_KNOTS = 4000
 #: The speed profile is smoothed over this much path [m] (`_smooth`).
 SMOOTH_M = 0.6
 #: The profile keeps this share of every limit (the stored polynomials between knots overshoot
@@ -168,7 +173,7 @@ def _sample_path(pts: FloatArray, corners: list[_Corner], caps: FloatArray
         a = pts[k] + corners[k].tangent * unit[k]
         b = pts[k + 1] - corners[k + 1].tangent * unit[k]
         length = float(np.linalg.norm(b - a))
-        n = max(math.ceil(length / PROFILE_DS_M), 1)
+        n = max(math.ceil(length / max(PROFILE_DS_M, length / LINE_SAMPLES)), 1)
         last = k + 1 == len(legs)
         sig = np.linspace(0.0, length, n + 1) if last else np.linspace(0.0, length, n + 1)[:-1]
         psi = math.atan2(float(unit[k][1]), float(unit[k][0]))
@@ -201,17 +206,18 @@ def _sample_path(pts: FloatArray, corners: list[_Corner], caps: FloatArray
 
 
 def _profile(s: FloatArray, kappa: FloatArray, cap: FloatArray, lim: RoverLimits,
-             erode: int = 1) -> FloatArray:
+             erode_m: float = 0.0) -> FloatArray:
     """Speed [m/s] at each arc-length sample: the fastest rest-to-rest profile within the
-    limits (forward and backward passes), the speed limits eroded over ``erode`` samples."""
+    limits (forward and backward passes), the speed limits eroded over ``erode_m`` [m] either
+    side."""
     k = np.abs(kappa)
     m = PROFILE_MARGIN
     a_lat = min(lim.max_lat_acc_m_s2, LAT_SHARE * _amax(lim))
     with np.errstate(divide="ignore"):
         v_lat = np.where(k > 0.0, np.sqrt(m * a_lat / np.maximum(k, 1e-12)), np.inf)
         v_yaw = np.where(k > 0.0, m * lim.max_yaw_rate_rad_s / np.maximum(k, 1e-12), np.inf)
-    v_lim = _erode(np.minimum.reduce([m * cap, np.full(len(s), m * lim.max_speed_m_s), v_lat,
-                                      v_yaw]), erode)
+    v_lim = _erode(s, np.minimum.reduce([m * cap, np.full(len(s), m * lim.max_speed_m_s),
+                                         v_lat, v_yaw]), erode_m)
     return _passes(s, v_lim, _a_lon(v_lim, k, lim))
 
 
@@ -242,25 +248,33 @@ def _passes(s: FloatArray, v_lim: FloatArray, a_lon: FloatArray) -> FloatArray:
     return np.asarray(v, dtype=np.float64)
 
 
-def _window(s: FloatArray) -> int:
-    """Samples (odd) in SMOOTH_M of path."""
-    step = float(np.median(np.diff(s)))
-    return max(round(SMOOTH_M / step), 1) | 1
+def _erode(s: FloatArray, v: FloatArray, half: float) -> FloatArray:
+    """Running minimum of ``v`` over the samples within ``half`` [m] of arc length either side
+    (a monotone queue: one pass, any sample spacing)."""
+    n = len(v)
+    out = np.empty(n)
+    q: collections.deque[int] = collections.deque()  # indices, values increasing
+    hi = 0
+    for i in range(n):
+        while hi < n and s[hi] <= s[i] + half:
+            while q and v[q[-1]] >= v[hi]:
+                q.pop()
+            q.append(hi)
+            hi += 1
+        while s[q[0]] < s[i] - half:
+            q.popleft()
+        out[i] = v[q[0]]
+    return out
 
 
-def _erode(v: FloatArray, w: int) -> FloatArray:
-    """Running minimum over ``w`` samples (edges: the edge value)."""
-    h = w // 2
-    pad = np.concatenate([np.full(h, v[0]), v, np.full(h, v[-1])])
-    return np.asarray(np.lib.stride_tricks.sliding_window_view(pad, w).min(axis=1),
-                      dtype=np.float64)
-
-
-def _mean(v: FloatArray, w: int) -> FloatArray:
-    """Running mean over ``w`` samples (edges: the edge value), ends kept at rest."""
-    h = w // 2
-    pad = np.concatenate([np.full(h, v[0]), v, np.full(h, v[-1])])
-    out = np.lib.stride_tricks.sliding_window_view(pad, w).mean(axis=1)
+def _mean(s: FloatArray, v: FloatArray, half: float) -> FloatArray:
+    """Running mean of ``v`` over ``half`` [m] of arc length either side (the values beyond the
+    ends taken as the ends' own), the ends kept at rest."""
+    c = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(s))])
+    lo, hi = s - half, s + half
+    inner = np.interp(np.minimum(hi, s[-1]), s, c) - np.interp(np.maximum(lo, s[0]), s, c)
+    outer = np.maximum(s[0] - lo, 0.0) * v[0] + np.maximum(hi - s[-1], 0.0) * v[-1]
+    out = (inner + outer) / (2.0 * half)
     out[0] = out[-1] = 0.0
     return np.asarray(out, dtype=np.float64)
 
@@ -286,15 +300,15 @@ def rover_arc_trajectory(pts: FloatArray, caps: FloatArray, acceptance_m: Sequen
     # jerk-limited: the fastest profile within the speed limits eroded over SMOOTH_M, then
     # its running mean over SMOOTH_M (a mean of speeds that are each within every limit
     # anywhere in the window stays within the limit at its centre)
-    w = _window(s)
-    v = _mean(_profile(s, kappa, cap, lim, w), w)
+    half = 0.5 * SMOOTH_M
+    v = _mean(s, _profile(s, kappa, cap, lim, half), half)
     v = _passes(s, v, _a_lon(v, np.abs(kappa), lim))  # the ends of the mean: from rest again
     ds = np.diff(s)
     dt = 2.0 * ds / np.maximum(v[:-1] + v[1:], 1e-9)
     t = np.concatenate([[0.0], np.cumsum(dt)])
     a_seg = (v[1:] ** 2 - v[:-1] ** 2) / (2.0 * np.maximum(ds, 1e-12))  # dv/dt per interval
-    # knots every KNOT_S (the last interval stretched to end at the duration)
-    n = max(math.ceil(t[-1] / KNOT_S), 1)
+    # knots every KNOT_S, at most MAX_KNOTS (the last interval stretched to end at the end)
+    n = min(max(math.ceil(t[-1] / KNOT_S), 1), MAX_KNOTS)
     tk = np.linspace(0.0, float(t[-1]), n + 1)
     # the profile is the speed linear in time between its samples (constant acceleration
     # a_seg): distance, speed and acceleration at the knots from that one motion, so they agree
