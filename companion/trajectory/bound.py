@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
@@ -47,11 +48,20 @@ class KinematicLimits:
     max_acc_down_m_s2: float
 
 
+@lru_cache(maxsize=8)
+def _pairs(n: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """`np.triu_indices(n, 1)`, computed once per size (read-only)."""
+    i, j = np.triu_indices(n, 1)
+    i.setflags(write=False)
+    j.setflags(write=False)
+    return i, j
+
+
 def _max_x(rows: FloatArray) -> float:
     """Largest x over {(u, x): rows[:, 0] u + rows[:, 1] x <= rows[:, 2]} (a bounded polygon
     containing (0, 0)), by vertex enumeration."""
     a, b, c = rows[:, 0], rows[:, 1], rows[:, 2]
-    i, j = np.triu_indices(rows.shape[0], 1)
+    i, j = _pairs(rows.shape[0])
     det = a[i] * b[j] - a[j] * b[i]
     ok = np.abs(det) > 1e-12
     i, j, det = i[ok], j[ok], det[ok]
