@@ -58,7 +58,7 @@ from companion.replay.config import (
     ReplayConfig,
     self_lands,
 )
-from companion.replay.lockstep import LockstepLink, make_sim
+from companion.replay.lockstep import UNREAD_STREAMS, LockstepLink, make_sim
 
 
 class Flight:
@@ -225,8 +225,10 @@ def fly_schedule(
     """Fly `schedule` in lockstep against a fresh mock; returns the flight and its log.
 
     `progress(now_s, expected_s)` is called every 100 setpoint cycles with the simulated time
-    and the expected end of the flight (the schedule plus the start-up and landing)."""
-    sim = make_sim(config, home)
+    and the expected end of the flight (the schedule plus the start-up and landing). Without
+    a tlog the mock leaves the streams the companion does not read unbuilt (the same flight,
+    bit for bit: `UNREAD_STREAMS`)."""
+    sim = make_sim(config, home, unread=UNREAD_STREAMS if tlog is None else frozenset())
     link = VehicleLink(LinkConfig())
     log = FlightLog()
     lk = LockstepLink(sim, link, tlog)
