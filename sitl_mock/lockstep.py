@@ -88,4 +88,4 @@ class LockstepSim:
         self.step_until(self._now + dt_s)
 
     def _drain(self) -> None:
-        self._inbox.extend(d for d, _a in self.autopilot.datagrams_to_send(self._now, "offboard"))
+        self._inbox += self.autopilot.frames_to_send(self._now, "offboard")

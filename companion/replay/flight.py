@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from companion._frozen import frozen_new
 from companion.aio.tlog import TlogWriter
 from companion.control import Reference
 from companion.flight.policy import ROVER_SETTLE_S, handover_mode, plan_touchdown
@@ -201,7 +202,8 @@ class Flight:
             p = tel.position.pos_ned
             o = self.origin
             rel = (p[0] - float(o[0]), p[1] - float(o[1]), p[2] - float(o[2]))
-        view = VehicleView(
+        view = frozen_new(  # VehicleView(...) without its frozen __init__ (every cycle)
+            VehicleView,
             link_ok=self.link.heartbeat.link_up, armed=armed, mode=self.link.mode,
             ready=have_state and st is not None and st.armable, have_state=have_state,
             on_ground=ext is not None and ext.landed_state == 1, pos_ned=rel,

@@ -178,6 +178,10 @@ class Autopilot:
         # physics steps may land a hair past `now`
         return self.comms.datagrams_to_send(now - self._boot + 1e-9, link)
 
+    def frames_to_send(self, now: float, link: str) -> list[bytes]:
+        """`datagrams_to_send(now, link)`'s datagrams without their destinations."""
+        return self.comms.frames_due(now - self._boot + 1e-9, link)
+
     def get_timer(self) -> float:
         """Next time (caller's clock) at which `handle_timer` has work to do."""
         t = (self._n_steps + 1) * self.dt

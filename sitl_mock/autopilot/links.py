@@ -287,6 +287,20 @@ class Links:
                     out.append((item, dest))
         return out
 
+    def frames_due(self, t: float, link: str) -> list[bytes]:
+        """`datagrams_to_send(t, link)` without the destinations (an in-process caller that
+        reads one link: the lockstep pipe); the same datagrams, in the same order."""
+        lk = self.by_name[link]
+        if (lk.peer if lk.peer is not None else lk.remote) is None:
+            return [d for d, _a in self.datagrams_to_send(t, link)]  # (discards them)
+        fifo = lk.tx_fifo
+        if fifo is None:
+            return [item for item in lk.tx.pop_due(t) if item is not None]
+        out: list[bytes] = []
+        while fifo and fifo[0][0] <= t:
+            out.append(fifo.popleft()[1])
+        return out
+
     def next_due(self, t: float) -> float:
         """The earlier of `t` and the next time [s since boot] a channel has work."""
         for lk in self.by_name.values():

@@ -409,3 +409,28 @@ def test_gauss3_equals_three_random_gauss_calls() -> None:
         if k % 1000 == 17:  # a gauss call in between: the kept twin moves
             assert a.gauss() == b.gauss()
         assert gauss3(a, *s) == tuple(b.gauss(0.0, x) for x in s)
+
+
+@pytest.mark.parametrize("faults", [False, True])
+@pytest.mark.parametrize("remote", [API, None])
+def test_frames_to_send_are_the_datagrams_to_send(faults: bool, remote: Any) -> None:
+    """The lockstep pipe's drain (bytes only) against `datagrams_to_send` on twin autopilots."""
+    from sitl_mock.faults import LinkFaults
+
+    f = (None, LinkFaults(loss_pct=10.0, latency_s=0.015, jitter_s=0.01, duplicate_pct=5.0,
+                          reorder_pct=5.0)) if faults else None
+    kw: dict[str, Any] = {"remotes": {"offboard": remote}, "estimator_ready_s": 0.2, "seed": 2}
+    if f is not None:
+        kw["link_faults"] = {"offboard": f}
+    a, b = Autopilot(now=0.0, **kw), Autopilot(now=0.0, **kw)
+    got_a: list[bytes] = []
+    got_b: list[bytes] = []
+    for k in range(1, 400):
+        t = k * 0.01
+        a.advance(t)
+        b.advance(t)
+        if k % 3:
+            got_a += [d for d, _ in a.datagrams_to_send(t, "offboard")]
+            got_b += b.frames_to_send(t, "offboard")
+    assert got_a == got_b
+    assert (len(got_a) > 500) == (remote is not None)
