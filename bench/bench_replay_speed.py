@@ -5,9 +5,10 @@ Every figure is a ratio against a baseline tree measured in the same run, trees 
 A tree is a source checkout (e.g. `git archive START | tar -x -C /tmp/base`); each run is a fresh
 process with the tree first on `sys.path` and as its working directory.
 
-- `ab TREE...`: `python -m companion replay FILE --no-plot` as a user runs it: the whole
-  process (wall, from the parent), the lockstep loop alone (report.json's `wall_s`, the time in
-  `fly_schedule`) and the simulated time; medians and ratios against the first tree.
+- `ab TREE...`: `python -m companion replay FILE --no-plot` (`--plot`: with flight.png) as a
+  user runs it: the whole process (wall, from the parent), the lockstep loop alone
+  (report.json's `wall_s`, the time in `fly_schedule`) and the simulated time; medians and
+  ratios against the first tree.
   `--bytecode none` runs without the project's compiled bytecode (__pycache__ removed before
   each run, PYTHONDONTWRITEBYTECODE=1: what a source checkout without write access pays);
   `cached` (default) keeps it, as an installed package has it.
@@ -15,8 +16,9 @@ process with the tree first on `sys.path` and as its working directory.
   functions of the loop under cProfile (cProfile inflates small functions: read the ranking,
   not the absolute times).
 - `fingerprint TREE...`: the same replays (several modes, a perturbed one, a rover, PX4's own
-  mission) in each tree; sha256 of flight.tlog and of report.json without its wall-clock
-  fields. Equal digests: the trees fly bit-identical flights.
+  mission, and two flown without a tlog as a campaign flies them) in each tree; sha256 of
+  flight.tlog and of report.json without its wall-clock fields. Equal digests: the trees fly
+  bit-identical flights.
 - `campaign TREE...`: a campaign of `--runs` runs per mode on a local Dask cluster of
   `--workers` processes (cluster start-up and the workers' imports outside the timed part, as
   a campaign pays them once); wall, runs/s, the 1,000-run extrapolation, and a digest of the
@@ -78,8 +80,9 @@ def _check_tree(tree: Path) -> None:
 # ----------------------------------------------------------------------------- ab
 
 
-def replay_once(tree: Path, file: Path, mode: str, bytecode: str) -> dict[str, float]:
-    """One `python -m companion replay FILE --no-plot` in a fresh process of `tree`."""
+def replay_once(tree: Path, file: Path, mode: str, bytecode: str,
+                plot: bool = False) -> dict[str, float]:
+    """One `python -m companion replay FILE [--no-plot]` in a fresh process of `tree`."""
     if bytecode == "none":
         _drop_bytecode(tree)
     with tempfile.TemporaryDirectory() as out:
@@ -87,8 +90,8 @@ def replay_once(tree: Path, file: Path, mode: str, bytecode: str) -> dict[str, f
         ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.perf_counter()
         proc = subprocess.run(
-            [sys.executable, "-m", "companion", "replay", str(file), "--no-plot", "--mode", mode,
-             "--out", out],
+            [sys.executable, "-m", "companion", "replay", str(file), "--mode", mode,
+             "--out", out, *(() if plot else ("--no-plot",))],
             cwd=tree, env=_env(tree, bytecode), capture_output=True, text=True, check=False,
         )
         wall = time.perf_counter() - t0
@@ -109,11 +112,11 @@ def cmd_ab(args: argparse.Namespace) -> str:
     file = args.file.resolve()
     if args.bytecode == "cached":
         for t in trees:  # compile once (not timed)
-            replay_once(t, file, args.mode, "cached")
+            replay_once(t, file, args.mode, "cached", args.plot)
     runs: dict[Path, list[dict[str, float]]] = {t: [] for t in trees}
     for r in range(args.rounds):
         for t in trees:
-            res = replay_once(t, file, args.mode, args.bytecode)
+            res = replay_once(t, file, args.mode, args.bytecode, args.plot)
             runs[t].append(res)
             print(f"round {r + 1} {t}: whole {res['wall_s']:.3f} s ({res['x_whole']:.1f}x, "
                   f"CPU {res['cpu_s']:.3f} s), "
@@ -123,7 +126,8 @@ def cmd_ab(args: argparse.Namespace) -> str:
     med = {t: {k: statistics.median(r[k] for r in rs) for k in rs[0]} for t, rs in runs.items()}
     lines = [
         f"`{file.relative_to(ROOT) if file.is_relative_to(ROOT) else file}`, {args.mode} mode, "
-        f"{med[base]['sim_s']:.1f} simulated s, bytecode {args.bytecode}, {args.rounds} rounds "
+        f"{med[base]['sim_s']:.1f} simulated s, {'with flight.png' if args.plot else '--no-plot'}"
+        f", bytecode {args.bytecode}, {args.rounds} rounds "
         f"(medians; load average {min(r['load1'] for rs in runs.values() for r in rs):.2f}-"
         f"{max(r['load1'] for rs in runs.values() for r in rs):.2f}):",
         "",
@@ -389,6 +393,7 @@ def main() -> None:
     a.add_argument("--mode", default="attitude", choices=("attitude", "position", "rates"))
     a.add_argument("--rounds", type=int, default=5)
     a.add_argument("--bytecode", default="cached", choices=("cached", "none"))
+    a.add_argument("--plot", action="store_true", help="draw flight.png (default: --no-plot)")
     p = sub.add_parser("profile")
     p.add_argument("--file", type=Path, default=DEFAULT_FILE)
     p.add_argument("--mode", default="attitude", choices=("attitude", "position", "rates"))
