@@ -19,6 +19,8 @@ process with the tree first on `sys.path` and as its working directory.
   mission, and two flown without a tlog as a campaign flies them) in each tree; sha256 of
   flight.tlog and of report.json without its wall-clock fields. Equal digests: the trees fly
   bit-identical flights.
+- `instructions TREE...`: instructions of one lockstep loop under valgrind (callgrind), with
+  and without a tlog: a measure the machine's load does not move (slow: ~1 min per run).
 - `campaign TREE...`: a campaign of `--runs` runs per mode on a local Dask cluster of
   `--workers` processes (cluster start-up and the workers' imports outside the timed part, as
   a campaign pays them once); wall, runs/s, the 1,000-run extrapolation, and a digest of the
@@ -29,6 +31,7 @@ Usage:
   python bench/bench_replay_speed.py profile [--file F] [--top 30]
   python bench/bench_replay_speed.py fingerprint /tmp/base .
   python bench/bench_replay_speed.py campaign /tmp/base . [--runs 20] [--rounds 2]
+  python bench/bench_replay_speed.py instructions /tmp/base .
 """
 
 from __future__ import annotations
@@ -381,6 +384,71 @@ def cmd_campaign(args: argparse.Namespace) -> str:
     return "\n".join(lines)
 
 
+# ----------------------------------------------------------------------------- instructions
+
+_LOOPS_CHILD = r"""
+import logging, os, sys, tempfile
+root, file, mode, n, tlog = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4]), sys.argv[5]
+sys.path.insert(0, root)
+import companion
+assert companion.__file__.startswith(root), companion.__file__
+from companion.aio.tlog import TlogWriter
+from companion.replay.flight import fly_schedule
+from companion.replay.runner import ReplayConfig, prepare_mission
+logging.disable(logging.WARNING)
+cfg = ReplayConfig(mode=mode)
+prep = prepare_mission(file, cfg)
+d = tempfile.mkdtemp()
+for i in range(n):
+    if tlog == "tlog":
+        with TlogWriter(os.path.join(d, f"{i}.tlog"), buffer_bytes=1 << 20) as w:
+            fly_schedule(cfg, prep.schedule, prep.home, w)
+    else:
+        fly_schedule(cfg, prep.schedule, prep.home, None)
+"""
+
+
+def loop_instructions(tree: Path, file: Path, mode: str, tlog: bool) -> int:
+    """Instructions of one lockstep loop (valgrind's callgrind: a process flying it twice
+    minus one flying it once), independent of the machine's load."""
+    counts = []
+    for n in (1, 2):
+        proc = subprocess.run(
+            ["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null", sys.executable,
+             "-c", _LOOPS_CHILD, str(tree), str(file), mode, str(n), "tlog" if tlog else "none"],
+            cwd=tree, env=_env(tree, "cached"), capture_output=True, text=True, check=False)
+        line = [ln for ln in proc.stderr.splitlines() if "Collected" in ln]
+        if proc.returncode != 0 or not line:
+            raise SystemExit(f"callgrind in {tree} failed:\n{proc.stderr[-2000:]}")
+        counts.append(int(line[-1].split()[-1]))
+    return counts[1] - counts[0]
+
+
+def cmd_instructions(args: argparse.Namespace) -> str:
+    if shutil.which("valgrind") is None:
+        raise SystemExit("valgrind not found")
+    trees = [t.resolve() for t in args.trees]
+    file = args.file.resolve()
+    rows = []
+    for tlog in (True, False):
+        counts = {t: loop_instructions(t, file, args.mode, tlog) for t in trees}
+        base = counts[trees[0]]
+        for t in trees:
+            rows.append(f"| {t.name if t != ROOT else 'this tree'} | "
+                        f"{'with' if tlog else 'without'} | {counts[t] / 1e9:.3f} | "
+                        f"{counts[t] / base:.3f} |")
+            print(rows[-1], flush=True)
+    return "\n".join([
+        f"Instructions of one lockstep loop of `{file.name}` ({args.mode} mode; valgrind "
+        "callgrind, a process flying it twice minus one flying it once; independent of the "
+        "machine's load):",
+        "",
+        "| tree | tlog | instructions [1e9] | / baseline |",
+        "| --- | --- | ---: | ---: |",
+        *rows,
+    ])
+
+
 # ----------------------------------------------------------------------------- main
 
 
@@ -406,9 +474,13 @@ def main() -> None:
     c.add_argument("--workers", type=int, default=2)
     c.add_argument("--rounds", type=int, default=1)
     c.add_argument("--modes", default="attitude,position,rates")
+    n = sub.add_parser("instructions")
+    n.add_argument("trees", nargs="+", type=Path)
+    n.add_argument("--file", type=Path, default=DEFAULT_FILE)
+    n.add_argument("--mode", default="attitude", choices=("attitude", "position", "rates"))
     args = ap.parse_args()
     text = {"ab": cmd_ab, "profile": cmd_profile, "fingerprint": cmd_fingerprint,
-            "campaign": cmd_campaign}[args.cmd](args)
+            "campaign": cmd_campaign, "instructions": cmd_instructions}[args.cmd](args)
     print()
     print(text)
 
