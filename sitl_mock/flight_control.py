@@ -567,19 +567,33 @@ class AngularVelocityFilter:
         prev = self._prev if self._prev is not None else raw
         self._prev = raw
         inv = 1.0 / dt
-        out: list[list[float]] = [[], []]
-        for j, (d, (b0, b1, b2, a1, a2), x) in enumerate((
-                (self._dv, self._cv, raw),
-                (self._da, self._ca, ((raw[0] - prev[0]) * inv, (raw[1] - prev[1]) * inv,
-                                      (raw[2] - prev[2]) * inv)))):
-            o = out[j]
-            for i in range(3):
-                w1, w2 = d[2 * i], d[2 * i + 1]
-                w0 = x[i] - a1 * w1 - a2 * w2
-                o.append(b0 * w0 + b1 * w1 + b2 * w2)
-                d[2 * i], d[2 * i + 1] = w0, w1
-        r, a = out
-        return (r[0], r[1], r[2]), (a[0], a[1], a[2])
+        # per axis i, delay elements (w1, w2) = d[2i], d[2i + 1]: w0 = x - a1 w1 - a2 w2,
+        # y = b0 w0 + b1 w1 + b2 w2, then (w1, w2) <- (w0, w1) (written out: a hot path)
+        x0, x1, x2 = raw
+        b0, b1, b2, a1, a2 = self._cv
+        d = self._dv
+        p0, q0, p1, q1, p2, q2 = d
+        w0 = x0 - a1 * p0 - a2 * q0
+        y0 = b0 * w0 + b1 * p0 + b2 * q0
+        v0 = x1 - a1 * p1 - a2 * q1
+        y1 = b0 * v0 + b1 * p1 + b2 * q1
+        u0 = x2 - a1 * p2 - a2 * q2
+        y2 = b0 * u0 + b1 * p2 + b2 * q2
+        d[:] = (w0, p0, v0, p1, u0, p2)
+        x0 = (x0 - prev[0]) * inv
+        x1 = (x1 - prev[1]) * inv
+        x2 = (x2 - prev[2]) * inv
+        b0, b1, b2, a1, a2 = self._ca
+        d = self._da
+        p0, q0, p1, q1, p2, q2 = d
+        w0 = x0 - a1 * p0 - a2 * q0
+        z0 = b0 * w0 + b1 * p0 + b2 * q0
+        v0 = x1 - a1 * p1 - a2 * q1
+        z1 = b0 * v0 + b1 * p1 + b2 * q1
+        u0 = x2 - a1 * p2 - a2 * q2
+        z2 = b0 * u0 + b1 * p2 + b2 * q2
+        d[:] = (w0, p0, v0, p1, u0, p2)
+        return (y0, y1, y2), (z0, z1, z2)
 
 
 class RateController:

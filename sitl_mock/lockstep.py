@@ -26,6 +26,8 @@ class LockstepSim:
 
     Time starts at 0 (boot). `send(data)` delivers a datagram at the current simulated time;
     `recv()` returns (and forgets) every datagram the autopilot has sent up to now.
+    `unread_streams`: telemetry message ids the caller never reads (and logs nowhere); they
+    are not built, and every other datagram is the same (`Autopilot.quiet_streams`).
     """
 
     def __init__(
@@ -39,6 +41,7 @@ class LockstepSim:
         faults: tuple[LinkFaults | None, LinkFaults | None] | None = None,
         scenario: ScenarioFaults | None = None,
         estimator_ready_s: float = 3.0,
+        unread_streams: frozenset[int] = frozenset(),
     ) -> None:
         self.autopilot = Autopilot(
             kind,
@@ -52,6 +55,8 @@ class LockstepSim:
             scenario=scenario,
             estimator_ready_s=estimator_ready_s,
         )
+        if unread_streams:
+            self.autopilot.quiet_streams("offboard", unread_streams)
         self._now = 0.0
         self._inbox: list[bytes] = []
 
@@ -83,4 +88,4 @@ class LockstepSim:
         self.step_until(self._now + dt_s)
 
     def _drain(self) -> None:
-        self._inbox.extend(d for d, _a in self.autopilot.datagrams_to_send(self._now, "offboard"))
+        self._inbox += self.autopilot.frames_to_send(self._now, "offboard")

@@ -9,6 +9,7 @@ lives in `QuadState`'s slots (quad_state.py).
 from __future__ import annotations
 
 import math
+import random
 
 from sitl_mock.flight_control import (
     G,
@@ -48,6 +49,31 @@ SIH_IMU_PERIOD_S = 0.004
 #: (MPC_LAND_CRWL 0.3 m/s), so an AUTO landing that crawls onto the ground is detected.
 GROUND_CONTACT_DESCENT_M_S = 0.15
 _RATE_TICK_S = RATE_LOOP_PERIOD_S - 1e-9
+_TWOPI = 2.0 * math.pi  # (random.py's TWOPI)
+_sqrt, _log, _cos, _sin = math.sqrt, math.log, math.cos, math.sin
+
+
+def gauss3(rng: random.Random, s0: float, s1: float, s2: float) -> Vec3:
+    """``(rng.gauss(0.0, s0), rng.gauss(0.0, s1), rng.gauss(0.0, s2))`` written out: the same
+    draws, the same pair caching (``rng.gauss_next``) and the same values as CPython's
+    `random.Random.gauss`, without three calls per rate-loop tick (tests/sitl_mock/
+    test_fast_paths.py compares them)."""
+    rnd = rng.random
+    z = rng.gauss_next  # type: ignore[attr-defined]
+    if z is None:  # a pair for the first two, a new pair for the third (its twin kept)
+        x2pi = rnd() * _TWOPI
+        g2rad = _sqrt(-2.0 * _log(1.0 - rnd()))
+        z, z1 = _cos(x2pi) * g2rad, _sin(x2pi) * g2rad
+        x2pi = rnd() * _TWOPI
+        g2rad = _sqrt(-2.0 * _log(1.0 - rnd()))
+        z2 = _cos(x2pi) * g2rad
+        rng.gauss_next = _sin(x2pi) * g2rad  # type: ignore[attr-defined]
+    else:  # the kept one first, then a pair
+        x2pi = rnd() * _TWOPI
+        g2rad = _sqrt(-2.0 * _log(1.0 - rnd()))
+        z1, z2 = _cos(x2pi) * g2rad, _sin(x2pi) * g2rad
+        rng.gauss_next = None  # type: ignore[attr-defined]
+    return (0.0 + z * s0, 0.0 + z1 * s1, 0.0 + z2 * s2)
 
 
 class QuadControl(QuadPhysics):
@@ -285,12 +311,8 @@ class QuadControl(QuadPhysics):
         s0, s1, s2 = self._gyro_std
         if s0 > 0.0 or s1 > 0.0 or s2 > 0.0:
             k = math.sqrt(SIH_IMU_PERIOD_S / dtr)
-            gauss = self._gyro_rng.gauss
-            raw = (
-                self._wx + gauss(0.0, s0 * k),
-                self._wy + gauss(0.0, s1 * k),
-                self._wz + gauss(0.0, s2 * k),
-            )
+            n0, n1, n2 = gauss3(self._gyro_rng, s0 * k, s1 * k, s2 * k)
+            raw = (self._wx + n0, self._wy + n1, self._wz + n2)
         else:
             raw = (self._wx, self._wy, self._wz)
         if self._gyro_rate is None:  # the rate loop starts: filters settled on the true rates

@@ -128,7 +128,9 @@ def execute_run(task: RunTask) -> RunOutcome:
     with tempfile.TemporaryDirectory(prefix="ecca-run-") as tmp:
         tlog_path = Path(tmp) / "flight.tlog"
         try:
-            prep = prepare_mission(_mission_path(task.mission_bytes, task.suffix), config)
+            # (no time-optimal bounds: the results table does not report them)
+            prep = prepare_mission(_mission_path(task.mission_bytes, task.suffix), config,
+                                   bounds=False)
             # --keep failed: fly without a tlog (writing one costs 10-30 %) and fly a failed
             # run again with one; the replay is deterministic, so it is the same flight
             with_tlog = task.keep == "all"

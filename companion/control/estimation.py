@@ -29,6 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from companion._frozen import frozen_new
+
 FloatArray = npt.NDArray[np.float64]
 
 G0 = 9.80665
@@ -175,7 +177,7 @@ class HoverThrustEstimator:
 
         values = (acc_z_ned, thrust_norm, cos_tilt, vel_z_ned, now)
         reason = ""
-        if not all(math.isfinite(v) for v in values):
+        if not all(map(math.isfinite, values)):
             reason = "non-finite input"
         elif not airborne:
             reason = "not airborne"
@@ -228,7 +230,8 @@ class HoverThrustEstimator:
     def _status(
         self, now: float, innov: float, innov_std: float, ratio: float, fused: bool, reason: str
     ) -> HoverThrustStatus:
-        return HoverThrustStatus(
+        return frozen_new(  # HoverThrustStatus(...) without the frozen __init__ (per sample)
+            HoverThrustStatus,
             t_s=now,
             hover_thrust=self._h,
             hover_thrust_std=math.sqrt(self._var),

@@ -593,12 +593,16 @@ class TrackingController:
         self._diag_pending = (e_R, e_omega)
 
     def _params_for_drag(self, drag: float) -> MultirotorParams:
-        """Flatness parameters with drag `drag` (cached: constructing them validates inertia)."""
-        key = round(drag, 4)
+        """Flatness parameters with drag `drag` (cached: constructing them validates inertia;
+        the very float object of the last call, the configured drag, skips the rounding)."""
         cached = self._params_cache
+        if cached is not None and drag is self._drag_seen:
+            return cached[1]
+        key = round(drag, 4)
         if cached is None or cached[0] != key:
             cached = (key, replace(self.config.params, drag=key))
             self._params_cache = cached
+        self._drag_seen = drag
         return cached[1]
 
     def _saturate(
@@ -680,6 +684,7 @@ class TrackingController:
 
     _fallback_reason: str = ""
     _params_cache: tuple[float, MultirotorParams] | None = None
+    _drag_seen: float | None = None
     _diag: tuple[
         float,
         tuple[float, ...],

@@ -13,6 +13,7 @@ from __future__ import annotations
 import itertools
 import math
 import statistics
+from bisect import bisect_left, insort
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -75,6 +76,12 @@ class SampleClock:
         self._recent = recent
         # per block: [block index, boot time, offset] of its smallest offset
         self._blocks: deque[list[float]] = deque()
+        # the Theil-Sen slopes kept up to date as blocks complete and leave the window: per
+        # block (aligned with _blocks) the slopes it makes with the later completed blocks,
+        # and all of them sorted (the median is then a lookup; see _fit_slope)
+        self._pair_slopes: deque[list[float]] = deque()
+        self._sorted: list[float] = []
+        self._nan_slopes = 0  # NaN slopes in the window: sort order undefined, recompute
         self._a = 0.0  # intercept [s]
         self._b = 0.0  # drift [s/s]
         self._last_key: tuple[float, float] | None = None
@@ -98,6 +105,9 @@ class SampleClock:
         blocks = self._blocks
         if boot < self._last_boot - 0.5:
             blocks.clear()
+            self._pair_slopes.clear()
+            self._sorted.clear()
+            self._nan_slopes = 0
         self._last_boot = boot
         idx = math.floor(boot / self.block_s)
         if blocks and blocks[-1][0] == idx:
@@ -106,25 +116,61 @@ class SampleClock:
                 return
             last[1], last[2] = boot, off
         else:
+            if blocks:
+                self._complete()  # the newest block so far is final now
             blocks.append([idx, boot, off])
+            self._pair_slopes.append([])
             if len(blocks) > self._size:
                 blocks.popleft()
+                self._forget(self._pair_slopes.popleft())
             self._fit_slope()
         b = self._b
         self._a = min(p[2] - b * p[1] for p in itertools.islice(
             blocks, max(len(blocks) - self._recent, 0), None))
 
-    def _fit_slope(self) -> None:
-        done = list(self._blocks)[:-1]  # the newest block may not have met its least latency yet
-        if len(done) < 3:
-            return
-        # Theil-Sen: the median of the pairwise slopes, so a block whose every sample was
-        # delayed (a link hiccup) does not tilt the line
+    def _complete(self) -> None:
+        """The newest block is final (a later one starts): its slopes with every earlier
+        block (pairs at least two blocks apart in time) join the sorted slopes."""
+        blocks, pairs, srt = self._blocks, self._pair_slopes, self._sorted
+        q = blocks[-1]
         gap = 2.0 * self.block_s
-        slopes = [(q[2] - p[2]) / (q[1] - p[1]) for i, p in enumerate(done) for q in done[i + 1:]
-                  if q[1] - p[1] >= gap]
-        if slopes:
-            self._b = statistics.median(slopes)
+        for k in range(len(blocks) - 1):
+            p = blocks[k]
+            if q[1] - p[1] >= gap:
+                slope = (q[2] - p[2]) / (q[1] - p[1])
+                pairs[k].append(slope)
+                if slope != slope:
+                    self._nan_slopes += 1
+                else:
+                    insort(srt, slope)
+
+    def _forget(self, slopes: list[float]) -> None:
+        """The slopes of a block that left the window leave the sorted slopes."""
+        srt = self._sorted
+        for slope in slopes:
+            if slope != slope:
+                self._nan_slopes -= 1
+            else:
+                del srt[bisect_left(srt, slope)]
+
+    def _fit_slope(self) -> None:
+        if len(self._blocks) - 1 < 3:  # the newest may not have met its least latency yet
+            return
+        # Theil-Sen: the median of the pairwise slopes of the completed blocks, so a block
+        # whose every sample was delayed (a link hiccup) does not tilt the line
+        if self._nan_slopes:  # (not finite telemetry) the order statistics.median gives
+            done = list(self._blocks)[:-1]
+            gap = 2.0 * self.block_s
+            slopes = [(q[2] - p[2]) / (q[1] - p[1]) for i, p in enumerate(done)
+                      for q in done[i + 1:] if q[1] - p[1] >= gap]
+            if slopes:
+                self._b = statistics.median(slopes)
+            return
+        srt = self._sorted
+        n = len(srt)
+        if n:  # statistics.median of the same values
+            i = n // 2
+            self._b = srt[i] if n % 2 else (srt[i - 1] + srt[i]) / 2
 
 
 class FlightClock:

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from companion._frozen import frozen_new
 from companion.aio.tlog import TlogWriter
 from companion.control import Reference
 from companion.flight.policy import ROVER_SETTLE_S, handover_mode, plan_touchdown
@@ -58,7 +59,7 @@ from companion.replay.config import (
     ReplayConfig,
     self_lands,
 )
-from companion.replay.lockstep import LockstepLink, make_sim
+from companion.replay.lockstep import UNREAD_STREAMS, LockstepLink, make_sim
 
 
 class Flight:
@@ -201,7 +202,8 @@ class Flight:
             p = tel.position.pos_ned
             o = self.origin
             rel = (p[0] - float(o[0]), p[1] - float(o[1]), p[2] - float(o[2]))
-        view = VehicleView(
+        view = frozen_new(  # VehicleView(...) without its frozen __init__ (every cycle)
+            VehicleView,
             link_ok=self.link.heartbeat.link_up, armed=armed, mode=self.link.mode,
             ready=have_state and st is not None and st.armable, have_state=have_state,
             on_ground=ext is not None and ext.landed_state == 1, pos_ned=rel,
@@ -225,8 +227,10 @@ def fly_schedule(
     """Fly `schedule` in lockstep against a fresh mock; returns the flight and its log.
 
     `progress(now_s, expected_s)` is called every 100 setpoint cycles with the simulated time
-    and the expected end of the flight (the schedule plus the start-up and landing)."""
-    sim = make_sim(config, home)
+    and the expected end of the flight (the schedule plus the start-up and landing). Without
+    a tlog the mock leaves the streams the companion does not read unbuilt (the same flight,
+    bit for bit: `UNREAD_STREAMS`)."""
+    sim = make_sim(config, home, unread=UNREAD_STREAMS if tlog is None else frozenset())
     link = VehicleLink(LinkConfig())
     log = FlightLog()
     lk = LockstepLink(sim, link, tlog)

@@ -35,6 +35,14 @@ COMPANION_MSG_IDS = frozenset(
 )
 
 
+#: Telemetry streams of the mock the companion never reads (ATTITUDE, GLOBAL_POSITION_INT,
+#: ATTITUDE_TARGET, POSITION_TARGET_LOCAL_NED, ODOMETRY: two thirds of its datagrams): a flight
+#: that keeps no tlog has the mock leave them unbuilt (`LockstepSim`'s `unread_streams`); the
+#: datagrams the companion reads are the same, byte for byte, so is the flight.
+UNREAD_STREAMS = frozenset({30, 33, 83, 85, 331})
+assert not UNREAD_STREAMS & COMPANION_MSG_IDS
+
+
 def _msgid(frame: bytes) -> int | None:
     """Message id of a single MAVLink 2 frame, or None if it is not one."""
     if len(frame) < 12 or frame[0] != 0xFD:
@@ -102,9 +110,11 @@ class LockstepLink:
         return events
 
 
-def make_sim(config: ReplayConfig, home: tuple[float, float, float]) -> LockstepSim:
+def make_sim(config: ReplayConfig, home: tuple[float, float, float], *,
+             unread: frozenset[int] = frozenset()) -> LockstepSim:
     """A fresh mock for `config` (its mock parameters, start offset, link faults and wind)
-    booting at `home` (lat [deg], lon [deg], alt AMSL [m]) at simulated t = 0."""
+    booting at `home` (lat [deg], lon [deg], alt AMSL [m]) at simulated t = 0; `unread`:
+    telemetry streams nobody reads nor logs (e.g. `UNREAD_STREAMS` without a tlog)."""
     from sitl_mock.faults import LinkFaults
     from sitl_mock.params import ParamStore
 
@@ -121,7 +131,7 @@ def make_sim(config: ReplayConfig, home: tuple[float, float, float]) -> Lockstep
                            jitter_s=config.jitter_s)
         faults = (f_in, f_out)
     sim = LockstepSim(config.vehicle, ParamStore(dict(config.mock_params)), home, config.seed,
-                      physics_hz=config.physics_hz, faults=faults)
+                      physics_hz=config.physics_hz, faults=faults, unread_streams=unread)
     if config.wind_m_s > 0.0:
         sim.autopilot.vehicle.set_wind(config.wind_ned())
     return sim

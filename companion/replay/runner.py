@@ -121,11 +121,17 @@ class PreparedMission:
 
 
 
-def prepare_mission(path: str | os.PathLike[str], config: ReplayConfig) -> PreparedMission:
+def prepare_mission(
+    path: str | os.PathLike[str], config: ReplayConfig, *, bounds: bool = True
+) -> PreparedMission:
     """Load and plan `path` as `config` would fly it: the PX4 planning parameters are read
     from the mock first (`read_mock_params`, so `--mock-param MPC_XY_CRUISE=8` changes the
     plan as the vehicle's parameter would). Raises MissionError on a bad file and on a plan
-    whose trajectory breaches the mission's geofence (naming the leg's items)."""
+    whose trajectory breaches the mission's geofence (naming the leg's items).
+
+    `bounds`: also compute the time-optimal bounds of the legs and of the plan (the report's
+    "bound" figures; False leaves them unknown, for callers that do not report them: a
+    campaign's runs)."""
     src = Path(path)
     mission = load_mission(src)
     home = (mission.home.lat_deg, mission.home.lon_deg, mission.home.alt_amsl_m)
@@ -140,6 +146,8 @@ def prepare_mission(path: str | os.PathLike[str], config: ReplayConfig) -> Prepa
                                                    flight_plan.final_action))
     require_plan_inside(flight_plan, schedule)
     warnings = (*flight_plan.warnings, *px4.warnings, *schedule.warnings)
+    if not bounds:
+        return PreparedMission(src, mission, warnings, schedule, home, px4, flight_plan)
     leg_bounds, bound = plan_bounds(flight_plan, schedule)
     return PreparedMission(src, mission, warnings, schedule, home, px4, flight_plan, leg_bounds,
                            bound)

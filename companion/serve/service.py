@@ -300,7 +300,7 @@ def plan_program(items: Sequence[WireMissionItem], home: HomePosition, key: tupl
     home_pt = GeoPoint(home.lat_deg, home.lon_deg, home.alt_amsl_m)
     mission = mission_from_wire(items, home_pt)
     fp = mission_to_flight_plan(mission, vehicle=vehicle, px4=config.px4)
-    schedule = build_schedule(fp, config.params, config.limits)
+    schedule = build_schedule(fp, config.params, config.limits)  # (a rover was refused above)
     if fence_items:
         fence = geofence_from_wire(fence_items, home_pt)
         require_plan_inside(dataclasses.replace(fp, geofence=fence), schedule)

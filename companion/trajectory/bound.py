@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
@@ -47,21 +48,126 @@ class KinematicLimits:
     max_acc_down_m_s2: float
 
 
-def _max_x(rows: FloatArray) -> float:
-    """Largest x over {(u, x): rows[:, 0] u + rows[:, 1] x <= rows[:, 2]} (a bounded polygon
-    containing (0, 0)), by vertex enumeration."""
-    a, b, c = rows[:, 0], rows[:, 1], rows[:, 2]
-    i, j = np.triu_indices(rows.shape[0], 1)
-    det = a[i] * b[j] - a[j] * b[i]
-    ok = np.abs(det) > 1e-12
-    i, j, det = i[ok], j[ok], det[ok]
-    u = (c[i] * b[j] - c[j] * b[i]) / det
-    x = (a[i] * c[j] - a[j] * c[i]) / det
-    slack = c[None, :] + 1e-9 * (1.0 + np.abs(c[None, :])) - (
-        a[None, :] * u[:, None] + b[None, :] * x[:, None]
-    )
-    feas = np.all(slack >= 0.0, axis=1)
-    return float(np.max(x[feas], initial=0.0))
+@lru_cache(maxsize=8)
+def _pairs(n: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """`np.triu_indices(n, 1)`, computed once per size (read-only)."""
+    i, j = np.triu_indices(n, 1)
+    i.setflags(write=False)
+    j.setflags(write=False)
+    return i, j
+
+
+_BIG = 1e12
+#: rows per point: 12 of the point's own limits, then 4 of the step to the next point
+_N_ROWS = 16
+#: the row that holds the next point's bound: x + 2 u ds <= x_hi[i + 1]
+_DYN = 12
+
+
+def _rows(tan: FloatArray, curv: FloatArray, x_cap: FloatArray, ds: FloatArray,
+          limits: KinematicLimits) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The limits at each point but the last as rows a u + b x <= c: arrays a, b, c of shape
+    (points - 1, 16). Rows 0-7 the horizontal octagon, 8-9 the vertical accelerations, 10 the
+    speed cap, 11 x >= 0 (the point's own limits); then the step to the next point (2 ds =
+    d2): 12 x + d2 u <= x_hi[i + 1] (its c is left 0: the backward pass fills it in), 13
+    x + d2 u >= 0, 14-15 u bounded."""
+    m = tan.shape[0] - 1
+    a = np.zeros((m, _N_ROWS))
+    b = np.zeros((m, _N_ROWS))
+    c = np.zeros((m, _N_ROWS))
+    tx, ty, tz = tan[:m, 0], tan[:m, 1], tan[:m, 2]
+    kx, ky, kz = curv[:m, 0], curv[:m, 1], curv[:m, 2]
+    for k, (ex, ey) in enumerate(_OCTAGON):
+        a[:, k] = ex * tx + ey * ty
+        b[:, k] = ex * kx + ey * ky
+        c[:, k] = limits.max_acc_xy_m_s2
+    d2 = 2.0 * ds[:m]
+    a[:, 8], b[:, 8], c[:, 8] = tz, kz, limits.max_acc_down_m_s2
+    a[:, 9], b[:, 9], c[:, 9] = -tz, -kz, limits.max_acc_up_m_s2
+    b[:, 10], c[:, 10] = 1.0, x_cap[:m]
+    b[:, 11] = -1.0
+    a[:, _DYN], b[:, _DYN] = d2, 1.0
+    a[:, 13], b[:, 13] = -d2, -1.0
+    a[:, 14], c[:, 14] = 1.0, _BIG
+    a[:, 15], c[:, 15] = -1.0, _BIG
+    return a, b, c
+
+
+def _backward_pass(a: FloatArray, b: FloatArray, c: FloatArray) -> FloatArray:
+    """The largest x at each point from which the rest of the path can still stop at its end:
+    for each point, from the last back, the largest x over the feasible vertices of its
+    polygon (every pair of its rows, `_rows`, intersected; feasible within 1e-9 relative
+    slack on every row; at least 0), with row `_DYN` bounded by the next point's value.
+
+    The vertices of pairs without row `_DYN`, and their feasibility on those rows, are computed
+    for every point at once; the sequential pass takes the largest that also meets the bound,
+    then the vertices on row `_DYN` (each checked on every row when it could raise the
+    maximum). The same vertices, formulas and tolerance as enumerating each point's vertices
+    (tests/companion/trajectory/test_fast_paths.py compares it, bit for bit, with the
+    enumeration this replaced)."""
+    m = a.shape[0]
+    x_hi = np.zeros(m + 1)
+    if m == 0:
+        return x_hi
+    pi, pj = _pairs(_N_ROWS)
+    keep = (pi != _DYN) & (pj != _DYN)
+    pi, pj = pi[keep], pj[keep]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        det = a[:, pi] * b[:, pj] - a[:, pj] * b[:, pi]
+        u = (c[:, pi] * b[:, pj] - c[:, pj] * b[:, pi]) / det
+        x = (a[:, pi] * c[:, pj] - a[:, pj] * c[:, pi]) / det
+        feas = np.abs(det) > 1e-12
+        for r in range(_N_ROWS):
+            if r != _DYN:
+                ar, br, cr = a[:, r:r + 1], b[:, r:r + 1], c[:, r:r + 1]
+                feas &= cr + 1e-9 * (1.0 + np.abs(cr)) - (ar * u + br * x) >= 0.0
+        # per point the statically feasible vertices that can matter (x > 0: the maximum
+        # starts at 0), largest x first
+        xs = np.where(feas & (x > 0.0), x, -np.inf)
+    order = np.argsort(-xs, axis=1, kind="stable")
+    xs_sorted = np.take_along_axis(xs, order, axis=1).tolist()
+    us_sorted = np.take_along_axis(u, order, axis=1).tolist()
+    al, bl, cl = a.tolist(), b.tolist(), c.tolist()
+    tl = (c + 1e-9 * (1.0 + np.abs(c))).tolist()  # each row's c with its slack
+    on_dyn = [r for r in range(_N_ROWS) if r != _DYN]
+    x_next = 0.0
+    for i in range(m - 1, -1, -1):
+        ai, bi, ci, ti = al[i], bl[i], cl[i], tl[i]
+        di = ai[_DYN]  # 2 ds (its b is 1)
+        ci[_DYN] = x_next
+        ti[_DYN] = tol = x_next + 1e-9 * (1.0 + abs(x_next))
+        best = 0.0
+        for xv, uv in zip(xs_sorted[i], us_sorted[i], strict=True):
+            if not xv > best:  # sorted: -inf (not feasible, or x <= 0) from here on
+                break
+            if tol - (di * uv + 1.0 * xv) >= 0.0:
+                best = xv
+                break
+        for r in on_dyn:  # the vertex of rows (r, _DYN), in the pair's order
+            ar, br, cr = ai[r], bi[r], ci[r]
+            if r < _DYN:
+                det_r = ar * 1.0 - di * br
+                if not abs(det_r) > 1e-12:
+                    continue
+                xv = (ar * x_next - di * cr) / det_r
+                if not xv > best:
+                    continue
+                uv = (cr * 1.0 - x_next * br) / det_r
+            else:
+                det_r = di * br - ar * 1.0
+                if not abs(det_r) > 1e-12:
+                    continue
+                xv = (di * cr - ar * x_next) / det_r
+                if not xv > best:
+                    continue
+                uv = (x_next * br - cr * 1.0) / det_r
+            for tq, aq, bq in zip(ti, ai, bi, strict=True):
+                if not tq - (aq * uv + bq * xv) >= 0.0:
+                    break
+            else:
+                best = xv
+        x_hi[i] = x_next = best
+    return x_hi
 
 
 def time_optimal_duration(
@@ -114,7 +220,7 @@ def time_optimal_profile(
     along = np.einsum("ij,ij->i", a, tan)
     curv[moving] = (a[moving] - along[moving, None] * tan[moving]) / (speed[moving, None] ** 2)
     vcap_xy = np.full(p.shape[0], limits.max_speed_xy_m_s)
-    big = 1e12
+    big = _BIG
     n_pts = p.shape[0]
     x_cap = np.full(n_pts, big)
     if speed_caps is not None:
@@ -126,37 +232,22 @@ def time_optimal_profile(
         tan[:, 2] ** 2 > 1e-12, np.minimum(x_cap, vz**2 / np.maximum(tan[:, 2] ** 2, 1e-12)), x_cap
     )
 
-    def rows_at(i: int) -> list[tuple[float, float, float]]:
-        tx, ty, tz = tan[i]
-        kx, ky, kz = curv[i]
-        rows = [(ex * tx + ey * ty, ex * kx + ey * ky, limits.max_acc_xy_m_s2)
-                for ex, ey in _OCTAGON]
-        rows.append((tz, kz, limits.max_acc_down_m_s2))
-        rows.append((-tz, -kz, limits.max_acc_up_m_s2))
-        rows.append((0.0, 1.0, float(x_cap[i])))
-        rows.append((0.0, -1.0, 0.0))
-        return rows
-
+    ra, rb, rc = _rows(tan, curv, x_cap, ds, limits)
     # backward pass: largest x at each point from which the end can still be reached at rest
-    x_hi = np.zeros(n_pts)
-    for i in range(n_pts - 2, -1, -1):
-        d2 = 2.0 * float(ds[i])
-        rows = rows_at(i)
-        rows.append((d2, 1.0, float(x_hi[i + 1])))  # x + 2 u ds <= x_hi[i+1]
-        rows.append((-d2, -1.0, 0.0))  # x + 2 u ds >= 0
-        rows.append((1.0, 0.0, big))  # keep u bounded
-        rows.append((-1.0, 0.0, big))
-        x_hi[i] = _max_x(np.asarray(rows, dtype=np.float64))
-    # forward pass: as fast as allowed below x_hi
+    x_hi = _backward_pass(ra, rb, rc)
+    # forward pass: as fast as allowed below x_hi (the acceleration limits of the point's own
+    # rows, 0-11, whose a > 0)
+    accel_rows = [[(ca, cb, cc) for ca, cb, cc in zip(ar[:_DYN], br[:_DYN], cr[:_DYN],
+                                                        strict=True) if ca > 1e-12]
+                  for ar, br, cr in zip(ra.tolist(), rb.tolist(), rc.tolist(), strict=True)]
     x = np.zeros(n_pts)
     times = np.zeros(n_pts)
     total = 0.0
     for i in range(n_pts - 1):
         d2 = 2.0 * float(ds[i])
         u_hi = big
-        for ca, cb, cc in rows_at(i):
-            if ca > 1e-12:
-                u_hi = min(u_hi, (cc - cb * x[i]) / ca)
+        for ca, cb, cc in accel_rows[i]:
+            u_hi = min(u_hi, (cc - cb * x[i]) / ca)
         nxt = min(x[i] + d2 * u_hi, float(x_hi[i + 1]))
         x[i + 1] = max(nxt, 0.0)
         vs = math.sqrt(x[i]) + math.sqrt(x[i + 1])

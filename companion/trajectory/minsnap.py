@@ -5,10 +5,11 @@ written in Hermite form by its derivatives of orders ``0..s-1`` at both ends,
 so derivatives up to ``s - 1`` are continuous by construction. The cost
 ``J = sum_k int ||p^(s)(t)||^2 dt`` is then a quadratic form in the joint derivatives whose
 Hessian is block-tridiagonal (joints couple only through the segment between them). Minimising
-over the free joint derivatives is one symmetric positive definite banded solve (Cholesky,
-``scipy.linalg.solveh_banded``, bandwidth ``2s - 1``): linear in the number of segments and
-exact to round-off. At free joints the optimum is additionally continuous in derivatives
-``s .. 2s - 2`` (the minimum-snap optimality conditions), exactly as MINCO's.
+over the free joint derivatives is one symmetric positive definite banded solve (Cholesky:
+LAPACK's ``dpbtrf``/``dpbtrs`` from SciPy, as ``scipy.linalg.solveh_banded`` uses them,
+bandwidth ``2s - 1``): linear in the number of segments and exact to round-off. At free
+joints the optimum is additionally continuous in derivatives ``s .. 2s - 2`` (the
+minimum-snap optimality conditions), exactly as MINCO's.
 """
 
 from __future__ import annotations
@@ -17,16 +18,12 @@ import math
 from functools import lru_cache
 
 import numpy as np
-import scipy.linalg
-import scipy.linalg.lapack
 from numpy.typing import NDArray
 
+from companion.trajectory._lapack import banded_cholesky
 from companion.trajectory.bezier import FloatArray, hermite, monomial_matrix
 
 __all__ = ["BandedSystem"]
-
-_PBTRF = scipy.linalg.lapack.dpbtrf  # banded Cholesky factorisation (LAPACK)
-_PBTRS = scipy.linalg.lapack.dpbtrs  # banded Cholesky solve
 
 
 @lru_cache(maxsize=8)
@@ -243,13 +240,14 @@ class BandedSystem:
             sc = 1.0 / np.sqrt(diag)
             ab *= sc[self.band_i]
             ab *= sc[None, :]
-            cb, info = _PBTRF(ab, lower=0, overwrite_ab=1)
+            pbtrf, pbtrs = banded_cholesky()  # LAPACK (SciPy's wrapper)
+            cb, info = pbtrf(ab, lower=0, overwrite_ab=1)
             if info != 0:
                 raise ValueError(
                     "the trajectory problem is singular (under-determined free derivatives)"
                 )
             self._factor = (cb, sc)
-            z, info = _PBTRS(cb, rhs * sc[:, None], lower=0)
+            z, info = pbtrs(cb, rhs * sc[:, None], lower=0)
             x.reshape(-1)[self._free_flat] = (z * sc[:, None]).reshape(-1)
         xk = self.windows(x)
         cost = float(np.einsum("mad,mad->", xk, Q @ xk)) if with_cost else math.nan
@@ -270,7 +268,8 @@ class BandedSystem:
         lam = np.zeros_like(g_full)
         if self.nf and self._factor is not None:
             cb, sc = self._factor
-            z, _ = _PBTRS(cb, np.take(g_full, self.free_idx, axis=0) * sc[:, None], lower=0)
+            pbtrs = banded_cholesky()[1]
+            z, _ = pbtrs(cb, np.take(g_full, self.free_idx, axis=0) * sc[:, None], lower=0)
             lam.reshape(-1)[self._free_flat] = (z * sc[:, None]).reshape(-1)
         return lam
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 import heapq
 import math
 from collections import Counter
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -49,6 +49,7 @@ _AUTO_MISSION = Mode.AUTO_MISSION
 _PING = telemetry.MSG_ID_PING
 _VEHICLE_BUILDERS = telemetry.VEHICLE_BUILDERS
 _STATUS_BUILDERS = telemetry.STATUS_BUILDERS
+_QUIETABLE = telemetry.QUIETABLE
 _MAV_TYPE = {"quad": int(mavlink.MAV_TYPE_QUADROTOR), "rover": int(mavlink.MAV_TYPE_GROUND_ROVER)}
 
 
@@ -176,6 +177,10 @@ class Autopilot:
         """Datagrams due by `now` on one link (or all links), with their destinations."""
         # physics steps may land a hair past `now`
         return self.comms.datagrams_to_send(now - self._boot + 1e-9, link)
+
+    def frames_to_send(self, now: float, link: str) -> list[bytes]:
+        """`datagrams_to_send(now, link)`'s datagrams without their destinations."""
+        return self.comms.frames_due(now - self._boot + 1e-9, link)
 
     def get_timer(self) -> float:
         """Next time (caller's clock) at which `handle_timer` has work to do."""
@@ -320,7 +325,20 @@ class Autopilot:
                 full = self.status(vehicle)
             return _STATUS_BUILDERS[msg_id](full)
 
-        self.comms.emit_streams(t, build)
+        def would_send(msg_id: int) -> bool | None:
+            nonlocal vehicle
+            if vehicle is None:
+                vehicle = self.vehicle_status()
+            return _QUIETABLE[msg_id](vehicle)
+
+        self.comms.emit_streams(t, build, would_send)
+
+    def quiet_streams(self, link: str, msg_ids: Iterable[int]) -> None:
+        """Telemetry streams on `link` that nobody reads: not built nor sent, while the link's
+        sequence numbers, fault channel and counters go on as if they were, so every other
+        message is the same, byte for byte (see `Links.quiet_streams`; ValueError for a
+        stream whose message cannot be known unbuilt)."""
+        self.comms.quiet_streams(self.comms.by_name[link], frozenset(msg_ids))
 
     def _ping(self, vehicle: VehicleStatus) -> Msg:
         self.ping_seq = (self.ping_seq + 1) & 0xFFFFFFFF

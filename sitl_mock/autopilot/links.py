@@ -40,7 +40,7 @@ class Link:
     remote: Addr | None
     mav: Any
     rx: FaultyChannel[tuple[bytes, Addr]]
-    tx: FaultyChannel[bytes]
+    tx: FaultyChannel[bytes | None]  # None: a quiet stream's message (takes its place, not sent)
     streams: telemetry.StreamScheduler
     peer: Addr | None = None
     # outbound without faults: a FIFO of (time since boot [s], frame), exactly the order and due
@@ -50,6 +50,9 @@ class Link:
     rx_direct: bool = False
     # MAVLink 2 signing (None: off): signs everything sent, refuses unsigned/bad frames
     signing: LinkSigning | None = None
+    # streams nobody reads on this link (`Links.quiet_streams`): scheduled and counted as sent,
+    # not built
+    quiet: frozenset[int] = frozenset()
 
     @property
     def destination(self) -> Addr | None:
@@ -279,9 +282,23 @@ class Links:
                     if dest is not None:
                         out.append((data, dest))
                 continue
-            for data in lk.tx.pop_due(t):
-                if dest is not None:
-                    out.append((data, dest))
+            for item in lk.tx.pop_due(t):
+                if dest is not None and item is not None:
+                    out.append((item, dest))
+        return out
+
+    def frames_due(self, t: float, link: str) -> list[bytes]:
+        """`datagrams_to_send(t, link)` without the destinations (an in-process caller that
+        reads one link: the lockstep pipe); the same datagrams, in the same order."""
+        lk = self.by_name[link]
+        if (lk.peer if lk.peer is not None else lk.remote) is None:
+            return [d for d, _a in self.datagrams_to_send(t, link)]  # (discards them)
+        fifo = lk.tx_fifo
+        if fifo is None:
+            return [item for item in lk.tx.pop_due(t) if item is not None]
+        out: list[bytes] = []
+        while fifo and fifo[0][0] <= t:
+            out.append(fifo.popleft()[1])
         return out
 
     def next_due(self, t: float) -> float:
@@ -293,14 +310,49 @@ class Links:
         return t
 
     # ================================================================== streams
-    def emit_streams(self, t: float, build: Callable[[int], Msg | None]) -> None:
+    def quiet_streams(self, link: Link, msg_ids: frozenset[int]) -> None:
+        """Streams on `link` that nobody reads (a lockstep run that keeps no log): their
+        messages are not built nor sent, but everything else happens as if they were: the
+        schedule, the link's sequence numbers, the outbound fault channel's draws (loss,
+        latency, ...) and the counters, so every other message goes out exactly as before.
+        Only `telemetry.QUIETABLE` streams (whether one would be sent is known from the
+        vehicle status; when not, it is built as usual), and not on a signed link."""
+        bad = set(msg_ids) - set(telemetry.QUIETABLE)
+        if bad:
+            raise ValueError(f"streams {sorted(bad)} cannot be left unbuilt")
+        if msg_ids and link.signing is not None:
+            raise ValueError("a signed link sends every message (signing timestamps)")
+        link.quiet = frozenset(msg_ids)
+
+    def _count_unsent(self, link: Link) -> None:
+        """`send`'s effects for a quiet stream's message, without the message."""
+        t = self.clock.t
+        mav = link.mav
+        mav.seq = (mav.seq + 1) & 0xFF
+        if link.tx_fifo is not None:
+            link.tx.stats.passed += 1
+        else:
+            link.tx.push(None, t, t)
+        self.stats["tx_messages"] += 1
+
+    def emit_streams(self, t: float, build: Callable[[int], Msg | None],
+                     would_send: Callable[[int], bool | None] | None = None) -> None:
         """Build (with `build(msg_id)`) and queue the periodic messages due at `t` on every
-        link; a builder's ValueError / OverflowError (non-finite state) skips that message."""
+        link; a builder's ValueError / OverflowError (non-finite state) skips that message.
+        A link's quiet streams are counted instead when `would_send(msg_id)` knows whether
+        the message would go out (see `quiet_streams`)."""
         nxt = float("inf")
         for lk in self.by_name.values():
             streams = lk.streams
             if t >= streams.earliest:
+                quiet = lk.quiet if would_send is not None else ()
                 for msg_id in streams.due(t):
+                    if msg_id in quiet:
+                        sent = would_send(msg_id)  # type: ignore[misc]
+                        if sent is not None:
+                            if sent:
+                                self._count_unsent(lk)
+                            continue
                     try:
                         m = build(msg_id)
                     except (ValueError, OverflowError):  # non-finite state: skip, count

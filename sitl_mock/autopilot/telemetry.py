@@ -484,6 +484,69 @@ STATUS_BUILDERS: dict[int, Callable[[StatusSnapshot], Msg | None]] = {
     mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: build_mission_current,
 }
 
+_FLT_MAX = 3.4028234663852886e38  # largest float32: the wire's float fields
+
+
+def _float32_ok(*vals: float) -> bool:
+    """Every value packs as a float32 field: NaN and infinities do; finite values beyond the
+    float32 range raise OverflowError (here also the few just above it that would round down
+    to it: a conservative answer only means "build it")."""
+    return not any(_FLT_MAX < abs(v) < math.inf for v in vals)
+
+
+def _attitude_builds(st: VehicleStatus) -> bool | None:
+    return True if _float32_ok(*st.attitude[1]) else None
+
+
+def _odometry_builds(st: VehicleStatus) -> bool | None:
+    if not st.local_position_valid:
+        return False
+    s = st.state
+    # the body-frame velocity is rotated: a margin below float32's range for its components
+    slow = not any(1e30 <= abs(v) < math.inf for v in s.vel_ned)
+    return True if slow and _float32_ok(*s.pos_ned, *s.q_wxyz, *st.attitude[1]) else None
+
+
+def _gpi_builds(st: VehicleStatus) -> bool | None:
+    """GLOBAL_POSITION_INT builds and packs: True when the position and attitude are finite,
+    within 100 km of a home below 80 deg of latitude (so lat/lon/alt fit their int32 fields);
+    None: not known without building it."""
+    s = st.state
+    x, y, z = s.pos_ned
+    lat, lon, alt = st.home
+    if (abs(x) < 1e5 and abs(y) < 1e5 and abs(z) < 1e5 and abs(lat) <= 80.0
+            and abs(lon) <= 180.0 and abs(alt) < 1e5 and all(map(math.isfinite, s.q_wxyz))):
+        return True
+    return None
+
+
+def _attitude_target_builds(st: VehicleStatus) -> bool | None:
+    last = st.last_attitude_target
+    if last is None:
+        return False
+    q, rates, thrust = last
+    return True if _float32_ok(*(q or ()), *(rates or ()), thrust) else None
+
+
+def _position_target_builds(st: VehicleStatus) -> bool | None:
+    t = st.last_position_target
+    if t is None:
+        return False
+    return True if _float32_ok(*t.pos_ned, *t.vel_ned, *t.acc_ned, t.yaw, t.yaw_rate) else None
+
+
+#: Streams a link may leave unbuilt when nobody reads them (`Links.emit_streams`' `quiet`):
+#: message id -> whether its builder would give a message that packs, from the vehicle status
+#: alone (True: sent, False: the builder gives None, None: not known, build it). The others
+#: are never left out: their builders need the whole status or have side effects (PING).
+QUIETABLE: dict[int, Callable[[VehicleStatus], bool | None]] = {
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: _attitude_builds,
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: _gpi_builds,
+    mavlink.MAVLINK_MSG_ID_ODOMETRY: _odometry_builds,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET: _attitude_target_builds,
+    mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: _position_target_builds,
+}
+
 MSG_ID_PING = mavlink.MAVLINK_MSG_ID_PING
 # Messages that SET_MESSAGE_INTERVAL can stream and REQUEST_MESSAGE (512) can produce once.
 STREAMABLE = frozenset(VEHICLE_BUILDERS) | frozenset(STATUS_BUILDERS) | {MSG_ID_PING}

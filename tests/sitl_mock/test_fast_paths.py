@@ -314,3 +314,123 @@ def test_parameter_change_reaches_the_physics() -> None:
         for _ in range(30):  # > PARAM_REFRESH_S: the new value is in use
             q.step(dt, IdleTarget(), False)
         assert accel_error() < 1e-9, name
+
+
+# ------------------------------------------------------------------------------ quiet streams
+def _lockstep_flight(quiet: frozenset[int], faults: bool) -> tuple[list[bytes], dict[str, int],
+                                                                   tuple[int, ...]]:
+    """A lockstep flight through every kind of stream state: AUTO takeoff (position targets),
+    OFFBOARD attitude setpoints, a local-position loss (no ODOMETRY), a state far from home and
+    one that is not finite (GLOBAL_POSITION_INT not known unbuilt / not encodable); optional
+    link faults (loss, latency, jitter, duplicates, reordering both ways)."""
+    from sitl_mock.faults import LinkFaults, ScenarioFaults
+    from sitl_mock.lockstep import LockstepSim
+
+    f = (LinkFaults(loss_pct=5.0), LinkFaults(loss_pct=8.0, latency_s=0.02, jitter_s=0.01,
+                                              duplicate_pct=3.0, reorder_pct=3.0))
+    sim = LockstepSim(seed=3, faults=f if faults else None, estimator_ready_s=0.5,
+                      scenario=ScenarioFaults(local_position_loss=(9.0, 10.0)),
+                      params={"SIM_POS_NOISE": 0.05, "SIM_WIND_GUST": 1.0},
+                      unread_streams=quiet)
+    client = mavlink.MAVLink(None, 255, 190)
+    out: list[bytes] = []
+
+    def send(m: Any) -> None:
+        sim.send(m.pack(client))
+        client.seq = (client.seq + 1) & 0xFF
+
+    for k in range(1, 1601):
+        t = k * 0.01
+        if k in (100, 110, 120):  # arm, NAV_TAKEOFF to 5 m
+            send(mavlink.MAVLink_command_long_message(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0))
+            send(mavlink.MAVLink_command_long_message(1, 1, 22, 0, 0, 0, 0, math.nan, 0, 0, 5))
+        if k >= 600:  # OFFBOARD attitude setpoints
+            q = [math.cos(0.1), 0.0, 0.03, math.sin(0.1)]
+            send(mavlink.MAVLink_set_attitude_target_message(0, 1, 1, 7, q, 0, 0, 0, 0.5))
+            if k in (650, 660, 670):
+                send(mavlink.MAVLink_command_long_message(1, 1, 176, 0, 1, 6, 0, 0, 0, 0, 0))
+        if k == 1200:
+            sim.autopilot.vehicle.set_state(pos_ned=(3e5, -2e5, -50.0))
+        if k == 1400:
+            sim.autopilot.vehicle.set_state(pos_ned=(0.0, 0.0, math.nan))
+        sim.step_until(t)
+        out += sim.recv()
+    ap = sim.autopilot
+    lk = ap.comms.by_name["offboard"]
+    return out, dict(ap.stats), (lk.tx.stats.passed, lk.tx.stats.dropped,
+                                 lk.tx.stats.duplicated, lk.tx.stats.reordered, lk.mav.seq)
+
+
+@pytest.mark.parametrize("faults", [False, True])
+def test_quiet_streams_leave_every_other_datagram_as_it_was(faults: bool) -> None:
+    """Streams nobody reads left unbuilt (a lockstep flight without a log): every other
+    datagram is the same bytes at the same time (sequence numbers, fault-channel draws), and
+    the counters are the same, as when every stream is built. (A quiet message whose fate is
+    not known unbuilt, here GLOBAL_POSITION_INT far from home, is built and sent as usual.)"""
+    from sitl_mock.autopilot.telemetry import QUIETABLE
+
+    quiet = frozenset(QUIETABLE)
+    full, full_stats, full_ch = _lockstep_flight(frozenset(), faults)
+    lean, lean_stats, lean_ch = _lockstep_flight(quiet, faults)
+
+    def ids(frames: list[bytes]) -> list[int]:
+        return [d[7] | (d[8] << 8) | (d[9] << 16) for d in frames]
+
+    def others(frames: list[bytes]) -> list[bytes]:
+        return [d for d, i in zip(frames, ids(frames), strict=True) if i not in quiet]
+
+    assert others(lean) == others(full)
+    assert lean_stats == full_stats and lean_ch == full_ch
+    assert full_stats["tx_encode_errors"] > 0  # the non-finite state was not encodable
+    assert {30, 33, 83, 85, 331} <= set(ids(full))  # every quiet stream was really there
+    assert 0 < ids(lean).count(33) < 0.2 * ids(full).count(33)  # built while far from home
+    assert len(lean) < 0.5 * len(full)
+
+
+def test_quiet_streams_refuse_what_cannot_be_known_unbuilt() -> None:
+    from sitl_mock.lockstep import LockstepSim
+
+    with pytest.raises(ValueError, match="cannot be left unbuilt"):
+        LockstepSim(unread_streams=frozenset({mavlink.MAVLINK_MSG_ID_PING}))
+    ap = Autopilot(now=0.0, signing_key=bytes(32), unix_boot_s=1.7e9)
+    with pytest.raises(ValueError, match="signed link"):
+        ap.quiet_streams("offboard", {30})
+
+
+# ------------------------------------------------------------------------------ rate loop
+def test_gauss3_equals_three_random_gauss_calls() -> None:
+    import random
+
+    from sitl_mock.quad_control import gauss3
+
+    a, b = random.Random(9), random.Random(9)
+    for k in range(20001):
+        s = (0.3, 1e-3, 2.0) if k % 7 else (0.0, 5.0, 0.0)
+        if k % 1000 == 17:  # a gauss call in between: the kept twin moves
+            assert a.gauss() == b.gauss()
+        assert gauss3(a, *s) == tuple(b.gauss(0.0, x) for x in s)
+
+
+@pytest.mark.parametrize("faults", [False, True])
+@pytest.mark.parametrize("remote", [API, None])
+def test_frames_to_send_are_the_datagrams_to_send(faults: bool, remote: Any) -> None:
+    """The lockstep pipe's drain (bytes only) against `datagrams_to_send` on twin autopilots."""
+    from sitl_mock.faults import LinkFaults
+
+    f = (None, LinkFaults(loss_pct=10.0, latency_s=0.015, jitter_s=0.01, duplicate_pct=5.0,
+                          reorder_pct=5.0)) if faults else None
+    kw: dict[str, Any] = {"remotes": {"offboard": remote}, "estimator_ready_s": 0.2, "seed": 2}
+    if f is not None:
+        kw["link_faults"] = {"offboard": f}
+    a, b = Autopilot(now=0.0, **kw), Autopilot(now=0.0, **kw)
+    got_a: list[bytes] = []
+    got_b: list[bytes] = []
+    for k in range(1, 400):
+        t = k * 0.01
+        a.advance(t)
+        b.advance(t)
+        if k % 3:
+            got_a += [d for d, _ in a.datagrams_to_send(t, "offboard")]
+            got_b += b.frames_to_send(t, "offboard")
+    assert got_a == got_b
+    assert (len(got_a) > 500) == (remote is not None)

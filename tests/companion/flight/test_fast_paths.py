@@ -59,3 +59,57 @@ def test_tracking_source_reuses_estimates_without_changing_setpoints(mode: str) 
         a, b = cached(now, snap), fresh(now, snap)
         assert a == b, k
     assert cached.calls == fresh.calls == 300
+
+
+class _RecomputedClock:
+    """Oracle for `SampleClock`'s incremental Theil-Sen slope: the same clock whose slope is
+    recomputed from every pair of completed blocks each time (what it did before)."""
+
+    @staticmethod
+    def make(**kw: float) -> object:
+        import statistics
+
+        from companion.flight.tracking import SampleClock
+
+        class Recomputed(SampleClock):
+            def _fit_slope(self) -> None:
+                done = list(self._blocks)[:-1]
+                if len(done) < 3:
+                    return
+                gap = 2.0 * self.block_s
+                slopes = [(q[2] - p[2]) / (q[1] - p[1]) for i, p in enumerate(done)
+                          for q in done[i + 1:] if q[1] - p[1] >= gap]
+                if slopes:
+                    self._b = statistics.median(slopes)
+
+        return Recomputed(**kw)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("seed,blocks,recent", [(1, 80, 8), (2, 6, 3), (3, 12, 12), (4, 5, 1)])
+def test_sample_clock_incremental_slope_equals_recomputed(seed: int, blocks: int,
+                                                          recent: int) -> None:
+    """Blocks completing, leaving the window, samples out of order by < 0.5 s, equal offsets
+    (ties in the median) and reboots (the window starts over): the same times and drift, bit
+    for bit, as recomputing the median of all pairwise slopes each time."""
+    from companion.flight.tracking import SampleClock
+
+    rng = np.random.default_rng(seed)
+    fast = SampleClock(block_s=0.25, blocks=blocks, recent=recent)
+    slow = _RecomputedClock.make(block_s=0.25, blocks=blocks, recent=recent)
+    boot, epoch, drifts = 5.0, 1000.0, set()
+    for k in range(6000):
+        r = rng.random()
+        if r < 0.001:  # reboot: the boot clock starts again
+            boot = float(rng.uniform(0.0, 2.0))
+        elif r < 0.02:  # a sample stamped a little earlier than the last
+            boot -= float(rng.uniform(0.0, 0.4))
+        else:
+            boot += 1.0 / 30.0
+        latency = 0.003 if rng.random() < 0.3 else float(rng.exponential(0.004))
+        rx = boot + epoch + 0.007 * boot + round(latency, 3)  # rounded: ties
+        a = fast.local_time(boot, rx)
+        b = slow.local_time(boot, rx)  # type: ignore[attr-defined]
+        assert a == b, k
+        assert fast.drift == slow.drift, k  # type: ignore[attr-defined]
+        drifts.add(fast.drift)
+    assert len(drifts) > 50  # the slope was refitted many times
