@@ -54,7 +54,6 @@ import argparse
 import asyncio
 import contextlib
 import dataclasses
-import fcntl
 import json
 import math
 import os
@@ -65,7 +64,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -99,13 +98,13 @@ from companion.replay.runner import (  # noqa: E402
     prepare_mission,
     run_prepared,
 )
+from px4_harness import flight_lock  # noqa: E402
 
 MISSIONS_DIR = REPO / "examples" / "missions"
 ROVER_MISSIONS = tuple(sorted(p.name for p in MISSIONS_DIR.glob("*rover*")))
 SECTION = "Missions: companion vs AUTO.MISSION"
 SECTION_BASELINE = SECTION + " (pre-change baseline)"
 SECTION_ROVER = "Missions: companion vs PX4 AUTO.MISSION on the rover (PX4 main)"
-FLIGHT_LOCK = "/tmp/ecca-px4-flights.lock"
 GOAL_RATIO = 0.8
 GOAL_WP_M = 0.5
 GOAL_BOUND_RATIO = 1.15
@@ -258,16 +257,6 @@ def mock_missions(args: argparse.Namespace, bound_fn: Callable[..., float] | Non
 # ----------------------------------------------------------------------------- real PX4
 
 
-@contextlib.contextmanager
-def flight_lock(path: str = FLIGHT_LOCK) -> Iterator[float]:
-    """Hold the shared real-PX4 flight lock (flock(2), as `flock FILE cmd`); yields the wait [s]."""
-    t0 = time.monotonic()
-    with open(path, "a") as f:
-        fcntl.flock(f, fcntl.LOCK_EX)
-        try:
-            yield time.monotonic() - t0
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 class TruthRecorder:

@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import fcntl
 import json
 import math
 import socket
@@ -61,10 +60,9 @@ REPO = BENCH.parent
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from px4_harness import STARTED_MARK, Px4Sitl, find_px4_sitl  # noqa: E402
+from px4_harness import STARTED_MARK, Px4Sitl, find_px4_sitl, flight_lock  # noqa: E402
 
 FloatArray = npt.NDArray[np.float64]
-FLIGHT_LOCK = "/tmp/ecca-px4-flights.lock"
 PLAN = REPO / "examples" / "missions" / "rover_square.plan"
 SECTION = "Rover fidelity: mock vs real PX4 main"
 BOUND = 0.25
@@ -95,16 +93,6 @@ class Endpoint:
     sysid: int
 
 
-@contextlib.contextmanager
-def flight_lock(path: str = FLIGHT_LOCK) -> Iterator[float]:
-    """Hold the shared real-PX4 flight lock (flock(2), as `flock FILE cmd`); yields the wait [s]."""
-    t0 = time.monotonic()
-    with open(path, "a") as f:
-        fcntl.flock(f, fcntl.LOCK_EX)
-        try:
-            yield time.monotonic() - t0
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 @contextlib.contextmanager

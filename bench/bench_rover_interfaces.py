@@ -60,7 +60,6 @@ from __future__ import annotations
 import argparse
 import bisect
 import contextlib
-import fcntl
 import json
 import math
 import os
@@ -70,7 +69,7 @@ import shutil
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -86,11 +85,10 @@ for _p in (BENCH, REPO):
 
 from rover_link import HOLD, OFFBOARD, RoverLink, Streamer, mode_name  # noqa: E402
 
-from px4_harness import STARTED_MARK, Px4Sitl, find_px4_sitl  # noqa: E402
+from px4_harness import STARTED_MARK, Px4Sitl, find_px4_sitl, flight_lock  # noqa: E402
 
 FloatArray = npt.NDArray[np.float64]
 SECTION = "Rover on real PX4: offboard interfaces"
-FLIGHT_LOCK = "/tmp/ecca-px4-flights.lock"
 MODEL = "sihsim_rover_ackermann"
 #: The rover's PX4 parameters that matter for planning (read over PARAM_REQUEST_READ).
 PLANNING_PARAMS = (
@@ -419,16 +417,6 @@ INTERFACES: dict[str, Interface] = {i.name: i for i in (
 # ----------------------------------------------------------------------------- one flight
 
 
-@contextlib.contextmanager
-def flight_lock(path: str = FLIGHT_LOCK) -> Iterator[float]:
-    """Hold the shared real-PX4 flight lock (flock(2)); yields the wait [s]."""
-    t0 = time.monotonic()
-    with open(path, "a") as f:
-        fcntl.flock(f, fcntl.LOCK_EX)
-        try:
-            yield time.monotonic() - t0
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 def _latest(L: RoverLink) -> tuple[float, float, float]:

@@ -35,12 +35,16 @@ import socket
 import subprocess
 import tempfile
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import IO
 
 REPO = Path(__file__).resolve().parents[1]
+#: The lock real-PX4 measurement flights hold (`flight_lock`), so two benches on one machine
+#: never fly at the same time (PX4 SITL runs in real time).
+FLIGHT_LOCK = "/tmp/ecca-px4-flights.lock"
 READY_MARK = "Ready for takeoff"
 STARTED_MARK = "Startup script returned successfully"
 _FAIL_MARKS = ("Startup script returned with return value", "PX4 server already running",
@@ -94,6 +98,19 @@ def find_px4_sitl(build: str = "v1.16") -> tuple[Px4Location | None, str]:
             return loc, ""
     src = var if env else f"set {var} to a PX4 build's px4_sitl_default"
     return None, f"{whys[0]} ({src})"
+
+
+@contextlib.contextmanager
+def flight_lock(path: str = FLIGHT_LOCK) -> Iterator[float]:
+    """Hold the shared real-PX4 flight lock (flock(2), as `flock FILE cmd`); yields the wait
+    [s]."""
+    t0 = time.monotonic()
+    with open(path, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield time.monotonic() - t0
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 def _udp_port_free(port: int) -> bool:

@@ -40,33 +40,29 @@ def pytest_collection_modifyitems(config: Any, items: list[pytest.Item]) -> None
                 item.add_marker(pytest.mark.skip(reason=f"no real PX4 SITL: {why}"))
 
 
-@pytest.fixture
-def px4(tmp_path: Path) -> Iterator[Px4Sitl]:
-    """A fresh PX4 SITL (SIH quad, default parameters), ready for takeoff."""
-    sitl = Px4Sitl(location=_LOCATION, log=tmp_path / "px4-console.log")
+def _running(sitl: Px4Sitl, what: str) -> Iterator[Px4Sitl]:
+    """Start `sitl`, yield it, and stop it whatever happens, printing its console's tail."""
     try:
         sitl.start()
-        print(f"PX4 instance {sitl.instance}: {sitl.url}, sysid {sitl.target_system}")
+        print(f"{what} instance {sitl.instance}: {sitl.url}, sysid {sitl.target_system}")
         yield sitl
     finally:
         text = sitl.console_text()
         sitl.stop()
         print("---- PX4 console (tail) ----")
         print("\n".join(text.splitlines()[-40:]))
+
+
+@pytest.fixture
+def px4(tmp_path: Path) -> Iterator[Px4Sitl]:
+    """A fresh PX4 SITL (SIH quad, default parameters), ready for takeoff."""
+    yield from _running(Px4Sitl(location=_LOCATION, log=tmp_path / "px4-console.log"), "PX4")
 
 
 @pytest.fixture
 def px4_rover(tmp_path: Path) -> Iterator[Px4Sitl]:
     """A fresh PX4 built from main driving SIH's Ackermann rover, started (its estimator takes
     ~6 s more before it can arm: a test retries arming)."""
-    sitl = Px4Sitl(location=_MAIN_LOCATION, model="sihsim_rover_ackermann",
-                   log=tmp_path / "px4-console.log", ready_mark=STARTED_MARK)
-    try:
-        sitl.start()
-        print(f"PX4 (main) rover instance {sitl.instance}: {sitl.url}, sysid {sitl.target_system}")
-        yield sitl
-    finally:
-        text = sitl.console_text()
-        sitl.stop()
-        print("---- PX4 console (tail) ----")
-        print("\n".join(text.splitlines()[-40:]))
+    yield from _running(Px4Sitl(location=_MAIN_LOCATION, model="sihsim_rover_ackermann",
+                                log=tmp_path / "px4-console.log", ready_mark=STARTED_MARK),
+                        "PX4 (main) rover")
