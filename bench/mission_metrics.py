@@ -1,6 +1,8 @@
-"""Pure metrics of a flown mission (numpy only; used by bench_missions.py, tested in
-bench/tests/test_mission_metrics.py): closest approach of the flown path to each waypoint,
-deviation of the flown path from the mission's straight legs, and the corridor check.
+"""Pure metrics of a flown mission (numpy only; used by bench_missions.py and missions_px4.py,
+tested in bench/tests/test_mission_metrics.py): closest approach of the flown path to each
+waypoint, deviation of the flown path from the mission's straight legs, and the corridor check;
+`path_metrics` puts them together for one flight, `corner_points` reads a flight plan's
+waypoints and acceptance radii.
 
 Positions are NED [m] in one frame; a flown path is the polyline through its samples in time
 order (between two samples the vehicle is taken to move straight, so a waypoint passed
@@ -11,13 +13,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 
+if TYPE_CHECKING:
+    from companion.mission import FlightPlan
+
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["CorridorResult", "closest_approach_path", "corridor_check", "polyline_distance"]
+__all__ = ["CorridorResult", "closest_approach_path", "corner_points", "corridor_check",
+           "path_metrics", "polyline_distance"]
 
 
 def _segment_distance(points: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
@@ -96,3 +103,21 @@ def corridor_check(path: FloatArray, legs: FloatArray, waypoints: FloatArray,
     return CorridorResult(float(dev.max()), float(np.sqrt(np.mean(dev**2))), len(p),
                           int(np.count_nonzero(out)),
                           float(excess[out].max()) if np.any(out) else 0.0)
+
+
+def corner_points(fp: FlightPlan) -> tuple[np.ndarray, np.ndarray]:
+    """(waypoints (K, 3) NED about home, acceptance radii (K,)) of the flight plan."""
+    w = np.array([p.pos_ned_m for p in fp.waypoints], dtype=np.float64).reshape(-1, 3)
+    return w, np.array([p.acceptance_radius_m for p in fp.waypoints], dtype=np.float64)
+
+
+def path_metrics(pos: np.ndarray, wps: np.ndarray, legs: np.ndarray, corners: np.ndarray,
+                 acc: np.ndarray, corridor_m: float) -> dict[str, Any]:
+    """Closest approach per waypoint and the corridor figures of one flown path (NED [m])."""
+    ca = closest_approach_path(pos, wps)
+    cr = corridor_check(pos, legs, corners, acc, corridor_m)
+    return {"closest_m": [float(c) for c in ca],
+            "max_closest_m": float(np.max(ca)) if len(ca) else math.nan,
+            "max_dev_m": cr.max_dev_m, "rms_dev_m": cr.rms_dev_m, "samples": cr.samples,
+            "outside": cr.outside, "max_excess_m": cr.max_excess_m, "within": cr.within,
+            "outside_pct": 100.0 * cr.outside / cr.samples if cr.samples else math.nan}

@@ -1,4 +1,4 @@
-"""The rover interface bench's reference and metrics (bench_rover_interfaces.py): path geometry,
+"""The rover interface bench's reference and metrics (rover_reference.py): path geometry,
 speed profile, closest-point projection and the inverse of PX4's stopping profile, checked
 against geometry and arithmetic done here independently."""
 
@@ -13,7 +13,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
 
-from bench_rover_interfaces import (
+from rover_reference import (
     Path2,
     Projector,
     SpeedProfile,

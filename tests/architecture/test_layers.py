@@ -167,8 +167,12 @@ def test_only_the_replay_layers_import_the_mock() -> None:
     assert bad == []
 
 
+#: the trees the 800-line rule covers (examples holds no Python today: covered once it does)
+SOURCE_TREES = ("companion", "sitl_mock", "gen_c", "bench", "tests", "examples")
+
+
 def test_no_source_file_over_800_lines() -> None:
-    long = sorted(f"{p.relative_to(ROOT)}: {n}" for top in ("companion", "sitl_mock", "gen_c")
+    long = sorted(f"{p.relative_to(ROOT)}: {n}" for top in SOURCE_TREES
                   for p in (ROOT / top).rglob("*.py")
                   if (n := len(p.read_text().splitlines())) > 800)
     assert long == []
