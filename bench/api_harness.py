@@ -197,7 +197,7 @@ async def fly_on(v: Vehicle, mode: str, reference: Callable[[float], Reference],
     await v.fly(mode=mode, setpoint_source=rec, duration_s=duration_s)
     assert rec.t0_unix is not None
     return Flight(Path(v.config.tlog_path or ""), rec.t0_unix, duration_s, ref,
-                  np.array(ref(0.0).pos_ned))
+                  np.array(ref(0.0).pos_ned), {"source": rec.source})
 
 
 async def fly_reference(

@@ -19,6 +19,13 @@ Run: `.venv/bin/python bench/bench_tracking.py [--harness mavlink|direct] [--wri
 (--write prints the markdown table for BENCHMARKS.md). The default harness goes through MAVLink
 with `sitl_mock.lockstep.LockstepSim` (ODOMETRY telemetry at 30 Hz, one period of extra
 latency); `direct` steps the vehicle model with setpoint objects.
+API targets (`--target mock px4`): `--param NAME=VALUE` (repeatable) changes the autopilot, not
+the companion: e.g. `--param SIH_MASS=0.8` flies a lighter vehicle than the companion's default
+TrackingConfig assumes (1 kg, hover 0.5), `--param MPC_THR_HOVER=0.55` gives PX4 a hover thrust
+10 % off. The mock gets it as `serve --param` (its parameter store, as PARAM_SET would), PX4 as
+PX4_PARAM_<NAME> at boot (rcS sets it before SIH starts; SIH also re-reads SIH_MASS on a live
+parameter update); the bench reads each one back with PARAM_REQUEST_READ before the pattern and
+records it per cell in OUT/tracking.json and in the table's "autopilot parameters" column.
 The module also exposes the lockstep harness (`run_lockstep`, `figure8_reference`) used by
 bench/tests/test_tracking_lockstep.py.
 """
@@ -470,12 +477,28 @@ def main(argv: list[str] | None = None) -> int:
                          "this rate (default: the autopilot's, 30/50 Hz on PX4)")
     ap.add_argument("--ctl", action="append", default=[], metavar="NAME=VALUE",
                     help="API targets: override a TrackingConfig/TrackingGains field (tuning)")
-    ap.add_argument("--out", default="bench_out/tracking",
-                    help="API targets: folder for tlogs and autopilot logs")
+    ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                    help="API targets: set an autopilot parameter before the flight "
+                         "(repeatable; mock: `serve --param`, PX4: PX4_PARAM_<NAME> at boot, "
+                         "before SIH starts), read back over MAVLink; the companion is not "
+                         "told (its TrackingConfig stays the default). E.g. SIH_MASS=0.8, "
+                         "MPC_THR_HOVER=0.55. Recorded per cell; rows of other parameters "
+                         "from --reuse sit beside this run's")
+    ap.add_argument("--out", default=None,
+                    help="API targets: folder for tlogs, autopilot logs and tracking.json "
+                         "(default bench_out/tracking, with --param bench_out/tracking-NAME=V)")
     ap.add_argument("--ablation", action="store_true",
                     help="instead: companion modes at 6 m/s without drag feed-forward and/or "
                          "without the attitude lead (comparable to PX4 SITL's PD + flatness)")
     args = ap.parse_args(argv)
+    try:
+        params = parse_params(args.param)
+    except ValueError as exc:
+        ap.error(str(exc))
+    if params and (args.ablation or args.target == ["lockstep"]):
+        ap.error("--param sets the autopilot's parameters: --target mock and/or px4")
+    if args.out is None:
+        args.out = "bench_out/tracking" + "".join(f"-{k}={v:g}" for k, v in params.items())
     if args.ablation:
         return _ablation(args)
     if args.target != ["lockstep"]:
@@ -566,24 +589,52 @@ def _controller_factory(overrides: list[str]) -> Any:
 STAGGER_S = 7.0
 
 
+def parse_params(items: list[str]) -> dict[str, float]:
+    """`--param NAME=VALUE` items as {NAME: value} (ValueError on a malformed one)."""
+    out: dict[str, float] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        name = name.strip().upper()
+        try:
+            val = float(value)
+        except ValueError:
+            val = math.nan
+        if not (sep and name and math.isfinite(val)):
+            raise ValueError(f"--param needs NAME=VALUE with a finite number, got {item!r}")
+        out[name] = val
+    return out
+
+
 def _api_cell(target: str, mode: str, speed: float, out: Path, idx: int,
-              ctl: list[str] | None = None, telemetry_hz: float | None = None
-              ) -> dict[str, float]:
+              ctl: list[str] | None = None, telemetry_hz: float | None = None,
+              params: dict[str, float] | None = None) -> dict[str, float]:
     """One flight on a fresh autopilot (run `idx` holds idx x STAGGER_S after the takeoff);
-    lap-2 (or hover) errors vs the estimate and the truth."""
+    lap-2 (or hover) errors vs the estimate and the truth, and the companion's hover-thrust
+    estimate at the end. `params`: autopilot parameters set before it starts (the mock's
+    `--param`, PX4's PX4_PARAM_<NAME> at boot) and read back over MAVLink before the pattern
+    (a name the autopilot does not have, or another value, fails the cell)."""
     import asyncio
 
     import api_harness as H  # noqa: N812
+    from tracking_report import params_label
 
+    params = params or {}
     factory = _controller_factory(ctl or [])
 
-    async def stagger(_v: object) -> None:
+    async def before(v: Any) -> None:
+        if params:
+            got = await v.read_params(list(params))  # PARAM_REQUEST_READ: the user's check
+            bad = {k: got[k] for k, want in params.items()
+                   if not math.isclose(got[k], want, rel_tol=1e-6, abs_tol=1e-6)}
+            if bad:
+                raise RuntimeError(f"{target} reports {bad}, not the values set ({params})")
         await asyncio.sleep(STAGGER_S * idx)  # a hold of the bench (docstring), not a sync
 
-    tag = f"{target}-{mode}-{speed:g}-{idx}"
-    folder = out / tag
+    slug = "" if not params else "-" + params_label(params).replace(", ", "-")
+    folder = out / f"{target}-{mode}-{speed:g}{slug}-{idx}"
     shutil.rmtree(folder, ignore_errors=True)  # tlogs append: start each cell afresh
-    with H.launch(target, folder) as ep:
+    mock_args = tuple(a for k, v in params.items() for a in ("--param", f"{k}={v!r}"))
+    with H.launch(target, folder, mock_args=mock_args, px4_params=params or None) as ep:
         if mode in ("hover", "px4_hold"):
             def hold_ref(t: float) -> tuple[Reference, float]:
                 return Reference(np.array([0.0, 0.0, -5.0])), 0.0
@@ -592,7 +643,7 @@ def _api_cell(target: str, mode: str, speed: float, out: Path, idx: int,
             fl = asyncio.run(H.fly_reference(
                 ep, "attitude" if mode == "hover" else "position",
                 lambda t: hold_ref(t)[0], duration, tlog=folder / "flight.tlog",
-                source_factory=factory, telemetry_hz=telemetry_hz, before=stagger))
+                source_factory=factory, telemetry_hz=telemetry_hz, before=before))
 
             def select(t: float) -> bool:
                 return t >= 5.0
@@ -604,7 +655,7 @@ def _api_cell(target: str, mode: str, speed: float, out: Path, idx: int,
             fl = asyncio.run(H.fly_reference(ep, mode, ref8, duration,
                                               tlog=folder / "flight.tlog",
                                               source_factory=factory,
-                                              telemetry_hz=telemetry_hz, before=stagger))
+                                              telemetry_hz=telemetry_hz, before=before))
             def select(t: float) -> bool:
                 return 2 * math.pi <= figure8_reference(t, speed)[1] < 4 * math.pi
 
@@ -615,25 +666,33 @@ def _api_cell(target: str, mode: str, speed: float, out: Path, idx: int,
     trms, tmx = H.rms_max(tr)
     if len(tr) == 0:  # the mock has no estimator: its estimate is the truth
         trms, tmx = rms, mx
-    return {"rms": rms, "max": mx, "truth_rms": trms, "truth_max": tmx, "n": float(len(est))}
+    ctl_used = getattr(fl.notes.get("source"), "controller", None)  # None in position mode
+    hover = float(ctl_used.hover_thrust) if ctl_used is not None else math.nan
+    return {"rms": rms, "max": mx, "truth_rms": trms, "truth_max": tmx, "n": float(len(est)),
+            "hover_est": hover}
 
 
 def _api_cell_retry(target: str, mode: str, speed: float, out: Path, idx: int,
-                    ctl: list[str], telemetry_hz: float | None) -> dict[str, float]:
+                    ctl: list[str], telemetry_hz: float | None, params: dict[str, float]
+                    ) -> dict[str, float]:
     """`_api_cell`, flown once more on a fresh autopilot if the first attempt fails (the
     failure is printed: a flaky start on a loaded machine must not cost a 30-minute run)."""
     try:
-        return _api_cell(target, mode, speed, out, idx, ctl, telemetry_hz)
+        return _api_cell(target, mode, speed, out, idx, ctl, telemetry_hz, params)
     except Exception as exc:  # reported, then one retry
         print(f"{target} {mode} {speed:g} m/s run {idx}: {type(exc).__name__}: {exc}; "
               "flying it again", flush=True)
-        return _api_cell(target, mode, speed, out, idx, ctl, telemetry_hz)
+        return _api_cell(target, mode, speed, out, idx, ctl, telemetry_hz, params)
 
 
 def _api_main(args: argparse.Namespace) -> int:
+    import tracking_report as R  # noqa: N812
+
+    params = parse_params(args.param)
+    label = R.params_label(params)
     out = Path(args.out)
     modes = args.modes or [*API_MODES, "hover", "px4_hold"]
-    rows: list[tuple[str, str, float, dict[str, float]]] = []
+    rows: list[R.Row] = []
     t_start = time.perf_counter()
     cells: list[tuple[str, float]] = []
     for mode in modes:
@@ -643,108 +702,47 @@ def _api_main(args: argparse.Namespace) -> int:
             cells += [(mode, v) for v in args.speeds]
     for mode, v in cells:
         for target in args.target:
-            runs = [_api_cell_retry(target, mode, v, out, i, args.ctl, args.request_hz)
+            runs = [_api_cell_retry(target, mode, v, out, i, args.ctl, args.request_hz, params)
                     for i in range(args.repeat)]
-            agg = {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
+            agg: dict[str, Any] = {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
             agg["rms_lo"] = min(r["rms"] for r in runs)
             agg["rms_hi"] = max(r["rms"] for r in runs)
             for i, r in enumerate(runs):  # each run's own figure, for paired comparisons
                 agg[f"rms_{i}"] = r["rms"]
+            agg["params"] = dict(params)  # the autopilot's, set and read back ({}: defaults)
             rows.append((target, mode, v, agg))
-            print(f"{target:5s} {mode:9s} {v:4.1f} m/s  estimate RMS {agg['rms']:.3f} m "
+            print(f"{target:5s} {mode:9s} {v:4.1f} m/s [{label}] estimate RMS {agg['rms']:.3f} m "
                   f"(runs {agg['rms_lo']:.3f}-{agg['rms_hi']:.3f}) max {agg['max']:.3f} m | "
-                  f"truth RMS {agg['truth_rms']:.3f} max {agg['truth_max']:.3f} m", flush=True)
+                  f"truth RMS {agg['truth_rms']:.3f} max {agg['truth_max']:.3f} m | "
+                  f"companion hover estimate {agg['hover_est']:.3f}", flush=True)
     wall = time.perf_counter() - t_start
     print(f"wall time {wall:.0f} s")
     out.mkdir(parents=True, exist_ok=True)
     record = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
               "argv": " ".join(sys.argv[1:]), "wall_s": wall, "repeat": args.repeat,
-              "rows": rows}
+              "params": params, "rows": rows}
     (out / "tracking.json").write_text(json.dumps(record))
-    repeats = {t: args.repeat for t in args.target}
+    repeats = {t: {args.repeat} for t in args.target}
+    flown = {(t, label) for t in args.target}
     reused = []
-    for path in args.reuse:
+    for path in args.reuse:  # rows of other targets or other parameters than this run's
         old = json.loads(Path(path).read_text())
-        keep = [r for r in old["rows"] if r[0] not in repeats]
+        keep = [r for r in old["rows"] if (r[0], R.row_label(r)) not in flown]
         if not keep:
             continue
         rows += [(t, m, float(v), a) for t, m, v, a in keep]
         for t in dict.fromkeys(r[0] for r in keep):
-            repeats[t] = int(old["repeat"])
+            repeats.setdefault(t, set()).add(int(old["repeat"]))
         reused.append(f"`{old['argv']}` ({old['date']}, {old['wall_s'] / 60:.0f} min)")
     targets = [t for t in ("mock", "px4") if t in repeats]
     if args.write:
-        table = _api_table(rows, targets, repeats)
+        table = R.api_table(rows, targets, repeats, STAGGER_S)
         print()
         print(table)
         if not args.ctl:  # tuning runs never overwrite the record of the defaults
-            _write_api_section(table, args, wall, reused)
+            with_params = any(R.row_label(r) != "default" for r in rows)
+            R.write_api_section(table, args, wall, reused, with_params)
     return 0
-
-
-API_SECTION = "Tracking on real PX4 SITL (public API, side by side with the mock)"
-
-
-def _write_api_section(table: str, args: argparse.Namespace, wall_s: float,
-                       reused: list[str]) -> None:
-    """Replace the API-target section of BENCHMARKS.md with this run's table."""
-    from benchmarks_md import write_section
-
-    argv = " ".join(sys.argv[1:])
-    text = (
-        f"## {API_SECTION}\n\n"
-        f"Command: `flock /tmp/ecca-px4-flights.lock .venv/bin/python bench/bench_tracking.py "
-        f"{argv}` ({wall_s / 60:.0f} min wall; real PX4 runs in real time)"
-        + "".join(f"; rows of another target from {r}" for r in reused) + ".\n\n"
-        "Each cell starts a fresh autopilot (real PX4 v1.16.0 SITL, SIH quadrotor, default "
-        "parameters, from `../shared/px4_sitl`; or `sitl_mock serve`) and flies it through the "
-        "companion's public API: `Vehicle.connect`, arm, takeoff to 5 m, then `Vehicle.fly` with "
-        "a `TrackingSource` (default `TrackingConfig`: nominal mass 1 kg, drag 1 N/(m/s), "
-        "hover 0.5, estimated online) on the figure-8 of the Tracking section, shifted to start "
-        "where the takeoff ended. Error: horizontal distance to the reference over lap 2, from "
-        "the autopilot's own estimate (LOCAL_POSITION_NED, the figure the issue states) and "
-        "from the simulator's truth (HIL_STATE_QUATERNION; SIH's GPS noise through EKF2 puts "
-        "the estimate ~0.15 m RMS off the truth, the mock has no estimator so both are equal). "
-        "Hover rows: 30 s holding a point, the companion in attitude mode and PX4's own "
-        "position controller (OFFBOARD position setpoint): the floor PX4 itself reaches.\n\n"
-        f"{table}\n"
-    )
-    write_section(API_SECTION, text)
-
-
-def _fmt(agg: dict[str, float] | None, key: str, lo: str = "", hi: str = "") -> str:
-    if agg is None or not math.isfinite(agg[key]):
-        return "-"
-    if lo and agg[lo] != agg[hi]:
-        return f"{agg[key]:.3f} ({agg[lo]:.3f}-{agg[hi]:.3f})"
-    return f"{agg[key]:.3f}"
-
-
-def _api_table(rows: list[tuple[str, str, float, dict[str, float]]], targets: list[str],
-               repeats: dict[str, int]) -> str:
-    """Markdown: one row per (mode, speed), estimate and truth errors per target."""
-    label = {"position": "position + vel + acc", "attitude": "attitude (q + thrust)",
-             "rates": "rates (body rates + thrust)", "hover": "hover, companion attitude mode",
-             "px4_hold": "hover, PX4 position hold"}
-    by = {(t, m, v): a for t, m, v, a in rows}
-    keys = list(dict.fromkeys((m, v) for _t, m, v, _a in rows))
-    head = ["peak speed", "mode"]
-    for t in targets:
-        name = "real PX4" if t == "px4" else "mock"
-        head += [f"{name} RMS (estimate) [m]", f"{name} max [m]", f"{name} RMS (truth) [m]"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for m, v in keys:
-        cells = ["-" if m in ("hover", "px4_hold") else f"{v:g} m/s", label.get(m, m)]
-        for t in targets:
-            a = by.get((t, m, v))
-            cells += [_fmt(a, "rms", "rms_lo", "rms_hi"), _fmt(a, "max"), _fmt(a, "truth_rms")]
-        lines.append("| " + " | ".join(cells) + " |")
-    note = "; ".join(
-        f"{'real PX4' if t == 'px4' else 'mock'}: "
-        + (f"median of {repeats[t]} runs (range in brackets; run i held i x {STAGGER_S:g} s "
-           "after the takeoff)" if repeats[t] > 1 else "one run per cell")
-        for t in targets)
-    return "\n".join(lines) + f"\n\n({note}; lap 2 of the figure-8, hover: 30 s)"
 
 
 def _ablation(args: argparse.Namespace) -> int:

@@ -131,7 +131,7 @@ PARAMS: dict[str, ParamSpec] = {
     "SIM_VEL_NOISE": ParamSpec(0.0, False, "std of simulated velocity noise [m/s] (0 = off)"),
     "SIM_GYRO_NOISE": ParamSpec(0.0, False, "std of simulated gyro noise [rad/s] (0 = off)"),
     "MPC_TILTMAX_LND": ParamSpec(12.0, False, "maximum tilt during the takeoff ramp [deg]"),
-    # Wind gusts (no PX4 equivalent; SIH has steady wind only): a seeded first-order
+    # Wind gusts (no PX4 equivalent; PX4 v1.16's SIH has no wind at all): a seeded first-order
     # Gauss-Markov process added to the steady wind, horizontal axes at full, vertical at half std
     "SIM_WIND_GUST": ParamSpec(0.0, False, "std of wind gusts per horizontal axis [m/s] (0 = off)"),
     "SIM_WIND_GUST_T": ParamSpec(2.0, False, "correlation time of wind gusts [s]"),
