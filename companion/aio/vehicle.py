@@ -251,7 +251,7 @@ class Vehicle(VehicleBase):
                 return fclock.now(local)
 
         def producer(now: float) -> bytes | None:
-            snap = dataclasses.replace(self._snapshot, now_s=now)
+            snap = dataclasses.replace(self._snapshot, now_s=now, link_rtt_s=link.rtt_s)
             hold: PositionSetpoint | None = state["hold"]
             if hold is None:
                 t0 = seq.t_fly0

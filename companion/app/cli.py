@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
+import math
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -289,7 +290,7 @@ def _cmd_fly(args: argparse.Namespace) -> int:
         vehicle_file=args.vehicle_file, log=args.log, size_m=args.size, speed_m_s=args.speed,
         alt_m=args.alt, laps=args.laps, mock_params=tuple(args.mock_param),
         busy_wait=args.busy_wait, sender_cpu=args.sender_cpu, target_system=args.target_system,
-        signing_key=args.signing_key, connect_timeout_s=args.timeout,
+        signing_key=args.signing_key, connect_timeout_s=args.timeout, wind=args.wind,
     )
     return _run_vehicle_command(lambda: asyncio.run(fly(opts, console)))
 
@@ -378,6 +379,19 @@ def _positive_float(text: str) -> float:
     return v
 
 
+def _wind(text: str) -> tuple[float, float]:
+    """SPEED@FROM: wind speed [m/s] and the compass direction it blows from [deg]."""
+    speed, sep, frm = text.partition("@")
+    try:
+        s, f = float(speed), float(frm) if sep else math.nan
+    except ValueError:
+        s = f = math.nan
+    if not (math.isfinite(s) and s >= 0.0 and math.isfinite(f)):
+        raise argparse.ArgumentTypeError(
+            f"expected SPEED@FROM (m/s @ compass deg it blows from, e.g. 6@270), got {text!r}")
+    return (s, f % 360.0)
+
+
 def _altitude(text: str) -> float:
     v = _positive_float(text)
     if not v > 0.5:
@@ -460,6 +474,10 @@ def build_parser() -> argparse.ArgumentParser:
     fl.add_argument("--alt", type=_altitude, default=5.0,
                     help="pattern altitude above the start [m] (> 0.5, default 5)")
     fl.add_argument("--laps", type=_positive_int, default=1, help="pattern laps (default 1)")
+    fl.add_argument("--wind", type=_wind, default=None, metavar="SPEED@FROM",
+                    help="the wind to expect (m/s @ compass deg it blows from, e.g. 6@270): a "
+                         "plan the vehicle cannot fly in it (tilt limit, drag of the vehicle "
+                         "file) exits 2 before anything is sent; attitude and rates modes")
     fl.add_argument("--busy-wait", action="store_true",
                     help="sender thread busy-waits each deadline (tightest timing, costs a core)")
     fl.add_argument("--sender-cpu", type=int, default=None, metavar="N",

@@ -27,6 +27,7 @@ from companion.flight.policy import (
     ROVER_SETTLE_S,
     lands_at_end,
     plan_touchdown,
+    stall_s,
 )
 from companion.flight.report import (
     FlightReport,
@@ -92,6 +93,7 @@ class FlyOptions:
     target_system: int = 1  # the autopilot's MAVLink system id (PX4 MAV_SYS_ID)
     signing_key: bytes | None = dataclasses.field(default=None, repr=False)  # MAVLink 2 signing
     connect_timeout_s: float = 10.0  # no vehicle HEARTBEAT within this: ConnectTimeoutError
+    wind: tuple[float, float] | None = None  # expected wind (m/s, compass deg it blows from)
 
 
 def _free_udp_port() -> int:
@@ -150,6 +152,14 @@ def _status_table(
         elapsed = (ended or asyncio.get_running_loop().time()) - started
         if elapsed > 0:
             t.add_row("mean setpoint rate [Hz]", f"{source.calls / elapsed:.0f}")
+        est = source.estimates()
+        if est is not None:
+            wind = ("-" if est.wind_m_s is None
+                    else f"{est.wind_m_s:.1f} m/s from {est.wind_from_deg:03.0f} deg")
+            t.add_row("wind (estimate)", wind)
+            t.add_row("mass / thrust (estimate)", f"{est.mass_ratio:.2f} x assumed")
+            if est.slowed_s > 0.05:
+                t.add_row("slowed for the vehicle", f"{est.slowed_s:.1f} s behind the plan")
     if v.last_status_text is not None:
         t.add_row("vehicle says", escape(v.last_status_text.text))
     return t
@@ -360,6 +370,29 @@ def summary_table(report: FlightReport) -> Table:
     return t
 
 
+def wind_check(console: Console, wind: tuple[float, float], planned: PlannedFlight,
+               vf: VehicleFile, px4: Px4PlanningParams | None) -> None:
+    """`--wind`: the plan against the expected wind (`companion.planning.wind.check_wind`, the
+    vehicle file's drag and mass, the tilt limit PX4's MPC_TILTMAX_AIR sets). ValueError (exit
+    2, before anything is sent) when the vehicle cannot fly it; a warning when it will be
+    flown slower."""
+    from companion.planning.wind import check_wind, disturbance_of_wind
+
+    p = vf.params
+    tilt = SetpointLimits.of_px4(px4 if px4 is not None else Px4PlanningParams()).tilt_max_rad
+    d = disturbance_of_wind(wind[0], wind[1], p.drag, p.mass)
+    verdict = check_wind(lambda t: planned.rel_ref(t, None), planned.duration_s, d,
+                         p.drag / p.mass, tilt, p.g)
+    where = f"wind {wind[0]:g} m/s from {wind[1]:03.0f} deg"
+    if not verdict.flyable:
+        raise ValueError(f"not flyable in {where}: {verdict.reason}")
+    if verdict.slowed:
+        console.print(f"[yellow]{escape(where)}: {escape(verdict.reason)}[/yellow]")
+    else:
+        console.print(f"{escape(where)}: flyable as planned (up to "
+                      f"{verdict.worst_tilt_deg:.0f} deg of tilt)")
+
+
 async def fly(opts: FlyOptions, console: Console) -> int:
     """Run `fly`; returns the exit code (0 ok, 1 flight failure, 2 bad input).
 
@@ -422,6 +455,9 @@ async def fly(opts: FlyOptions, console: Console) -> int:
         planned = await asyncio.to_thread(
             plan_flight, opts, inputs, rover, None if px4 is None else px4.params, fly_takeoff,
             TOUCHDOWN_FROM_M if touchdown else HANDOVER_HEIGHT_M)
+        if opts.wind is not None and not rover:
+            wind_check(console, opts.wind, planned, inputs.vehicle,
+                       None if px4 is None else px4.params)
         if mission is not None:
             horiz, fence_shift = await _home_offset_m(v, mission, HOME_WAIT_S)
             if horiz > MAX_HOME_OFFSET_M:
@@ -503,7 +539,7 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                                     settle_m=(float(planned.acceptance_m[-1]) if rover_end
                                               else None),
                                     settle_s=ROVER_SETTLE_S if rover_end else None,
-                                    stall_s=ROVER_SETTLE_S if rover else None)
+                                    stall_s=stall_s("rover" if rover else "quad", mode))
                 ended = loop.time()
                 console.print(f"Trajectory flown in {mode} mode: {flown.duration_s:.1f} s")
                 report = dataclasses.replace(
@@ -517,6 +553,7 @@ async def fly(opts: FlyOptions, console: Console) -> int:
                 bad = source.quality.failure()
                 report = dataclasses.replace(
                     report, setpoint_quality=source.quality.figures(),
+                    estimates=source.estimates(),
                     result=breach_failure(report) or (
                         f"setpoints: {bad}" if bad is not None else "ok"))
                 # a flight that missed a waypoint is not "ok"

@@ -17,9 +17,16 @@ from companion.control.gains import (
     TrackingGains,
     rates_mode_gains,
 )
-from companion.control.law import TrackingController, so3_rate_command, so3_rate_command_dcm
+from companion.control.law import TrackingController
 from companion.control.rover import RoverController, RoverGains
-from companion.control.so3 import attitude_error, quat_integrate, quat_to_dcm, yaw_quat
+from companion.control.so3 import (
+    attitude_error,
+    quat_integrate,
+    quat_to_dcm,
+    so3_rate_command,
+    so3_rate_command_dcm,
+    yaw_quat,
+)
 from companion.control.state import StateEstimate, Telemetry, state_estimate_of_arrays
 from companion.flatness.reference import Reference, reference_from_trajectory, reference_of_arrays
 

@@ -340,3 +340,87 @@ __all__ = [
     "HoverThrustEstimator",
     "HoverThrustStatus",
 ]
+
+
+@dataclass(frozen=True)
+class DisturbanceConfig:
+    """Tuning of `DisturbanceObserver`.
+
+    bandwidth_rad_s: natural frequency of the observer's error dynamics [rad/s] (critically
+        damped): the estimate of a step in the force settles (to 2 %) in about 6 / bandwidth
+        seconds; higher follows gusts, lower passes less velocity noise.
+    max_acc: bound of the estimate's magnitude [m/s^2].
+    min_thrust_norm: no update below this commanded thrust (on the ground, idle).
+    """
+
+    bandwidth_rad_s: float = 1.5
+    max_acc: float = 8.0
+    min_thrust_norm: float = 0.05
+
+    def __post_init__(self) -> None:
+        for name in ("bandwidth_rad_s", "max_acc"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0.0):
+                raise ValueError(f"{name} must be positive and finite, got {v}")
+
+
+class DisturbanceObserver:
+    """Horizontal force the model does not explain, as an acceleration d [m/s^2, NED x, y]:
+    wind on the drag (D (v - w) instead of D v: d = D w / m), a drag coefficient off by dD
+    (d = -dD v / m), a thrust axis offset. A velocity observer with a disturbance state
+    (Luenberger, both poles at -bandwidth):
+
+        v' = a_model + d,   a_model = -(u g / h) z_b,h - (D / m) v_h
+        v_hat' = a_model + d_hat + 2 w (v - v_hat),   d_hat' = w^2 (v - v_hat)
+
+    with the commanded normalised thrust u (paired with the sample as the hover-thrust
+    estimator pairs it), the measured attitude (body z axis z_b), the hover thrust h in use and
+    the configured drag D / m. It integrates the velocity rather than differencing it, so the
+    velocity noise reaches the estimate filtered twice. The vertical axis is the hover-thrust
+    estimator's. Pure: every call takes the sample time.
+    """
+
+    def __init__(self, config: DisturbanceConfig | None = None) -> None:
+        self.config = config or DisturbanceConfig()
+        self._v: tuple[float, float] | None = None  # v_hat [m/s]
+        self._d = (0.0, 0.0)
+        self._t: float | None = None
+
+    @property
+    def acc_ne(self) -> tuple[float, float]:
+        """The estimate d [m/s^2] (north, east)."""
+        return self._d
+
+    def reset(self) -> None:
+        """Forget the estimate."""
+        self._v, self._d, self._t = None, (0.0, 0.0), None
+
+    def update(self, t_s: float, vel_ne: tuple[float, float], a_model_ne: tuple[float, float],
+               u: float, airborne: bool) -> tuple[float, float]:
+        """Fuse one velocity sample `vel_ne` [m/s] taken at `t_s` [s], with the model's
+        acceleration `a_model_ne` [m/s^2] over the interval since the last one. On the ground
+        (or below min_thrust_norm) the observer follows the velocity and holds its estimate."""
+        c = self.config
+        t_last, self._t = self._t, t_s
+        if (not airborne or not u >= c.min_thrust_norm or self._v is None or t_last is None
+                or not all(map(math.isfinite, (*vel_ne, *a_model_ne)))):
+            self._v = vel_ne if all(map(math.isfinite, vel_ne)) else None
+            return self._d
+        dt = t_s - t_last
+        if not 0.0 < dt < 0.5:
+            self._v = vel_ne
+            return self._d
+        w = c.bandwidth_rad_s
+        k1 = min(2.0 * w * dt, 1.0)
+        k2 = w * w * dt
+        dx, dy = self._d
+        px = self._v[0] + (a_model_ne[0] + dx) * dt
+        py = self._v[1] + (a_model_ne[1] + dy) * dt
+        ex, ey = vel_ne[0] - px, vel_ne[1] - py
+        self._v = (px + k1 * ex, py + k1 * ey)
+        dx, dy = dx + k2 * ex, dy + k2 * ey
+        n = math.hypot(dx, dy)
+        if n > c.max_acc:
+            dx, dy = dx * c.max_acc / n, dy * c.max_acc / n
+        self._d = (dx, dy)
+        return self._d

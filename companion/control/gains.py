@@ -10,6 +10,7 @@ import numpy as np
 import numpy.typing as npt
 
 from companion.control.estimation import (
+    DisturbanceConfig,
     DragConfig,
     HoverThrustConfig,
 )
@@ -71,7 +72,23 @@ class AttitudeGains:
         k_yaw is PX4's MC_YAW_P.
     max_rate_rp / max_rate_yaw: rate command limits [rad/s] (MC_*RATE_MAX).
     large_angle: scale e_R by 1/cos(angle/2) so the error grows monotonically up to 180 deg
-    (Lee 2011's alternative error function; small-angle behaviour unchanged).
+    (Lee 2011's alternative error function; small-angle behaviour unchanged). Used only
+    without `tilt_priority`.
+    tilt_priority: PX4's attitude law (mc_att_control, Brescianini et al. 2013): the thrust
+    axis is steered first (the reduced attitude), the yaw about it only with weight
+    k_yaw / k_roll, and the error is 2 sin(angle / 2) about the error axis (monotone to 180
+    deg). Without it the full SO(3) error mixes a yaw the vehicle cannot follow (a weak yaw
+    axis, a fast planned heading change at a corner) into roll and pitch: a rates-mode flight
+    on the mock in 1.5 m/s wind reached 86 deg of tilt at a square's corner that way.
+    yaw_weight: PX4's MC_YAW_WEIGHT; the yaw error's gain is then k_yaw / yaw_weight on the
+    weighted yaw, k_yaw on small yaw errors as before.
+    delay_gain_product: on a link with round-trip time RTT [s] (`TrackingController.link_rtt_s`)
+        the roll/pitch/yaw gains are capped at delay_gain_product / RTT [1/s] (`for_link_rtt`).
+        The companion's attitude loop closes over the link: on the mock, k_roll 10 whirled at
+        50 ms of telemetry latency (growing to 2.8 rad/s RMS of body rate) and flew clean at
+        30 ms; 8 and 6.5 flew 50 ms clean (0.30 / 0.28 rad/s, as with no latency). 0.35 puts
+        50 ms at 7; the few-ms round trip of a wired link or PX4 SITL leaves the gains as they
+        are.
     """
 
     k_roll: float = 10.0
@@ -80,6 +97,27 @@ class AttitudeGains:
     max_rate_rp: float = math.radians(220.0)
     max_rate_yaw: float = math.radians(200.0)
     large_angle: bool = True
+    tilt_priority: bool = True
+    yaw_weight: float = 0.4
+    delay_gain_product: float = 0.35
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.yaw_weight <= 1.0:
+            raise ValueError(f"yaw_weight must be in (0, 1], got {self.yaw_weight}")
+        if not (math.isfinite(self.delay_gain_product) and self.delay_gain_product > 0.0):
+            raise ValueError(f"delay_gain_product must be > 0, got {self.delay_gain_product}")
+
+    def for_link_rtt(self, rtt_s: float) -> AttitudeGains:
+        """These gains on a link with round-trip time `rtt_s` [s]: each of k_roll, k_pitch and
+        k_yaw capped at `delay_gain_product` / `rtt_s` (unchanged for an unknown (NaN) or
+        non-positive round trip, and where the cap is above them)."""
+        if not rtt_s > 0.0:
+            return self
+        cap = self.delay_gain_product / rtt_s
+        if cap >= max(self.k_roll, self.k_pitch, self.k_yaw):
+            return self
+        return replace(self, k_roll=min(self.k_roll, cap), k_pitch=min(self.k_pitch, cap),
+                       k_yaw=min(self.k_yaw, cap))
 
 
 def rates_mode_gains(gains: TrackingGains, attitude: AttitudeGains,
@@ -142,6 +180,17 @@ class TrackingConfig:
         share 0.5 and 1 with k_roll 10 oscillated at 1.7-2 Hz; share 1 with k_roll 4 flew
         6 m/s well (0.108 m) but 2 m/s badly (0.153 m). BENCHMARKS.md, "Tracking on real PX4:
         where the error came from".
+    max_yaw_rate_rad_s: the yaw the law commands follows the reference's yaw at most this fast
+        [rad/s] (PX4's MPC_YAWRAUTO_MAX, 45 deg/s): a heading that follows the velocity turns
+        at up to ~155 deg/s at a square's corner, more than a quad's weak yaw axis gives while
+        it tilts hard, and chasing it saturated the rate loops (rates mode on the mock: 72-86
+        deg of tilt in 1.5 m/s of wind). Beyond it the yaw lags the plan and catches up.
+    estimate_disturbance: estimate the horizontal force the model does not explain (wind on
+        the drag, a wrong drag coefficient; `DisturbanceObserver`, tuned by
+        `disturbance_config`) and cancel it with the thrust. The position integrator alone
+        holds at most i_max_xy (2 m/s^2); 5.4 m/s of wind on the SIH quad is ~8 m/s^2.
+    position_smoothing_s: time constant [s] of the velocity-aided position smoothing the
+        feedback uses (`TrackingController._smooth_position`; 0: the raw position).
     rates_separation: if > 0, `rates` mode flies `rates_mode_gains(gains, attitude_gains,
         rates_separation)` (the cascade-separation cap, 2.5 before the feed-forward); 0 (the
         default) flies the configured gains.
@@ -167,6 +216,10 @@ class TrackingConfig:
     thrust_max: float = 1.0
     feedback_rate_ff: float = 0.25
     rates_separation: float = 0.0
+    max_yaw_rate_rad_s: float = math.radians(45.0)
+    estimate_disturbance: bool = True
+    position_smoothing_s: float = 0.1
+    disturbance_config: DisturbanceConfig | None = None
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_tilt_rad < math.radians(89.0):
@@ -181,6 +234,8 @@ class TrackingConfig:
             raise ValueError("prediction_delay_s must be >= 0")
         if not (math.isfinite(self.rates_separation) and self.rates_separation >= 0.0):
             raise ValueError("rates_separation must be >= 0 (0: no cap)")
+        if not (math.isfinite(self.max_yaw_rate_rad_s) and self.max_yaw_rate_rad_s > 0.0):
+            raise ValueError("max_yaw_rate_rad_s must be > 0")
 
 
 @dataclass(frozen=True)

@@ -52,6 +52,7 @@ import numpy.typing as npt
 
 from companion.control.commands import AttitudeCommand, RateCommand
 from companion.control.estimation import (
+    DisturbanceObserver,
     DragConfig,
     DragEstimator,
     HoverThrustConfig,
@@ -65,12 +66,13 @@ from companion.control.gains import (
 )
 from companion.control.so3 import (
     all_finite,
-    attitude_error,
     body_z_down,
     quat_integrate_f,
     quat_normalize,
     quat_normalize_f,
     quat_to_dcm,
+    so3_rate_command,
+    so3_rate_command_dcm,
     yaw_of_dcm,
     yaw_quat,
 )
@@ -83,45 +85,9 @@ FloatArray = npt.NDArray[np.float64]
 
 
 
-# ----------------------------------------------------------------------------- SO(3) loop
-
-
-def so3_rate_command(
-    q_wxyz: FloatArray,
-    q_des_wxyz: FloatArray,
-    omega_ff_frd: FloatArray,
-    gains: AttitudeGains,
-) -> tuple[FloatArray, FloatArray]:
-    """Geometric attitude controller: body-rate command and the attitude error.
-
-    omega_cmd = R^T R_d omega_ff - K e_R (optionally e_R / cos(angle/2)), limited per axis.
-    q_wxyz: actual attitude; q_des_wxyz: desired; omega_ff_frd: desired body rates (in the
-    desired body frame) [rad/s]. Returns (omega_cmd_frd [rad/s], e_R).
-    """
-    R = quat_to_dcm(q_wxyz)
-    Rd = quat_to_dcm(q_des_wxyz)
-    return so3_rate_command_dcm(R, Rd, omega_ff_frd, gains)
-
-
-def so3_rate_command_dcm(
-    R: FloatArray, Rd: FloatArray, omega_ff_frd: FloatArray, gains: AttitudeGains
-) -> tuple[FloatArray, FloatArray]:
-    """`so3_rate_command` with the attitudes given as DCMs C_eb (actual R, desired Rd)."""
-    Rt_Rd = R.T @ Rd
-    e_R = attitude_error(R, Rd)
-    k = np.array([gains.k_roll, gains.k_pitch, gains.k_yaw])
-    err = e_R
-    if gains.large_angle:
-        # 1 + tr(R_d^T R) = 4 cos^2(angle / 2)
-        c_half = 0.5 * math.sqrt(max(1.0 + float(np.trace(Rt_Rd)), 0.0))
-        err = e_R / max(c_half, 0.05)
-    ff = np.asarray(omega_ff_frd, dtype=np.float64)
-    if not all_finite(ff):
-        ff = np.zeros(3)
-    omega = Rt_Rd @ ff - k * err
-    lim = np.array([gains.max_rate_rp, gains.max_rate_rp, gains.max_rate_yaw])
-    omega = np.minimum(np.maximum(omega, -lim), lim)
-    return omega, e_R
+#: `TrackingController._smooth_position` takes a position this far [m] from its prediction as
+#: it is (an estimator reset, a GPS switch): smoothing it would crawl there over many samples.
+POSITION_SNAP_M = 1.0
 
 
 # ----------------------------------------------------------------------------- controller
@@ -145,6 +111,7 @@ class TrackingController:
         self.hover_estimator = HoverThrustEstimator(htc)
         dc = config.drag_config or DragConfig(initial_drag_over_mass=p.drag / p.mass, g=p.g)
         self.drag_estimator = DragEstimator(dc)
+        self.disturbance = DisturbanceObserver(config.disturbance_config)
         self._gain_lists = {
             rates: (g.kp().tolist(), g.kd().tolist(), g.ki().tolist(), g.i_max().tolist())
             for rates, g in ((False, config.gains),
@@ -187,6 +154,8 @@ class TrackingController:
     def reset(self) -> None:
         """Clear the integrator and the telemetry history (e.g. on entering offboard)."""
         self._integ_l = [0.0, 0.0, 0.0]
+        self._yaw_sp = None
+        self._p_smooth = None
         self._t_last_update = None
         self._last_est = None
         self._prev_est = None
@@ -260,7 +229,7 @@ class TrackingController:
             return self._fallback_attitude(now, est)
         q_des, thrust, _omega_ff, sat = out
         self._record_thrust(now, thrust)
-        rate_ff = ref.yaw_rate if math.isfinite(ref.yaw_rate) else 0.0
+        rate_ff = self._yaw_rate_ff
         self._publish_diag(None)
         return q_des, thrust, rate_ff, sat
 
@@ -273,7 +242,7 @@ class TrackingController:
         omega_ff = np.array(omega_ff_t)
         R = quat_to_dcm(np.array(self._q_now))
         Rd = quat_to_dcm(np.array(q_des_t))
-        omega, e_R = so3_rate_command_dcm(R, Rd, omega_ff, self.config.attitude_gains)
+        omega, e_R = so3_rate_command_dcm(R, Rd, omega_ff, self._link_gains())
         e_omega = est.omega_frd - (R.T @ Rd) @ omega_ff
         # Thrust along the actual body z (Lee): project the desired thrust direction.
         proj = float(Rd[:, 2] @ R[:, 2])
@@ -285,6 +254,17 @@ class TrackingController:
         return RateCommand(omega, thrust, saturated=sat)
 
     # -- internals ----------------------------------------------------------------------------
+    def _link_gains(self) -> AttitudeGains:
+        """The attitude gains for the link's round trip `link_rtt_s` (`for_link_rtt`; cached
+        per round-trip value, which changes about once a second)."""
+        rtt = self.link_rtt_s
+        cached = self._gains_for_rtt
+        if cached is not None and (cached[0] == rtt or (cached[0] != cached[0] and rtt != rtt)):
+            return cached[1]
+        gains = self.config.attitude_gains.for_link_rtt(rtt)
+        self._gains_for_rtt = (rtt, gains)
+        return gains
+
     def _record_thrust(self, now: float, thrust: float) -> None:
         self._thrust_hist.append((now, thrust))
 
@@ -314,13 +294,15 @@ class TrackingController:
         if last is not None and est.t_s <= last.t_s:
             return
         self._prev_est, self._last_est = last, est
+        dt = math.inf if last is None else est.t_s - last.t_s
+        self._smooth_position(est, last, dt)
         if last is None:
             return
-        dt = est.t_s - last.t_s
         if not (1e-3 < dt < 0.5):
             return
         hover, drag = self.config.estimate_hover_thrust, self.config.estimate_drag
-        if not (hover or drag):
+        dist = self.config.estimate_disturbance
+        if not (hover or drag or dist):
             return
         delay = self.config.thrust_delay_s
         if est.acc_ned is not None:
@@ -350,6 +332,43 @@ class TrackingController:
             self.drag_estimator.update(
                 est.t_s, acc, v_mid, u, zb_mid, self.hover_thrust, airborne
             )
+        if dist:
+            # the model's horizontal acceleration over the interval: mean thrust, mid-interval
+            # attitude and velocity (plain floats: this runs at the telemetry rate)
+            q0, q1 = last.q_wxyz.tolist(), est.q_wxyz.tolist()
+            zx = (q0[1] * q0[3] + q0[0] * q0[2]) + (q1[1] * q1[3] + q1[0] * q1[2])
+            zy = (q0[2] * q0[3] - q0[0] * q0[1]) + (q1[2] * q1[3] - q1[0] * q1[1])
+            f = u * self.config.params.g / self.hover_thrust
+            dm = self.drag / self.config.params.mass
+            v0, v1 = last.vel_ned.tolist(), est.vel_ned.tolist()
+            a_model = (-f * zx - dm * 0.5 * (v0[0] + v1[0]),
+                       -f * zy - dm * 0.5 * (v0[1] + v1[1]))
+            self.disturbance.update(est.t_s, (v1[0], v1[1]), a_model, u, airborne)
+
+    def _smooth_position(self, est: StateEstimate, last: StateEstimate | None,
+                         dt: float) -> None:
+        """The position the feedback uses: each sample's position, blended into the previous
+        smoothed one carried forward by the mean velocity, with weight dt / (tau + dt) (tau =
+        `config.position_smoothing_s`). A position that agrees with its velocity passes as it
+        is; white noise on it is cut: the mock's SIM_POS_NOISE 0.09 m (campaign) made the
+        vertical P term jump the thrust by up to 0.28 between setpoints 10 ms apart. A jump of
+        more than POSITION_SNAP_M (an estimator reset) is taken at once."""
+        tau = self.config.position_smoothing_s
+        p = est.pos_ned.tolist()
+        prev = self._p_smooth
+        if tau <= 0.0 or prev is None or last is None or not 1e-3 < dt < 0.5:
+            self._p_smooth = (p[0], p[1], p[2]) if tau > 0.0 else None
+            return
+        v0, v1 = last.vel_ned.tolist(), est.vel_ned.tolist()
+        h = 0.5 * dt
+        pred = (prev[0] + (v0[0] + v1[0]) * h, prev[1] + (v0[1] + v1[1]) * h,
+                prev[2] + (v0[2] + v1[2]) * h)
+        if math.dist(pred, p) > POSITION_SNAP_M:
+            self._p_smooth = (p[0], p[1], p[2])
+            return
+        b = dt / (tau + dt)
+        self._p_smooth = (pred[0] + b * (p[0] - pred[0]), pred[1] + b * (p[1] - pred[1]),
+                          pred[2] + b * (p[2] - pred[2]))
 
     def _core(
         self, now: float, est: StateEstimate, ref: Reference, lead_s: float, rates: bool = False,
@@ -398,6 +417,8 @@ class TrackingController:
             self._fallback_reason = f"telemetry stale ({age:.2f} s old)"
             return None
         self._ingest(est)
+        if self._p_smooth is not None:
+            px0, py0, pz0 = self._p_smooth
         qw, qx, qy, qz = q_est
         self._last_yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
 
@@ -450,9 +471,12 @@ class TrackingController:
         v_drag = vel if c.drag_velocity == "estimate" else rv
         m = p.mass
         g0 = p.g
+        # the estimated disturbance: the thrust also cancels it (a_sat below is what the thrust
+        # and drag give, the vehicle's acceleration is a_sat + d)
+        dx, dy = self.disturbance.acc_ne if c.estimate_disturbance else (0.0, 0.0)
         t_vec = (
-            -m * a_cmd[0] - D * v_drag[0],
-            -m * a_cmd[1] - D * v_drag[1],
+            -m * (a_cmd[0] - dx) - D * v_drag[0],
+            -m * (a_cmd[1] - dy) - D * v_drag[1],
             m * (g0 - a_cmd[2]) - D * v_drag[2],
         )
         t_sat, sat = self._saturate(t_vec, h)
@@ -470,17 +494,17 @@ class TrackingController:
                 if sat and di * integ[i] >= 0.0:
                     continue  # saturated: only let the integrator unwind
                 integ[i] = min(max(integ[i] + di, -imax[i]), imax[i])
-        self._acc_hist.append((now, a_sat[0], a_sat[1], a_sat[2]))
+        self._acc_hist.append((now, a_sat[0] + dx, a_sat[1] + dy, a_sat[2]))
 
         # 4. flatness map
         params = self._params_for_drag(D)
         jerk = (0.0, 0.0, 0.0) if sat else j_ff
         snap = (0.0, 0.0, 0.0) if sat else rs
-        yaw_rate = ref.yaw_rate
-        yaw_acc = 0.0 if sat else ref.yaw_acc
+        yaw, yaw_rate, slewed = self._slew_yaw(ref, dt_ctrl)
+        yaw_acc = 0.0 if sat or slewed else ref.yaw_acc
         try:
             qw, qx, qy, qz, thrust_n, wx, wy, wz, singular = multirotor_attitude_scalar(
-                v_drag, a_sat, jerk, snap, ref.yaw, yaw_rate, yaw_acc, params
+                v_drag, a_sat, jerk, snap, yaw, yaw_rate, yaw_acc, params
             )
         except ValueError as exc:  # e.g. absurd magnitudes the flatness map refuses
             self._fallback_reason = f"flatness map refused the input: {exc}"
@@ -494,10 +518,34 @@ class TrackingController:
         omega_ff = (0.0, 0.0, 0.0) if singular else (float(wx), float(wy), float(wz))
         q_des = quat_normalize_f(float(qw), float(qx), float(qy), float(qz))
         thrust = min(max(thrust, c.thrust_min), c.thrust_max)
-        self._diag = (now, e_p, e_v, a_sat, tuple(integ), h, D, tau, sat,
+        self._diag = (now, e_p, e_v, (a_sat[0] + dx, a_sat[1] + dy, a_sat[2]), tuple(integ), h,
+                      D, tau, sat,
                       "singular flatness point" if singular else "")
         self.last_q_des = q_des
         return q_des, thrust, omega_ff, sat
+
+    def _slew_yaw(self, ref: Reference, dt: float) -> tuple[float, float, bool]:
+        """The yaw to command [rad], its rate feed-forward [rad/s] and whether the rate limit
+        `config.max_yaw_rate_rad_s` acted: the reference's yaw, followed at most that fast
+        (the short way round) from the yaw commanded last."""
+        lim = self.config.max_yaw_rate_rad_s
+        r = ref.yaw_rate if math.isfinite(ref.yaw_rate) else 0.0
+        prev = self._yaw_sp
+        if prev is None or dt <= 0.0:
+            yaw = ref.yaw if prev is None else prev
+            rate = min(max(r, -lim), lim)
+            self._yaw_sp, self._yaw_rate_ff = yaw, rate
+            return yaw, rate, abs(r) > lim or (prev is not None and yaw != ref.yaw)
+        gap = math.remainder(ref.yaw - prev, 2.0 * math.pi)
+        step = lim * dt
+        if abs(gap) <= step and abs(r) <= lim:
+            yaw, rate, slewed = ref.yaw, r, False
+        else:
+            yaw = prev + min(max(gap, -step), step)
+            rate = min(max(r, -lim), lim) if abs(gap) <= step else math.copysign(lim, gap)
+            slewed = True
+        self._yaw_sp, self._yaw_rate_ff = yaw, rate
+        return yaw, rate, slewed
 
     def _predict(self, t_s: float, tau: float, p0: tuple[float, float, float],
                  v0: tuple[float, float, float], q_wxyz: list[float]
@@ -561,7 +609,9 @@ class TrackingController:
         zz = 1.0 - 2.0 * (qx * qx + qy * qy)
         f = u * g0 / self.hover_thrust
         dm = self.drag / p.mass
-        return (-f * zx - dm * vel[0], -f * zy - dm * vel[1], g0 - f * zz - dm * vel[2])
+        dx, dy = self.disturbance.acc_ne if self.config.estimate_disturbance else (0.0, 0.0)
+        return (-f * zx - dm * vel[0] + dx, -f * zy - dm * vel[1] + dy,
+                g0 - f * zz - dm * vel[2])
 
     def _feedback_jerk(
         self,
@@ -683,6 +733,13 @@ class TrackingController:
         )
 
     _fallback_reason: str = ""
+    _p_smooth: tuple[float, float, float] | None = None  # `_smooth_position` [m, NED]
+    _yaw_sp: float | None = None  # the yaw commanded last [rad] (`_slew_yaw`)
+    #: the link's round-trip time [s] (NaN: unknown), set by the caller before each update:
+    #: rates mode's attitude gains follow it (`AttitudeGains.for_link_rtt`)
+    link_rtt_s: float = math.nan
+    _gains_for_rtt: tuple[float, AttitudeGains] | None = None
+    _yaw_rate_ff: float = 0.0  # its rate feed-forward [rad/s]
     _params_cache: tuple[float, MultirotorParams] | None = None
     _drag_seen: float | None = None
     _diag: tuple[

@@ -8,6 +8,9 @@ import math
 import numpy as np
 import numpy.typing as npt
 
+from companion.control.gains import AttitudeGains
+from companion.geometry import dcm_to_quat
+
 FloatArray = npt.NDArray[np.float64]
 
 
@@ -138,3 +141,83 @@ def attitude_error(C_eb: FloatArray, C_eb_des: FloatArray) -> FloatArray:
     M = C_eb_des.T @ C_eb - C_eb.T @ C_eb_des
     return 0.5 * _vee(M)
 
+
+# ----------------------------------------------------------------------------- SO(3) loop
+
+
+def so3_rate_command(
+    q_wxyz: FloatArray,
+    q_des_wxyz: FloatArray,
+    omega_ff_frd: FloatArray,
+    gains: AttitudeGains,
+) -> tuple[FloatArray, FloatArray]:
+    """Geometric attitude controller: body-rate command and the attitude error.
+
+    omega_cmd = R^T R_d omega_ff - K e_R (optionally e_R / cos(angle/2)), limited per axis.
+    q_wxyz: actual attitude; q_des_wxyz: desired; omega_ff_frd: desired body rates (in the
+    desired body frame) [rad/s]. Returns (omega_cmd_frd [rad/s], e_R).
+    """
+    R = quat_to_dcm(q_wxyz)
+    Rd = quat_to_dcm(q_des_wxyz)
+    return so3_rate_command_dcm(R, Rd, omega_ff_frd, gains)
+
+
+def so3_rate_command_dcm(
+    R: FloatArray, Rd: FloatArray, omega_ff_frd: FloatArray, gains: AttitudeGains
+) -> tuple[FloatArray, FloatArray]:
+    """`so3_rate_command` with the attitudes given as DCMs C_eb (actual R, desired Rd)."""
+    Rt_Rd = R.T @ Rd
+    e_R = attitude_error(R, Rd)
+    k = np.array([gains.k_roll, gains.k_pitch, gains.k_yaw])
+    err = e_R
+    if gains.tilt_priority:
+        err = tilt_priority_error(R, Rd, gains.yaw_weight)
+        k[2] = gains.k_yaw / gains.yaw_weight
+    elif gains.large_angle:
+        # 1 + tr(R_d^T R) = 4 cos^2(angle / 2)
+        c_half = 0.5 * math.sqrt(max(1.0 + float(np.trace(Rt_Rd)), 0.0))
+        err = e_R / max(c_half, 0.05)
+    ff = np.asarray(omega_ff_frd, dtype=np.float64)
+    if not all_finite(ff):
+        ff = np.zeros(3)
+    omega = Rt_Rd @ ff - k * err
+    lim = np.array([gains.max_rate_rp, gains.max_rate_rp, gains.max_rate_yaw])
+    omega = np.minimum(np.maximum(omega, -lim), lim)
+    return omega, e_R
+
+
+def tilt_priority_error(R: FloatArray, Rd: FloatArray, yaw_weight: float) -> FloatArray:
+    """PX4's attitude error (mc_att_control's AttitudeControl; Brescianini, Hehn and D'Andrea
+    2013) between the actual attitude `R` and the desired `Rd` (DCMs C_eb), body FRD: the
+    rotation to a desired attitude whose thrust axis is `Rd`'s, reached from `R` by the
+    shortest tilt, then turned about that axis by `yaw_weight` times the remaining yaw; the
+    error is 2 sin(angle / 2) times the unit axis of the rotation from it to `R` (the sign of
+    `attitude_error`: the rate command is -K err; the short way round). With it the thrust axis
+    converges first and the yaw only at `yaw_weight` of its gain, so a yaw the vehicle cannot
+    follow never tilts it."""
+    ez = R[:, 2]
+    ezd = Rd[:, 2]
+    axis = np.cross(ez, ezd)
+    s_ang = float(np.linalg.norm(axis))
+    c_ang = float(ez @ ezd)
+    if c_ang < -1.0 + 1e-9 and s_ang < 1e-5:
+        R_red = Rd  # thrust axes opposite: no unique shortest tilt (PX4 takes the full attitude)
+    else:
+        R_red = _axis_angle_dcm(axis, s_ang, c_ang) @ R
+    mix = R_red.T @ Rd  # a rotation about the (common) body z axis
+    psi = math.atan2(float(mix[1, 0]), float(mix[0, 0]))
+    cw, sw = math.cos(yaw_weight * psi), math.sin(yaw_weight * psi)
+    Rd_w = R_red @ np.array([[cw, -sw, 0.0], [sw, cw, 0.0], [0.0, 0.0, 1.0]])
+    w, x, y, z = dcm_to_quat(R.T @ Rd_w).tolist()  # w >= 0: the short way
+    return np.array([-2.0 * x, -2.0 * y, -2.0 * z]) * (1.0 if w >= 0.0 else -1.0)
+
+
+def _axis_angle_dcm(axis: FloatArray, s_ang: float, c_ang: float) -> FloatArray:
+    """Rotation about `axis` (|axis| = sin(angle) = `s_ang`, cos(angle) = `c_ang`), Rodrigues;
+    the identity for a vanishing axis."""
+    if s_ang < 1e-12:
+        return np.eye(3)
+    kx, ky, kz = (axis / s_ang).tolist()
+    K = np.array([[0.0, -kz, ky], [kz, 0.0, -kx], [-ky, kx, 0.0]])
+    out: FloatArray = np.eye(3) + s_ang * K + (1.0 - c_ang) * (K @ K)
+    return out

@@ -13,8 +13,9 @@ from companion.mavlink.px4_mode import FlightMode
 from companion.planning.schedule import Schedule
 
 __all__ = [
-    "HANDOVER_HEIGHT_M", "ROVER_SETTLE_S", "TOUCHDOWN_FROM_M", "TOUCHDOWN_TIMEOUT_S", "final_mode",
-    "handover_height_m", "handover_mode", "lands_at_end", "plan_touchdown", "self_lands",
+    "HANDOVER_HEIGHT_M", "ROVER_SETTLE_S", "STALL_S", "TOUCHDOWN_FROM_M", "TOUCHDOWN_TIMEOUT_S",
+    "final_mode", "handover_height_m", "handover_mode", "lands_at_end", "plan_touchdown",
+    "self_lands", "stall_s",
 ]
 
 #: Height above the ground [m] where a mission's planned descent ends when PX4 lands it.
@@ -24,6 +25,16 @@ HANDOVER_HEIGHT_M = 1.0
 #: waypoint it missed); a rover whose reference has waited this long for it to make progress
 #: (stuck, blocked) is switched to Hold too.
 ROVER_SETTLE_S = 20.0
+#: A governed reference (a rover's; a multirotor's in attitude or rates mode, slowed down for a
+#: vehicle that cannot follow it) that has stood still this long [s] ends the flight with a
+#: handover to the final mode: the vehicle makes no progress (stuck; wind it cannot fly into).
+STALL_S = 20.0
+
+
+def stall_s(vehicle: str, mode: str) -> float | None:
+    """`EndPolicy.stall_s` for a vehicle flown in `mode`: STALL_S where the companion governs
+    its reference's time (a rover; a quad in attitude or rates mode), else None."""
+    return STALL_S if vehicle == "rover" or mode in ("attitude", "rates") else None
 
 Vehicle = Literal["quad", "rover"]
 

@@ -7,6 +7,7 @@ position samples (NED, m) and the reference each was compared with; nothing here
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from collections.abc import Sequence
@@ -300,6 +301,31 @@ class Failsafe:
     text: str
 
 
+@dataclass(frozen=True)
+class FlightEstimates:
+    """What the companion's tracking law learnt in flight (attitude and rates modes).
+
+    wind_m_s / wind_from_deg: the wind its disturbance estimate implies with the configured
+    drag, w = d m / D (None: no drag configured), speed [m/s] and compass direction it blows
+    from [deg]; disturbance_m_s2: the estimated horizontal force per mass [m/s^2] (wind, drag
+    error); mass_ratio: hover thrust estimated / hover thrust assumed (1.1: the vehicle is 10 %
+    heavier for its thrust than the companion was told); slowed_s: how far [s] the reference
+    was slowed down behind flight time for a vehicle that could not follow it (0: the plan's
+    own timing); min_rate: the slowest reference rate (1: never slowed).
+    """
+
+    wind_m_s: float | None
+    wind_from_deg: float | None
+    disturbance_m_s2: float
+    mass_ratio: float
+    slowed_s: float
+    min_rate: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """report.json's "estimates"."""
+        return dataclasses.asdict(self)
+
+
 @dataclass(frozen=True, kw_only=True)
 class FlightReport:
     """The report of one flight (replay, `fly`), typed; `to_dict` is its report.json.
@@ -359,6 +385,8 @@ class FlightReport:
     samples: int | None = None
     target: str | None = None
     final_action: str | None = None
+    estimates: FlightEstimates | None = None
+    """The tracking law's estimates (attitude and rates modes; None: not flown by it)."""
 
     @property
     def reached_all(self) -> bool:
@@ -418,6 +446,8 @@ class FlightReport:
         d["ok"] = self.ok
         if self.max_waypoint_miss_geo_m is not None:
             d["max_waypoint_miss_geo_m"] = self.max_waypoint_miss_geo_m
+        if self.estimates is not None:
+            d["estimates"] = self.estimates.to_dict()
         if self.px4_mission is not None:
             d["px4_mission"] = self.px4_mission.to_dict()
         return d
@@ -450,6 +480,8 @@ class FlightReport:
             })
         if self.setpoint_quality is not None:
             d["setpoint_quality"] = self.setpoint_quality.to_dict()
+        if self.estimates is not None:
+            d["estimates"] = self.estimates.to_dict()
         if self.ok is not None:
             d["ok"] = self.ok
         return d

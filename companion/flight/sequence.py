@@ -387,13 +387,15 @@ class FlightSequence:
         end = self.end
         t = now - self.t_fly0
         if end.touchdown_from_s is not None:
-            late = t - end.touchdown_from_s
+            # a governed reference (slowed down for the vehicle) reaches the touchdown later
+            late = (t if view.traj_time_s is None else view.traj_time_s) - end.touchdown_from_s
             if late < 0.0:
                 return []
             if not self.disarm_sent and view.on_ground:
                 self.disarm_sent = True
                 # tracking ends where the touchdown began (it is not plan tracking)
-                self.t_plan_end = self.t_fly0 + end.touchdown_from_s
+                self.t_plan_end = self.t_fly0 + end.touchdown_from_s + (
+                    0.0 if view.traj_time_s is None else t - view.traj_time_s)
                 return [SendCommand.arm_disarm(False)]
             if late >= end.touchdown_timeout_s:  # no landing seen, or no disarm
                 return self._handover(now, FlightMode.LAND,

@@ -32,7 +32,15 @@ from companion.control import (
     state_estimate_of_arrays,
 )
 from companion.flatness import MultirotorParams
-from companion.flight.report import SetpointLimits, SetpointQuality
+from companion.flight.governor import (
+    FEASIBLE_AHEAD_S,
+    FEASIBLE_EVERY,
+    FEASIBLE_MIN_DIST,
+    FEASIBLE_SHARE,
+    ProgressGovernor,
+    TimeScaler,
+)
+from companion.flight.report import FlightEstimates, SetpointLimits, SetpointQuality
 from companion.mavlink.setpoints import (
     AttitudeSetpoint,
     PositionSetpoint,
@@ -245,8 +253,6 @@ class FlightClock:
         return self._t_flight
 
 
-#: The governed reference counts as standing still below this rate (`ProgressGovernor`).
-STALL_RATE = 0.05
 #: A rover's path point (`TrackingSource._path_point`): searched from this long [s] before the
 #: last one to the reference time, on this many samples, then refined this many times.
 PATH_SEARCH_BACK_S = 0.2
@@ -257,53 +263,13 @@ PATH_SEARCH_REFINE = 4
 SPEED_LEAD_S = 0.5
 
 
-class ProgressGovernor:
-    """Reference time that waits for a vehicle falling behind it (a rover that cannot drive the
-    planned speed: its own speed limit, a slope, a PX4 speed loop that lags).
 
-    `update(t, lag_m)` maps the flight time `t` [s] to the reference time: it advances at
-    ``rate = (stop_m - lag_m) / (stop_m - free_m)`` (clamped to [0, 1]) times the flight time,
-    where `lag_m` is how far [m] the vehicle is behind the reference along its path (the
-    along-track error of the last setpoint). Up to `free_m` of lag it runs with flight time
-    (the controller's along-track feedback closes such lags); from `stop_m` on it stops until
-    the vehicle has caught up. It never runs backwards nor faster than flight time, so a plan's
-    speeds stay its upper bound and the path stays the plan's. ``stalled_s``: how long it has
-    stood still (rate below STALL_RATE): a rover that makes no progress (stuck, blocked).
-    """
 
-    def __init__(self, free_m: float = 1.0, stop_m: float = 3.0) -> None:
-        if not (0.0 <= free_m < stop_m and math.isfinite(stop_m)):
-            raise ValueError(f"need 0 <= free_m < stop_m, got {free_m}, {stop_m}")
-        self.free_m = free_m
-        self.stop_m = stop_m
-        self._t: float | None = None  # last flight time [s]
-        self.t_ref = 0.0  # reference time [s]
-        self.rate = 1.0  # the last rate [0, 1]
-        self.stalled_s = 0.0  # how long [s] the reference has (nearly) stood still
+#: The largest round-trip time [s] `estimate_from_telemetry` moves a sample back by (beyond it the
+#: controller's extrapolation is capped anyway: `TrackingConfig.max_extrapolation_s`).
+MAX_LINK_RTT_S = 0.2
 
-    def reset(self) -> None:
-        """Start again: the next `update`'s flight time is taken as the reference time (a new
-        OFFBOARD entry starts its flight time at 0)."""
-        self._t = None
-        self.t_ref = 0.0
-        self.rate = 1.0
-        self.stalled_s = 0.0
 
-    def update(self, t_s: float, lag_m: float) -> float:
-        """Reference time [s] at flight time `t_s` [s] (calls in time order; the first is taken
-        as it is), given the lag [m] seen at the previous call."""
-        if self._t is None:
-            self._t, self.t_ref = t_s, max(t_s, 0.0)
-            return self.t_ref
-        dt = t_s - self._t
-        self._t = t_s
-        if dt <= 0.0 or not math.isfinite(dt):
-            return self.t_ref
-        lag = lag_m if math.isfinite(lag_m) else 0.0
-        self.rate = min(max((self.stop_m - lag) / (self.stop_m - self.free_m), 0.0), 1.0)
-        self.t_ref += self.rate * dt
-        self.stalled_s = self.stalled_s + dt if self.rate < STALL_RATE else 0.0
-        return self.t_ref
 
 
 def estimate_from_telemetry(
@@ -311,12 +277,25 @@ def estimate_from_telemetry(
 ) -> StateEstimate | None:
     """Controller input from the latest LOCAL_POSITION_NED/ODOMETRY and ATTITUDE_QUATERNION
     (None until both have arrived). `t_s` is the position's sample time on the local clock when
-    a `SampleClock` is given, else its receive time."""
+    a `SampleClock` is given, else its receive time; then moved back by the link's round-trip
+    time `snap.link_rtt_s` when it is known (at most MAX_LINK_RTT_S).
+
+    Why the whole round trip: the sample clock finds when a sample was taken only up to the
+    link's smallest one-way latency (a constant latency is invisible to it), and a setpoint
+    sent now acts one uplink latency later. Sample time minus the downlink latency, minus the
+    uplink latency, is the sample time minus the round trip: the controller's extrapolation
+    from `t_s` to now then predicts the state at the moment its command takes effect, and
+    `t_s` pairs with the commands that acted on the sample. Without it, 30 ms of telemetry
+    latency on the mock drove a whirl of up to 45 deg of tilt in attitude mode that grew all
+    flight (0.19 m RMS: the report saw nothing); with it the flight is the nominal one."""
     pos, att = snap.position, snap.attitude
     if pos is None or att is None:
         return None
     airborne = snap.extended.in_air if snap.extended is not None else True
     t_s = pos.t_s if clock is None else clock.local_time(pos.time_boot_s, pos.t_s)
+    rtt = snap.link_rtt_s
+    if rtt > 0.0:  # (NaN: unknown)
+        t_s -= min(rtt, MAX_LINK_RTT_S)
     # float tuples of the decoded messages -> float64 arrays: StateEstimate's own conversions
     # would leave them as they are
     return state_estimate_of_arrays(
@@ -476,6 +455,7 @@ class TrackingSource:
         max_tilt_rad: float = math.radians(45.0),
         touchdown: Touchdown | None = None,
         limits: SetpointLimits | None = None,
+        time_scaling: bool = True,
     ) -> None:
         if mode not in ("position", "attitude", "rates", "rover"):
             raise ValueError(f"unknown setpoint mode {mode!r}")
@@ -490,8 +470,14 @@ class TrackingSource:
             cfg = tracking or TrackingConfig(params=params, max_tilt_rad=max_tilt_rad)  # type: ignore[arg-type]
             self.controller = TrackingController(vehicle_limited(cfg, self.limits))
         self.rover = RoverController() if mode == "rover" else None
-        # a rover's reference waits for it (ProgressGovernor); other modes fly the clock
-        self.governor = ProgressGovernor() if mode == "rover" else None
+        # a rover's reference waits for it (ProgressGovernor), a multirotor's slows down for it
+        # (TimeScaler, with `time_scaling`); position mode flies the clock (PX4 flies it)
+        self.governor: ProgressGovernor | None = (
+            ProgressGovernor() if mode == "rover"
+            else TimeScaler() if mode in ("attitude", "rates") and time_scaling else None)
+        self._lag_m = 0.0  # a multirotor: distance to its reference at the last call [m]
+        self._dist_sum = [0.0, 0.0]  # sum of the disturbance estimates in the air [m/s^2]
+        self._dist_n = 0
         self._path_t = 0.0  # a rover: reference time of the path point beside it [s]
         # position mode: the drag PX4 does not model goes into the acceleration feed-forward
         known = params if params is not None else tracking.params if tracking is not None else None
@@ -502,13 +488,36 @@ class TrackingSource:
         self.clock = SampleClock()
         self._engaged = False  # the controller runs (a call with t_s > 0 was seen)
         # the last estimate and the (immutable) telemetry values it was built from
-        self._est_key: tuple[object, object, bool] | None = None
+        self._est_key: tuple[object, object, bool, float] | None = None
         self._est: StateEstimate | None = None
         self.touchdown = touchdown
         self.contact_s: float | None = None  # local time ground contact was detected [s]
         self._still_since: float | None = None
         self._contact_thrust = 0.0
         self._last_thrust = 0.0
+
+    def estimates(self) -> FlightEstimates | None:
+        """What the tracking law has estimated so far (None: position and rover modes): the
+        disturbance and the wind as their means over the setpoints flown in the air."""
+        ctl = self.controller
+        if ctl is None:
+            return None
+        n = self._dist_n
+        dx, dy = (self._dist_sum[0] / n, self._dist_sum[1] / n) if n else ctl.disturbance.acc_ne
+        D = ctl.drag
+        m = ctl.config.params.mass
+        wind = wind_from = None
+        if D > 0.0:
+            wn, we = dx * m / D, dy * m / D
+            wind = math.hypot(wn, we)
+            # the wind blows from the opposite of where the air moves
+            wind_from = math.degrees(math.atan2(-we, -wn)) % 360.0 if wind > 0.0 else 0.0
+        gov = self.governor
+        slowed = gov.delay_s if isinstance(gov, TimeScaler) else 0.0
+        return FlightEstimates(
+            wind_m_s=wind, wind_from_deg=wind_from, disturbance_m_s2=math.hypot(dx, dy),
+            mass_ratio=ctl.hover_thrust / ctl.config.params.hover_thrust, slowed_s=slowed,
+            min_rate=gov.min_rate if isinstance(gov, TimeScaler) else 1.0)
 
     @property
     def last_reference(self) -> Reference | None:
@@ -543,9 +552,11 @@ class TrackingSource:
 
     @property
     def reference_time_s(self) -> float | None:
-        """The reference's own time [s] of the last setpoint when this source governs it (rover
-        mode: it waits for a vehicle that falls behind); None: the flight time it was given."""
-        return None if self.governor is None else self.governor.t_ref
+        """The reference's own time [s] of the last setpoint when this source governs it (a
+        rover's waits for it, a multirotor's slows down for it); None: the flight time it was
+        given (also before the first setpoint of the flight)."""
+        gov = self.governor
+        return None if gov is None or not gov.started else gov.t_ref
 
     def ref(self, t_s: float) -> Reference:
         """The reference at `t_s` (cached for repeated calls at the same time)."""
@@ -584,6 +595,54 @@ class TrackingSource:
             self._still_since = None
         return False
 
+    def _feasible_rate(self, t_ref: float) -> float:
+        """The largest reference rate in [0, 1] the multirotor can fly from `t_ref` on, given
+        the disturbance its controller estimates (see FEASIBLE_EVERY); 1 while that is small.
+        Re-evaluated every FEASIBLE_EVERY calls."""
+        ctl = self.controller
+        td = self.touchdown
+        if (ctl is None or not ctl.config.estimate_disturbance
+                or (td is not None and t_ref >= td.from_s)):  # the touchdown: not the plan
+            return 1.0
+        dx, dy = ctl.disturbance.acc_ne
+        if math.hypot(dx, dy) <= FEASIBLE_MIN_DIST:
+            self._cap, self._cap_age = 1.0, 0
+            return 1.0
+        self._cap_age -= 1
+        if self._cap_age > 0:
+            return self._cap
+        self._cap_age = FEASIBLE_EVERY
+        k = ctl.drag / ctl.config.params.mass
+        full = ctl.config.params.g * math.tan(ctl.config.max_tilt_rad)
+        cap = 1.0
+        for ahead in FEASIBLE_AHEAD_S:
+            r = self._reference_at(t_ref + ahead)
+            ax, ay = float(r.acc_ned[0]), float(r.acc_ned[1])
+            bx, by = k * float(r.vel_ned[0]), k * float(r.vel_ned[1])
+
+            def need(s: float, ax: float = ax, ay: float = ay, bx: float = bx,
+                     by: float = by) -> float:
+                return math.hypot(s * s * ax + s * bx - dx, s * s * ay + s * by - dy)
+
+            hold = need(0.0)
+            if hold >= full:  # not even holding still is within the tilt limit
+                cap = 0.0
+                break
+            # the reference gets FEASIBLE_SHARE of the limit, or half of what holding leaves
+            lim = max(FEASIBLE_SHARE * full, hold + 0.7 * (full - hold))
+            if need(cap) <= lim:
+                continue
+            lo, hi = 0.0, cap
+            for _ in range(12):  # bisection: need(lo) <= lim < need(hi)
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if need(mid) <= lim else (lo, mid)
+            cap = lo
+        self._cap = cap
+        return cap
+
+    _cap = 1.0  # the last `_feasible_rate`
+    _cap_age = 0  # calls until it is re-evaluated
+
     def _path_point(self, t_s: float, est: StateEstimate) -> Reference:
         """The reference where its path passes closest to the vehicle, searched forward from
         the last one up to ``t_s`` (a rover steers by the path beside it: the reference time's
@@ -614,7 +673,8 @@ class TrackingSource:
         attitude samples are the same objects (telemetry arrives slower than setpoints go out;
         a repeated sample adds nothing to the clock's window, so the result is identical)."""
         ext = telemetry.extended
-        key = (telemetry.position, telemetry.attitude, ext.in_air if ext is not None else True)
+        key = (telemetry.position, telemetry.attitude, ext.in_air if ext is not None else True,
+               telemetry.link_rtt_s)
         old = self._est_key
         if (
             self._est is not None
@@ -622,6 +682,7 @@ class TrackingSource:
             and key[0] is old[0]
             and key[1] is old[1]
             and key[2] == old[2]
+            and (key[3] == old[3] or (key[3] != key[3] and old[3] != old[3]))  # (NaN == NaN)
         ):
             return self._est
         est = estimate_from_telemetry(telemetry, self.clock)
@@ -643,10 +704,15 @@ class TrackingSource:
     def __call__(self, t_s: float, telemetry: TelemetrySnapshot) -> SetpointCommand:
         self.calls += 1
         now = telemetry.now_s
-        if self.governor is not None and t_s > 0.0:
-            assert self.rover is not None
-            t_s = self.governor.update(t_s, self.rover.last_lag_m)
+        gov = self.governor
+        if gov is not None and t_s > 0.0:
+            if self.rover is not None:
+                t_s = gov.update(t_s, self.rover.last_lag_m)
+            else:
+                t_s = gov.update(t_s, self._lag_m, self._feasible_rate(gov.t_ref))
         ref = self.ref(t_s)
+        if gov is not None and gov.rate != 1.0 and isinstance(gov, TimeScaler):
+            ref = gov.scaled(ref)
         est = self._estimate(telemetry)
         if self.controller is not None and not self._engaged:
             if not t_s > 0.0:  # priming: PX4 is not applying our thrust commands yet
@@ -668,6 +734,13 @@ class TrackingSource:
                 yaw_rate=_opt(float(cmd.yaw_rate)),
             )
         assert self.controller is not None
+        rp, ep = ref.pos_ned.tolist(), est.pos_ned.tolist()
+        self._lag_m = math.dist(rp, ep)
+        if est.airborne:
+            dx, dy = self.controller.disturbance.acc_ne
+            self._dist_sum[0] += dx
+            self._dist_sum[1] += dy
+            self._dist_n += 1
         quality = self.quality
         td = self.touchdown
         if td is not None:
@@ -690,7 +763,11 @@ class TrackingSource:
         if self.mode == "attitude":
             # the lead feed-forward sampled from the reference itself (never a Taylor step:
             # the plan's snap spikes where a short speed ramp starts)
-            ahead = self._reference_at(t_s + self.controller.config.attitude_lead_s)
+            lead = self.controller.config.attitude_lead_s
+            if gov is not None and gov.rate != 1.0 and isinstance(gov, TimeScaler):
+                ahead = gov.scaled(self._reference_at(t_s + lead * gov.rate))
+            else:
+                ahead = self._reference_at(t_s + lead)
             out = self.controller.attitude_values(now, est, ref, ahead)
             if isinstance(out, AttitudeCommand):  # a hover fallback
                 qw, qx, qy, qz = out.q_wxyz.tolist()
@@ -702,6 +779,7 @@ class TrackingSource:
             quality.add(now, self._last_thrust, tilt_of_q(q), (0.0, 0.0, float(rate_ff)),
                         airborne)
             return AttitudeSetpoint(q, float(thrust), _opt(float(rate_ff)))
+        self.controller.link_rtt_s = telemetry.link_rtt_s
         r = self.controller.rates(now, est, ref)
         w = r.omega_frd
         self._last_thrust = float(r.thrust_norm)

@@ -191,6 +191,13 @@ class VehicleLink:
         self.timesync.handle_timer(now)
         return events
 
+    @property
+    def rtt_s(self) -> float:
+        """The link's round-trip time [s]: the smallest of TIMESYNC's recent exchanges (NaN
+        before the first reply)."""
+        est = self.timesync.estimate
+        return math.nan if est is None else est.rtt_s
+
     # -- vehicle state shortcuts ----------------------------------------------------------------
     @property
     def mode(self) -> FlightMode | None:

@@ -131,6 +131,10 @@ class TelemetrySnapshot:
     home: HomePosition | None = None
     extended: ExtendedState | None = None
     now_s: float = math.nan  # local time of the consumer's cycle (set by the streamer)
+    #: the link's round-trip time [s] (TIMESYNC, `VehicleLink.rtt_s`; set by the streamer with
+    #: now_s; NaN: not measured): how much older a sample is than its arrival shows, plus how
+    #: late a setpoint sent now takes effect (`estimate_from_telemetry`)
+    link_rtt_s: float = math.nan
 
 
 # Per-cycle constructors of the hot values: the same objects as the dataclass constructors (whose
@@ -151,7 +155,7 @@ def _snapshot(position: LocalPosition | None, attitude: Attitude | None,
               extended: ExtendedState | None) -> TelemetrySnapshot:
     return frozen_new(TelemetrySnapshot, position=position, attitude=attitude,
                       global_position=global_position, home=home, extended=extended,
-                      now_s=math.nan)
+                      now_s=math.nan, link_rtt_s=math.nan)
 
 
 def _rotate(q: Quat, v: Vec3) -> Vec3:

@@ -21,6 +21,7 @@ from companion._frozen import frozen_new
 from companion.aio.tlog import TlogWriter
 from companion.control import Reference
 from companion.flight.policy import ROVER_SETTLE_S, handover_mode, plan_touchdown
+from companion.flight.policy import stall_s as policy_stall_s
 from companion.flight.report import SetpointLimits
 from companion.flight.sequence import (
     EndPolicy,
@@ -103,7 +104,7 @@ class Flight:
                 touchdown_from_s=None if self.touchdown is None else self.touchdown.from_s,
                 settle_s=ROVER_SETTLE_S if self._rover_end else SETTLE_S,
                 settle_m=float(schedule.acceptance_m[-1]) if self._rover_end else None,
-                stall_s=ROVER_SETTLE_S if rover else None,
+                stall_s=policy_stall_s(config.vehicle, config.mode),
                 end_ned=end_ned,  # type: ignore[arg-type]
                 disarm_at_hold=rover, disarm_on_ground=not rover)))
         self.setpoints_sent = 0
@@ -139,6 +140,7 @@ class Flight:
             # snapshot again while no value changed; it is this flight's own, and every cycle
             # stamps it first.
             object.__setattr__(snap, "now_s", now)
+            object.__setattr__(snap, "link_rtt_s", self.link.rtt_s)
             sp = self.source(t_s, snap)
             t_ref = self.source.reference_time_s
             if t_ref is not None:

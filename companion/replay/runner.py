@@ -211,6 +211,7 @@ def run_prepared(
         warnings=tuple(prep.warnings),
         px4_params=None if prep.px4 is None else prep.px4.as_report(),
         setpoint_quality=quality.figures(),
+        estimates=flight.source.estimates(),
     )
     result = breach_result(report)
     bad = quality.failure()

@@ -225,7 +225,7 @@ class _Session:
             return None
         if isinstance(s, HoldStream):
             return link.encode_setpoint(s.setpoint, now)
-        snap = dataclasses.replace(self.v.telemetry, now_s=now)
+        snap = dataclasses.replace(self.v.telemetry, now_s=now, link_rtt_s=link.rtt_s)
         try:
             return link.encode_setpoint(s.setpoint(now, snap), now)
         except Exception as exc:  # an invalid setpoint is never sent: hold where we are

@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 from companion.control import Reference, TrackingConfig
 from companion.flatness import MultirotorParams
 from companion.flight.policy import final_mode
+from companion.flight.policy import stall_s as policy_stall_s
 from companion.flight.report import SetpointLimits
 from companion.flight.sequence import (
     EndPolicy,
@@ -178,9 +179,16 @@ class MissionStream:
     join_s: float  # duration of the joining trajectory [s]
     t_join: float  # schedule time where the join ends [s]
 
+    def flight_time(self, now_s: float) -> float:
+        """Time [s] on this stream's own clock at ``now_s``: the reference's own time when the
+        source slows it down for the vehicle (`TrackingSource.reference_time_s`), else since
+        ``t0_s``."""
+        governed = self.source.reference_time_s
+        return now_s - self.t0_s if governed is None else governed
+
     def schedule_time(self, now_s: float) -> float:
         """Schedule time [s] being flown at ``now_s``."""
-        return self.t_join + max(0.0, now_s - self.t0_s - self.join_s)
+        return self.t_join + max(0.0, self.flight_time(now_s) - self.join_s)
 
     def setpoint(self, now_s: float, telemetry: Any) -> SetpointCommand:
         """The setpoint for ``now_s`` (calls the tracking source)."""
@@ -654,16 +662,22 @@ class ServeService:
                           settle_m=cfg.settle_m,
                           end_ned=(float(end[0]), float(end[1]), float(end[2])),
                           land_command=False, land_and_disarm=False,
+                          stall_s=policy_stall_s("quad", cfg.setpoint_mode),
                           handover_retry_s=cfg.mode_retry_s)))
         seq.update(obs.now_s, self._view(obs, True))
         assert seq.t_fly0 == ms.t0_s
         return seq
 
     def _view(self, obs: Observation, fresh: bool) -> VehicleView:
-        """What the flight sequence sees: a position only when fresh."""
+        """What the flight sequence sees: a position only when fresh; the stream's reference
+        time when its source governs it (slowed down for the vehicle)."""
         pos = obs.position
+        ms = self.stream
+        src = ms.source if isinstance(ms, MissionStream) else None
         return VehicleView(armed=obs.armed, mode=obs.mode,
-                           pos_ned=pos.pos_ned if fresh and pos is not None else None)
+                           pos_ned=pos.pos_ned if fresh and pos is not None else None,
+                           traj_time_s=None if src is None else src.reference_time_s,
+                           stalled_s=0.0 if src is None else src.stalled_s)
 
     def _final_requests(self, acts: list[SequenceAction]) -> list[Action]:
         """The sequence's handover commands as mode requests (results are not awaited)."""
