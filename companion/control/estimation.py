@@ -424,3 +424,47 @@ class DisturbanceObserver:
             dx, dy = dx * c.max_acc / n, dy * c.max_acc / n
         self._d = (dx, dy)
         return self._d
+
+
+class HoverWindEstimator:
+    """The steady horizontal force per mass [m/s^2, north, east] on a multirotor that holds
+    still under someone else's control (PX4 in Hold or Position mode, before the companion
+    flies): at rest the thrust cancels gravity and it, so d = (T/m) z_b,h with T/m = g / z_b,z,
+    i.e. d_h = g z_b,h / z_b,z from the attitude alone (z_b: body z axis in NED; no thrust
+    command or drag model needed). Samples count while airborne with |v| below `still_m_s`;
+    low-passed with `tau_s`. Pure: every call takes the sample time."""
+
+    def __init__(self, still_m_s: float = 0.3, tau_s: float = 3.0, g: float = G0) -> None:
+        self.still_m_s = still_m_s
+        self.tau_s = tau_s
+        self.g = g
+        self._d: tuple[float, float] | None = None
+        self._t: float | None = None
+        self.held_s = 0.0  # time [s] of still samples fused
+
+    @property
+    def acc_ne(self) -> tuple[float, float] | None:
+        """The estimate (None before any still sample)."""
+        return self._d
+
+    def update(self, t_s: float, vel_ned: tuple[float, float, float],
+               q_wxyz: tuple[float, float, float, float], airborne: bool) -> None:
+        """Fuse one sample (position/velocity and attitude of about the same time)."""
+        t_last, self._t = self._t, t_s
+        if not airborne or math.hypot(*vel_ned) > self.still_m_s:
+            return
+        w, x, y, z = q_wxyz
+        zx, zy = 2.0 * (x * z + w * y), 2.0 * (y * z - w * x)
+        zz = 1.0 - 2.0 * (x * x + y * y)
+        if not zz > 0.5:  # tilted beyond 60 deg: not holding still
+            return
+        dn, de = self.g * zx / zz, self.g * zy / zz
+        if not (math.isfinite(dn) and math.isfinite(de)):
+            return
+        dt = 0.0 if t_last is None else min(max(t_s - t_last, 0.0), 1.0)
+        if self._d is None:
+            self._d = (dn, de)
+        else:
+            a = min(dt / self.tau_s, 1.0)
+            self._d = (self._d[0] + a * (dn - self._d[0]), self._d[1] + a * (de - self._d[1]))
+        self.held_s += dt

@@ -216,7 +216,8 @@ class _Session:
             now_s=time.monotonic(), link_ok=v.link_ok, armed=v.is_armed, mode=v.mode,
             landed_state=None if ext is None else ext.landed_state, position=snap.position,
             yaw=None if snap.attitude is None else _yaw(snap.attitude.q_wxyz), home=snap.home,
-            mission=v.link.telemetry.mission_current)
+            mission=v.link.telemetry.mission_current,
+            attitude_q=None if snap.attitude is None else snap.attitude.q_wxyz)
 
     def producer(self, now: float) -> bytes | None:
         s = self.service.stream

@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from companion.control import Reference, TrackingConfig
+from companion.control.estimation import HoverWindEstimator
 from companion.flatness import MultirotorParams
 from companion.flight.policy import final_mode
 from companion.flight.policy import stall_s as policy_stall_s
@@ -69,6 +70,7 @@ from companion.planning.schedule import (
     build_schedule,
     trajectory_reference,
 )
+from companion.planning.wind import WindCheck, check_wind
 from companion.trajectory import Limits, check, plan
 
 FloatArray = NDArray[np.float64]
@@ -77,6 +79,12 @@ FloatArray = NDArray[np.float64]
 NO_MISSION_TOTAL = 65535
 #: EXTENDED_SYS_STATE landed states counted as flying: in air, takeoff, landing.
 FLYING_STATES = (2, 3, 4)
+#: The wind is judged from this long [s] of holding still under PX4 (`HoverWindEstimator`), and
+#: a mission re-checked against it (and a changed verdict announced) at most this often [s].
+WIND_MIN_HELD_S = 3.0
+WIND_CHECK_EVERY_S = 5.0
+#: ... and only once the estimate has moved this much [m/s^2] (or the mission changed).
+WIND_RECHECK_M_S2 = 0.3
 MAV_SEVERITY_WARNING = 4
 MAV_SEVERITY_INFO = 6
 #: The joining trajectory (ServeService._join_trajectory): its shortest duration [s], the factor
@@ -127,6 +135,7 @@ class Observation:
     yaw: float | None = None  # [rad]
     home: HomePosition | None = None
     mission: MissionCurrent | None = None
+    attitude_q: tuple[float, float, float, float] | None = None  # ATTITUDE_QUATERNION (w, x, y, z)
 
 
 @dataclass(frozen=True)
@@ -336,6 +345,12 @@ class ServeService:
         self._seq: FlightSequence | None = None  # this OFFBOARD entry's flight (mission, finishing)
         self._last_mode: FlightMode | None = None
         self._link_ok = False
+        self.hover_wind = HoverWindEstimator(g=self.config.params.g)
+        self.wind_check: WindCheck | None = None  # the mission against the estimated wind
+        self._wind_checked_s = -math.inf
+        self._wind_said: tuple[bool, bool] | None = None  # (flyable, slowed) last announced
+        self._wind_key: tuple[object, float] | None = None  # (program, progress) last checked
+        self._wind_d: tuple[float, float] = (math.inf, math.inf)  # the estimate last checked
 
     # -- inputs ------------------------------------------------------------------------------
     def update(self, obs: Observation) -> list[Action]:
@@ -373,6 +388,7 @@ class ServeService:
             return out
         offboard = obs.mode is FlightMode.OFFBOARD
         if not offboard:
+            out += self._watch_wind(obs, fresh)
             if self._seq is not None:  # the entry ends (a pause, or the final mode took over)
                 self._seq.update(obs.now_s, self._view(obs, fresh))
                 self._seq = None
@@ -481,6 +497,61 @@ class ServeService:
         return [DownloadMission(key), LogEvent("mission_changed", {"mission_id": mc.mission_id,
                                                                    "total": mc.total})]
 
+    # -- the wind ------------------------------------------------------------------------------
+    def _watch_wind(self, obs: Observation, fresh: bool) -> list[Action]:
+        """While PX4 flies (not OFFBOARD): learn the wind from the attitude held still, check
+        the mission against it, announce a changed verdict (a mission that cannot be flown in
+        this wind is said before the pilot switches to OFFBOARD)."""
+        pos, q = obs.position, obs.attitude_q
+        if fresh and pos is not None and q is not None:
+            self.hover_wind.update(obs.now_s, pos.vel_ned, q, True)
+        if not self._check_wind(obs.now_s):
+            return []
+        wc = self.wind_check
+        assert wc is not None
+        key = (wc.flyable, wc.slowed)
+        if key == self._wind_said:
+            return []
+        self._wind_said = key
+        wind = self._wind_text()
+        if not wc.flyable:
+            return [Announce(f"ecca: mission not flyable in {wind}: {wc.reason}",
+                             MAV_SEVERITY_WARNING),
+                    LogEvent("wind", {"flyable": False, "reason": wc.reason, "wind": wind})]
+        if wc.slowed:
+            return [Announce(f"ecca: {wind}: {wc.reason}", MAV_SEVERITY_WARNING),
+                    LogEvent("wind", {"flyable": True, "slowed": True, "wind": wind})]
+        return [LogEvent("wind", {"flyable": True, "slowed": False, "wind": wind})]
+
+    def _check_wind(self, now_s: float, force: bool = False) -> bool:
+        """Re-check the mission (from the progress so far) against the estimated wind when due
+        (or `force`d); False when there is nothing to check (no mission, no wind yet)."""
+        prog, d = self.program, self.hover_wind.acc_ne
+        if prog is None or d is None or self.hover_wind.held_s < WIND_MIN_HELD_S:
+            return False
+        key = (prog, round(self.t_progress, 1))
+        if not force and (now_s - self._wind_checked_s < WIND_CHECK_EVERY_S or (
+                key == self._wind_key and math.dist(d, self._wind_d) < WIND_RECHECK_M_S2)):
+            return False  # (the check samples the whole plan: not every cycle)
+        self._wind_checked_s, self._wind_key, self._wind_d = now_s, key, d
+        cfg = self.config
+        p = cfg.params
+        t0 = min(max(self.t_progress, prog.t_begin), prog.t_end)
+        tilt = SetpointLimits.of_px4(cfg.px4 or Px4PlanningParams()).tilt_max_rad
+        self.wind_check = check_wind(lambda t: prog.reference(t0 + t), prog.t_end - t0, d,
+                                     p.drag / p.mass, tilt, p.g)
+        return True
+
+    def _wind_text(self) -> str:
+        """The estimated wind, as the configured drag and mass imply it."""
+        d = self.hover_wind.acc_ne
+        p = self.config.params
+        if d is None or not p.drag > 0.0:
+            return "this wind"
+        wn, we = d[0] * p.mass / p.drag, d[1] * p.mass / p.drag
+        frm = math.degrees(math.atan2(-we, -wn)) % 360.0
+        return f"wind {math.hypot(wn, we):.1f} m/s from {frm:03.0f} deg"
+
     def _hold_here(self, obs: Observation) -> PositionSetpoint | None:
         pos = obs.position
         if pos is None:
@@ -501,6 +572,11 @@ class ServeService:
             why = "mission already flown on this flight"
         elif not fresh or obs.position is None:
             why = "no fresh position"
+        else:
+            self._check_wind(obs.now_s, force=True)
+            wc = self.wind_check
+            if wc is not None and not wc.flyable:
+                why = f"not flyable in the wind here: {wc.reason}"
         if why is not None:
             self.state = "offboard_hold"
             return [Announce(f"ecca: holding in OFFBOARD ({why})"),
