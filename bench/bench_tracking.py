@@ -551,7 +551,8 @@ HOVER_S = 30.0
 
 def _controller_factory(overrides: list[str]) -> Any:
     """A TrackingSource factory with TrackingConfig / TrackingGains fields overridden
-    (`kp_xy=12`, `attitude_lead_s=0.1`, ...); None without overrides (the defaults)."""
+    (`kp_xy=12`, `attitude_lead_s=0.1`, ...; `hover_thrust=0.55`: the hover thrust the companion
+    is told); None without overrides (the defaults)."""
     if not overrides:
         return None
     from dataclasses import fields, replace
@@ -564,6 +565,7 @@ def _controller_factory(overrides: list[str]) -> Any:
     gkw: dict[str, object] = {}
     akw: dict[str, object] = {}
     ckw: dict[str, object] = {}
+    pkw: dict[str, object] = {}
     for item in overrides:
         k, _, v = item.partition("=")
         val: object = {"true": True, "false": False}.get(v.lower())
@@ -572,10 +574,14 @@ def _controller_factory(overrides: list[str]) -> Any:
                 val = float(v)
             except ValueError:
                 val = v
+        if k == "hover_thrust":  # what the companion is told (MultirotorParams)
+            pkw[k] = val
+            continue
         (gkw if k in gain_names else akw if k in att_names else ckw)[k] = val
     base = default_controller_config()
     cfg = replace(base, gains=replace(base.gains, **gkw),
-                  attitude_gains=replace(base.attitude_gains, **akw), **ckw)
+                  attitude_gains=replace(base.attitude_gains, **akw),
+                  params=replace(base.params, **pkw), **ckw)
 
     def factory(ref: Any, mode: str) -> Any:
         return TrackingSource(ref, mode, tracking=cfg)

@@ -46,6 +46,9 @@ def _load_bench() -> ModuleType:
 bt: Any = _load_bench()
 
 
+E3 = np.array([0.0, 0.0, 1.0])
+
+
 def _rot(q_wxyz: Any) -> Rotation:
     w, x, y, z = (float(c) for c in q_wxyz)
     return Rotation.from_quat([x, y, z, w])
@@ -121,8 +124,9 @@ def test_so3_rates_converge_on_mock_rigid_body(angle_deg: float, axis: tuple[flo
     pending: list[tuple[float, np.ndarray, np.ndarray, float]] = []
     latest = None
     errs = []
+    tilt_errs = []  # the thrust axis's own error
     target = AttitudeTarget(None, 0.49, (0.0, 0.0, 0.0))
-    for k in range(int(3.0 / dt)):
+    for k in range(int(6.0 / dt)):
         t = k * dt
         s = veh.state
         if k % tel_every == 0:
@@ -135,18 +139,28 @@ def test_so3_rates_converge_on_mock_rigid_body(angle_deg: float, axis: tuple[flo
             omega, _ = so3_rate_command(q_now, q_des, np.zeros(3), AttitudeGains())
             target = AttitudeTarget(None, 0.49, _v3(omega))
             errs.append((_rot(q_des).inv() * _rot(s.q_wxyz)).magnitude())
+            z_now, z_des = _rot(s.q_wxyz).apply(E3), _rot(q_des).apply(E3)
+            tilt_errs.append(math.acos(min(max(float(z_now @ z_des), -1.0), 1.0)))
         veh.step(dt, target, True)
     errs_deg = np.degrees(errs)  # one sample per 10 ms
+    tilt_deg = np.degrees(tilt_errs)
     assert errs_deg[0] > angle_deg - 1.0
-    assert errs_deg[-1] < 1.0
-    # monotone while the error is large: every 0.1 s checkpoint below the previous one until
-    # the error is under 10 deg; afterwards only a small overshoot (the mock's yaw axis is slow)
-    chk = errs_deg[::10]
+    assert errs_deg[-1] < 1.5  # at 6 s (measured 0.9 for 170 deg; the Lee error: < 1 at 3 s)
+    # the thrust axis first (PX4's yaw weighting, AttitudeGains.tilt_priority): monotone while
+    # large, every 0.1 s checkpoint below the previous one until it is under 10 deg, which
+    # takes under 1 s; under 3 deg from 1 s on (measured 0.95 deg at 1 s for 170 deg)
+    chk = tilt_deg[::10]
     first_small = int(np.argmax(chk < 10.0))
-    assert first_small > 0 and first_small <= 10  # under 10 deg within 1 s
+    assert 0 < first_small <= 10
     assert np.all(np.diff(chk[: first_small + 1]) < 0.0)
-    assert np.all(errs_deg[first_small * 10 :] < 10.0)
-    assert np.all(errs_deg[200:] < 3.0)
+    assert np.all(tilt_deg[100:] < 3.0)
+    # the yaw about it follows at its own gain on the mock's slow yaw axis, saturated at first,
+    # and overshoots (170 deg: the whole error 13 deg at 1.5 s, 19 at 2 s, 1.1 at 3 s, a wobble
+    # of up to 2.3 deg at 4 s): under 25 deg from 1.5 s on, under 3 deg from 3 s on. (The full
+    # SO(3) error was under 10 deg within 1 s and under 3 at 2 s, spending roll and pitch on
+    # the yaw meanwhile.)
+    assert np.all(errs_deg[150:] < 25.0)
+    assert np.all(errs_deg[300:] < 3.0)
 
 
 # ----------------------------------------------------------------------------- figure-8

@@ -211,6 +211,13 @@ def _row(task: RunTask, rep: FlightReport | None, ok: bool, error: str = "") -> 
             "wall_s": rep.wall_s,
             "real_time_factor": rep.real_time_factor,
         })
+        est = rep.estimates
+        row.update({  # the tracking law's own estimates (None: position mode)
+            "est_wind_m_s": None if est is None else est.wind_m_s,
+            "est_wind_from_deg": None if est is None else est.wind_from_deg,
+            "est_mass_ratio": None if est is None else est.mass_ratio,
+            "slowed_s": None if est is None else est.slowed_s,
+        })
     row["command"] = task.command
     row["tlog"] = None
     return row
@@ -229,7 +236,8 @@ _METRICS = (
     "rms_error_m", "max_error_m", "waypoints_reached", "waypoints_total",
     "min_waypoint_margin_m", "max_tilt_deg", "max_thrust_norm", "max_body_rate_rad_s",
     "max_speed_m_s", "duration_s", "planned_duration_s", "geofence_violations", "failsafes",
-    "max_waypoint_miss_geo_m", "simulated_s", "wall_s", "real_time_factor",
+    "max_waypoint_miss_geo_m", "simulated_s", "wall_s", "real_time_factor", "est_wind_m_s",
+    "est_wind_from_deg", "est_mass_ratio", "slowed_s",
 )
 
 
