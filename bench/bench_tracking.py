@@ -674,8 +674,14 @@ def _api_cell(target: str, mode: str, speed: float, out: Path, idx: int,
         trms, tmx = rms, mx
     ctl_used = getattr(fl.notes.get("source"), "controller", None)  # None in position mode
     hover = float(ctl_used.hover_thrust) if ctl_used is not None else math.nan
+    src = fl.notes.get("source")
+    figs = src.estimates() if src is not None and hasattr(src, "estimates") else None
     return {"rms": rms, "max": mx, "truth_rms": trms, "truth_max": tmx, "n": float(len(est)),
-            "hover_est": hover}
+            "hover_est": hover,
+            # the law's own: how far it slowed its reference (the errors here are against the
+            # plan's clock), the disturbance it estimated
+            "slowed_s": math.nan if figs is None else figs.slowed_s,
+            "dist": math.nan if figs is None else figs.disturbance_m_s2}
 
 
 def _api_cell_retry(target: str, mode: str, speed: float, out: Path, idx: int,
@@ -720,7 +726,8 @@ def _api_main(args: argparse.Namespace) -> int:
             print(f"{target:5s} {mode:9s} {v:4.1f} m/s [{label}] estimate RMS {agg['rms']:.3f} m "
                   f"(runs {agg['rms_lo']:.3f}-{agg['rms_hi']:.3f}) max {agg['max']:.3f} m | "
                   f"truth RMS {agg['truth_rms']:.3f} max {agg['truth_max']:.3f} m | "
-                  f"companion hover estimate {agg['hover_est']:.3f}", flush=True)
+                  f"companion hover estimate {agg['hover_est']:.3f} | slowed "
+                  f"{agg['slowed_s']:.2f} s, disturbance {agg['dist']:.2f} m/s^2", flush=True)
     wall = time.perf_counter() - t_start
     print(f"wall time {wall:.0f} s")
     out.mkdir(parents=True, exist_ok=True)
