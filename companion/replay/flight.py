@@ -245,8 +245,11 @@ def fly_schedule(
     while not flight.done:
         k += 1
         now = k * dt
-        if now > t_max:
-            flight.abort(now, f"timed out after {t_max:.0f} s of simulated time")
+        # a multirotor's reference slowed down for the vehicle (TimeScaler) moves the deadline
+        # with it; a reference that stands still ends the flight itself (STALL_S)
+        late = getattr(flight.source.governor, "delay_s", 0.0)
+        if now > t_max + late:
+            flight.abort(now, f"timed out after {t_max + late:.0f} s of simulated time")
             break
         flight.on_events(lk.advance(now), now)
         flight.tick(now)
