@@ -272,6 +272,11 @@ MAX_LINK_RTT_S = 0.2
 
 
 
+#: The touchdown's tilt limit leaves this much [rad] above the tilt holding still in the
+#: estimated wind needs (`TrackingSource._landing_tilt`).
+LANDING_TILT_MARGIN_RAD = math.radians(5.0)
+
+
 def estimate_from_telemetry(
     snap: TelemetrySnapshot, clock: SampleClock | None = None
 ) -> StateEstimate | None:
@@ -595,6 +600,17 @@ class TrackingSource:
             self._still_since = None
         return False
 
+    def _landing_tilt(self, td: Touchdown) -> float:
+        """The touchdown's tilt limit [rad]: PX4's MPC_TILTMAX_LND, raised to what holding
+        against the estimated disturbance needs plus LANDING_TILT_MARGIN_RAD (in 5.7 m/s of wind
+        the landing limit cut the thrust from 0.76 to 0.50 in one step, 0.5 m up; held at 12 deg
+        the vehicle would drift with the wind instead of landing where planned)."""
+        ctl = self.controller
+        assert ctl is not None
+        dx, dy = ctl.disturbance.acc_ne if ctl.config.estimate_disturbance else (0.0, 0.0)
+        hold = math.atan2(math.hypot(dx, dy), ctl.config.params.g) + LANDING_TILT_MARGIN_RAD
+        return min(max(td.max_tilt_rad, hold), ctl.config.max_tilt_rad)
+
     def _feasible_rate(self, t_ref: float) -> float:
         """The largest reference rate in [0, 1] the multirotor can fly from `t_ref` on, given
         the disturbance its controller estimates (see FEASIBLE_EVERY); 1 while that is small.
@@ -744,7 +760,7 @@ class TrackingSource:
         quality = self.quality
         td = self.touchdown
         if td is not None:
-            self.controller.limit_tilt(td.max_tilt_rad if t_s > td.from_s else None)
+            self.controller.limit_tilt(self._landing_tilt(td) if t_s > td.from_s else None)
         touched = td is not None and self._touched_down(t_s, now, est, ref)
         # in the air for the setpoint figures: PX4 says so, and the vehicle has not stopped
         # under a touchdown reference that goes on down (its first contact with the ground:
