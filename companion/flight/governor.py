@@ -148,3 +148,36 @@ class TimeScaler(ProgressGovernor):
         s2 = s * s
         return Reference(ref.pos_ned, ref.vel_ned * s, ref.acc_ned * s2, ref.jerk_ned * (s2 * s),
                          ref.snap_ned * (s2 * s2), ref.yaw, ref.yaw_rate * s, ref.yaw_acc * s2)
+
+
+def feasible_rate(refs: list[Reference], d_ne: tuple[float, float], drag_per_kg: float,
+                  max_tilt_rad: float, g: float) -> float:
+    """The largest reference rate s in [0, 1] at which every reference in `refs` (the plan at
+    and after the reference time, see FEASIBLE_AHEAD_S) keeps its horizontal demand
+    |s^2 a + s (D/m) v - d| within FEASIBLE_SHARE of g tan(`max_tilt_rad`) (or 70 % of what
+    holding still in the disturbance `d_ne` [m/s^2] leaves of it); 0 where holding still alone
+    needs the whole limit."""
+    dx, dy = d_ne
+    k = drag_per_kg
+    full = g * math.tan(max_tilt_rad)
+    cap = 1.0
+    for r in refs:
+        ax, ay = float(r.acc_ned[0]), float(r.acc_ned[1])
+        bx, by = k * float(r.vel_ned[0]), k * float(r.vel_ned[1])
+
+        def need(s: float, ax: float = ax, ay: float = ay, bx: float = bx,
+                 by: float = by) -> float:
+            return math.hypot(s * s * ax + s * bx - dx, s * s * ay + s * by - dy)
+
+        hold = need(0.0)
+        if hold >= full:  # not even holding still is within the tilt limit
+            return 0.0
+        lim = max(FEASIBLE_SHARE * full, hold + 0.7 * (full - hold))
+        if need(cap) <= lim:
+            continue
+        lo, hi = 0.0, cap
+        for _ in range(12):  # bisection: need(lo) <= lim < need(hi)
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if need(mid) <= lim else (lo, mid)
+        cap = lo
+    return cap

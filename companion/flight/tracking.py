@@ -36,9 +36,9 @@ from companion.flight.governor import (
     FEASIBLE_AHEAD_S,
     FEASIBLE_EVERY,
     FEASIBLE_MIN_DIST,
-    FEASIBLE_SHARE,
     ProgressGovernor,
     TimeScaler,
+    feasible_rate,
 )
 from companion.flight.report import FlightEstimates, SetpointLimits, SetpointQuality
 from companion.mavlink.setpoints import (
@@ -628,31 +628,9 @@ class TrackingSource:
         if self._cap_age > 0:
             return self._cap
         self._cap_age = FEASIBLE_EVERY
-        k = ctl.drag / ctl.config.params.mass
-        full = ctl.config.params.g * math.tan(ctl.config.max_tilt_rad)
-        cap = 1.0
-        for ahead in FEASIBLE_AHEAD_S:
-            r = self._reference_at(t_ref + ahead)
-            ax, ay = float(r.acc_ned[0]), float(r.acc_ned[1])
-            bx, by = k * float(r.vel_ned[0]), k * float(r.vel_ned[1])
-
-            def need(s: float, ax: float = ax, ay: float = ay, bx: float = bx,
-                     by: float = by) -> float:
-                return math.hypot(s * s * ax + s * bx - dx, s * s * ay + s * by - dy)
-
-            hold = need(0.0)
-            if hold >= full:  # not even holding still is within the tilt limit
-                cap = 0.0
-                break
-            # the reference gets FEASIBLE_SHARE of the limit, or half of what holding leaves
-            lim = max(FEASIBLE_SHARE * full, hold + 0.7 * (full - hold))
-            if need(cap) <= lim:
-                continue
-            lo, hi = 0.0, cap
-            for _ in range(12):  # bisection: need(lo) <= lim < need(hi)
-                mid = 0.5 * (lo + hi)
-                lo, hi = (mid, hi) if need(mid) <= lim else (lo, mid)
-            cap = lo
+        cap = feasible_rate([self._reference_at(t_ref + a) for a in FEASIBLE_AHEAD_S], (dx, dy),
+                            ctl.drag / ctl.config.params.mass, ctl.config.max_tilt_rad,
+                            ctl.config.params.g)
         self._cap = cap
         return cap
 
