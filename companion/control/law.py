@@ -155,10 +155,15 @@ class TrackingController:
         return self.config.params.drag
 
     def reset(self) -> None:
-        """Clear the integrator and the telemetry history (e.g. on entering offboard)."""
+        """Clear the integrator, the disturbance estimate and the telemetry history (e.g. on
+        entering offboard)."""
         self._integ_l = [0.0, 0.0, 0.0]
         self._yaw_sp = None
         self._p_smooth = None
+        # the disturbance too: while PX4 flew (a pilot's Hold) the thrust it applied was not
+        # ours, and the samples around the switch read as a force (real PX4: a stale estimate
+        # pushed a resumed flight 0.22 m back from where it took over, at rest)
+        self.disturbance.reset()
         self._t_last_update = None
         self._last_est = None
         self._prev_est = None
