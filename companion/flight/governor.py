@@ -49,19 +49,27 @@ class ProgressGovernor:
         self.rate = 1.0
         self.stalled_s = 0.0
 
+    def _step(self, t_s: float, lag_m: float, cap: float) -> tuple[float, float] | None:
+        """(dt [s] since the last call, the lag's rate capped by `cap`); None when no time
+        passed, or on the first call (which takes `t_s` as the reference time)."""
+        if self._t is None:
+            self._t, self.t_ref = t_s, max(t_s, 0.0)
+            return None
+        dt = t_s - self._t
+        self._t = t_s
+        if dt <= 0.0 or not math.isfinite(dt):
+            return None
+        lag = lag_m if math.isfinite(lag_m) else 0.0
+        return dt, min(max((self.stop_m - lag) / (self.stop_m - self.free_m), 0.0), 1.0, cap)
+
     def update(self, t_s: float, lag_m: float, cap: float = 1.0) -> float:
         """Reference time [s] at flight time `t_s` [s] (calls in time order; the first is taken
         as it is), given the lag [m] seen at the previous call; `cap`: an upper bound of the
         rate."""
-        if self._t is None:
-            self._t, self.t_ref = t_s, max(t_s, 0.0)
+        step = self._step(t_s, lag_m, cap)
+        if step is None:
             return self.t_ref
-        dt = t_s - self._t
-        self._t = t_s
-        if dt <= 0.0 or not math.isfinite(dt):
-            return self.t_ref
-        lag = lag_m if math.isfinite(lag_m) else 0.0
-        self.rate = min(max((self.stop_m - lag) / (self.stop_m - self.free_m), 0.0), 1.0, cap)
+        dt, self.rate = step
         self.t_ref += self.rate * dt
         self.stalled_s = self.stalled_s + dt if self.rate < STALL_RATE else 0.0
         return self.t_ref
@@ -119,16 +127,10 @@ class TimeScaler(ProgressGovernor):
     def update(self, t_s: float, lag_m: float, cap: float = 1.0) -> float:
         """Reference time [s] at flight time `t_s` [s] given the lag [m] of the previous call;
         `cap`: an upper bound of the rate (what the vehicle can fly, `_feasible_rate`)."""
-        if self._t is None:
-            self._t = t_s
-            self.t_ref = max(t_s - self.delay_s, 0.0)
+        step = self._step(t_s, lag_m, cap)
+        if step is None:
             return self.t_ref
-        dt = t_s - self._t
-        self._t = t_s
-        if dt <= 0.0 or not math.isfinite(dt):
-            return self.t_ref
-        lag = lag_m if math.isfinite(lag_m) else 0.0
-        target = min(max((self.stop_m - lag) / (self.stop_m - self.free_m), 0.0), 1.0, cap)
+        dt, target = step
         if target < 1.0 or self.rate < 1.0:
             self.rate += (target - self.rate) * min(dt / self.tau_s, 1.0)
             if self.rate > 1.0 - 1e-9 and target == 1.0:
