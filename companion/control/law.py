@@ -124,6 +124,9 @@ class TrackingController:
         }
         self._kp_l, self._kd_l, self._ki_l, self._imax_l = self._gain_lists[False]
         self._integ_l = [0.0, 0.0, 0.0]
+        # False: the integrator and the estimators (hover thrust, drag, disturbance) learn
+        # nothing (the vehicle may not be flying these commands: `TrackingSource`'s handover)
+        self.learning = True
         self._tilt_rad = config.max_tilt_rad
         self._cos_tilt = math.cos(config.max_tilt_rad)
         self._tan_tilt = math.tan(config.max_tilt_rad)
@@ -304,7 +307,7 @@ class TrackingController:
         self._prev_est, self._last_est = last, est
         dt = math.inf if last is None else est.t_s - last.t_s
         self._smooth_position(est, last, dt)
-        if last is None:
+        if last is None or not self.learning:
             return
         if not (1e-3 < dt < 0.5):
             return
@@ -510,7 +513,7 @@ class TrackingController:
         )
 
         # anti-windup: integrate only in the air and when not saturated (or when it unwinds)
-        if dt_ctrl > 0.0 and est.airborne:
+        if dt_ctrl > 0.0 and est.airborne and self.learning:
             ki, imax = self._ki_l, self._imax_l
             for i in range(3):
                 di = ki[i] * e_p[i] * dt_ctrl

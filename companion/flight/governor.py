@@ -163,6 +163,20 @@ def feasible_rate(refs: list[Reference], d_ne: tuple[float, float], drag_per_kg:
     k = drag_per_kg
     full = g * math.tan(max_tilt_rad)
     cap = 1.0
+    # a demand need not grow with s (an acceleration that cancels the disturbance): lowering
+    # the rate for one reference can take an earlier one out of its limit, so pass again
+    # until none is (each pass only lowers it)
+    for _ in range(8):
+        before = cap
+        cap = _feasible_pass(refs, dx, dy, k, full, cap)
+        if cap == before or cap == 0.0:
+            return cap
+    return cap
+
+
+def _feasible_pass(refs: list[Reference], dx: float, dy: float, k: float, full: float,
+                   cap: float) -> float:
+    """One pass of `feasible_rate` over `refs` from the rate `cap` down."""
     for r in refs:
         ax, ay = float(r.acc_ned[0]), float(r.acc_ned[1])
         bx, by = k * float(r.vel_ned[0]), k * float(r.vel_ned[1])

@@ -275,6 +275,24 @@ MAX_LINK_RTT_S = 0.2
 #: The touchdown's tilt limit leaves this much [rad] above the tilt holding still in the
 #: estimated wind needs (`TrackingSource._landing_tilt`).
 LANDING_TILT_MARGIN_RAD = math.radians(5.0)
+#: The handover [s] when attitude or rates setpoints follow position setpoints in OFFBOARD (the
+#: flight's first; serve's join after its hold stream): PX4 v1.16's commander republishes
+#: vehicle_control_mode only "at 2 Hz or immediately when changed", and a changed offboard
+#: setpoint kind is not a change, so for up to 0.5 s its position controller goes on flying
+#: the last position setpoint, its attitude setpoints interleaved with ours (real PX4 SITL,
+#: serve: our thrust applied 0.5 s after the first attitude setpoint, PX4's own 0.44-0.48 until
+#: then). Meanwhile the law holds the vehicle where it is (its reference time stands at 0) and
+#: learns nothing from commands PX4 may not apply (integrator, disturbance, hover thrust, drag);
+#: then the reference starts from where the vehicle is (BLEND_S). PX4's 0.5 s period plus its
+#: commander loop and the link.
+HANDOVER_S = 0.6
+#: After the handover the reference's clock ramps up from standing still over this long [s] of
+#: flight time (`_ramp`: its rate a cubic smoothstep, so no velocity or acceleration step and no
+#: thrust step where the plan starts accelerating; it ends RAMP_S / 2 behind).
+RAMP_S = 1.0
+#: After the handover the reference starts from where the vehicle is, its offset from the
+#: reference's start fading out over this long [s] of reference time (`TrackingSource._blended`).
+BLEND_S = 2.0
 
 
 def estimate_from_telemetry(
@@ -425,6 +443,27 @@ def _opt(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
+def _ramp(t_s: float) -> tuple[float, tuple[float, float] | None]:
+    """The reference time at flight time `t_s` [s] after the handover, and while it ramps up
+    (the first RAMP_S) (its rate, the rate's derivative [1/s]): rate 3u^2 - 2u^3 of
+    u = t_s / RAMP_S; after it, flight time less RAMP_S / 2 and None."""
+    T = RAMP_S
+    if t_s >= T:
+        return t_s - 0.5 * T, None
+    u = max(t_s / T, 0.0)
+    return T * (u**3 - 0.5 * u**4), (3.0 * u * u - 2.0 * u**3, 6.0 * u * (1.0 - u) / T)
+
+
+def _warped(ref: Reference, rate: float, d_rate: float) -> Reference:
+    """`ref` flown on a clock running at `rate` (changing at `d_rate` [1/s]): velocity times
+    the rate, acceleration times its square plus velocity times its change (the chain rule;
+    jerk and snap by the rate's powers alone)."""
+    s, s2 = rate, rate * rate
+    return Reference(ref.pos_ned, ref.vel_ned * s, ref.acc_ned * s2 + ref.vel_ned * d_rate,
+                     ref.jerk_ned * (s2 * s), ref.snap_ned * (s2 * s2), ref.yaw,
+                     ref.yaw_rate * s, ref.yaw_acc * s2 + ref.yaw_rate * d_rate)
+
+
 class TrackingSource:
     """Setpoints that follow `reference(t_s)` in one of the modes:
 
@@ -447,7 +486,9 @@ class TrackingSource:
     is not flying these setpoints yet (or, right after the OFFBOARD switch, PX4 holds the
     start point with them), so the controller does not run and its integrator and hover-thrust
     estimator learn nothing from thrust commands the vehicle never applied. The controller is
-    reset on the first call with `t_s > 0`.
+    reset on the first call with `t_s > 0`; in the HANDOVER_S that follows, while PX4 may still
+    fly its own position control, it holds the vehicle where it is and learns nothing, and the
+    reference time (`reference_time_s`) is flight time minus that wait.
     """
 
     def __init__(
@@ -461,6 +502,7 @@ class TrackingSource:
         touchdown: Touchdown | None = None,
         limits: SetpointLimits | None = None,
         time_scaling: bool = True,
+        handover_s: float = HANDOVER_S,
     ) -> None:
         if mode not in ("position", "attitude", "rates", "rover"):
             raise ValueError(f"unknown setpoint mode {mode!r}")
@@ -492,6 +534,15 @@ class TrackingSource:
         self.calls = 0
         self.clock = SampleClock()
         self._engaged = False  # the controller runs (a call with t_s > 0 was seen)
+        self.handover_s = handover_s
+        self._handover_end: float | None = None  # local time the handover ends [s]
+        self._hold_s = 0.0  # flight time [s] the reference stood still for the handover
+        self._t_ref: float | None = None  # reference time [s] of the last call, when shifted
+        # after the handover: (offset [m] of the vehicle from the reference's start, reference
+        # time [s] the blend began), see `_blended`
+        self._blend: tuple[np.ndarray, float] | None = None
+        self._blend_pending = False
+        self._flown: Reference | None = None  # the reference the last call flew
         # the last estimate and the (immutable) telemetry values it was built from
         self._est_key: tuple[object, object, bool, float] | None = None
         self._est: StateEstimate | None = None
@@ -526,8 +577,8 @@ class TrackingSource:
 
     @property
     def last_reference(self) -> Reference | None:
-        """The reference of the most recent call (for status displays)."""
-        return self._ref
+        """The reference the most recent call flew (for status displays and a hold)."""
+        return self._flown if self._flown is not None else self._ref
 
     @property
     def touching_down(self) -> bool:
@@ -561,7 +612,9 @@ class TrackingSource:
         rover's waits for it, a multirotor's slows down for it); None: the flight time it was
         given (also before the first setpoint of the flight)."""
         gov = self.governor
-        return None if gov is None or not gov.started else gov.t_ref
+        if gov is not None and gov.started:
+            return gov.t_ref
+        return self._t_ref
 
     def ref(self, t_s: float) -> Reference:
         """The reference at `t_s` (cached for repeated calls at the same time)."""
@@ -683,6 +736,58 @@ class TrackingSource:
         self._est_key, self._est = key, est
         return est
 
+    def _handover(self, t_s: float, now: float) -> bool:
+        """Engage the controller on the first call with flight time `t_s` > 0 and run the
+        handover after it: True while it lasts (the vehicle is held where it is, `_hold_s`
+        counts the flight time the reference stood); the controller learns nothing meanwhile
+        (integrator, disturbance, hover thrust, drag: `TrackingController.learning`)."""
+        ctl = self.controller
+        assert ctl is not None
+        if not self._engaged:
+            self._engaged = True
+            ctl.reset()
+            ok = math.isfinite(now) and self.handover_s > 0.0
+            self._handover_end = now + self.handover_s if ok else None
+            ctl.learning = not ok
+        end = self._handover_end
+        if end is None:
+            return False
+        if now < end:
+            self._hold_s = t_s
+            return True
+        self._handover_end = None
+        self._blend_pending = True
+        ctl.learning = True
+        return False
+
+    def _blended(self, ref: Reference, t_s: float, est: StateEstimate | None) -> Reference:
+        """`ref` moved by the vehicle's offset from the reference's start at the end of the
+        handover, the offset fading out over BLEND_S of reference time with a quintic
+        smoothstep (its velocity and acceleration added): the flight begins where the vehicle
+        stopped rather than pulling it back to where it stood when the plan was made (EKF2's
+        estimate moves by tenths of a metre in that time on SIH)."""
+        if self._blend is None:
+            self._blend_pending = False
+            if est is None:
+                return ref
+            offset = est.pos_ned - ref.pos_ned
+            if not np.all(np.isfinite(offset)) or float(np.linalg.norm(offset)) < 1e-3:
+                return ref
+            self._blend = (offset, t_s)
+        offset, t0 = self._blend
+        T = BLEND_S
+        u = (t_s - t0) / T
+        if u >= 1.0:
+            if t_s - t0 >= T + 2.0:  # (the lead feed-forward looks up to ~0.1 s ahead)
+                self._blend = None
+            return ref
+        u = max(u, 0.0)
+        w = 1.0 - u**3 * (10.0 - 15.0 * u + 6.0 * u * u)
+        dw = -30.0 * u * u * (1.0 - u) ** 2 / T
+        ddw = -60.0 * u * (1.0 - u) * (1.0 - 2.0 * u) / (T * T)
+        return replace(ref, pos_ned=ref.pos_ned + w * offset, vel_ned=ref.vel_ned + dw * offset,
+                       acc_ned=ref.acc_ned + ddw * offset)
+
     def position_setpoint(self, t_s: float) -> PositionSetpoint:
         """The reference as a PX4 position setpoint (also used for priming)."""
         pc = position_command(self.ref(t_s), feedforward=t_s > 0.0,
@@ -699,20 +804,36 @@ class TrackingSource:
         self.calls += 1
         now = telemetry.now_s
         gov = self.governor
+        standing = False
+        ramp: tuple[float, float] | None = None
+        t_flown = t_s  # flight time since the handover [s]
+        if self.controller is not None and t_s > 0.0:
+            standing = self._handover(t_s, now)
+            t_s -= self._hold_s
+            t_flown = t_s
+            if self._hold_s > 0.0 and not standing:
+                t_s, ramp = _ramp(t_s)
+            self._t_ref = t_s if self._hold_s > 0.0 else None
         if gov is not None and t_s > 0.0:
             if self.rover is not None:
                 t_s = gov.update(t_s, self.rover.last_lag_m)
             else:
                 t_s = gov.update(t_s, self._lag_m, self._feasible_rate(gov.t_ref))
         ref = self.ref(t_s)
-        if gov is not None and gov.rate != 1.0 and isinstance(gov, TimeScaler):
-            ref = gov.scaled(ref)
         est = self._estimate(telemetry)
+        if standing:  # the vehicle, stopped where it is (see HANDOVER_S)
+            ref = Reference(ref.pos_ned if est is None else est.pos_ned, yaw=ref.yaw)
+        else:
+            if gov is not None and gov.rate != 1.0 and isinstance(gov, TimeScaler):
+                ref = gov.scaled(ref)
+            if ramp is not None:
+                ref = _warped(ref, *ramp)
+            if self._blend is not None or self._blend_pending:
+                ref = self._blended(ref, t_s, est)
+        self._flown = ref
         if self.controller is not None and not self._engaged:
-            if not t_s > 0.0:  # priming: PX4 is not applying our thrust commands yet
-                return self.position_setpoint(t_s)
-            self._engaged = True
-            self.controller.reset()
+            # priming: PX4 is not applying our thrust commands yet
+            return self.position_setpoint(t_s)
         if self.mode == "position" or est is None or not math.isfinite(now):
             if self.mode == "rover":
                 return PositionSetpoint(vel_ned=(0.0, 0.0, 0.0), yaw_rate=0.0)
@@ -758,7 +879,18 @@ class TrackingSource:
             # the lead feed-forward sampled from the reference itself (never a Taylor step:
             # the plan's snap spikes where a short speed ramp starts)
             lead = self.controller.config.attitude_lead_s
-            if gov is not None and gov.rate != 1.0 and isinstance(gov, TimeScaler):
+            if standing:
+                ahead = ref
+            elif ramp is not None:  # the ramp's clock, `lead` of flight time ahead
+                t_ahead, r_ahead = _ramp(t_flown + lead)
+                ahead = self._reference_at(t_ahead)
+                if r_ahead is not None:
+                    ahead = _warped(ahead, *r_ahead)
+                if self._blend is not None:
+                    ahead = self._blended(ahead, t_ahead, est)
+            elif self._blend is not None:
+                ahead = self._blended(self._reference_at(t_s + lead), t_s + lead, est)
+            elif gov is not None and gov.rate != 1.0 and isinstance(gov, TimeScaler):
                 ahead = gov.scaled(self._reference_at(t_s + lead * gov.rate))
             else:
                 ahead = self._reference_at(t_s + lead)

@@ -269,7 +269,9 @@ class _Session:
     async def _request_mode(self, mode: FlightMode, why: str) -> None:
         from companion.aio import VehicleError
 
-        self.events.write("mode_request", mode=mode.name, why=why)
+        pos = self.v.telemetry.position  # where the vehicle is handed over (local NED, m)
+        self.events.write("mode_request", mode=mode.name, why=why,
+                          pos_ned=None if pos is None else [round(c, 3) for c in pos.pos_ned])
         try:
             await self.v.set_mode(mode)
         except (VehicleError, TimeoutError) as exc:

@@ -25,6 +25,14 @@ from sitl_mock.params import ParamStore
 from sitl_mock.setpoints import IdleTarget, PositionTarget, RoverPositionTarget, Target
 
 FAILSAFE_ACTION_DELAY_S = 0.5  # loss detected at COM_OF_LOSS_T, mode switch 0.5 s later
+#: PX4 v1.16's commander publishes vehicle_status and vehicle_control_mode "at 2 Hz or
+#: immediately when changed" (Commander::run: 500 ms after the last publication, or on a
+#: status, nav-state or arming change); a change of the offboard setpoint kind (position <->
+#: attitude) is none of these, so its controllers follow the new kind only at the next
+#: publication. Meanwhile they fly the last setpoint of the old kind (real PX4 SITL: attitude
+#: setpoints after position setpoints in OFFBOARD applied 0.3-0.5 s late, PX4's own position
+#: control in between; `offboard_target`).
+STATUS_PERIOD_S = 0.5
 NAVIGATOR_PERIOD_S = 0.01
 DESCEND_SPEED_NO_RC = 0.6  # [m/s] observed sink rate in POSCTL without RC (PX4.md)
 _DENIED = "Arming denied: Resolve system health failures first"
@@ -102,6 +110,9 @@ class Commander:
         self.scn_takeover_done = False
         self.scn_pos_state = 0  # 0 before, 1 lost, 2 restored
         self.scn_battery_done = False
+        # the offboard setpoint kind the controllers follow, as of the last status publication
+        self.status_t = -math.inf
+        self.control_kind: type | None = None
 
     # ================================================================== derived state
     @property
@@ -184,6 +195,27 @@ class Commander:
             flags = 0
         return int(mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED) | flags | (128 if self.armed else 0)
 
+    # ================================================================== status publication
+    def publish_status(self, t: float) -> None:
+        """A vehicle_status / vehicle_control_mode publication (STATUS_PERIOD_S): the offboard
+        setpoint kind the controllers follow becomes the newest setpoint's."""
+        self.status_t = t
+        tgt = self.offboard.target
+        self.control_kind = None if tgt is None else type(tgt)
+
+    def offboard_target(self) -> Target:
+        """The offboard setpoint the controllers fly: the newest, or while the control mode has
+        not caught up with a change of its kind (a quad), the newest of the kind it has."""
+        ob = self.offboard
+        tgt = ob.target
+        if tgt is None:
+            return IDLE
+        kind = self.control_kind
+        if kind is None or type(tgt) is kind or self.kind != "quad":
+            return tgt
+        last = ob.last_position if kind is PositionTarget else ob.last_attitude
+        return tgt if last is None else last
+
     # ================================================================== transitions
     def arm(self) -> None:
         self.armed = True
@@ -193,11 +225,13 @@ class Commander:
         self.takeoff_done = False
         self.links.statustext(mavlink.MAV_SEVERITY_INFO, "Armed by external command")
         self.vehicle.reset_integrators()
+        self.publish_status(self.clock.t)
         self._enter_mode(self.mode)
 
     def disarm(self, why: str) -> None:
         self.armed = False
         self.ob_loss_t = None
+        self.publish_status(self.clock.t)
         self.links.statustext(mavlink.MAV_SEVERITY_INFO, f"Disarmed by {why}")
         if self.failsafe:
             # PX4 returns to the last user-selected mode once the failsafe clears on disarm
@@ -221,6 +255,7 @@ class Commander:
         if prev not in AUTO_MODES or mode not in AUTO_MODES:
             # PX4 activates another flight task: an AUTO trajectory restarts at the vehicle
             self.nav.forget_reference()
+        self.publish_status(self.clock.t)
         self._enter_mode(mode)
 
     def _enter_mode(self, mode: Mode) -> None:
@@ -267,8 +302,7 @@ class Commander:
         if not self.armed:
             return IDLE
         if self.mode is _OFFBOARD:
-            ob_target = self.offboard.target
-            return ob_target if ob_target is not None else IDLE
+            return self.offboard_target()
         if self.descend:
             s = self.view.state
             if self.kind == "quad" and s.landed and not self.nav_active:
@@ -302,6 +336,8 @@ class Commander:
     def update(self, t: float, landed: bool, pos_valid: bool) -> None:
         """The commander's state machine at time `t` [s since boot]; `landed` and `pos_valid`
         are the vehicle's flags as read at the start of this tick (before housekeeping)."""
+        if t >= self.status_t + STATUS_PERIOD_S - 1e-9:
+            self.publish_status(t)
         if not self.armed:
             return
         p = self.params

@@ -251,7 +251,8 @@ class Autopilot:
         self.clock.t = t_phys
         cmdr = self.commander
         ob_target = self.offboard.target
-        if cmdr.armed and cmdr.mode is _OFFBOARD and ob_target is not None:
+        if (cmdr.armed and cmdr.mode is _OFFBOARD and ob_target is not None
+                and type(ob_target) is cmdr.control_kind):
             target: Target = ob_target  # the streaming case of `target()`, without the call
         else:
             target = cmdr.target()

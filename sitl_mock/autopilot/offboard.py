@@ -41,6 +41,10 @@ class OffboardInput:
         self.statustext = statustext
         self.last_t = -math.inf
         self.target: PositionTarget | AttitudeTarget | None = None
+        # the newest of each kind (what PX4's controllers still fly while the commander's
+        # control mode has not caught up with a change of kind: `Commander.offboard_target`)
+        self.last_position: PositionTarget | None = None
+        self.last_attitude: AttitudeTarget | None = None
         self.on_setpoint: Callable[[], None] = lambda: None
 
     @property
@@ -165,4 +169,8 @@ class OffboardInput:
         self.stats["rx_setpoints"] += 1
         self.last_t = self.clock.t
         self.target = target
+        if isinstance(target, PositionTarget):
+            self.last_position = target
+        else:
+            self.last_attitude = target
         self.on_setpoint()

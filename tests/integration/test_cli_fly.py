@@ -75,6 +75,10 @@ def read_flight(log: Path) -> Flight:
         elif kind == "COMMAND_LONG" and msg.command == 176 and msg.param2 == 6:
             if request_t is None:
                 request_t, start = msg._timestamp, last_pos
+        elif kind == "COMMAND_LONG" and msg.command in (176, 21) and in_offboard:
+            # the companion hands over (LAND, Hold): the 1 Hz HEARTBEAT shows it up to 1 s
+            # later, and those positions are PX4's flight, not the pattern
+            in_offboard = False
         elif kind == "HEARTBEAT" and msg.get_srcComponent() == 1:
             in_offboard = msg.custom_mode == OFFBOARD_CUSTOM_MODE
             if in_offboard and offboard_t is None:

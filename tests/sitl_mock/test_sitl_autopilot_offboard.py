@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -201,3 +202,56 @@ def test_attitude_roll_moves_east_and_thrust_above_hover_climbs() -> None:
     h.run(1.5, lambda: att_setpoint(h, q_from_euler(0, 0, 0), 0.65))
     climb = -h.ap.state.vel_ned[2]
     assert 2.3 * 0.7 <= climb <= 2.7 * 1.3, climb  # PX4 SIH: 2.3-2.7 m/s after 1.5 s
+
+
+def _tilt(h: Harness) -> float:
+    """The vehicle's tilt [rad] from its attitude quaternion (body z against NED down)."""
+    _w, x, y, _z = h.ap.state.q_wxyz
+    return math.acos(max(-1.0, min(1.0, 1.0 - 2.0 * (x * x + y * y))))
+
+
+def _roll_after_switch(phase_s: float) -> tuple[float, float]:
+    """In OFFBOARD on position setpoints, `phase_s` after the OFFBOARD entry switch to attitude
+    setpoints rolled 15 deg: (time until the vehicle has rolled 5 deg, its distance from the
+    held point then [m])."""
+    h = Harness(step_s=0.004)
+    flying(h)
+    h.run(0.3, lambda: h.pos_setpoint(0, 0, -2.5))
+    h.set_mode(6)
+    t_entry = h.t
+    h.run(1.0 + phase_s, lambda: h.pos_setpoint(0, 0, -2.5))
+    assert h.ap.mode.name == "OFFBOARD" and abs(h.t - (t_entry + 1.0 + phase_s)) < 0.01
+    t0 = h.t
+    tilt = q_from_euler(math.radians(15), 0, 0)
+    h.run_until(lambda: _tilt(h) > math.radians(5), 1.5,
+                lambda: att_setpoint(h, tilt, 0.5))
+    n, e, _ = h.ap.state.pos_ned
+    return h.t - t0, math.hypot(n, e)
+
+
+def test_attitude_after_position_setpoints_waits_for_the_control_mode_publication() -> None:
+    """PX4 v1.16 publishes vehicle_control_mode at 2 Hz (or at once on a status or mode
+    change), and a new offboard setpoint kind is neither: attitude setpoints that follow
+    position setpoints in OFFBOARD are flown only from the next publication, PX4's position
+    control holding the point until then (real PX4 SITL, serve: applied 0.3-0.5 s late). The
+    delay spreads over one period across the switch's phase; the point is held meanwhile."""
+    runs = [_roll_after_switch(ph) for ph in (0.05, 0.15, 0.25, 0.35, 0.45)]
+    delays = np.array([d for d, _ in runs])
+    # rolling 5 deg takes PX4's attitude loop ~0.1 s once the setpoint is flown
+    assert delays.min() > 0.05 and delays.max() < 0.5 + 0.25
+    assert np.ptp(delays) > 0.3  # the wait depends on the phase
+    assert max(dist for _, dist in runs) < 0.3  # held (an immediate 15 deg roll drifts away)
+
+
+def test_entering_offboard_on_attitude_setpoints_flies_them_at_once() -> None:
+    """The mode change is a publication: attitude setpoints streamed before the switch are flown
+    from the OFFBOARD entry on."""
+    h = Harness(step_s=0.004)
+    flying(h)
+    tilt = q_from_euler(math.radians(15), 0, 0)
+    h.run(0.3, lambda: att_setpoint(h, q_from_euler(0, 0, 0), 0.5))
+    h.set_mode(6)
+    t0 = h.t
+    h.run_until(lambda: _tilt(h) > math.radians(5), 1.0,
+                lambda: att_setpoint(h, tilt, 0.5))
+    assert h.ap.mode.name == "OFFBOARD" and h.t - t0 < 0.2

@@ -41,6 +41,7 @@ class Sample:
     pos_ned: tuple[float, float, float]
     mode: str
     armed: bool
+    vel_ned: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 @dataclass
@@ -82,7 +83,8 @@ class Gcs(asyncio.DatagramProtocol):
             if kind == "HEARTBEAT" and m.get_srcComponent() == 1:
                 self.heartbeat, self.heartbeat_t = m, now
             elif kind == "LOCAL_POSITION_NED" and self.heartbeat is not None:
-                self.track.append(Sample(now, (m.x, m.y, m.z), self.mode, self.armed))
+                self.track.append(Sample(now, (m.x, m.y, m.z), self.mode, self.armed,
+                                         (m.vx, m.vy, m.vz)))
             elif kind == "ATTITUDE":
                 self.attitude = m
             elif kind == "COMMAND_ACK":

@@ -1,5 +1,8 @@
 """`Touchdown`: the reference past the plan descends smoothly, ground contact is declared only on
-PX4's "hit ground" evidence, and then the thrust ramps to zero with the attitude level."""
+PX4's "hit ground" evidence, and then the thrust ramps to zero with the attitude level.
+
+The synthetic vehicle here follows flight time, so the sources run without the handover at
+the start (`handover_s=0`; the handover has its own tests in test_handover.py)."""
 
 from __future__ import annotations
 
@@ -88,7 +91,7 @@ def test_touchdown_takes_over_where_the_plan_stops_cruising_down() -> None:
 @pytest.mark.parametrize("mode", ["attitude", "rates"])
 def test_contact_only_when_still_with_the_reference_below_then_thrust_to_zero(mode: str) -> None:
     td = Touchdown(END_S, descent_m_s=0.7)
-    src = TrackingSource(plan, mode, PARAMS, touchdown=td)  # type: ignore[arg-type]
+    src = TrackingSource(plan, mode, PARAMS, touchdown=td, handover_s=0.0)  # type: ignore[arg-type]
     t0 = 100.0  # local clock at reference time 0
     out = []
     for k in range(1, 601):  # 6 s at 100 Hz
@@ -123,7 +126,7 @@ def test_contact_only_when_still_with_the_reference_below_then_thrust_to_zero(mo
 
 def test_no_contact_while_the_vehicle_follows_the_descent() -> None:
     td = Touchdown(END_S, descent_m_s=0.7)
-    src = TrackingSource(plan, "attitude", PARAMS, touchdown=td)
+    src = TrackingSource(plan, "attitude", PARAMS, touchdown=td, handover_s=0.0)
     for k in range(1, 1001):
         t = 0.01 * k
         z = -0.5 + (td.offset(t - END_S)[0] if t > END_S else 0.0)  # on the reference
@@ -153,7 +156,7 @@ def test_touchdown_keeps_the_landing_tilt_limit_when_the_feet_touch_off_target(m
     (a real-PX4 flight was commanded 44 deg there and tipped over). Before the touchdown the
     same offset is corrected with more tilt than that (the limit is the touchdown's only)."""
     td = Touchdown(END_S, descent_m_s=0.7)
-    src = TrackingSource(plan, mode, PARAMS, touchdown=td)  # type: ignore[arg-type]
+    src = TrackingSource(plan, mode, PARAMS, touchdown=td, handover_s=0.0)  # type: ignore[arg-type]
     before, during = [], []
     for k in range(1, 501):
         t = 0.01 * k
