@@ -603,6 +603,12 @@ class ServeService:
         cfg = self.config
         here = np.asarray(obs.position.pos_ned, dtype=np.float64)
         vel = np.asarray(obs.position.vel_ned, dtype=np.float64)
+        if cfg.setpoint_mode in ("attitude", "rates"):
+            # the tracking source stops the vehicle first (its handover, HANDOVER_S: PX4 may fly
+            # its own control meanwhile) and starts the join from where it stopped: from rest
+            # (planned from a Hold's pull-back at -0.15 m/s, the join led a stopped vehicle
+            # back toward wp 1 at up to 0.5 m/s on real PX4)
+            vel = np.zeros(3)
         t_near = prog.join_time(here, self.reached, max(self.t_progress, prog.t_begin))
         yaw_here = obs.yaw
         # join ahead of the nearest point, far enough to reach the plan's speed there without

@@ -9,6 +9,7 @@ log. About 60-75 s (PX4 runs in real time).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import itertools
 import json
 import math
@@ -90,6 +91,11 @@ async def test_px4_serve_flies_pauses_resumes_and_lands(px4: Px4Sitl, tmp_path: 
             await gcs.wait_for(lambda: gcs.track[-1].t > t_hold + 3.0, 8.0, "3 s in Hold")
             held = [s.pos_ned for s in gcs.track[i_hold:]]
             assert min(dist_xy(p, WP2) for p in held) > 2.0  # braked short of wp 2
+            # the pilot hands back once PX4's Hold has stopped pulling back from its braking
+            # overshoot (it may take longer than 3 s: then the service starts from that motion)
+            with contextlib.suppress(AssertionError):
+                await gcs.wait_for(lambda: len(gcs.track) > 10 and all(
+                    math.hypot(*s.vel_ned[:2]) < 0.1 for s in gcs.track[-10:]), 6.0, "rest")
             i_resume = len(gcs.track)
             for _ in range(5):  # the pilot retries if PX4 is still settling into Hold
                 if await gcs.set_mode("OFFBOARD") == 0:
