@@ -283,7 +283,7 @@ LANDING_TILT_MARGIN_RAD = math.radians(5.0)
 #: serve: our thrust applied 0.5 s after the first attitude setpoint, PX4's own 0.44-0.48 until
 #: then). Meanwhile the law holds the vehicle where it is (its reference time stands at 0) and
 #: learns nothing from commands PX4 may not apply (integrator, disturbance, hover thrust, drag);
-#: then the reference starts from where the vehicle is (BLEND_S). PX4's 0.5 s period plus its
+#: then the reference starts from where the vehicle is (BLEND_M). PX4's 0.5 s period plus its
 #: commander loop and the link.
 HANDOVER_S = 0.6
 #: After the handover the reference's clock ramps up from standing still over this long [s] of
@@ -291,8 +291,9 @@ HANDOVER_S = 0.6
 #: thrust step where the plan starts accelerating; it ends RAMP_S / 2 behind).
 RAMP_S = 1.0
 #: After the handover the reference starts from where the vehicle is, its offset from the
-#: reference's start fading out over this long [s] of reference time (`TrackingSource._blended`).
-BLEND_S = 2.0
+#: reference's start fading out over the first this many metres [m] the reference moves
+#: (`TrackingSource._blended`).
+BLEND_M = 2.0
 
 
 def estimate_from_telemetry(
@@ -538,9 +539,9 @@ class TrackingSource:
         self._handover_end: float | None = None  # local time the handover ends [s]
         self._hold_s = 0.0  # flight time [s] the reference stood still for the handover
         self._t_ref: float | None = None  # reference time [s] of the last call, when shifted
-        # after the handover: (offset [m] of the vehicle from the reference's start, reference
-        # time [s] the blend began), see `_blended`
-        self._blend: tuple[np.ndarray, float] | None = None
+        # after the handover: (offset [m] of the vehicle from the reference's start, that start
+        # [m]), see `_blended`
+        self._blend: tuple[np.ndarray, np.ndarray] | None = None
         self._blend_pending = False
         self._flown: Reference | None = None  # the reference the last call flew
         # the last estimate and the (immutable) telemetry values it was built from
@@ -760,12 +761,15 @@ class TrackingSource:
         ctl.learning = True
         return False
 
-    def _blended(self, ref: Reference, t_s: float, est: StateEstimate | None) -> Reference:
+    def _blended(self, ref: Reference, est: StateEstimate | None,
+                 ahead: bool = False) -> Reference:
         """`ref` moved by the vehicle's offset from the reference's start at the end of the
-        handover, the offset fading out over BLEND_S of reference time with a quintic
-        smoothstep (its velocity and acceleration added): the flight begins where the vehicle
-        stopped rather than pulling it back to where it stood when the plan was made (EKF2's
-        estimate moves by tenths of a metre in that time on SIH)."""
+        handover, the offset fading out with a quintic smoothstep of the distance the reference
+        has moved from its start (over BLEND_M; its velocity and acceleration added): the
+        flight begins where the vehicle stopped rather than pulling it back to where it stood
+        when the plan was made (EKF2's estimate moves by tenths of a metre in that time on
+        SIH), and fades as the plan moves, so the reference never runs backward for it (a
+        fade over time did: 0.5 m/s back toward the last waypoint, real PX4)."""
         if self._blend is None:
             self._blend_pending = False
             if est is None:
@@ -773,20 +777,28 @@ class TrackingSource:
             offset = est.pos_ned - ref.pos_ned
             if not np.all(np.isfinite(offset)) or float(np.linalg.norm(offset)) < 1e-3:
                 return ref
-            self._blend = (offset, t_s)
-        offset, t0 = self._blend
-        T = BLEND_S
-        u = (t_s - t0) / T
-        if u >= 1.0:
-            if t_s - t0 >= T + 2.0:  # (the lead feed-forward looks up to ~0.1 s ahead)
+            self._blend = (offset, ref.pos_ned.copy())
+        offset, p0 = self._blend
+        D = BLEND_M
+        dp = ref.pos_ned - p0
+        r = float(np.linalg.norm(dp))
+        if r >= D:  # faded out: done (a path back past its start must not get it again)
+            if not ahead:  # (the lead feed-forward's reference gets there first)
                 self._blend = None
             return ref
-        u = max(u, 0.0)
+        if r < 1e-9:
+            return replace(ref, pos_ned=ref.pos_ned + offset)
+        u = r / D
         w = 1.0 - u**3 * (10.0 - 15.0 * u + 6.0 * u * u)
-        dw = -30.0 * u * u * (1.0 - u) ** 2 / T
-        ddw = -60.0 * u * (1.0 - u) * (1.0 - 2.0 * u) / (T * T)
-        return replace(ref, pos_ned=ref.pos_ned + w * offset, vel_ned=ref.vel_ned + dw * offset,
-                       acc_ned=ref.acc_ned + ddw * offset)
+        w1 = -30.0 * u * u * (1.0 - u) ** 2  # dw/du
+        w2 = -60.0 * u * (1.0 - u) * (1.0 - 2.0 * u)  # d2w/du2
+        v, a = ref.vel_ned, ref.acc_ned
+        dr = float(dp @ v) / r  # d|dp|/dt
+        ddr = (float(dp @ a) + float(v @ v) - dr * dr) / r
+        du, ddu = dr / D, ddr / D
+        return replace(ref, pos_ned=ref.pos_ned + w * offset,
+                       vel_ned=v + (w1 * du) * offset,
+                       acc_ned=a + (w2 * du * du + w1 * ddu) * offset)
 
     def position_setpoint(self, t_s: float) -> PositionSetpoint:
         """The reference as a PX4 position setpoint (also used for priming)."""
@@ -829,7 +841,7 @@ class TrackingSource:
             if ramp is not None:
                 ref = _warped(ref, *ramp)
             if self._blend is not None or self._blend_pending:
-                ref = self._blended(ref, t_s, est)
+                ref = self._blended(ref, est)
         self._flown = ref
         if self.controller is not None and not self._engaged:
             # priming: PX4 is not applying our thrust commands yet
@@ -887,9 +899,9 @@ class TrackingSource:
                 if r_ahead is not None:
                     ahead = _warped(ahead, *r_ahead)
                 if self._blend is not None:
-                    ahead = self._blended(ahead, t_ahead, est)
+                    ahead = self._blended(ahead, est, ahead=True)
             elif self._blend is not None:
-                ahead = self._blended(self._reference_at(t_s + lead), t_s + lead, est)
+                ahead = self._blended(self._reference_at(t_s + lead), est, ahead=True)
             elif gov is not None and gov.rate != 1.0 and isinstance(gov, TimeScaler):
                 ahead = gov.scaled(self._reference_at(t_s + lead * gov.rate))
             else:

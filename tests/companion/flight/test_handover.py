@@ -110,16 +110,16 @@ def test_it_learns_nothing_from_a_vehicle_that_may_not_fly_its_commands() -> Non
 
 def test_the_flight_begins_where_the_vehicle_stopped_and_joins_the_plan_smoothly() -> None:
     """The vehicle ends the handover 0.3 m east of the reference's start (its estimate moved,
-    or PX4 let it drift): the reference starts there, joins the plan within BLEND_S, and its
-    velocity is its position's derivative all along (finite differences)."""
-    from companion.flight.tracking import BLEND_S
+    or PX4 let it drift): the reference starts there, joins the plan within BLEND_M of travel,
+    and its velocity is its position's derivative all along (finite differences)."""
+    from companion.flight.tracking import BLEND_M
 
     # (the vehicle here never moves: no slowing down for it, the reference runs on its time)
     src = TrackingSource(plan, "attitude", PARAMS, time_scaling=False)
     here = START + np.array([0.0, 0.3, 0.0])
     src(0.0, snap(T0, START, (0.0, 0.0, 0.0)))
     t, refs = 0.0, []
-    while t < HANDOVER_S + RAMP_S + BLEND_S + 0.5:
+    while t < HANDOVER_S + RAMP_S + 2.5:
         t += 0.01
         sp = src(t, snap(T0 + t, here, (0.0, 0.0, 0.0)))
         tr = src.reference_time_s
@@ -137,6 +137,6 @@ def test_the_flight_begins_where_the_vehicle_stopped_and_joins_the_plan_smoothly
     pos = np.array([r[2].pos_ned for r in refs])
     vel = np.array([r[2].vel_ned for r in refs])
     np.testing.assert_allclose(np.gradient(pos, ts, axis=0)[1:-1], vel[1:-1], atol=0.01)
-    done = [r for r in refs if r[1] >= BLEND_S]
+    done = [r for r in refs if np.linalg.norm(plan(r[1]).pos_ned - START) >= BLEND_M]
     assert done and all(np.linalg.norm(r.pos_ned - plan(tr).pos_ned) < 1e-9
                         for _t, tr, r, _sp in done)
