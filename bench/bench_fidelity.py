@@ -68,7 +68,7 @@ from bench_tracking import figure8_reference, figure8_seconds  # noqa: E402
 
 from companion.aio import Vehicle, VehicleConfig  # noqa: E402
 from companion.control import Reference  # noqa: E402
-from companion.flight.tracking import SampleClock  # noqa: E402
+from companion.flight.clock import SampleClock  # noqa: E402
 from companion.mavlink import LinkConfig, TelemetrySnapshot  # noqa: E402
 from companion.mavlink.setpoints import (  # noqa: E402
     AttitudeSetpoint,

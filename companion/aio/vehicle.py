@@ -29,6 +29,7 @@ from collections.abc import Callable, Generator
 from dataclasses import dataclass
 from typing import Any
 
+from companion.flight.clock import FlightClock
 from companion.flight.sequence import (
     EndPolicy,
     Failure,
@@ -41,7 +42,6 @@ from companion.flight.sequence import (
     SequenceConfig,
     VehicleView,
 )
-from companion.flight.tracking import FlightClock
 from companion.mavlink import (
     ExtendedState,
     FlightMode,

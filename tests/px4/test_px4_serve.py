@@ -104,10 +104,11 @@ async def test_px4_serve_flies_pauses_resumes_and_lands(px4: Px4Sitl, tmp_path: 
             resumed = [s for s in gcs.track[i_resume:] if s.mode == "OFFBOARD"]
             closest = min(dist_xy(s.pos_ned, WP2) for s in resumed)
             # resumed from where it held, on to wp 2 (along +y): never back toward wp 1. By
-            # the vehicle's velocity: EKF2's position estimate on SIH is corrected by up to
-            # 0.2-0.4 m within a second after the braking of a Hold while its velocity reads
-            # ~0 (the service's tlog at 50 Hz), which a position test would count as a
-            # flight back. The old join's swing back went at -0.85 m/s.
+            # the vehicle's velocity: EKF2's position estimate on SIH is corrected after the
+            # braking of a Hold (the service's tlog at 50 Hz: within 2 s of the resume its
+            # position moved 0.25, 0.38 and 2.2 m away from the integral of its own velocity,
+            # which read ~0), which a position test counts as a flight back (it saw 0.52 and
+            # 0.66 m "back" at under 0.3 m/s). The old join's swing back went at -0.85 m/s.
             # (until it arrives at wp 2, where it stops and may come back from an overshoot).
             # PX4's Hold may still be pulling back from its braking overshoot when the pilot
             # switches (0.5 m/s seen): the service must not add to what the vehicle had then
@@ -119,7 +120,7 @@ async def test_px4_serve_flies_pauses_resumes_and_lands(px4: Px4Sitl, tmp_path: 
             print(f"resume: {len(resumed)} samples, closest to wp 2 {closest:.2f} m, toward "
                   f"wp 1 at most {back_m_s:.2f} m/s (had {had_m_s:.2f}) and {back_m:.2f} m")
             assert len(resumed) > 20 and closest < 1.5
-            assert back_m_s < max(0.3, had_m_s + 0.1) and back_m < 0.4
+            assert back_m_s < max(0.3, had_m_s + 0.1)
             # the service's part: it hands over at the land point (its settle_m, 0.5 m), by
             # the position it requested LAND at. The ground station's first position in LAND
             # comes with the next 1 Hz HEARTBEAT, up to a second into PX4's LAND, which holds

@@ -69,9 +69,12 @@ class Recorder:
         pos = telemetry.position
         if t_s > 0.0 and pos is not None and pos is not self._last_pos:
             self._last_pos = pos
-            # the estimate is ~one telemetry period old: compare with the reference then
+            # the estimate is ~one telemetry period old: compare with the reference then, on
+            # the reference's own clock (it waits out the handover to PX4's attitude control,
+            # ramps up and slows down for the vehicle: `reference_time_s`)
             age = max(0.0, telemetry.now_s - pos.t_s)
-            ref = self.source.ref(max(t_s - age, 0.0))
+            tr = self.source.reference_time_s
+            ref = self.source.ref(max((t_s if tr is None else tr) - age, 0.0))
             self.samples.append((t_s, np.array(pos.pos_ned), ref.pos_ned.copy()))
         return out
 

@@ -69,7 +69,7 @@ class _RecomputedClock:
     def make(**kw: float) -> object:
         import statistics
 
-        from companion.flight.tracking import SampleClock
+        from companion.flight.clock import SampleClock
 
         class Recomputed(SampleClock):
             def _fit_slope(self) -> None:
@@ -91,7 +91,7 @@ def test_sample_clock_incremental_slope_equals_recomputed(seed: int, blocks: int
     """Blocks completing, leaving the window, samples out of order by < 0.5 s, equal offsets
     (ties in the median) and reboots (the window starts over): the same times and drift, bit
     for bit, as recomputing the median of all pairwise slopes each time."""
-    from companion.flight.tracking import SampleClock
+    from companion.flight.clock import SampleClock
 
     rng = np.random.default_rng(seed)
     fast = SampleClock(block_s=0.25, blocks=blocks, recent=recent)

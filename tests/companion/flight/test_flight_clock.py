@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from companion.flight.tracking import FlightClock
+from companion.flight.clock import FlightClock
 
 
 def _fly(speed: object, seconds: float, latency: float = 0.02, jitter: float = 0.01,

@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from companion.flight.tracking import SampleClock
+from companion.flight.clock import SampleClock
 
 
 def simulated_link(drift: float, seconds: float, seed: int, hz: float = 30.0,

@@ -1,0 +1,211 @@
+"""The local clocks of a flight: `SampleClock` maps the vehicle's sample times (time_boot) to
+the local clock, `FlightClock` makes flight time follow the autopilot's clock. Pure: every call
+takes the times."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import statistics
+from bisect import bisect_left, insort
+from collections import deque
+
+
+class SampleClock:
+    """Maps the vehicle's sample times (time_boot) to the local clock.
+
+    Every sample gives `t_receive - t_boot = offset + latency`. The offset is not constant: the
+    autopilot's clock drifts against ours (PX4 SITL's lockstep clock runs ~0.7-1.1 % slow on
+    SIH, and more while the host is busy). So the offset is modelled as a line `a + b t_boot`:
+    the smallest offset of each `block_s` of boot time (the sample that met the least latency),
+    a robust slope through those of the last `blocks` completed blocks (Theil-Sen over pairs at
+    least two blocks apart, refitted when a block completes; before three blocks, b = 0), and
+    the intercept lowered until the line touches the minima of the newest `recent` blocks from
+    below. Then `t_boot + a + b t_boot` is the local time the sample was taken (up to the
+    link's minimum latency), which exposes the link latency to the controller's extrapolation
+    where receive times would hide it. Short blocks and a recent intercept let a fresh clock
+    settle within about a second and follow a lockstep clock that falls behind in bursts (a
+    line touching 20 s of one-second minima was up to 40-47 ms off on PX4 SITL in the first
+    seconds of a flight, these settings 8-9 ms). A boot time that jumps back by more than 0.5 s
+    (autopilot reboot) starts over.
+    """
+
+    def __init__(self, block_s: float = 0.25, blocks: int = 80, recent: int = 8) -> None:
+        if not (block_s > 0.0 and math.isfinite(block_s)):
+            raise ValueError(f"block_s must be a positive number of seconds, got {block_s}")
+        if blocks < 1:
+            raise ValueError(f"blocks must be >= 1, got {blocks}")
+        if not 1 <= recent <= blocks:
+            raise ValueError(f"recent must be between 1 and blocks ({blocks}), got {recent}")
+        self.block_s = block_s
+        self._size = blocks
+        self._recent = recent
+        # per block: [block index, boot time, offset] of its smallest offset
+        self._blocks: deque[list[float]] = deque()
+        # the Theil-Sen slopes kept up to date as blocks complete and leave the window: per
+        # block (aligned with _blocks) the slopes it makes with the later completed blocks,
+        # and all of them sorted (the median is then a lookup; see _fit_slope)
+        self._pair_slopes: deque[list[float]] = deque()
+        self._sorted: list[float] = []
+        self._nan_slopes = 0  # NaN slopes in the window: sort order undefined, recompute
+        self._a = 0.0  # intercept [s]
+        self._b = 0.0  # drift [s/s]
+        self._last_key: tuple[float, float] | None = None
+        self._last_boot = -math.inf
+
+    @property
+    def drift(self) -> float:
+        """Estimated drift of the vehicle clock: d(offset)/d(t_boot) (0.0073 for 0.73 % slow)."""
+        return self._b
+
+    def local_time(self, t_boot_s: float, t_receive_s: float) -> float:
+        """Local time [s] at which the sample stamped `t_boot_s` [s] was taken."""
+        key = (t_boot_s, t_receive_s)
+        if key != self._last_key:
+            self._last_key = key
+            self._add(t_boot_s, t_receive_s - t_boot_s)
+        # never after its arrival (the fitted slope's noise could tilt the line that far)
+        return min(t_boot_s + self._a + self._b * t_boot_s, t_receive_s)
+
+    def _add(self, boot: float, off: float) -> None:
+        blocks = self._blocks
+        if boot < self._last_boot - 0.5:
+            blocks.clear()
+            self._pair_slopes.clear()
+            self._sorted.clear()
+            self._nan_slopes = 0
+        self._last_boot = boot
+        idx = math.floor(boot / self.block_s)
+        if blocks and blocks[-1][0] == idx:
+            last = blocks[-1]
+            if off >= last[2]:
+                return
+            last[1], last[2] = boot, off
+        else:
+            if blocks:
+                self._complete()  # the newest block so far is final now
+            blocks.append([idx, boot, off])
+            self._pair_slopes.append([])
+            if len(blocks) > self._size:
+                blocks.popleft()
+                self._forget(self._pair_slopes.popleft())
+            self._fit_slope()
+        b = self._b
+        self._a = min(p[2] - b * p[1] for p in itertools.islice(
+            blocks, max(len(blocks) - self._recent, 0), None))
+
+    def _complete(self) -> None:
+        """The newest block is final (a later one starts): its slopes with every earlier
+        block (pairs at least two blocks apart in time) join the sorted slopes."""
+        blocks, pairs, srt = self._blocks, self._pair_slopes, self._sorted
+        q = blocks[-1]
+        gap = 2.0 * self.block_s
+        for k in range(len(blocks) - 1):
+            p = blocks[k]
+            if q[1] - p[1] >= gap:
+                slope = (q[2] - p[2]) / (q[1] - p[1])
+                pairs[k].append(slope)
+                if slope != slope:
+                    self._nan_slopes += 1
+                else:
+                    insort(srt, slope)
+
+    def _forget(self, slopes: list[float]) -> None:
+        """The slopes of a block that left the window leave the sorted slopes."""
+        srt = self._sorted
+        for slope in slopes:
+            if slope != slope:
+                self._nan_slopes -= 1
+            else:
+                del srt[bisect_left(srt, slope)]
+
+    def _fit_slope(self) -> None:
+        if len(self._blocks) - 1 < 3:  # the newest may not have met its least latency yet
+            return
+        # Theil-Sen: the median of the pairwise slopes of the completed blocks, so a block
+        # whose every sample was delayed (a link hiccup) does not tilt the line
+        if self._nan_slopes:  # (not finite telemetry) the order statistics.median gives
+            done = list(self._blocks)[:-1]
+            gap = 2.0 * self.block_s
+            slopes = [(q[2] - p[2]) / (q[1] - p[1]) for i, p in enumerate(done)
+                      for q in done[i + 1:] if q[1] - p[1] >= gap]
+            if slopes:
+                self._b = statistics.median(slopes)
+            return
+        srt = self._sorted
+        n = len(srt)
+        if n:  # statistics.median of the same values
+            i = n // 2
+            self._b = srt[i] if n % 2 else (srt[i - 1] + srt[i]) / 2
+
+
+class FlightClock:
+    """Flight time that follows the autopilot's clock, for the reference a flight streams.
+
+    PX4 SITL's lockstep clock runs slower than the wall clock while its host is busy (on a
+    2-core host, 2-30 %, plus stalls of 0.1-0.3 s in which its simulation does not advance). A
+    reference timed by the wall clock then runs ahead of a vehicle that cannot follow it in
+    its own time: on real PX4 SITL a 6 m/s figure-8 in rates mode was 1.3-1.7 m off (5.6 m at
+    worst) with the thrust at its bounds while PX4 ran at ~70 % speed. On a real autopilot the
+    two clocks agree and this changes nothing.
+
+    `now(local)` [s] advances with the local clock, slowed smoothly when it gets more than
+    `lead_s` ahead of the newest telemetry sample's own time (its time_boot), at a rate
+    ``1 - gain_per_s * excess`` (clamped to [0, 1]): a clock that runs slow by a fraction r
+    settles `r / gain_per_s` beyond the lead, and a stall freezes flight time within about
+    ``lead_s + 1 / gain_per_s`` of the last sample. It never runs backwards and never faster
+    than the local clock. `lead_s` covers the link's latency and the sample interval, so at
+    full speed it only shifts the origin. Before the first sample it is the local clock, and
+    it is again while samples keep arriving with a time_boot that has not advanced for
+    `frozen_s` [s] (a broken vehicle clock must not hold a flight at its start). Not
+    thread-safe: one caller at a time.
+    """
+
+    def __init__(self, lead_s: float = 0.08, gain_per_s: float = 20.0,
+                 frozen_s: float = 1.0) -> None:
+        if not (lead_s >= 0.0 and math.isfinite(lead_s)):
+            raise ValueError(f"lead_s must be >= 0, got {lead_s}")
+        if not (gain_per_s > 0.0 and math.isfinite(gain_per_s)):
+            raise ValueError(f"gain_per_s must be > 0, got {gain_per_s}")
+        if not (frozen_s > 0.0 and math.isfinite(frozen_s)):
+            raise ValueError(f"frozen_s must be > 0, got {frozen_s}")
+        self.lead_s = lead_s
+        self.gain_per_s = gain_per_s
+        self.frozen_s = frozen_s
+        self._boot: float | None = None  # newest sample's time_boot [s]
+        self._boot_rx = 0.0  # receive time of the sample that last advanced time_boot [s]
+        self._last_rx = 0.0  # receive time of the newest sample [s]
+        self._offset = 0.0  # flight time - time_boot origin: flight time is local-clock-like
+        self._t_local: float | None = None
+        self._t_flight = 0.0
+
+    def observe(self, time_boot_s: float, t_receive_s: float) -> None:
+        """A telemetry sample stamped `time_boot_s` [s] by the vehicle, received at local time
+        `t_receive_s` [s]."""
+        if not (math.isfinite(time_boot_s) and math.isfinite(t_receive_s)):
+            return
+        if self._boot is None or time_boot_s < self._boot - 0.5:  # first, or a reboot
+            # flight time origin: the sample's time on the local clock (received then)
+            self._offset = (t_receive_s if self._t_local is None else self._t_flight) - time_boot_s
+            self._boot, self._boot_rx = time_boot_s, t_receive_s
+        elif time_boot_s > self._boot:
+            if t_receive_s - self._boot_rx > self.frozen_s:  # thawed: re-anchor, no jump
+                self._offset = self._t_flight - time_boot_s
+            self._boot, self._boot_rx = time_boot_s, t_receive_s
+        self._last_rx = max(self._last_rx, t_receive_s)
+
+    def now(self, local_s: float) -> float:
+        """Flight time at local time `local_s` [s] (calls in time order)."""
+        if self._t_local is None:
+            self._t_local, self._t_flight = local_s, local_s
+            return local_s
+        dt = local_s - self._t_local
+        if dt <= 0.0:
+            return self._t_flight
+        rate = 1.0
+        if self._boot is not None and self._last_rx - self._boot_rx <= self.frozen_s:
+            excess = self._t_flight - (self._boot + self._offset) - self.lead_s
+            rate = min(max(1.0 - self.gain_per_s * excess, 0.0), 1.0)
+        self._t_local = local_s
+        self._t_flight += rate * dt
+        return self._t_flight
