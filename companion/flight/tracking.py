@@ -93,6 +93,8 @@ RAMP_S = 0.3
 #: reference's start fading out over the first this many metres [m] the reference moves
 #: (`TrackingSource._blended`).
 BLEND_M = 2.0
+#: ... or over this long [s] of reference time, whichever ends first (a plan that hovers).
+BLEND_T_S = 4.0
 
 
 def estimate_from_telemetry(
@@ -338,9 +340,9 @@ class TrackingSource:
         self._handover_end: float | None = None  # local time the handover ends [s]
         self._hold_s = 0.0  # flight time [s] the reference stood still for the handover
         self._t_ref: float | None = None  # reference time [s] of the last call, when shifted
-        # after the handover: (offset [m] of the vehicle from the reference's start, that start
-        # [m]), see `_blended`
-        self._blend: tuple[np.ndarray, np.ndarray] | None = None
+        # after the handover: (horizontal offset [m] of the vehicle from the reference's start,
+        # that start [m], the reference time [s] then), see `_blended`
+        self._blend: tuple[np.ndarray, np.ndarray, float] | None = None
         self._blend_pending = False
         self._flown: Reference | None = None  # the reference the last call flew
         # the last estimate and the (immutable) telemetry values it was built from
@@ -560,41 +562,51 @@ class TrackingSource:
         ctl.learning = True
         return False
 
-    def _blended(self, ref: Reference, est: StateEstimate | None,
+    def _blended(self, ref: Reference, t_s: float, est: StateEstimate | None,
                  ahead: bool = False) -> Reference:
-        """`ref` moved by the vehicle's offset from the reference's start at the end of the
-        handover, the offset fading out with a quintic smoothstep of the distance the reference
-        has moved from its start (over BLEND_M; its velocity and acceleration added): the
-        flight begins where the vehicle stopped rather than pulling it back to where it stood
-        when the plan was made (EKF2's estimate moves by tenths of a metre in that time on
-        SIH), and fades as the plan moves, so the reference never runs backward for it (a
-        fade over time did: 0.5 m/s back toward the last waypoint, real PX4)."""
+        """`ref` (at reference time `t_s`) moved by the vehicle's horizontal offset from the
+        reference's start at the end of the handover, the offset fading out with a quintic
+        smoothstep of the distance the reference has moved from its start (over BLEND_M) and
+        of the time since (over BLEND_T_S), combined as u_d + u_t - u_d u_t (its velocity and
+        acceleration added): the flight begins where the vehicle stopped rather than pulling
+        it back to where it stood when the plan was made (EKF2's estimate moves by tenths of a
+        metre in that time on SIH), and fades mostly as the plan moves, so the reference does
+        not run backward for it (a fade over 2 s did: 0.5 m/s back toward the last waypoint,
+        real PX4); a plan that hovers still loses it. The height is not blended: the vehicle
+        may have sunk while PX4 was not flying the thrust (a wrong hover thrust)."""
         if self._blend is None:
             self._blend_pending = False
             if est is None:
                 return ref
             offset = est.pos_ned - ref.pos_ned
+            offset[2] = 0.0
             if not np.all(np.isfinite(offset)) or float(np.linalg.norm(offset)) < 1e-3:
                 return ref
-            self._blend = (offset, ref.pos_ned.copy())
-        offset, p0 = self._blend
+            self._blend = (offset, ref.pos_ned.copy(), t_s)
+        offset, p0, t0 = self._blend
         D = BLEND_M
         dp = ref.pos_ned - p0
         r = float(np.linalg.norm(dp))
-        if r >= D:  # faded out: done (a path back past its start must not get it again)
-            if not ahead:  # (the lead feed-forward's reference gets there first)
+        u_t = (t_s - t0) / BLEND_T_S
+        if r >= D or u_t >= 1.0:  # faded out: done (a path back past its start must not get
+            if not ahead:  # it again; the lead feed-forward's reference gets there first)
                 self._blend = None
             return ref
-        if r < 1e-9:
-            return replace(ref, pos_ned=ref.pos_ned + offset)
-        u = r / D
+        v, a = ref.vel_ned, ref.acc_ned
+        # u = a smooth "either": u_d + u_t - u_d u_t of distance and time (>= both, 1 at either)
+        u_d = r / D
+        if r > 1e-9:
+            dr = float(dp @ v) / r  # d|dp|/dt
+            du_d, ddu_d = dr / D, (float(dp @ a) + float(v @ v) - dr * dr) / (r * D)
+        else:
+            du_d = ddu_d = 0.0
+        u_t, du_t = max(u_t, 0.0), 1.0 / BLEND_T_S
+        u = u_d + u_t - u_d * u_t
+        du = du_d * (1.0 - u_t) + du_t * (1.0 - u_d)
+        ddu = ddu_d * (1.0 - u_t) - 2.0 * du_d * du_t
         w = 1.0 - u**3 * (10.0 - 15.0 * u + 6.0 * u * u)
         w1 = -30.0 * u * u * (1.0 - u) ** 2  # dw/du
         w2 = -60.0 * u * (1.0 - u) * (1.0 - 2.0 * u)  # d2w/du2
-        v, a = ref.vel_ned, ref.acc_ned
-        dr = float(dp @ v) / r  # d|dp|/dt
-        ddr = (float(dp @ a) + float(v @ v) - dr * dr) / r
-        du, ddu = dr / D, ddr / D
         return replace(ref, pos_ned=ref.pos_ned + w * offset,
                        vel_ned=v + (w1 * du) * offset,
                        acc_ned=a + (w2 * du * du + w1 * ddu) * offset)
@@ -640,7 +652,7 @@ class TrackingSource:
             if ramp is not None:
                 ref = _warped(ref, *ramp)
             if self._blend is not None or self._blend_pending:
-                ref = self._blended(ref, est)
+                ref = self._blended(ref, t_s, est)
         self._flown = ref
         if self.controller is not None and not self._engaged:
             # priming: PX4 is not applying our thrust commands yet
@@ -698,9 +710,10 @@ class TrackingSource:
                 if r_ahead is not None:
                     ahead = _warped(ahead, *r_ahead)
                 if self._blend is not None:
-                    ahead = self._blended(ahead, est, ahead=True)
+                    ahead = self._blended(ahead, t_ahead, est, ahead=True)
             elif self._blend is not None:
-                ahead = self._blended(self._reference_at(t_s + lead), est, ahead=True)
+                ahead = self._blended(self._reference_at(t_s + lead), t_s + lead, est,
+                                      ahead=True)
             elif gov is not None and gov.rate != 1.0 and isinstance(gov, TimeScaler):
                 ahead = gov.scaled(self._reference_at(t_s + lead * gov.rate))
             else:
