@@ -144,12 +144,17 @@ class TimeScaler(ProgressGovernor):
     def scaled(self, ref: Reference) -> Reference:
         """`ref` flown at the current rate s: derivatives of order k times s^k (the rate's own
         change neglected: it moves on QUAD_RATE_TAU_S)."""
-        s = self.rate
-        if s == 1.0:
-            return ref
-        s2 = s * s
-        return Reference(ref.pos_ned, ref.vel_ned * s, ref.acc_ned * s2, ref.jerk_ned * (s2 * s),
-                         ref.snap_ned * (s2 * s2), ref.yaw, ref.yaw_rate * s, ref.yaw_acc * s2)
+        return ref if self.rate == 1.0 else warped(ref, self.rate, 0.0)
+
+
+def warped(ref: Reference, rate: float, d_rate: float) -> Reference:
+    """`ref` flown on a clock running at `rate` (changing at `d_rate` [1/s]): velocity times
+    the rate, acceleration times its square plus velocity times its change (the chain rule;
+    jerk and snap by the rate's powers alone)."""
+    s, s2 = rate, rate * rate
+    return Reference(ref.pos_ned, ref.vel_ned * s, ref.acc_ned * s2 + ref.vel_ned * d_rate,
+                     ref.jerk_ned * (s2 * s), ref.snap_ned * (s2 * s2), ref.yaw,
+                     ref.yaw_rate * s, ref.yaw_acc * s2 + ref.yaw_rate * d_rate)
 
 
 def feasible_rate(refs: list[Reference], d_ne: tuple[float, float], drag_per_kg: float,

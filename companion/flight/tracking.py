@@ -36,6 +36,7 @@ from companion.flight.governor import (
     ProgressGovernor,
     TimeScaler,
     feasible_rate,
+    warped,
 )
 from companion.flight.report import FlightEstimates, SetpointLimits, SetpointQuality
 from companion.mavlink.setpoints import (
@@ -254,16 +255,6 @@ def _ramp(t_s: float) -> tuple[float, tuple[float, float] | None]:
         return t_s - 0.5 * T, None
     u = max(t_s / T, 0.0)
     return T * (u**3 - 0.5 * u**4), (3.0 * u * u - 2.0 * u**3, 6.0 * u * (1.0 - u) / T)
-
-
-def _warped(ref: Reference, rate: float, d_rate: float) -> Reference:
-    """`ref` flown on a clock running at `rate` (changing at `d_rate` [1/s]): velocity times
-    the rate, acceleration times its square plus velocity times its change (the chain rule;
-    jerk and snap by the rate's powers alone)."""
-    s, s2 = rate, rate * rate
-    return Reference(ref.pos_ned, ref.vel_ned * s, ref.acc_ned * s2 + ref.vel_ned * d_rate,
-                     ref.jerk_ned * (s2 * s), ref.snap_ned * (s2 * s2), ref.yaw,
-                     ref.yaw_rate * s, ref.yaw_acc * s2 + ref.yaw_rate * d_rate)
 
 
 class TrackingSource:
@@ -650,7 +641,7 @@ class TrackingSource:
             if gov is not None and gov.rate != 1.0 and isinstance(gov, TimeScaler):
                 ref = gov.scaled(ref)
             if ramp is not None:
-                ref = _warped(ref, *ramp)
+                ref = warped(ref, *ramp)
             if self._blend is not None or self._blend_pending:
                 ref = self._blended(ref, t_s, est)
         self._flown = ref
@@ -708,7 +699,7 @@ class TrackingSource:
                 t_ahead, r_ahead = _ramp(t_flown + lead)
                 ahead = self._reference_at(t_ahead)
                 if r_ahead is not None:
-                    ahead = _warped(ahead, *r_ahead)
+                    ahead = warped(ahead, *r_ahead)
                 if self._blend is not None:
                     ahead = self._blended(ahead, t_ahead, est, ahead=True)
             elif self._blend is not None:
