@@ -19,20 +19,23 @@ the RC or the ground station. It:
 
 ``ServeService.update(obs)`` takes one :class:`Observation` (all times are the caller's
 monotonic seconds; nothing here reads a clock or does I/O) and returns actions
-(:class:`DownloadMission`, :class:`RequestMode`, :class:`Announce`, :class:`LogEvent`);
+(:class:`DownloadMission`, :class:`RequestMode`, :class:`Announce`, :class:`LogEvent`,
+:class:`PlanJoin`);
 ``ServeService.stream`` is what the fixed-rate sender should send right now (a
 :class:`HoldStream`, a :class:`MissionStream` or None), swapped atomically so a sender thread can
 read it. Mission planning is slow (up to a second) and done by the caller: :func:`plan_program`
-turns downloaded items into a :class:`MissionProgram`, ``on_planned`` hands it back.
+(companion.serve.program) turns downloaded items into a :class:`MissionProgram`,
+``on_planned`` hands it back. So is the
+join at each OFFBOARD entry (0.1-0.3 s) with ``defer_join``: ``plan_join`` then ``on_joined``.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -52,25 +55,16 @@ from companion.flight.sequence import (
     VehicleView,
 )
 from companion.flight.tracking import SetpointMode, TrackingSource
-from companion.mavlink.mission_client import WireMissionItem
 from companion.mavlink.px4_mode import FlightMode
 from companion.mavlink.setpoints import PositionSetpoint, SetpointCommand
 from companion.mavlink.telemetry import HomePosition, LocalPosition, MissionCurrent
-from companion.mission import (
-    GeoPoint,
-    geofence_from_wire,
-    mission_from_wire,
-    mission_to_flight_plan,
-)
 from companion.mission.px4_params import Px4PlanningParams
-from companion.planning.fence_check import require_plan_inside
 from companion.planning.schedule import (
-    Schedule,
     VehicleLimits,
-    build_schedule,
     trajectory_reference,
 )
 from companion.planning.wind import WindCheck, check_wind
+from companion.serve.program import MissionProgram
 from companion.trajectory import Limits, check, plan
 
 FloatArray = NDArray[np.float64]
@@ -169,7 +163,21 @@ class LogEvent:
     fields: dict[str, Any]
 
 
-Action = DownloadMission | RequestMode | Announce | LogEvent
+@dataclass(frozen=True)
+class PlanJoin:
+    """Plan the joining trajectory (``ServeService.plan_join``: 0.1-0.3 s, so off the caller's
+    event loop), then call ``on_joined`` with ``token`` and its result. The hold stream goes on
+    meanwhile; a result that arrives after the vehicle left OFFBOARD or the mission changed is
+    discarded."""
+
+    token: int
+    program: MissionProgram
+    obs: Observation  # where the vehicle was when OFFBOARD began
+    reached: int  # waypoints reached so far
+    t_progress: float  # schedule time flown so far [s]
+
+
+Action = DownloadMission | RequestMode | Announce | LogEvent | PlanJoin
 
 
 @dataclass(frozen=True)
@@ -207,123 +215,6 @@ class MissionStream:
 Stream = HoldStream | MissionStream
 
 
-# -- a planned mission -------------------------------------------------------------------------
-class MissionProgram:
-    """A planned mission placed in the vehicle's local NED frame.
-
-    ``schedule`` is relative to the mission home; ``origin_ned`` [m] is where that home is in
-    PX4's local frame (HOME_POSITION x, y, z). The flown part runs from the end of the takeoff
-    climb (``t_begin``) to ``t_end``: the start of a trailing land/RTL (PX4 flies those itself,
-    as the final action) or the schedule's end.
-    """
-
-    def __init__(self, schedule: Schedule, origin_ned: Sequence[float], key: tuple[int, int],
-                 sample_dt_s: float = 0.02) -> None:
-        self.schedule = schedule
-        self.origin = np.asarray(origin_ned, dtype=np.float64).reshape(3)
-        self.key = key
-        self.final_action = schedule.final_action
-        pieces = schedule.pieces
-        t_begin = 0.0
-        for p in pieces:
-            if p.phase != "takeoff":
-                break
-            t_begin = p.t0_s + p.duration_s
-        t_end = schedule.duration_s
-        if self.final_action in ("land", "rtl"):
-            for p in reversed(pieces):
-                if p.phase not in ("land", "rtl"):
-                    break
-                t_end = p.t0_s
-        self.t_begin, self.t_end = t_begin, max(t_end, t_begin)
-        n = max(2, math.ceil(schedule.duration_s / sample_dt_s) + 1)
-        self.t_samples = np.linspace(0.0, schedule.duration_s, n)
-        self.p_samples = schedule.sample(self.t_samples) + self.origin
-        # when the plan passes each waypoint, in order; only those before t_end are flown
-        times, wps, acc = [], [], []
-        t_prev = 0.0
-        for w, a in zip(schedule.waypoints_ned, schedule.acceptance_m, strict=True):
-            sel = self.t_samples >= t_prev
-            d = np.linalg.norm(self.p_samples[sel] - (w + self.origin), axis=1)
-            t_w = float(self.t_samples[sel][int(np.argmin(d))])
-            if t_w > self.t_end + sample_dt_s:
-                break
-            times.append(t_w)
-            wps.append(w + self.origin)
-            acc.append(float(a))
-            t_prev = t_w
-        self.wp_times = np.asarray(times, dtype=np.float64)
-        self.waypoints = np.asarray(wps, dtype=np.float64).reshape(-1, 3)
-        self.acceptance = np.asarray(acc, dtype=np.float64)
-
-    @property
-    def planned_s(self) -> float:
-        """Duration of the flown part [s]."""
-        return self.t_end - self.t_begin
-
-    def reference(self, t: float) -> Reference:
-        """Reference at schedule time ``t`` in the local frame."""
-        return self.schedule.reference(t, self.origin)
-
-    def join_time(self, pos_ned: Sequence[float] | FloatArray, reached: int,
-                  t_min: float) -> float:
-        """Schedule time of the point nearest to ``pos_ned`` on the part of the plan leading to
-        the first waypoint not yet reached (index ``reached``), not before ``t_min``."""
-        k = reached
-        t_lo = self.t_begin if k == 0 else float(self.wp_times[k - 1])
-        t_hi = float(self.wp_times[k]) if k < len(self.wp_times) else self.t_end
-        t_lo = min(max(t_lo, t_min, self.t_begin), self.t_end)
-        t_hi = min(max(t_hi, t_lo), self.t_end)
-        sel = (self.t_samples >= t_lo) & (self.t_samples <= t_hi)
-        if not sel.any():
-            return t_lo
-        d = np.linalg.norm(self.p_samples[sel] - np.asarray(pos_ned, dtype=np.float64), axis=1)
-        return float(self.t_samples[sel][int(np.argmin(d))])
-
-    def lead_in(self, pos_ned: Sequence[float] | FloatArray, t_from: float,
-                acc_m_s2: float) -> float:
-        """The first schedule time >= ``t_from`` whose point is at least ``v^2 / (2 acc)``
-        (v the plan's speed there) plus 0.5 m from ``pos_ned``, so a vehicle near rest can
-        reach the plan's speed on the way (``t_end`` if none)."""
-        here = np.asarray(pos_ned, dtype=np.float64)
-        sel = (self.t_samples >= t_from) & (self.t_samples <= self.t_end)
-        ts = self.t_samples[sel]
-        if len(ts) < 2:
-            return min(max(t_from, self.t_begin), self.t_end)
-        ps = self.p_samples[sel]
-        speed = np.linalg.norm(np.gradient(ps, ts, axis=0), axis=1)
-        need = speed**2 / (2.0 * max(acc_m_s2, 0.1)) + 0.5
-        ok = np.linalg.norm(ps - here, axis=1) >= need
-        if speed[0] < 0.2 and not ok[0]:
-            return float(ts[0])  # the plan is (nearly) at rest here: join in place
-        idx = np.flatnonzero(ok)
-        return float(ts[idx[0]]) if len(idx) else self.t_end
-
-
-def plan_program(items: Sequence[WireMissionItem], home: HomePosition, key: tuple[int, int],
-                 config: ServiceConfig, vehicle: Literal["quad", "rover"] = "quad",
-                 fence_items: Sequence[WireMissionItem] = ()) -> MissionProgram:
-    """Plan downloaded mission items (CPU-bound; ValueError/MissionError with the reason). A
-    plan whose trajectory breaches the vehicle's geofence (``fence_items``) is refused
-    (MissionError naming the leg's mission items), and so is a rover's (the service streams a
-    multicopter's setpoints: a rover would have been sent attitude setpoints)."""
-    if not items:
-        raise ValueError("the vehicle has no mission")
-    if vehicle == "rover":
-        # the service's joins and setpoints are a multicopter's (attitude/rates/position); a
-        # rover's mission is driven by `fly`, whose reference waits for it
-        raise ValueError("serve flies multicopters; drive a rover's mission with "
-                         "`python -m companion fly`")
-    home_pt = GeoPoint(home.lat_deg, home.lon_deg, home.alt_amsl_m)
-    mission = mission_from_wire(items, home_pt)
-    fp = mission_to_flight_plan(mission, vehicle=vehicle, px4=config.px4)
-    schedule = build_schedule(fp, config.params, config.limits)  # (a rover was refused above)
-    if fence_items:
-        fence = geofence_from_wire(fence_items, home_pt)
-        require_plan_inside(dataclasses.replace(fp, geofence=fence), schedule)
-    return MissionProgram(schedule, home.pos_ned, key)
-
-
 def _yaw_of(ref: Reference) -> float:
     return float(ref.yaw)
 
@@ -331,9 +222,15 @@ def _yaw_of(ref: Reference) -> float:
 class ServeService:
     """The service's state machine (see the module doc)."""
 
-    def __init__(self, config: ServiceConfig | None = None) -> None:
+    def __init__(self, config: ServiceConfig | None = None, defer_join: bool = False) -> None:
+        """``defer_join``: return a :class:`PlanJoin` action for the caller to plan off its
+        event loop (the runner); otherwise the join is planned inside ``update``."""
         self.config = config or ServiceConfig()
-        self.state = "idle"  # idle | hold | offboard_hold | mission | finishing
+        self.defer_join = defer_join
+        self.state = "idle"  # idle | hold | offboard_hold | joining | mission | finishing
+        self._joining: int | None = None  # the token of the join being planned
+        self._join_token = 0
+        self._obs: Observation | None = None  # the latest observation
         self.stream: Stream | None = None
         self.program: MissionProgram | None = None
         self.plan_error: str | None = None
@@ -355,6 +252,7 @@ class ServeService:
     # -- inputs ------------------------------------------------------------------------------
     def update(self, obs: Observation) -> list[Action]:
         """Advance on a new observation; returns the actions to perform."""
+        self._obs = obs
         out: list[Action] = []
         if obs.link_ok != self._link_ok:
             self._link_ok = obs.link_ok
@@ -429,7 +327,7 @@ class ServeService:
         if self._downloading == key:
             self._downloading = None
         out: list[Action] = []
-        if self.state == "mission":  # never fly on with a replaced plan
+        if self.state in ("mission", "joining"):  # never fly on with a replaced plan
             ms = self.stream
             hold = None
             if isinstance(ms, MissionStream):  # hold where the reference is now
@@ -560,7 +458,6 @@ class ServeService:
 
     def _enter_offboard(self, obs: Observation, fresh: bool) -> list[Action]:
         prog = self.program
-        out: list[Action] = []
         if isinstance(self.stream, HoldStream):
             pass  # keep holding where OFFBOARD began while we decide
         elif (sp := self._hold_here(obs)) is not None:
@@ -582,23 +479,45 @@ class ServeService:
             return [Announce(f"ecca: holding in OFFBOARD ({why})"),
                     LogEvent("state", {"state": "offboard_hold", "why": why})]
         assert prog is not None and obs.position is not None
+        self._join_token += 1
+        req = PlanJoin(self._join_token, prog, obs, self.reached, self.t_progress)
+        self._joining, self.state = req.token, "joining"
+        if self.defer_join:
+            return [req]
+        return self.on_joined(req.token, self.plan_join(req), obs.now_s)
+
+    def plan_join(self, req: PlanJoin) -> MissionStream | str:
+        """The mission stream joining ``req.program`` from ``req.obs``, or why there is none.
+        Reads only the configuration and ``req``: safe to call from a worker thread."""
         try:
-            stream = self._join(prog, obs)
+            return self._join(req.program, req.obs, req.reached, req.t_progress)
         except ValueError as exc:
+            return str(exc)
+
+    def on_joined(self, token: int, result: MissionStream | str, now_s: float) -> list[Action]:
+        """The join ``token`` was planned (``plan_join``'s result): fly it from ``now_s`` [s],
+        unless the vehicle left OFFBOARD or the mission changed meanwhile."""
+        prog, obs = self.program, self._obs
+        if token != self._joining or self.state != "joining" or prog is None or obs is None:
+            return [LogEvent("join_discarded", {"why": "left OFFBOARD or the mission changed "
+                                                       "while the join was planned"})]
+        self._joining = None
+        if isinstance(result, str):
             self.state = "offboard_hold"
-            return [Announce(f"ecca: holding, cannot join the mission: {exc}",
+            return [Announce(f"ecca: holding, cannot join the mission: {result}",
                              MAV_SEVERITY_WARNING),
-                    LogEvent("join_failed", {"why": str(exc)})]
+                    LogEvent("join_failed", {"why": result})]
+        stream = dataclasses.replace(result, t0_s=now_s)
         self.stream = stream
         self.state = "mission"
-        self._seq = self._sequence(prog, stream, obs)
-        out += [Announce(f"ecca: flying mission from {self._progress_text()}"),
+        self._seq = self._sequence(prog, stream, dataclasses.replace(obs, now_s=now_s))
+        return [Announce(f"ecca: flying mission from {self._progress_text()}"),
                 LogEvent("state", {"state": "mission", "t_join": round(stream.t_join, 3),
                                    "join_s": round(stream.join_s, 3),
                                    "reached": self.reached})]
-        return out
 
-    def _join(self, prog: MissionProgram, obs: Observation) -> MissionStream:
+    def _join(self, prog: MissionProgram, obs: Observation, reached: int, t_progress: float
+              ) -> MissionStream:
         assert obs.position is not None
         cfg = self.config
         here = np.asarray(obs.position.pos_ned, dtype=np.float64)
@@ -609,7 +528,7 @@ class ServeService:
             # (planned from a Hold's pull-back at -0.15 m/s, the join led a stopped vehicle
             # back toward wp 1 at up to 0.5 m/s on real PX4)
             vel = np.zeros(3)
-        t_near = prog.join_time(here, self.reached, max(self.t_progress, prog.t_begin))
+        t_near = prog.join_time(here, reached, max(t_progress, prog.t_begin))
         yaw_here = obs.yaw
         # join ahead of the nearest point, far enough to reach the plan's speed there without
         # backing up (distance >= v^2 / (2 a)); farther ahead if the join cannot be planned
@@ -622,8 +541,8 @@ class ServeService:
         last: Exception | None = None
         t_cands = [prog.lead_in(here, t_near, frac * cfg.limits.max_acc_m_s2)
                    for frac in (0.5, 0.25, 0.125)]
-        if self.reached < len(prog.wp_times):  # and the next waypoint itself
-            t_cands.append(max(float(prog.wp_times[self.reached]), t_near))
+        if reached < len(prog.wp_times):  # and the next waypoint itself
+            t_cands.append(max(float(prog.wp_times[reached]), t_near))
         for t_cand in sorted(set(t_cands)):
             for with_acc in (True, False):
                 try:

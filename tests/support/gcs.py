@@ -44,6 +44,14 @@ class Sample:
     vel_ned: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
+@dataclass(frozen=True)
+class Truth:
+    """One HIL_STATE_QUATERNION (PX4 SITL's ground truth, sent when requested)."""
+
+    t: float  # receive time, monotonic [s] (PX4 leaves time_usec 0)
+    vel_ned: tuple[float, float, float]  # [m/s]
+
+
 @dataclass
 class Gcs(asyncio.DatagramProtocol):
     """See the module doc. ``track`` holds one Sample per LOCAL_POSITION_NED."""
@@ -58,6 +66,7 @@ class Gcs(asyncio.DatagramProtocol):
     attitude: Any = None  # the latest ATTITUDE (roll, pitch, yaw [rad])
     texts: list[tuple[float, str]] = field(default_factory=list)
     track: list[Sample] = field(default_factory=list)
+    truth: list[Truth] = field(default_factory=list)  # HIL_STATE_QUATERNION, once requested
     acks: list[Any] = field(default_factory=list)
     mission_msgs: list[Any] = field(default_factory=list)
     changed: asyncio.Event = field(default_factory=asyncio.Event)
@@ -87,6 +96,8 @@ class Gcs(asyncio.DatagramProtocol):
                                          (m.vx, m.vy, m.vz)))
             elif kind == "ATTITUDE":
                 self.attitude = m
+            elif kind == "HIL_STATE_QUATERNION":  # velocities in cm/s
+                self.truth.append(Truth(now, (m.vx / 100.0, m.vy / 100.0, m.vz / 100.0)))
             elif kind == "COMMAND_ACK":
                 self.acks.append(m)
             elif kind.startswith("MISSION_") and kind not in ("MISSION_CURRENT",

@@ -30,7 +30,8 @@ from companion.planning.fence_check import (
 )
 from companion.planning.schedule import Schedule, build_schedule
 from companion.replay.runner import DEFAULT_QUAD
-from companion.serve.service import ServeService, ServiceConfig, plan_program
+from companion.serve.program import plan_program
+from companion.serve.service import ServeService, ServiceConfig
 from tests.support.fence_plans import HOME, box, latlon, write_plan
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "examples" / "missions"

@@ -16,17 +16,19 @@ from companion.mavlink.telemetry import HomePosition, LocalPosition, MissionCurr
 from companion.mission import load_mission, mission_to_flight_plan, mission_upload_items
 from companion.planning.config import VehicleFile
 from companion.planning.schedule import build_schedule
+from companion.serve.program import plan_program
 from companion.serve.runner import RotatingTlog
 from companion.serve.service import (
     Announce,
     DownloadMission,
     HoldStream,
+    LogEvent,
     MissionStream,
     Observation,
+    PlanJoin,
     RequestMode,
     ServeService,
     ServiceConfig,
-    plan_program,
 )
 
 MISSIONS = Path(__file__).resolve().parents[2] / "data" / "missions"
@@ -153,6 +155,75 @@ def test_offboard_flies_the_plan_and_leaving_it_holds_in_the_same_update(
     assert isinstance(svc.stream, HoldStream)
     assert svc.stream.setpoint.pos_ned == (3.0, 0.0, -4.0)
     assert any(isinstance(a, Announce) and "paused" in a.text for a in acts)
+
+
+def test_a_deferred_join_holds_until_planned_and_flies_the_same_join_from_then(
+        program_and_key: tuple[object, tuple[int, int]]) -> None:
+    """The runner plans the join off its event loop (defer_join): entering OFFBOARD only asks for
+    it and keeps holding; the result flies from the time it arrives, the same join as planned
+    in place (position and velocity at equal flight times)."""
+    prog, key = program_and_key
+    p0 = (8.0, -1.0, -4.0)  # beside the first leg: a real join
+    now = ServeService()
+    now.on_planned(key, prog, 0.0)  # type: ignore[arg-type]
+    now.update(obs(0.0, pos=p0))
+    now.update(obs(0.05, mode=FlightMode.OFFBOARD, pos=p0))
+    assert isinstance(now.stream, MissionStream) and now.stream.join_s > 0.0
+    svc = ServeService(defer_join=True)
+    svc.on_planned(key, prog, 0.0)  # type: ignore[arg-type]
+    svc.update(obs(0.0, pos=p0))
+    acts = svc.update(obs(0.05, mode=FlightMode.OFFBOARD, pos=p0))
+    reqs = [a for a in acts if isinstance(a, PlanJoin)]
+    assert len(reqs) == 1 and svc.state == "joining"
+    assert isinstance(svc.stream, HoldStream) and svc.stream.setpoint.pos_ned == p0
+    # further observations while it is planned: still holding, not asked twice
+    acts = svc.update(obs(0.1, mode=FlightMode.OFFBOARD, pos=p0))
+    assert not [a for a in acts if isinstance(a, PlanJoin)]
+    assert isinstance(svc.stream, HoldStream)
+    result = svc.plan_join(reqs[0])
+    acts = svc.on_joined(reqs[0].token, result, 0.35)
+    assert svc.state == "mission" and isinstance(svc.stream, MissionStream)
+    assert svc.stream.t0_s == 0.35
+    assert any(isinstance(a, Announce) and "flying mission" in a.text for a in acts)
+    for t in (0.0, 0.5, 1.0, now.stream.join_s + 1.0):
+        a, b = now.stream.source.reference(t), svc.stream.source.reference(t)
+        assert np.allclose(a.pos_ned, b.pos_ned) and np.allclose(a.vel_ned, b.vel_ned)
+
+
+def test_a_join_planned_after_the_pilot_left_offboard_or_the_mission_changed_is_discarded(
+        program_and_key: tuple[object, tuple[int, int]]) -> None:
+    prog, key = program_and_key
+    p0 = (8.0, -1.0, -4.0)
+    svc = ServeService(defer_join=True)
+    svc.on_planned(key, prog, 0.0)  # type: ignore[arg-type]
+    svc.update(obs(0.0, pos=p0))
+    first = next(a for a in svc.update(obs(0.05, mode=FlightMode.OFFBOARD, pos=p0))
+             if isinstance(a, PlanJoin))
+    svc.update(obs(0.1, mode=FlightMode.HOLD, pos=(8.5, -1.0, -4.0)))  # the pilot takes over
+    acts = svc.on_joined(first.token, svc.plan_join(first), 0.3)
+    assert any(isinstance(a, LogEvent) and a.event == "join_discarded" for a in acts)
+    assert svc.state == "hold" and isinstance(svc.stream, HoldStream)
+    assert svc.stream.setpoint.pos_ned == (8.5, -1.0, -4.0)
+    # back in OFFBOARD: a new request; the old result, arriving late, is discarded too
+    second = next(a for a in svc.update(obs(0.4, mode=FlightMode.OFFBOARD, pos=p0))
+              if isinstance(a, PlanJoin))
+    assert second.token != first.token
+    svc.on_joined(first.token, svc.plan_join(first), 0.5)
+    assert svc.state == "joining" and isinstance(svc.stream, HoldStream)
+    # the mission changes while the join is planned: hold, and the join is never flown
+    acts = svc.on_planned((999, 3), prog, 0.55)  # type: ignore[arg-type]
+    assert svc.state == "offboard_hold"
+    assert any(isinstance(a, Announce) and "changed in flight" in a.text for a in acts)
+    acts = svc.on_joined(second.token, svc.plan_join(second), 0.6)
+    assert any(isinstance(a, LogEvent) and a.event == "join_discarded" for a in acts)
+    assert isinstance(svc.stream, HoldStream) and svc.state == "offboard_hold"
+    # a join that cannot be planned holds with its reason
+    svc.update(obs(0.7, mode=FlightMode.HOLD, pos=p0))
+    third = next(a for a in svc.update(obs(0.8, mode=FlightMode.OFFBOARD, pos=p0))
+             if isinstance(a, PlanJoin))
+    acts = svc.on_joined(third.token, "no joining trajectory", 0.9)
+    assert svc.state == "offboard_hold" and isinstance(svc.stream, HoldStream)
+    assert any(isinstance(a, Announce) and "cannot join" in a.text for a in acts)
 
 
 def test_end_of_plan_requests_the_final_action_while_streaming(
