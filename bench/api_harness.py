@@ -105,15 +105,23 @@ def launch(kind: str, log_dir: Path, *, mock_args: tuple[str, ...] = (),
 
 
 class ReferenceRecorder:
-    """A setpoint source wrapper that remembers when reference time 0 was (Unix seconds)."""
+    """A setpoint source wrapper that remembers when reference time 0 was (Unix seconds), and
+    the flight time it was given at each call (`clock`: Unix seconds, flight time [s]). The
+    flight's clock follows the autopilot's (`companion.flight.clock.FlightClock`): PX4 SITL's
+    runs ~1.2 % slower than the wall clock on this host, so a reference timed by the wall clock
+    drifts ~0.7 s behind the flown one over a 60 s figure-8."""
 
     def __init__(self, source: Callable[[float, TelemetrySnapshot], Any]) -> None:
         self.source = source
         self.t0_unix: float | None = None
+        self.clock: list[tuple[float, float]] = []
 
     def __call__(self, t_s: float, telemetry: TelemetrySnapshot) -> Any:
+        unix = time.time() - (time.monotonic() - telemetry.now_s)
         if self.t0_unix is None and t_s > 0.0:
-            self.t0_unix = time.time() - (time.monotonic() - telemetry.now_s) - t_s
+            self.t0_unix = unix - t_s
+        if t_s > 0.0:
+            self.clock.append((unix, t_s))
         return self.source(t_s, telemetry)
 
 
@@ -197,7 +205,8 @@ async def fly_on(v: Vehicle, mode: str, reference: Callable[[float], Reference],
     await v.fly(mode=mode, setpoint_source=rec, duration_s=duration_s)
     assert rec.t0_unix is not None
     return Flight(Path(v.config.tlog_path or ""), rec.t0_unix, duration_s, ref,
-                  np.array(ref(0.0).pos_ned), {"source": rec.source})
+                  np.array(ref(0.0).pos_ned), {"source": rec.source,
+                                               "clock": np.array(rec.clock).reshape(-1, 2)})
 
 
 async def fly_reference(
@@ -305,11 +314,21 @@ def read_flight_tlog(path: Path, target_system: int, keep: tuple[str, ...] = ())
 
 def horizontal_errors(t_unix: FloatArray, pos: FloatArray, flight: Flight,
                       select: Callable[[float], bool]) -> FloatArray:
-    """|pos - reference| horizontally [m] at the samples whose reference time passes `select`."""
+    """|pos - reference| horizontally [m] at the samples whose reference time passes `select`.
+    Reference time is the plan's clock of the flight: the flight time the source was given at
+    that moment (`ReferenceRecorder.clock`; else the time since the first setpoint) less its
+    handover delay (`TrackingSource.start_delay_s`, about 0.75 s in attitude and rates mode),
+    not less any slowing down for the vehicle (reported apart, as slowed_s)."""
+    delay = float(getattr(flight.notes.get("source"), "start_delay_s", 0.0))
+    clock = flight.notes.get("clock")
+    flown = (np.interp(np.asarray(t_unix, dtype=float), clock[:, 0], clock[:, 1],
+                       left=math.nan, right=math.nan)  # only while it flew
+             if clock is not None and len(clock) > 1
+             else np.asarray(t_unix, dtype=float) - flight.t0_unix)
     out = []
-    for t, p in zip(t_unix, pos, strict=True):
-        tr = float(t) - flight.t0_unix
-        if 0.0 <= tr <= flight.duration_s and select(tr):
+    for t, p in zip(flown, pos, strict=True):
+        tr = float(t) - delay
+        if 0.0 <= tr <= flight.duration_s - delay and select(tr):  # the flown part
             r = flight.reference(tr).pos_ned
             out.append(math.hypot(p[0] - r[0], p[1] - r[1]))
     return np.array(out)

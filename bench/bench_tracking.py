@@ -439,9 +439,10 @@ def run_mavlink_lockstep(
 
 
 def figure8_seconds(peak_speed: float, laps: float = 2.0) -> float:
-    """Run time covering the ramp and `laps` full laps (+ a small margin)."""
+    """Run time covering the ramp and `laps` full laps (+ a small margin, + 1 s for the
+    tracking source's handover at the start: `TrackingSource.start_delay_s`, ~0.75 s)."""
     omega = peak_speed / FIG8_DPDPHI_MAX
-    return 0.5 * RAMP_S + laps * 2 * math.pi / omega + 0.2
+    return 0.5 * RAMP_S + laps * 2 * math.pi / omega + 1.2
 
 
 # ----------------------------------------------------------------------------- main

@@ -409,6 +409,13 @@ class TrackingSource:
             return gov.t_ref
         return self._t_ref
 
+    @property
+    def start_delay_s(self) -> float:
+        """How far [s] the reference's clock runs behind the flight time once the handover is
+        over (its HANDOVER_S hold plus half the RAMP_S ramp; 0 without one): the plan's clock
+        of this flight is the flight time less this, before any slowing for the vehicle."""
+        return self._hold_s + RAMP_S / 2.0 if self._hold_s > 0.0 else 0.0
+
     def ref(self, t_s: float) -> Reference:
         """The reference at `t_s` (cached for repeated calls at the same time)."""
         if self._ref is None or self._ref_key != t_s:
