@@ -113,21 +113,24 @@ class ReferenceRecorder:
 
     def __init__(self, source: Callable[[float, TelemetrySnapshot], Any]) -> None:
         self.source = source
-        self.t0_unix: float | None = None
         self.clock: list[tuple[float, float]] = []
 
+    @property
+    def t0_unix(self) -> float | None:
+        """When flight time 0 was [Unix s] (None before the first setpoint)."""
+        return self.clock[0][0] - self.clock[0][1] if self.clock else None
+
     def __call__(self, t_s: float, telemetry: TelemetrySnapshot) -> Any:
-        unix = time.time() - (time.monotonic() - telemetry.now_s)
-        if self.t0_unix is None and t_s > 0.0:
-            self.t0_unix = unix - t_s
         if t_s > 0.0:
-            self.clock.append((unix, t_s))
+            self.clock.append((time.time() - (time.monotonic() - telemetry.now_s), t_s))
         return self.source(t_s, telemetry)
 
 
 @dataclass
 class Flight:
-    """One flight of a reference: its tlog and when reference time 0 was."""
+    """One flight of a reference: its tlog, when reference time 0 was, the flight time given at
+    each setpoint (`clock`: rows Unix s, flight time s; `ReferenceRecorder`) and the source's
+    handover delay (`TrackingSource.start_delay_s`)."""
 
     tlog: Path
     t0_unix: float
@@ -135,6 +138,8 @@ class Flight:
     reference: Callable[[float], Reference]
     origin_ned: FloatArray
     notes: dict[str, Any] = field(default_factory=dict)
+    clock: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    start_delay_s: float = 0.0
 
 
 def shifted(reference: Callable[[float], Reference], dx: float, dy: float
@@ -205,8 +210,9 @@ async def fly_on(v: Vehicle, mode: str, reference: Callable[[float], Reference],
     await v.fly(mode=mode, setpoint_source=rec, duration_s=duration_s)
     assert rec.t0_unix is not None
     return Flight(Path(v.config.tlog_path or ""), rec.t0_unix, duration_s, ref,
-                  np.array(ref(0.0).pos_ned), {"source": rec.source,
-                                               "clock": np.array(rec.clock).reshape(-1, 2)})
+                  np.array(ref(0.0).pos_ned), {"source": rec.source},
+                  np.array(rec.clock).reshape(-1, 2),
+                  float(getattr(rec.source, "start_delay_s", 0.0)))
 
 
 async def fly_reference(
@@ -316,15 +322,13 @@ def horizontal_errors(t_unix: FloatArray, pos: FloatArray, flight: Flight,
                       select: Callable[[float], bool]) -> FloatArray:
     """|pos - reference| horizontally [m] at the samples whose reference time passes `select`.
     Reference time is the plan's clock of the flight: the flight time the source was given at
-    that moment (`ReferenceRecorder.clock`; else the time since the first setpoint) less its
-    handover delay (`TrackingSource.start_delay_s`, about 0.75 s in attitude and rates mode),
-    not less any slowing down for the vehicle (reported apart, as slowed_s)."""
-    delay = float(getattr(flight.notes.get("source"), "start_delay_s", 0.0))
-    clock = flight.notes.get("clock")
+    that moment (`Flight.clock`; else the time since the first setpoint) less its handover
+    delay (`Flight.start_delay_s`, about 0.75 s in attitude and rates mode), not less any
+    slowing down for the vehicle (reported apart, as slowed_s)."""
+    delay, clock = flight.start_delay_s, flight.clock
     flown = (np.interp(np.asarray(t_unix, dtype=float), clock[:, 0], clock[:, 1],
                        left=math.nan, right=math.nan)  # only while it flew
-             if clock is not None and len(clock) > 1
-             else np.asarray(t_unix, dtype=float) - flight.t0_unix)
+             if len(clock) > 1 else np.asarray(t_unix, dtype=float) - flight.t0_unix)
     out = []
     for t, p in zip(flown, pos, strict=True):
         tr = float(t) - delay

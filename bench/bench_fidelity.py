@@ -405,7 +405,8 @@ async def _steps_flight(ep: H.Endpoint, folder: Path, fig8: bool, stagger_s: flo
     if flights:  # first: --reanalyse needs it
         (folder / FIG8_RECORD).write_text(json.dumps({m: {
             "t0_unix": fl.t0_unix, "duration_s": fl.duration_s,
-            "origin_ned": [float(c) for c in fl.origin_ned]} for m, fl in flights.items()}))
+            "origin_ned": [float(c) for c in fl.origin_ned], "clock": fl.clock.tolist(),
+            "start_delay_s": fl.start_delay_s} for m, fl in flights.items()}))
     return {**analyse_steps(tlog, ep.target_system), **analyse_fig8(tlog, ep.target_system)}
 
 
@@ -432,7 +433,9 @@ def analyse_fig8(tlog: Path, sysid: int) -> dict[str, float]:
     for mode, r in json.loads(rec.read_text()).items():
         r0 = ref8(0.0).pos_ned
         ref = H.shifted(ref8, r["origin_ned"][0] - r0[0], r["origin_ned"][1] - r0[1])
-        fl = H.Flight(tlog, r["t0_unix"], r["duration_s"], ref, np.array(r["origin_ned"]))
+        fl = H.Flight(tlog, r["t0_unix"], r["duration_s"], ref, np.array(r["origin_ned"]),
+                      clock=np.array(r.get("clock", [])).reshape(-1, 2),
+                      start_delay_s=float(r.get("start_delay_s", 0.0)))
         err = H.horizontal_errors(data.lpos_t, data.lpos[:, :3], fl, lap2)
         out[f"fig8_{mode}"] = H.rms_max(err)[0]
         # the companion places each estimate on its own clock with a fresh SampleClock per

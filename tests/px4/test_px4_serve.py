@@ -117,7 +117,7 @@ async def test_px4_serve_flies_pauses_resumes_and_lands(px4: Px4Sitl, tmp_path: 
             t0, t1 = gcs.track[i_resume].t, leg[-1].t
             true_leg = [u for u in gcs.truth if resumed[0].t <= u.t <= t1]
             back_m_s = max(-u.vel_ned[1] for u in true_leg)
-            had_m_s = max(0.0, *(-u.vel_ned[1] for u in gcs.truth if abs(u.t - t0) < 0.1))
+            had_m_s = max([0.0, *(-u.vel_ned[1] for u in gcs.truth if abs(u.t - t0) < 0.1)])
             est_m_s = max(-s.vel_ned[1] for s in leg)
             start_y = gcs.track[i_resume].pos_ned[1]
             back_m = start_y - min(s.pos_ned[1] for s in leg)
