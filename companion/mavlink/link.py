@@ -32,7 +32,7 @@ from .params import ParamClient, ParamReadDone
 from .px4_mode import FlightMode, custom_mode_of, set_mode_params
 from .setpoints import SetpointCommand, build_setpoint, pack_setpoint
 from .signing import Signer, SigningConfig
-from .telemetry import TelemetryEvent, TelemetryState
+from .telemetry import VELOCITY_CORRECTION_RAD_S, TelemetryEvent, TelemetryState
 from .timesync import TimeSync, TimesyncUpdate
 
 MAV_TYPE_ONBOARD_CONTROLLER = 18
@@ -63,6 +63,8 @@ class LinkConfig:
     param_retries: int = 2
     timesync_interval_s: float = 1.0
     signing: SigningConfig | None = None
+    #: telemetry's horizontal velocity correction (`VelocityCorrection`) [rad/s]; 0: none
+    velocity_correction_rad_s: float = VELOCITY_CORRECTION_RAD_S
 
     def with_signing_key(self, key: bytes | None) -> LinkConfig:
         """This configuration signing with ``key`` (32 bytes, default link ids; None: as is)."""
@@ -88,7 +90,8 @@ class VehicleLink:
                                      retries=cfg.mission_retries)
         self.params = ParamClient(self._queue, cfg.target_sysid, cfg.target_compid,
                                   timeout_s=cfg.param_timeout_s, retries=cfg.param_retries)
-        self.telemetry = TelemetryState(cfg.target_sysid, cfg.target_compid)
+        self.telemetry = TelemetryState(cfg.target_sysid, cfg.target_compid,
+                                        velocity_correction_rad_s=cfg.velocity_correction_rad_s)
         self.timesync = TimeSync(self._queue, interval_s=cfg.timesync_interval_s)
         self._next_heartbeat: float | None = None
         self._t0: float | None = None

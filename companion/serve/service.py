@@ -451,10 +451,18 @@ class ServeService:
         return f"wind {math.hypot(wn, we):.1f} m/s from {frm:03.0f} deg"
 
     def _hold_here(self, obs: Observation) -> PositionSetpoint | None:
+        """Hold where the vehicle is, stopped: its velocity setpoint is the estimate's velocity
+        error reversed (``LocalPosition.vel_correction_ned``), the velocity PX4's estimate reads
+        when the vehicle stands still. With zero there, PX4 (its own position control flies
+        this setpoint from the switch to OFFBOARD until the service sees the switch, up to a
+        1 Hz HEARTBEAT later) braked a velocity that was not there: real PX4 SITL on a loaded
+        host, EKF2's velocity 0.4-0.5 m/s off after a Hold, accelerated the vehicle back at up to
+        0.5 m/s in that second."""
         pos = obs.position
         if pos is None:
             return None
-        return PositionSetpoint(pos_ned=pos.pos_ned, vel_ned=(0.0, 0.0, 0.0), yaw=obs.yaw)
+        c = pos.vel_correction_ned
+        return PositionSetpoint(pos_ned=pos.pos_ned, vel_ned=(-c[0], -c[1], 0.0), yaw=obs.yaw)
 
     def _enter_offboard(self, obs: Observation, fresh: bool) -> list[Action]:
         prog = self.program
@@ -521,7 +529,7 @@ class ServeService:
         assert obs.position is not None
         cfg = self.config
         here = np.asarray(obs.position.pos_ned, dtype=np.float64)
-        vel = np.asarray(obs.position.vel_ned, dtype=np.float64)
+        vel = np.add(obs.position.vel_ned, obs.position.vel_correction_ned, dtype=np.float64)
         if cfg.setpoint_mode in ("attitude", "rates"):
             # the tracking source stops the vehicle first (its handover, HANDOVER_S: PX4 may fly
             # its own control meanwhile) and starts the join from where it stopped: from rest

@@ -15,6 +15,7 @@ import json
 import math
 import signal
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -61,8 +62,10 @@ async def test_px4_serve_flies_pauses_resumes_and_lands(px4: Px4Sitl, tmp_path: 
         sys.executable, "-m", "companion", "serve", "--connect", px4.url,
         "--target-system", str(px4.target_system), "--log-dir", str(logs),
         stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.DEVNULL)
+    gcs_seen: list[Gcs] = []
     try:
         async with ground_station(px4.gcs_port, px4.target_system) as gcs:
+            gcs_seen.append(gcs)
             await gcs.wait_for(lambda: gcs.heartbeat is not None, 15.0, "PX4's HEARTBEAT")
             m = load_mission(MISSION)
             items = [mavlink2.MAVLink_mission_item_int_message(
@@ -157,6 +160,12 @@ async def test_px4_serve_flies_pauses_resumes_and_lands(px4: Px4Sitl, tmp_path: 
         if proc.returncode is None:
             proc.kill()
             await proc.wait()
+        if gcs_seen:  # for a post-mortem beside the service's tlog: what the ground saw
+            g = gcs_seen[0]
+            (tmp_path / "ground.json").write_text(json.dumps({
+                "unix_minus_monotonic": time.time() - time.monotonic(),
+                "track": [[s.t, s.pos_ned, s.vel_ned, s.mode] for s in g.track],
+                "truth": [[u.t, u.vel_ned] for u in g.truth]}))
         if (logs / "events.jsonl").exists():
             print((logs / "events.jsonl").read_text()[-3000:])
 

@@ -36,7 +36,8 @@ Q = (0.5, 0.5, -0.5, 0.5)
 @pytest.mark.parametrize(
     ("fast", "slow", "args"),
     [
-        (_local_position, LocalPosition, (1.5, 2.0, V, (0.1, 0.2, 0.3), "LOCAL_POSITION_NED")),
+        (_local_position, LocalPosition, (1.5, 2.0, V, (0.1, 0.2, 0.3), "LOCAL_POSITION_NED",
+                                            (0.4, -0.5, 0.0))),
         (_attitude, Attitude, (0.25, Q, V)),
         (_snapshot, TelemetrySnapshot,
          (LocalPosition(0.0, 0.0, V, V, "ODOMETRY"), Attitude(0.0, Q, V), None, None, None)),
