@@ -10,6 +10,15 @@ import statistics
 from bisect import bisect_left, insort
 from collections import deque
 
+#: SampleClock: completed blocks (of `block_s`) before its offset is slewed rather than taken.
+SETTLED_BLOCKS = 8
+#: SampleClock: the largest rate [s/s] its offset moves at once settled. The fitted line moves
+#: in steps: a lockstep autopilot clock that stalled 46 ms (real PX4 SITL in CI, 2026-11-29)
+#: raised the line that much at once when the stall's block became the newest minimum, and the
+#: controller's extrapolation at 5 m/s jumped 0.23 m: a thrust step of 0.095 between setpoints
+#: 10 ms apart. Slewed at 0.1 s/s that takes 0.46 s; PX4's clock drifts ~0.01 s/s.
+OFFSET_SLEW = 0.1
+
 
 class SampleClock:
     """Maps the vehicle's sample times (time_boot) to the local clock.
@@ -52,6 +61,8 @@ class SampleClock:
         self._b = 0.0  # drift [s/s]
         self._last_key: tuple[float, float] | None = None
         self._last_boot = -math.inf
+        self._out: float | None = None  # the offset given [s] (slewed toward a + b t_boot)
+        self._out_t: float | None = None  # receive time [s] it was last moved at
 
     @property
     def drift(self) -> float:
@@ -59,17 +70,30 @@ class SampleClock:
         return self._b
 
     def local_time(self, t_boot_s: float, t_receive_s: float) -> float:
-        """Local time [s] at which the sample stamped `t_boot_s` [s] was taken."""
+        """Local time [s] at which the sample stamped `t_boot_s` [s] was taken. Once the
+        clock has settled (SETTLED_BLOCKS completed blocks), the offset it gives moves at most
+        OFFSET_SLEW s per second of receive time toward the fitted line."""
         key = (t_boot_s, t_receive_s)
         if key != self._last_key:
             self._last_key = key
             self._add(t_boot_s, t_receive_s - t_boot_s)
+            target = self._a + self._b * t_boot_s
+            out, t_last = self._out, self._out_t
+            if out is None or t_last is None or len(self._blocks) <= SETTLED_BLOCKS:
+                self._out = target
+            else:
+                step = OFFSET_SLEW * max(0.0, t_receive_s - t_last)
+                self._out = out + min(step, max(-step, target - out))
+            self._out_t = t_receive_s
+        out = self._out
+        assert out is not None
         # never after its arrival (the fitted slope's noise could tilt the line that far)
-        return min(t_boot_s + self._a + self._b * t_boot_s, t_receive_s)
+        return min(t_boot_s + out, t_receive_s)
 
     def _add(self, boot: float, off: float) -> None:
         blocks = self._blocks
         if boot < self._last_boot - 0.5:
+            self._out = None
             blocks.clear()
             self._pair_slopes.clear()
             self._sorted.clear()

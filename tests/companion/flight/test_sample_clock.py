@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from companion.flight.clock import SampleClock
+from companion.flight.clock import OFFSET_SLEW, SampleClock
 
 
 def simulated_link(drift: float, seconds: float, seed: int, hz: float = 30.0,
@@ -142,3 +142,25 @@ def test_rejects_a_recent_window_outside_the_blocks() -> None:
         SampleClock(blocks=4, recent=5)
     with pytest.raises(ValueError):
         SampleClock(recent=0)
+
+
+def test_a_stall_moves_the_given_offset_no_faster_than_its_slew() -> None:
+    """The autopilot's clock stalls 46 ms mid-flight (real PX4 SITL in CI): the fitted line
+    jumps by that when the stall's block becomes the newest minimum, which stepped the
+    controller's extrapolation by 0.23 m at 5 m/s. The offset the clock gives moves at most
+    OFFSET_SLEW s per second, and still ends on the new line."""
+    base = simulated_link(0.0, 30.0, seed=11)
+    samples = [(b, rx + (0.046 if b >= 22.0 else 0.0), true + (0.046 if b >= 22.0 else 0.0))
+               for b, rx, true in base]
+    clock = SampleClock()
+    prev: tuple[float, float] | None = None
+    fastest, late = 0.0, []
+    for boot, rx, true in samples:
+        off = clock.local_time(boot, rx) - boot
+        if prev is not None and boot > 3.0:
+            fastest = max(fastest, abs(off - prev[0]) / (rx - prev[1]))
+        prev = (off, rx)
+        if boot >= 22.0 + 3.0:
+            late.append(clock.local_time(boot, rx) - true - 0.004)
+    assert fastest <= OFFSET_SLEW + 1e-6
+    assert late and max(abs(e) for e in late) < 2e-3
