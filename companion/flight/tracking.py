@@ -102,8 +102,8 @@ def estimate_from_telemetry(
     snap: TelemetrySnapshot, clock: SampleClock | None = None
 ) -> StateEstimate | None:
     """Controller input from the latest LOCAL_POSITION_NED/ODOMETRY and ATTITUDE_QUATERNION
-    (None until both have arrived); its velocity is the reported one plus
-    `LocalPosition.vel_correction_ned` (the part its own position does not bear out). `t_s` is
+    (None until both have arrived); its velocity is `LocalPosition.vel_corrected_ned` (the
+    reported one plus the part its own position does not bear out). `t_s` is
     the position's sample time on the local clock when
     a `SampleClock` is given, else its receive time; then moved back by the link's round-trip
     time `snap.link_rtt_s` when it is known (at most MAX_LINK_RTT_S).
@@ -129,7 +129,7 @@ def estimate_from_telemetry(
     return state_estimate_of_arrays(
         t_s,
         np.array(pos.pos_ned, dtype=np.float64),
-        np.add(pos.vel_ned, pos.vel_correction_ned, dtype=np.float64),
+        np.array(pos.vel_corrected_ned, dtype=np.float64),
         np.array(att.q_wxyz, dtype=np.float64),
         np.array(att.omega_frd, dtype=np.float64),
         airborne,

@@ -36,6 +36,12 @@ class LocalPosition:
     source: str
     vel_correction_ned: Vec3 = (0.0, 0.0, 0.0)
 
+    @property
+    def vel_corrected_ned(self) -> Vec3:
+        """``vel_ned`` plus ``vel_correction_ned`` [m/s NED]: the velocity to control with."""
+        v, c = self.vel_ned, self.vel_correction_ned
+        return (v[0] + c[0], v[1] + c[1], v[2] + c[2])
+
 
 @dataclass(frozen=True)
 class Attitude:

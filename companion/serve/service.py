@@ -529,7 +529,7 @@ class ServeService:
         assert obs.position is not None
         cfg = self.config
         here = np.asarray(obs.position.pos_ned, dtype=np.float64)
-        vel = np.add(obs.position.vel_ned, obs.position.vel_correction_ned, dtype=np.float64)
+        vel = np.array(obs.position.vel_corrected_ned, dtype=np.float64)
         if cfg.setpoint_mode in ("attitude", "rates"):
             # the tracking source stops the vehicle first (its handover, HANDOVER_S: PX4 may fly
             # its own control meanwhile) and starts the join from where it stopped: from rest
