@@ -553,12 +553,14 @@ HOVER_S = 30.0
 def _controller_factory(overrides: list[str]) -> Any:
     """A TrackingSource factory with TrackingConfig / TrackingGains fields overridden
     (`kp_xy=12`, `attitude_lead_s=0.1`, ...; `hover_thrust=0.55`: the hover thrust the companion
-    is told); None without overrides (the defaults)."""
+    is told; `tilt_max_deg=50`: the tilt limit it is told, default PX4's 45 deg); None without
+    overrides (the defaults)."""
     if not overrides:
         return None
     from dataclasses import fields, replace
 
     from companion.control import AttitudeGains, TrackingGains
+    from companion.flight.report import SetpointLimits
     from companion.flight.tracking import TrackingSource
 
     gain_names = {f.name for f in fields(TrackingGains)}
@@ -567,6 +569,7 @@ def _controller_factory(overrides: list[str]) -> Any:
     akw: dict[str, object] = {}
     ckw: dict[str, object] = {}
     pkw: dict[str, object] = {}
+    tilt_deg: float | None = None
     for item in overrides:
         k, _, v = item.partition("=")
         val: object = {"true": True, "false": False}.get(v.lower())
@@ -578,14 +581,21 @@ def _controller_factory(overrides: list[str]) -> Any:
         if k == "hover_thrust":  # what the companion is told (MultirotorParams)
             pkw[k] = val
             continue
+        if k == "tilt_max_deg":  # the tilt limit the companion is told (PX4's MPC_TILTMAX_AIR)
+            tilt_deg = float(val)  # type: ignore[arg-type]
+            continue
         (gkw if k in gain_names else akw if k in att_names else ckw)[k] = val
     base = default_controller_config()
     cfg = replace(base, gains=replace(base.gains, **gkw),
                   attitude_gains=replace(base.attitude_gains, **akw),
                   params=replace(base.params, **pkw), **ckw)
 
+    limits = None if tilt_deg is None else SetpointLimits(tilt_max_rad=math.radians(tilt_deg))
+    if limits is not None:
+        cfg = replace(cfg, max_tilt_rad=limits.tilt_max_rad)
+
     def factory(ref: Any, mode: str) -> Any:
-        return TrackingSource(ref, mode, tracking=cfg)
+        return TrackingSource(ref, mode, tracking=cfg, limits=limits)
 
     return factory
 

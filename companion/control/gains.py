@@ -202,7 +202,7 @@ class TrackingConfig:
     drag_feedforward: bool = True
     drag_velocity: Literal["reference", "estimate"] = "estimate"
     estimate_hover_thrust: bool = True
-    estimate_drag: bool = False
+    estimate_drag: bool = True
     hover_thrust_config: HoverThrustConfig | None = None
     drag_config: DragConfig | None = None
     latency_compensation: bool = True

@@ -341,7 +341,8 @@ class TrackingController:
             zb_mid = 0.5 * (zb + zb_prev)
             v_mid = 0.5 * (est.vel_ned + last.vel_ned) if est.acc_ned is None else est.vel_ned
             self.drag_estimator.update(
-                est.t_s, acc, v_mid, u, zb_mid, self.hover_thrust, airborne
+                est.t_s, acc, v_mid, u, zb_mid, self.hover_thrust, airborne,
+                self.disturbance.acc_ne if dist else (0.0, 0.0),
             )
         if dist:
             # the model's horizontal acceleration over the interval: mean thrust, mid-interval

@@ -468,7 +468,8 @@ class TrackingSource:
 
     def _feasible_rate(self, t_ref: float) -> float:
         """The largest reference rate in [0, 1] the multirotor can fly from `t_ref` on, given
-        the disturbance its controller estimates (see FEASIBLE_EVERY); 1 while that is small.
+        the disturbance and the drag its controller estimates (see FEASIBLE_EVERY); 1 while the
+        disturbance, plus the drag above the configured one at the reference's speed, is small.
         Re-evaluated every FEASIBLE_EVERY calls."""
         ctl = self.controller
         td = self.touchdown
@@ -476,13 +477,22 @@ class TrackingSource:
                 or (td is not None and t_ref >= td.from_s)):  # the touchdown: not the plan
             return 1.0
         dx, dy = ctl.disturbance.acc_ne
-        if math.hypot(dx, dy) <= FEASIBLE_MIN_DIST:
+        d = math.hypot(dx, dy)
+        p = ctl.config.params
+        # a drag per mass estimated above the configured one (a lighter vehicle than told) is
+        # what the disturbance read before the drag estimator took it: it counts toward the gate
+        excess = max(ctl.drag - p.drag, 0.0) / p.mass
+        if d <= FEASIBLE_MIN_DIST and excess == 0.0:
             self._cap, self._cap_age = 1.0, 0
             return 1.0
         self._cap_age -= 1
         if self._cap_age > 0:
             return self._cap
         self._cap_age = FEASIBLE_EVERY
+        if excess > 0.0 and d + excess * float(
+                np.linalg.norm(self._reference_at(t_ref).vel_ned[:2])) <= FEASIBLE_MIN_DIST:
+            self._cap = 1.0
+            return 1.0
         cap = feasible_rate([self._reference_at(t_ref + a) for a in FEASIBLE_AHEAD_S], (dx, dy),
                             ctl.drag / ctl.config.params.mass, ctl.config.max_tilt_rad,
                             ctl.config.params.g)

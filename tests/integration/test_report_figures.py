@@ -7,7 +7,9 @@ law's latency compensation became a Smith predictor over the commands sent since
 instead of the last command over the whole age (session 13: the mock's RMS errors within 1 %
 of the old ones, largest thrust steps 0.011-0.018), and when telemetry's velocity correction
 came (session 18: RMS errors within 0.1 %, the mock's estimate agreeing with its position),
-and when the sample clock's offset was slewed (one closest approach moved by 3e-7 m).
+and when the sample clock's offset was slewed (one closest approach moved by 3e-7 m), and
+when the drag estimator came on by default with the disturbance taken out of its balance
+(session 19: RMS errors within 0.5 %, max tilt within 0.03 deg).
 Their correctness is asserted by the
 other replay tests (waypoints from the tlog, setpoint quality, touchdown). A change of flight
 behaviour must show up here and be re-recorded on purpose, with the reason in the commit:

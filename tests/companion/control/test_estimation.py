@@ -138,3 +138,33 @@ def test_drag_estimator_converges() -> None:
         a_meas = a + rng.normal(0.0, 0.3, 3)
         est.update(t, a_meas, v, u, zb, h)
     assert est.drag_over_mass == pytest.approx(k_true, rel=0.05)
+
+
+def _wind_samples(k_true: float, d: tuple[float, float], n: int = 600) -> list[tuple[float, ...]]:
+    """A weaving flight north (velocity 4 m/s north with a 2 m/s swing: not zero mean, as on a
+    mission's leg) in a steady force d [m/s^2] (wind on the drag): Newton's horizontal balance
+    a = -(g u / h) z_b,h - k v + d, exact (no noise)."""
+    out = []
+    h, u = 0.5, 0.55
+    for i in range(n):
+        t = i / 30.0
+        v = (4.0 + 2.0 * math.cos(0.6 * t), 2.0 * math.sin(0.6 * t), 0.0)
+        zb = np.array([0.3 * math.sin(0.6 * t), -0.3 * math.cos(0.6 * t), -1.0])
+        zb /= np.linalg.norm(zb)
+        a = (-G * u / h * zb[0] - k_true * v[0] + d[0], -G * u / h * zb[1] - k_true * v[1] + d[1])
+        out.append((t, a[0], a[1], v[0], v[1], zb[0], zb[1], zb[2], u, h))
+    return out
+
+
+def test_drag_estimator_takes_the_given_disturbance_out_of_the_balance() -> None:
+    """In a steady force d the drag per mass is found when d is given, and not without it (the
+    control: the same samples, d left in the balance, read as drag)."""
+    k_true, d = 1.25, (1.8, -1.2)
+    given = DragEstimator(DragConfig(initial_drag_over_mass=1.0))
+    ignored = DragEstimator(DragConfig(initial_drag_over_mass=1.0))
+    for t, ax, ay, vx, vy, zx, zy, zz, u, h in _wind_samples(k_true, d):
+        a, v, zb = np.array([ax, ay, 0.0]), np.array([vx, vy, 0.0]), np.array([zx, zy, zz])
+        given.update(t, a, v, u, zb, h, True, d)
+        ignored.update(t, a, v, u, zb, h, True)
+    assert given.drag_over_mass == pytest.approx(k_true, rel=0.01)
+    assert abs(ignored.drag_over_mass - k_true) > 0.05

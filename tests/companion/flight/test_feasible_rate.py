@@ -45,3 +45,34 @@ def test_the_rate_is_the_largest_within_the_limit(refs: list[tuple[float, float,
     bad = np.nonzero(~ok)[0]
     first_bad = 1.0 if len(bad) == 0 else float(s[bad[0]])
     assert got >= min(first_bad, 1.0) - 5e-4
+
+
+def test_drag_estimated_above_the_configured_one_slows_a_reference_beyond_the_tilt_limit() -> None:
+    """A lighter vehicle than told: its drag per mass is estimated 40 % above the configured
+    one, and the disturbance reads ~0 (the drag estimator took the error). A turn at 6 m/s with
+    5 m/s^2 of centripetal acceleration then needs |a + k v| = 9.8 m/s^2, beyond FEASIBLE_SHARE
+    of 45 deg's g tan(45 deg) (8.8): the source caps the rate below 1. With the configured drag
+    (7.8 m/s^2 needed, the gate's control) it keeps rate 1."""
+    import pytest
+
+    from companion.control import Reference
+    from companion.flatness import MultirotorParams
+    from companion.flight.tracking import TrackingSource
+
+    params = MultirotorParams(1.0, np.diag([0.025, 0.025, 0.03]), hover_thrust=0.5, drag=1.0)
+
+    def ref(t: float) -> Reference:
+        return Reference(np.array([0.0, 6.0 * t, -5.0]), np.array([0.0, 6.0, 0.0]),
+                         np.array([-5.0, 0.0, 0.0]))
+
+    caps = []
+    for k in (1.4, 1.0):
+        src = TrackingSource(ref, "attitude", params, max_tilt_rad=math.radians(45.0))
+        ctl = src.controller
+        assert ctl is not None
+        ctl.drag_estimator._k = k  # what the estimator learnt in flight [1/s]
+        assert ctl.drag == pytest.approx(k)
+        caps.append(src._feasible_rate(1.0))
+    lighter, told = caps
+    assert lighter < 0.95
+    assert told == 1.0
