@@ -305,8 +305,9 @@ class Failsafe:
 class FlightEstimates:
     """What the companion's tracking law learnt in flight (attitude and rates modes).
 
-    wind_m_s / wind_from_deg: the wind its disturbance estimate implies with the configured
-    drag, w = d m / D (None: no drag configured), speed [m/s] and compass direction it blows
+    wind_m_s / wind_from_deg: the wind its disturbance estimate implies with the drag per mass
+    in use (learnt in flight by default, else the configured D / m), w = d / (D / m) (None: no
+    drag feed-forward), speed [m/s] and compass direction it blows
     from [deg]; disturbance_m_s2: the estimated horizontal force per mass [m/s^2] (wind, drag
     error); mass_ratio: hover thrust estimated / hover thrust assumed (1.1: the vehicle is 10 %
     heavier for its thrust than the companion was told); slowed_s: how far [s] the reference
