@@ -73,6 +73,7 @@ from companion.control.so3 import (
     quat_to_dcm,
     so3_rate_command,
     so3_rate_command_dcm,
+    tilt_guard,
     yaw_of_dcm,
     yaw_quat,
 )
@@ -253,7 +254,13 @@ class TrackingController:
         omega_ff = np.array(omega_ff_t)
         R = quat_to_dcm(np.array(self._q_now))
         Rd = quat_to_dcm(np.array(q_des_t))
-        omega, e_R = so3_rate_command_dcm(R, Rd, omega_ff, self._link_gains())
+        gains = self._link_gains()
+        omega, e_R = so3_rate_command_dcm(R, Rd, omega_ff, gains)
+        # the flown tilt within the limit too, not only the setpoint's (the loop closes over
+        # the link and lags); its rates bounded as the loop's
+        omega = tilt_guard(R, omega, self._tilt_rad, est.omega_frd)
+        lim = gains.max_rate_rp
+        omega[:2] = np.minimum(np.maximum(omega[:2], -lim), lim)
         e_omega = est.omega_frd - (R.T @ Rd) @ omega_ff
         # Thrust along the actual body z (Lee): project the desired thrust direction.
         proj = float(Rd[:, 2] @ R[:, 2])
