@@ -494,8 +494,7 @@ class TrackingSource:
             self._cap = 1.0
             return 1.0
         cap = feasible_rate([self._reference_at(t_ref + a) for a in FEASIBLE_AHEAD_S], (dx, dy),
-                            ctl.drag / ctl.config.params.mass, ctl.config.max_tilt_rad,
-                            ctl.config.params.g)
+                            ctl.drag / p.mass, ctl.config.max_tilt_rad, p.g)
         self._cap = cap
         return cap
 
