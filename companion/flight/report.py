@@ -522,7 +522,7 @@ def missed_result(report: FlightReport) -> str:
         return report.result
     where = ", ".join(
         f"{'waypoint ' + str(i + 1) if w.item_index is None else 'item ' + str(w.item_index)} "
-        f"by {w.closest_approach_m if w.closest_approach_m is not None else math.inf:.1f} m"
+        f"by {w.closest_approach_m if w.closest_approach_m is not None else math.inf:.2f} m"
         for i, w in missed[:3])
     more = f" (+{len(missed) - 3} more)" if len(missed) > 3 else ""
     return f"missed {len(missed)} waypoint(s): {where}{more}"

@@ -217,7 +217,10 @@ def run_prepared(
     bad = quality.failure()
     if bad is not None and result == "ok":
         result = f"setpoints: {bad}"
+    # a waypoint passed outside its acceptance radius fails the flight in its result too,
+    # not only in `ok` (a campaign's row and report.json said "ok" for such a flight)
     report = dataclasses.replace(report, result=result)
+    report = dataclasses.replace(report, result=missed_result(report))
     report = dataclasses.replace(report, ok=report_ok(report))
     if config.start_offset_ne_m != (0.0, 0.0):
         # the companion flew relative to where it stood; the mission's geodetic waypoints sit

@@ -67,7 +67,7 @@ def test_fly_report_shapes() -> None:
 
 def test_verdicts() -> None:
     r = _replay()
-    assert not report_ok(r) and missed_result(r) == "missed 1 waypoint(s): item 2 by 2.5 m"
+    assert not report_ok(r) and missed_result(r) == "missed 1 waypoint(s): item 2 by 2.50 m"
     assert report_ok(_replay(waypoints=_WPS[:1]))
     breach = {"message": "the leg from item 1 to item 2 crosses zone 0"}
     b = _replay(geofence_breaches=(breach,), geofence_violations=3)
