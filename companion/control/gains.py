@@ -167,6 +167,9 @@ class TrackingConfig:
     prediction_delay_s: the latency compensation's Smith predictor takes the acceleration at
         time t to be the one commanded this long before [s] (0: from the moment it was sent;
         the command being computed never enters).
+    prediction_lag_s: if > 0, the predictor's acceleration starts at the one the measured
+        attitude gives at the sample and follows the commands as a first-order lag with this
+        time constant [s] (the attitude loop's, ~1/MC_ROLL_P) instead of taking them at once.
     max_tilt_rad: tilt limit of the commanded thrust vector.
     thrust_min / thrust_max: normalised thrust bounds.
     feedback_rate_ff: `rates` mode, share (0..1) of the feedback part of the commanded
@@ -211,6 +214,7 @@ class TrackingConfig:
     attitude_lead_s: float = 0.15
     thrust_delay_s: float = 0.05
     prediction_delay_s: float = 0.0
+    prediction_lag_s: float = 0.0
     max_tilt_rad: float = math.radians(60.0)
     thrust_min: float = 0.08
     thrust_max: float = 1.0
@@ -232,6 +236,8 @@ class TrackingConfig:
             raise ValueError("feedback_rate_ff must be in [0, 1]")
         if not (math.isfinite(self.prediction_delay_s) and self.prediction_delay_s >= 0.0):
             raise ValueError("prediction_delay_s must be >= 0")
+        if not (math.isfinite(self.prediction_lag_s) and self.prediction_lag_s >= 0.0):
+            raise ValueError("prediction_lag_s must be >= 0")
         if not (math.isfinite(self.rates_separation) and self.rates_separation >= 0.0):
             raise ValueError("rates_separation must be >= 0 (0: no cap)")
         if not (math.isfinite(self.max_yaw_rate_rad_s) and self.max_yaw_rate_rad_s > 0.0):

@@ -600,6 +600,10 @@ class TrackingController:
                 break
             if st < t1:
                 segs.append((st, ax, ay, az))
+        lag = self.config.prediction_lag_s
+        if lag > 0.0:
+            return self._predict_lagged(t0, t1, p0, v0, self._sample_acc(t_s, q_wxyz, v0),
+                                        cur, segs, lag)
         a = cur if cur is not None else self._sample_acc(t_s, q_wxyz, v0)
         px, py, pz = p0
         vx, vy, vz = v0
@@ -618,6 +622,35 @@ class TrackingController:
         h2 = 0.5 * h * h
         return ((px + vx * h + a[0] * h2, py + vy * h + a[1] * h2, pz + vz * h + a[2] * h2),
                 (vx + a[0] * h, vy + a[1] * h, vz + a[2] * h))
+
+    @staticmethod
+    def _predict_lagged(t0: float, t1: float, p0: tuple[float, float, float],
+                        v0: tuple[float, float, float], a0: tuple[float, float, float],
+                        cur: tuple[float, float, float] | None,
+                        segs: list[tuple[float, float, float, float]], lag: float
+                        ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """`_predict` with the vehicle's acceleration lagging the commands: it starts at `a0`
+        (the measured attitude's, at `t0`) and relaxes toward the command in force (`cur`, then
+        each of `segs`, newest first) with time constant `lag` [s] (the attitude loop's)."""
+        p = list(p0)
+        v = list(v0)
+        a = list(a0)
+        c = list(cur) if cur is not None else list(a0)
+        t = t0
+        for st, bx, by, bz in [*reversed(segs), (t1, 0.0, 0.0, 0.0)]:
+            h = st - t
+            if h > 0.0:
+                e = math.exp(-h / lag)
+                f1 = lag * (1.0 - e)  # integral of e^(-s/lag) over [0, h]
+                f2 = lag * (h - f1)  # its double integral
+                for i in range(3):
+                    r = a[i] - c[i]
+                    p[i] += v[i] * h + 0.5 * c[i] * h * h + r * f2
+                    v[i] += c[i] * h + r * f1
+                    a[i] = c[i] + r * e
+                t = st
+            c = [bx, by, bz]
+        return (p[0], p[1], p[2]), (v[0], v[1], v[2])
 
     def _sample_acc(self, t_s: float, q_wxyz: Sequence[float],
                     vel: Sequence[float]) -> tuple[float, float, float]:

@@ -269,6 +269,34 @@ def test_latency_compensation_integrates_the_commands_sent_since_the_sample() ->
     np.testing.assert_allclose(pos, p, atol=1e-6)
 
 
+def test_lagged_prediction_relaxes_from_the_measured_acceleration_toward_the_commands() -> None:
+    """`prediction_lag_s`: the acceleration starts at the one the measured attitude gives and
+    follows the commands sent since as a first-order lag, a' = (a_cmd(t) - a) / lag, compared
+    with a fine-step Euler integration of that ODE (an independent integrator)."""
+    lag = 0.15
+    c = TrackingController(TrackingConfig(params=_params(drag=1.0), prediction_lag_s=lag))
+    rng = np.random.default_rng(5)
+    t_cmd = np.arange(4.5, 5.0, 0.01)
+    accs = rng.normal(0.0, 2.0, size=(len(t_cmd), 3))
+    for t, a in zip(t_cmd, accs, strict=True):
+        c._acc_hist.append((float(t), float(a[0]), float(a[1]), float(a[2])))
+    t_s, tau = 4.853, 0.15
+    q = [math.cos(0.1), math.sin(0.1), 0.0, 0.0]  # 11.5 deg of roll: a0 is not the command
+    p0, v0 = np.array([1.0, -2.0, -5.0]), np.array([3.0, 0.5, -0.2])
+    a0 = np.array(c._sample_acc(t_s, q, tuple(v0)))
+    assert np.linalg.norm(a0[:2] - accs[np.searchsorted(t_cmd, t_s) - 1][:2]) > 1.0
+    pos, vel = c._predict(t_s, tau, tuple(p0), tuple(v0), q)
+    p, v, a = p0.copy(), v0.copy(), a0.copy()
+    h = 1e-5
+    for t in np.arange(t_s, t_s + tau - h / 2, h):
+        target = accs[np.searchsorted(t_cmd, t + h / 2, side="right") - 1]
+        p += v * h + 0.5 * a * h * h
+        v += a * h
+        a += (target - a) * h / lag
+    np.testing.assert_allclose(vel, v, atol=1e-4)
+    np.testing.assert_allclose(pos, p, atol=1e-5)
+
+
 def test_latency_compensation_from_the_measured_attitude() -> None:
     """Without a measured acceleration, and before any acceleration was commanded, the
     extrapolation uses the one the measured attitude and the thrust applied at the sample give
