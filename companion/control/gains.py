@@ -170,6 +170,9 @@ class TrackingConfig:
     prediction_lag_s: if > 0, the predictor's acceleration starts at the one the measured
         attitude gives at the sample and follows the commands as a first-order lag with this
         time constant [s] (the attitude loop's, ~1/MC_ROLL_P) instead of taking them at once.
+    rate_prediction_lag_s: `rates` mode, if > 0: the attitude is extrapolated over the
+        telemetry's age with body rates that follow the rates commanded since the sample with
+        this time constant [s] (the autopilot's rate loop) instead of the measured rates held.
     max_tilt_rad: tilt limit of the commanded thrust vector.
     thrust_min / thrust_max: normalised thrust bounds.
     feedback_rate_ff: `rates` mode, share (0..1) of the feedback part of the commanded
@@ -215,6 +218,7 @@ class TrackingConfig:
     thrust_delay_s: float = 0.05
     prediction_delay_s: float = 0.0
     prediction_lag_s: float = 0.0
+    rate_prediction_lag_s: float = 0.0
     max_tilt_rad: float = math.radians(60.0)
     thrust_min: float = 0.08
     thrust_max: float = 1.0
@@ -236,8 +240,9 @@ class TrackingConfig:
             raise ValueError("feedback_rate_ff must be in [0, 1]")
         if not (math.isfinite(self.prediction_delay_s) and self.prediction_delay_s >= 0.0):
             raise ValueError("prediction_delay_s must be >= 0")
-        if not (math.isfinite(self.prediction_lag_s) and self.prediction_lag_s >= 0.0):
-            raise ValueError("prediction_lag_s must be >= 0")
+        for name in ("prediction_lag_s", "rate_prediction_lag_s"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
+                raise ValueError(f"{name} must be >= 0")
         if not (math.isfinite(self.rates_separation) and self.rates_separation >= 0.0):
             raise ValueError("rates_separation must be >= 0 (0: no cap)")
         if not (math.isfinite(self.max_yaw_rate_rad_s) and self.max_yaw_rate_rad_s > 0.0):

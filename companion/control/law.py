@@ -97,6 +97,10 @@ HOVER_SLEW_PER_S = 0.5
 # ----------------------------------------------------------------------------- controller
 
 
+#: Step [s] of the rates-mode attitude predictor (`TrackingController._predict_attitude`).
+ATT_PREDICT_STEP_S = 0.005
+
+
 class TrackingController:
     """Multirotor trajectory-tracking controller (see the module docstring).
 
@@ -135,6 +139,8 @@ class TrackingController:
         self._last_est: StateEstimate | None = None
         self._prev_est: StateEstimate | None = None
         self._thrust_hist: deque[tuple[float, float]] = deque(maxlen=256)
+        # (time [s], body rates commanded [rad/s FRD]) in rates mode, for the attitude predictor
+        self._rate_hist: deque[tuple[float, float, float, float]] = deque(maxlen=256)
         # (time, ax, ay, az): the (saturated) acceleration commanded at each update [s, m/s^2]
         self._acc_hist: deque[tuple[float, float, float, float]] = deque(maxlen=256)
         self._last_yaw = 0.0
@@ -172,6 +178,7 @@ class TrackingController:
         self._last_est = None
         self._prev_est = None
         self._thrust_hist.clear()
+        self._rate_hist.clear()
         self._acc_hist.clear()
 
     @property
@@ -269,6 +276,7 @@ class TrackingController:
         if not (all_finite(omega) and math.isfinite(thrust)):
             return self._fallback_rates(now, est, "non-finite rate command")
         self._record_thrust(now, thrust)
+        self._rate_hist.append((now, float(omega[0]), float(omega[1]), float(omega[2])))
         return RateCommand(omega, thrust, saturated=sat)
 
     # -- internals ----------------------------------------------------------------------------
@@ -472,9 +480,13 @@ class TrackingController:
             vel = (vx0 + ax0 * tau, vy0 + ay0 * tau, vz0 + az0 * tau)
         else:
             pos, vel = self._predict(est.t_s, tau, (px0, py0, pz0), (vx0, vy0, vz0), q_est)
-        self._q_now = (
-            quat_integrate_f(q_est, w_est, tau) if tau > 0 else quat_normalize_f(*q_est)
-        )
+        if tau > 0 and rates and c.rate_prediction_lag_s > 0.0 and self._rate_hist:
+            self._q_now = self._predict_attitude(est.t_s, tau, q_est, w_est,
+                                                 c.rate_prediction_lag_s)
+        else:
+            self._q_now = (
+                quat_integrate_f(q_est, w_est, tau) if tau > 0 else quat_normalize_f(*q_est)
+            )
 
         # 2. acceleration command
         # the feed-forward: the reference's acceleration, jerk and snap `lead_s` ahead (sampled,
@@ -622,6 +634,43 @@ class TrackingController:
         h2 = 0.5 * h * h
         return ((px + vx * h + a[0] * h2, py + vy * h + a[1] * h2, pz + vz * h + a[2] * h2),
                 (vx + a[0] * h, vy + a[1] * h, vz + a[2] * h))
+
+    def _predict_attitude(self, t_s: float, tau: float, q: list[float], w: list[float],
+                          lag: float) -> tuple[float, float, float, float]:
+        """The attitude `tau` [s] after the sample at `t_s` (attitude `q`, body rates `w`
+        [rad/s FRD]) in rates mode: the body rates start at `w` and follow the rates commanded
+        since (each from the moment it was sent) as a first-order lag of time constant `lag`
+        [s] (the autopilot's rate loop), integrated in steps of at most ATT_PREDICT_STEP_S.
+        Holding `w` instead carries a roll the command is already stopping past the limit."""
+        cmds: list[tuple[float, tuple[float, float, float]]] = []  # newest first
+        target = (w[0], w[1], w[2])  # the command in force at the sample
+        for tc, x, y, z in reversed(self._rate_hist):
+            if tc <= t_s:
+                target = (x, y, z)
+                break
+            cmds.append((tc, (x, y, z)))
+        cmds.reverse()
+        t1 = t_s + tau
+        wx, wy, wz = w[0], w[1], w[2]
+        qq = (q[0], q[1], q[2], q[3])
+        t = t_s
+        # piecewise between the commands' send times, each piece in steps of at most
+        # ATT_PREDICT_STEP_S; over a step the rates' exact mean enters the rotation
+        for ts, nxt in [*cmds, (t1, target)]:
+            end = min(ts, t1)
+            if end > t:
+                n = max(1, math.ceil((end - t) / ATT_PREDICT_STEP_S))
+                h = (end - t) / n
+                a = 1.0 - math.exp(-h / lag)
+                m = lag / h * a  # the mean of the lag's exponential over a step
+                for _ in range(n):
+                    rx, ry, rz = wx - target[0], wy - target[1], wz - target[2]
+                    qq = quat_integrate_f(list(qq), [target[0] + rx * m, target[1] + ry * m,
+                                                     target[2] + rz * m], h)
+                    wx, wy, wz = wx - rx * a, wy - ry * a, wz - rz * a
+                t = end
+            target = nxt
+        return qq
 
     @staticmethod
     def _predict_lagged(t0: float, t1: float, p0: tuple[float, float, float],
