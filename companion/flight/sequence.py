@@ -417,10 +417,13 @@ class FlightSequence:
             settled = now - self.t_fly0 >= self.config.duration_s + end.settle_s
         if t < self.config.duration_s and not settled:
             return []
-        if view.arrived or (end.settle_m is not None and end.end_ned is not None
-                            and view.pos_ned is not None
-                            and math.dist(view.pos_ned, end.end_ned) <= end.settle_m):
+        if view.arrived:
             return self._handover(now, end.handover_mode, "trajectory complete")
+        if end.settle_m is not None and end.end_ned is not None and view.pos_ned is not None:
+            d = math.dist(view.pos_ned, end.end_ned)
+            if d <= end.settle_m:
+                return self._handover(now, end.handover_mode,
+                                      f"trajectory complete, {d:.2f} m from its end")
         if settled:
             why = "trajectory complete"
             if end.settle_m is not None and end.end_ned is not None and view.pos_ned is not None:

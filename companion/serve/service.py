@@ -49,6 +49,7 @@ from companion.flight.report import SetpointLimits
 from companion.flight.sequence import (
     EndPolicy,
     FlightSequence,
+    PhaseChanged,
     SendCommand,
     SequenceAction,
     SequenceConfig,
@@ -692,5 +693,8 @@ class ServeService:
         """The sequence's handover commands as mode requests (results are not awaited)."""
         prog = self.program
         action = prog.final_action if prog is not None else "loiter"
-        return [RequestMode(a.mode, f"mission end: {action}") for a in acts
+        # the sequence's reason (e.g. how far from the plan's end it settled) goes with it
+        why = next((a.reason for a in acts if isinstance(a, PhaseChanged) and a.reason), "")
+        suffix = f" ({why})" if why else ""
+        return [RequestMode(a.mode, f"mission end: {action}{suffix}") for a in acts
                 if isinstance(a, SendCommand) and a.mode is not None]

@@ -13,6 +13,7 @@ import contextlib
 import itertools
 import json
 import math
+import re
 import signal
 import sys
 import time
@@ -185,8 +186,12 @@ async def test_px4_serve_flies_pauses_resumes_and_lands(px4: Px4Sitl, tmp_path: 
             at_request = dist_xy(tuple(req[0]["pos_ned"]), WP2)  # type: ignore[arg-type]
             await gcs.wait_for(lambda: gcs.track[-1].mode == "LAND", 5.0, "a position in LAND")
             handover = next(s.pos_ned for s in gcs.track[i_resume:] if s.mode == "LAND")
-            print(f"handover to LAND {at_request:.2f} m from the land point (the ground station: "
+            # the service's own measure when it decided: within settle_m of its plan's end
+            own = re.search(r"trajectory complete, ([0-9.]+) m from its end", req[0]["why"])
+            print(f"handover to LAND {at_request:.2f} m from the land point (the service: "
+                  f"{own.group(1) if own else '?'} m from its plan's end; the ground station: "
                   f"{dist_xy(handover, WP2):.2f} m)")
+            assert own is not None and float(own.group(1)) <= 0.5, req[0]["why"]
             assert at_request < 0.5 and dist_xy(handover, WP2) < 1.0
             await gcs.wait_for(lambda: not gcs.armed, 40.0, "landing and disarm")
             # PX4's part: its LAND holds the entry point on EKF2's estimate, which on SIH drifts
