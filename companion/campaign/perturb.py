@@ -39,7 +39,13 @@ class PerturbationRanges:
     0.5 * (1 + e), against the true one (0.49 times the mass ratio).
     latency_max_s, jitter_max_s: telemetry delay 0..max plus uniform jitter 0..max.
     loss_max_pct: datagram loss 0..max in both directions.
-    pos_noise_max_m: SIM_POS_NOISE 0..max [m]; SIM_VEL_NOISE is half of it [m/s].
+    pos_noise_max_m: SIM_POS_NOISE 0..max [m]; SIM_VEL_NOISE is half of it [m/s]. The mock
+    adds it to each sample, white; PX4 sends the EKF2 output predictor's estimate, which IMU
+    propagation and EKF2_TAU_POS smooth: on real PX4 v1.16 SIH the position steps that the
+    velocity does not explain are 4-11 mm std (p99 18-29 mm). The default 0.02 gives up to
+    28 mm std (2.5-7x that); the former 0.1 gave 127 mm (10-25x), and its sample-to-sample
+    jumps, times the position gain, were what failed the session-19 campaign's thrust-chatter
+    runs (BENCHMARKS.md, session 20).
     start_offset_max_m: vehicle placed 0..max metres from the planned home, any direction.
     """
 
@@ -52,7 +58,7 @@ class PerturbationRanges:
     latency_max_s: float = 0.05
     jitter_max_s: float = 0.02
     loss_max_pct: float = 5.0
-    pos_noise_max_m: float = 0.1
+    pos_noise_max_m: float = 0.02
     start_offset_max_m: float = 1.0
 
     def __post_init__(self) -> None:
