@@ -64,6 +64,7 @@ class Gcs(asyncio.DatagramProtocol):
     heartbeat: Any = None
     heartbeat_t: float = 0.0
     attitude: Any = None  # the latest ATTITUDE (roll, pitch, yaw [rad])
+    home: Any = None  # the latest HOME_POSITION (lat/lon [degE7] and local x/y/z [m])
     texts: list[tuple[float, str]] = field(default_factory=list)
     track: list[Sample] = field(default_factory=list)
     truth: list[Truth] = field(default_factory=list)  # HIL_STATE_QUATERNION, once requested
@@ -96,6 +97,8 @@ class Gcs(asyncio.DatagramProtocol):
                                          (m.vx, m.vy, m.vz)))
             elif kind == "ATTITUDE":
                 self.attitude = m
+            elif kind == "HOME_POSITION":
+                self.home = m
             elif kind == "HIL_STATE_QUATERNION":  # velocities in cm/s
                 self.truth.append(Truth(now, (m.vx / 100.0, m.vy / 100.0, m.vz / 100.0)))
             elif kind == "COMMAND_ACK":
@@ -195,6 +198,16 @@ def mission_item(seq: int, command: int, lat: float, lon: float, alt_rel_m: floa
     return mavlink2.MAVLink_mission_item_int_message(
         1, 1, seq, 6, command, 1 if seq == 0 else 0, 1, p[0], p[1], p[2], p[3],
         round(lat * 1e7), round(lon * 1e7), alt_rel_m, 0)
+
+
+def local_of(home: Any, lat_deg: float, lon_deg: float) -> tuple[float, float]:
+    """(north, east) [m] in the autopilot's local frame of a point near HOME_POSITION `home`:
+    its local x/y plus the offset from its lat/lon (spherical Earth, R 6371 km; < 1 cm at
+    50 m), independent of the companion's projection."""
+    r = 6371000.0
+    lat0, lon0 = home.latitude * 1e-7, home.longitude * 1e-7
+    return (home.x + math.radians(lat_deg - lat0) * r,
+            home.y + math.radians(lon_deg - lon0) * r * math.cos(math.radians(lat0)))
 
 
 def offset_deg(lat0: float, north_m: float, east_m: float) -> tuple[float, float]:
