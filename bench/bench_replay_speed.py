@@ -2,8 +2,10 @@
 
 Every figure is a ratio against a baseline tree measured in the same run, trees taking turns
 (baseline, candidate, baseline, ...), so drift of the shared machine hits all of them alike.
-A tree is a source checkout (e.g. `git archive START | tar -x -C /tmp/base`); each run is a fresh
-process with the tree first on `sys.path` and as its working directory.
+A tree is a source checkout (e.g. `git archive START | tar -x -C /tmp/base`), or `git:REV` for a
+commit of this repository unpacked into a temporary directory for the run (`git:HEAD` is the last
+commit, `git:HEAD~1` the one before: the working tree against them in one command); each run is
+a fresh process with the tree first on `sys.path` and as its working directory.
 
 - `ab TREE...`: `python -m companion replay FILE --no-plot` (`--plot`: with flight.png) as a
   user runs it: the whole process (wall, from the parent), the lockstep loop alone
@@ -27,6 +29,7 @@ process with the tree first on `sys.path` and as its working directory.
   flight results (equal across trees: the same flights).
 
 Usage:
+  python bench/bench_replay_speed.py ab git:HEAD . [--rounds 5] [--file F] [--mode attitude]
   python bench/bench_replay_speed.py ab /tmp/base . [--rounds 5] [--file F] [--mode attitude]
   python bench/bench_replay_speed.py profile [--file F] [--top 30]
   python bench/bench_replay_speed.py fingerprint /tmp/base .
@@ -37,6 +40,7 @@ Usage:
 from __future__ import annotations
 
 import argparse
+import atexit
 import json
 import os
 import resource
@@ -74,6 +78,28 @@ def _drop_bytecode(tree: Path) -> None:
             shutil.rmtree(d, ignore_errors=True)
 
 
+_UNPACKED: dict[str, Path] = {}
+
+
+def resolve_tree(arg: str) -> Path:
+    """A tree argument as a directory: a path, or `git:REV` unpacked (`git archive`) into a
+    temporary directory (once per run; removed at exit)."""
+    if not arg.startswith("git:"):
+        return Path(arg).resolve()
+    rev = arg[4:]
+    if rev not in _UNPACKED:
+        sha = subprocess.run(["git", "rev-parse", "--short", rev], cwd=ROOT, check=True,
+                             capture_output=True, text=True).stdout.strip()
+        d = Path(tempfile.mkdtemp(prefix="bench-replay-speed-")) / sha
+        d.mkdir()
+        archive = subprocess.run(["git", "archive", sha], cwd=ROOT, check=True,
+                                 capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(d)], input=archive, check=True)
+        atexit.register(shutil.rmtree, d.parent, True)
+        _UNPACKED[rev] = d
+    return _UNPACKED[rev]
+
+
 def _check_tree(tree: Path) -> None:
     for pkg in PKGS:
         if not (tree / pkg / "__init__.py").exists():
@@ -109,7 +135,7 @@ def replay_once(tree: Path, file: Path, mode: str, bytecode: str,
 
 
 def cmd_ab(args: argparse.Namespace) -> str:
-    trees = [t.resolve() for t in args.trees]
+    trees = [resolve_tree(t) for t in args.trees]
     for t in trees:
         _check_tree(t)
     file = args.file.resolve()
@@ -262,6 +288,7 @@ def fingerprint_cases() -> dict[str, tuple[str, dict[str, Any]]]:
         "square_8ms attitude": (sq8, {"mode": "attitude"}),
         "square_8ms position": (sq8, {"mode": "position"}),
         "square_8ms rates": (sq8, {"mode": "rates"}),
+        "square attitude": (sq, {"mode": "attitude"}),
         "square perturbed, attitude": (sq, {
             "mode": "attitude", "seed": 7, "wind_m_s": 4.0, "wind_from_deg": 200.0,
             "latency_s": 0.03, "jitter_s": 0.01, "loss_pct": 2.0, "hover_thrust": 0.54,
@@ -297,7 +324,7 @@ def fingerprint(tree: Path) -> dict[str, dict[str, Any]]:
 
 
 def cmd_fingerprint(args: argparse.Namespace) -> str:
-    trees = [t.resolve() for t in args.trees]
+    trees = [resolve_tree(t) for t in args.trees]
     prints = {t: fingerprint(t) for t in trees}
     base = prints[trees[0]]
     lines = ["| case | " + " | ".join(t.name or str(t) for t in trees) + " | same |",
@@ -355,7 +382,7 @@ def campaign_once(tree: Path, runs: int, workers: int, modes: str) -> dict[str, 
 
 
 def cmd_campaign(args: argparse.Namespace) -> str:
-    trees = [t.resolve() for t in args.trees]
+    trees = [resolve_tree(t) for t in args.trees]
     res: dict[Path, list[dict[str, Any]]] = {t: [] for t in trees}
     for r in range(args.rounds):
         for t in trees:
@@ -427,7 +454,7 @@ def loop_instructions(tree: Path, file: Path, mode: str, tlog: bool) -> int:
 def cmd_instructions(args: argparse.Namespace) -> str:
     if shutil.which("valgrind") is None:
         raise SystemExit("valgrind not found")
-    trees = [t.resolve() for t in args.trees]
+    trees = [resolve_tree(t) for t in args.trees]
     file = args.file.resolve()
     rows = []
     for tlog in (True, False):
@@ -456,7 +483,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     a = sub.add_parser("ab")
-    a.add_argument("trees", nargs="+", type=Path)
+    a.add_argument("trees", nargs="+")
     a.add_argument("--file", type=Path, default=DEFAULT_FILE)
     a.add_argument("--mode", default="attitude", choices=("attitude", "position", "rates"))
     a.add_argument("--rounds", type=int, default=5)
@@ -467,15 +494,15 @@ def main() -> None:
     p.add_argument("--mode", default="attitude", choices=("attitude", "position", "rates"))
     p.add_argument("--top", type=int, default=30)
     f = sub.add_parser("fingerprint")
-    f.add_argument("trees", nargs="+", type=Path)
+    f.add_argument("trees", nargs="+")
     c = sub.add_parser("campaign")
-    c.add_argument("trees", nargs="+", type=Path)
+    c.add_argument("trees", nargs="+")
     c.add_argument("--runs", type=int, default=20, help="runs per mode")
     c.add_argument("--workers", type=int, default=2)
     c.add_argument("--rounds", type=int, default=1)
     c.add_argument("--modes", default="attitude,position,rates")
     n = sub.add_parser("instructions")
-    n.add_argument("trees", nargs="+", type=Path)
+    n.add_argument("trees", nargs="+")
     n.add_argument("--file", type=Path, default=DEFAULT_FILE)
     n.add_argument("--mode", default="attitude", choices=("attitude", "position", "rates"))
     args = ap.parse_args()
