@@ -97,6 +97,17 @@ HOVER_SLEW_PER_S = 0.5
 # ----------------------------------------------------------------------------- controller
 
 
+def _body_z(q_wxyz: FloatArray) -> tuple[float, float, float]:
+    """Body z axis in NED: `quat_to_dcm(q_wxyz)[:, 2]` as floats, the same operations (the
+    quaternion normalised first; zero or non-finite -> (0, 0, 1))."""
+    w, x, y, z = q_wxyz.tolist()
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if not (math.isfinite(n) and n > 0.0):
+        return (0.0, 0.0, 1.0)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    return (2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y))
+
+
 class TrackingController:
     """Multirotor trajectory-tracking controller (see the module docstring).
 
@@ -342,11 +353,18 @@ class TrackingController:
             zb_mid_z = 0.5 * (body_z_down(est.q_wxyz) + body_z_down(last.q_wxyz))
             self.hover_estimator.update(est.t_s, acc_z, u, zb_mid_z, v_mid_z, airborne)
         if drag:
-            acc = est.acc_ned if est.acc_ned is not None else (est.vel_ned - last.vel_ned) / dt
-            zb = quat_to_dcm(est.q_wxyz)[:, 2]
-            zb_prev = quat_to_dcm(last.q_wxyz)[:, 2]
-            zb_mid = 0.5 * (zb + zb_prev)
-            v_mid = 0.5 * (est.vel_ned + last.vel_ned) if est.acc_ned is None else est.vel_ned
+            # plain floats (the same element-wise IEEE operations as the array expressions)
+            v1 = est.vel_ned.tolist()
+            if est.acc_ned is not None:
+                acc: Sequence[float] = est.acc_ned.tolist()
+                v_mid: Sequence[float] = v1
+            else:
+                v0 = last.vel_ned.tolist()
+                acc = [(v1[0] - v0[0]) / dt, (v1[1] - v0[1]) / dt, (v1[2] - v0[2]) / dt]
+                v_mid = [0.5 * (v1[0] + v0[0]), 0.5 * (v1[1] + v0[1]), 0.5 * (v1[2] + v0[2])]
+            zb, zb_prev = _body_z(est.q_wxyz), _body_z(last.q_wxyz)
+            zb_mid = [0.5 * (zb[0] + zb_prev[0]), 0.5 * (zb[1] + zb_prev[1]),
+                      0.5 * (zb[2] + zb_prev[2])]
             self.drag_estimator.update(
                 est.t_s, acc, v_mid, u, zb_mid, self.hover_thrust, airborne,
                 self.disturbance.acc_ne if dist else (0.0, 0.0),
