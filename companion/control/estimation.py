@@ -266,6 +266,18 @@ class DragConfig:
     g: float = G0
 
 
+def body_z_ned(q_wxyz: FloatArray) -> tuple[float, float, float]:
+    """Body z axis in NED of a quaternion (w, x, y, z): `so3.quat_to_dcm(q_wxyz)[:, 2]` as
+    floats by the same operations (normalised first; zero or non-finite -> (0, 0, 1)), for the
+    drag estimator's input at the telemetry rate."""
+    w, x, y, z = q_wxyz.tolist()
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if not (math.isfinite(n) and n > 0.0):
+        return (0.0, 0.0, 1.0)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    return (2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y))
+
+
 def _floats(x: FloatArray | Sequence[float]) -> list[float]:
     """A vector as a list of Python floats (an array's `tolist`)."""
     return x.tolist() if isinstance(x, np.ndarray) else [float(c) for c in x]
@@ -352,6 +364,7 @@ __all__ = [
     "HoverThrustConfig",
     "HoverThrustEstimator",
     "HoverThrustStatus",
+    "body_z_ned",
 ]
 
 

@@ -57,6 +57,7 @@ from companion.control.estimation import (
     DragEstimator,
     HoverThrustConfig,
     HoverThrustEstimator,
+    body_z_ned,
 )
 from companion.control.gains import (
     AttitudeGains,
@@ -95,17 +96,6 @@ HOVER_SLEW_PER_S = 0.5
 
 
 # ----------------------------------------------------------------------------- controller
-
-
-def _body_z(q_wxyz: FloatArray) -> tuple[float, float, float]:
-    """Body z axis in NED: `quat_to_dcm(q_wxyz)[:, 2]` as floats, the same operations (the
-    quaternion normalised first; zero or non-finite -> (0, 0, 1))."""
-    w, x, y, z = q_wxyz.tolist()
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    if not (math.isfinite(n) and n > 0.0):
-        return (0.0, 0.0, 1.0)
-    w, x, y, z = w / n, x / n, y / n, z / n
-    return (2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y))
 
 
 class TrackingController:
@@ -354,17 +344,14 @@ class TrackingController:
             self.hover_estimator.update(est.t_s, acc_z, u, zb_mid_z, v_mid_z, airborne)
         if drag:
             # plain floats (the same element-wise IEEE operations as the array expressions)
-            v1 = est.vel_ned.tolist()
-            if est.acc_ned is not None:
-                acc: Sequence[float] = est.acc_ned.tolist()
-                v_mid: Sequence[float] = v1
+            v1, v0 = est.vel_ned.tolist(), last.vel_ned.tolist()
+            if est.acc_ned is None:
+                acc, v_mid = [(a - b) / dt for a, b in zip(v1, v0, strict=True)], [
+                    0.5 * (a + b) for a, b in zip(v1, v0, strict=True)]
             else:
-                v0 = last.vel_ned.tolist()
-                acc = [(v1[0] - v0[0]) / dt, (v1[1] - v0[1]) / dt, (v1[2] - v0[2]) / dt]
-                v_mid = [0.5 * (v1[0] + v0[0]), 0.5 * (v1[1] + v0[1]), 0.5 * (v1[2] + v0[2])]
-            zb, zb_prev = _body_z(est.q_wxyz), _body_z(last.q_wxyz)
-            zb_mid = [0.5 * (zb[0] + zb_prev[0]), 0.5 * (zb[1] + zb_prev[1]),
-                      0.5 * (zb[2] + zb_prev[2])]
+                acc, v_mid = est.acc_ned.tolist(), v1
+            zb_mid = [0.5 * (a + b) for a, b in
+                      zip(body_z_ned(est.q_wxyz), body_z_ned(last.q_wxyz), strict=True)]
             self.drag_estimator.update(
                 est.t_s, acc, v_mid, u, zb_mid, self.hover_thrust, airborne,
                 self.disturbance.acc_ne if dist else (0.0, 0.0),

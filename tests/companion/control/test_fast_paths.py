@@ -26,8 +26,7 @@ from companion.control import (
     TrackingController,
     state_estimate_of_arrays,
 )
-from companion.control.estimation import DragConfig, DragEstimator
-from companion.control.law import _body_z
+from companion.control.estimation import DragConfig, DragEstimator, body_z_ned
 from companion.control.so3 import body_z_down, quat_integrate_f, quat_normalize_f, quat_to_dcm
 from companion.flatness import MultirotorParams
 from tests.support.fields import fields_equal
@@ -154,7 +153,7 @@ def test_attitude_values_equals_attitude_on_a_sequence() -> None:
 @given(st.tuples(*[st.floats(-2.0, 2.0)] * 4))
 def test_body_z_is_the_third_dcm_column_bit_for_bit(q) -> None:  # type: ignore[no-untyped-def]
     expected = quat_to_dcm(np.array(q))[:, 2].tolist()
-    got = _body_z(np.array(q))
+    got = body_z_ned(np.array(q))
     assert all(type(c) is float for c in got)
     assert list(got) == expected
 
@@ -162,7 +161,7 @@ def test_body_z_is_the_third_dcm_column_bit_for_bit(q) -> None:  # type: ignore[
 @pytest.mark.parametrize("q", [(0.0, 0.0, 0.0, 0.0), (math.nan, 0.0, 0.0, 1.0),
                                (math.inf, 0.0, 0.0, 0.0)])
 def test_body_z_of_degenerate_quaternions_is_the_identity_column(q) -> None:  # type: ignore[no-untyped-def]
-    assert list(_body_z(np.array(q))) == quat_to_dcm(np.array(q))[:, 2].tolist() == [0, 0, 1]
+    assert list(body_z_ned(np.array(q))) == quat_to_dcm(np.array(q))[:, 2].tolist() == [0, 0, 1]
 
 
 class _ArrayDragEstimator:
