@@ -2,8 +2,10 @@
 
 Every figure is a ratio against a baseline tree measured in the same run, trees taking turns
 (baseline, candidate, baseline, ...), so drift of the shared machine hits all of them alike.
-A tree is a source checkout (e.g. `git archive START | tar -x -C /tmp/base`); each run is a fresh
-process with the tree first on `sys.path` and as its working directory.
+A tree is a source checkout (e.g. `git archive START | tar -x -C /tmp/base`), or `git:REV` for a
+commit of this repository unpacked into a temporary directory for the run (`git:HEAD` is the last
+commit, `git:HEAD~1` the one before: the working tree against them in one command); each run is
+a fresh process with the tree first on `sys.path` and as its working directory.
 
 - `ab TREE...`: `python -m companion replay FILE --no-plot` (`--plot`: with flight.png) as a
   user runs it: the whole process (wall, from the parent), the lockstep loop alone
@@ -12,6 +14,11 @@ process with the tree first on `sys.path` and as its working directory.
   `--bytecode none` runs without the project's compiled bytecode (__pycache__ removed before
   each run, PYTHONDONTWRITEBYTECODE=1: what a source checkout without write access pays);
   `cached` (default) keeps it, as an installed package has it.
+- `parts TREE...`: the lockstep loop of one replay (no tlog) in each tree with timers around its
+  parts (the mock's physics steps, telemetry, input; the companion's setpoint computation and
+  its pieces): microseconds per setpoint cycle, medians over `--rounds`, ratios against the first
+  tree. Timers cost ~0.3 us per call: read the ratios, and the whole loop's time without
+  timers from `ab`.
 - `profile`: one replay in this process: its phases (import, plan, loop, report) and the top
   functions of the loop under cProfile (cProfile inflates small functions: read the ranking,
   not the absolute times).
@@ -27,7 +34,9 @@ process with the tree first on `sys.path` and as its working directory.
   flight results (equal across trees: the same flights).
 
 Usage:
+  python bench/bench_replay_speed.py ab git:HEAD . [--rounds 5] [--file F] [--mode attitude]
   python bench/bench_replay_speed.py ab /tmp/base . [--rounds 5] [--file F] [--mode attitude]
+  python bench/bench_replay_speed.py parts git:HEAD . [--rounds 3]
   python bench/bench_replay_speed.py profile [--file F] [--top 30]
   python bench/bench_replay_speed.py fingerprint /tmp/base .
   python bench/bench_replay_speed.py campaign /tmp/base . [--runs 20] [--rounds 2]
@@ -37,7 +46,9 @@ Usage:
 from __future__ import annotations
 
 import argparse
+import atexit
 import json
+import math
 import os
 import resource
 import shutil
@@ -72,6 +83,28 @@ def _drop_bytecode(tree: Path) -> None:
     for pkg in PKGS:
         for d in (tree / pkg).rglob("__pycache__"):
             shutil.rmtree(d, ignore_errors=True)
+
+
+_UNPACKED: dict[str, Path] = {}
+
+
+def resolve_tree(arg: str) -> Path:
+    """A tree argument as a directory: a path, or `git:REV` unpacked (`git archive`) into a
+    temporary directory (once per run; removed at exit)."""
+    if not arg.startswith("git:"):
+        return Path(arg).resolve()
+    rev = arg[4:]
+    if rev not in _UNPACKED:
+        sha = subprocess.run(["git", "rev-parse", "--short", rev], cwd=ROOT, check=True,
+                             capture_output=True, text=True).stdout.strip()
+        d = Path(tempfile.mkdtemp(prefix="bench-replay-speed-")) / sha
+        d.mkdir()
+        archive = subprocess.run(["git", "archive", sha], cwd=ROOT, check=True,
+                                 capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(d)], input=archive, check=True)
+        atexit.register(shutil.rmtree, d.parent, True)
+        _UNPACKED[rev] = d
+    return _UNPACKED[rev]
 
 
 def _check_tree(tree: Path) -> None:
@@ -109,7 +142,7 @@ def replay_once(tree: Path, file: Path, mode: str, bytecode: str,
 
 
 def cmd_ab(args: argparse.Namespace) -> str:
-    trees = [t.resolve() for t in args.trees]
+    trees = [resolve_tree(t) for t in args.trees]
     for t in trees:
         _check_tree(t)
     file = args.file.resolve()
@@ -145,6 +178,101 @@ def cmd_ab(args: argparse.Namespace) -> str:
             f"{m['cpu_s']:.3f} | {m['loop_s']:.3f} | {m['x_loop']:.1f} | "
             f"{m['wall_s'] / med[base]['wall_s']:.2f} | "
             f"{m['loop_s'] / med[base]['loop_s']:.2f} |")
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- parts
+
+_PARTS_CHILD = r"""
+import json, logging, sys, time
+root, file, mode = sys.argv[1], sys.argv[2], sys.argv[3]
+sys.path.insert(0, root)
+import companion
+assert companion.__file__.startswith(root), companion.__file__
+from companion.replay.flight import fly_schedule
+from companion.replay.runner import ReplayConfig, prepare_mission
+import companion.control.law as law
+import companion.flight.tracking as tr
+import companion.planning.schedule as sch
+import sitl_mock.autopilot.core as core
+import sitl_mock.quad as quad
+logging.disable(logging.WARNING)
+acc = {}
+pc = time.perf_counter
+def wrap(cls, name, label):
+    f = getattr(cls, name, None)
+    if f is None:
+        return
+    acc[label] = 0.0  # (the table's order)
+    def w(*a, **k):
+        t = pc()
+        r = f(*a, **k)
+        acc[label] = acc.get(label, 0.0) + pc() - t
+        return r
+    setattr(cls, name, w)
+wrap(core.Autopilot, "advance", "mock: advance (physics, autopilot, telemetry)")
+wrap(quad.Quadrotor, "step", "mock: . vehicle steps (physics, rate and attitude loops)")
+wrap(core.Autopilot, "_telemetry", "mock: . telemetry streams (build, pack)")
+wrap(core.Autopilot, "receive_datagram", "mock: input (setpoint decode, handlers)")
+wrap(tr.TrackingSource, "__call__", "companion: setpoint (TrackingSource)")
+wrap(sch.Schedule, "reference", "companion: . reference samples (Schedule.reference)")
+wrap(tr.TrackingSource, "_estimate", "companion: . estimate from telemetry")
+wrap(law.TrackingController, "_core", "companion: . controller (law._core)")
+wrap(law.TrackingController, "_ingest", "companion: . . estimators (law._ingest)")
+cfg = ReplayConfig(mode=mode)
+prep = prepare_mission(file, cfg)
+fly_schedule(cfg, prep.schedule, prep.home, None)  # warm-up, not timed
+acc.update(dict.fromkeys(acc, 0.0))
+t0 = pc()
+flight, _log = fly_schedule(cfg, prep.schedule, prep.home, None)
+total = pc() - t0
+acc["loop (fly_schedule, no tlog, timers included)"] = total
+print(json.dumps({"parts": acc, "cycles": flight.setpoints_sent}))
+"""
+
+
+def parts_once(tree: Path, file: Path, mode: str) -> dict[str, Any]:
+    proc = subprocess.run(
+        [sys.executable, "-c", _PARTS_CHILD, str(tree), str(file), mode],
+        cwd=tree, env=_env(tree, "cached"), capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        raise SystemExit(f"parts in {tree} failed:\n{proc.stderr[-3000:]}")
+    result: dict[str, Any] = json.loads(proc.stdout.strip().splitlines()[-1])
+    return result
+
+
+def cmd_parts(args: argparse.Namespace) -> str:
+    trees = [resolve_tree(t) for t in args.trees]
+    file = args.file.resolve()
+    runs: dict[Path, list[dict[str, Any]]] = {t: [] for t in trees}
+    for r in range(args.rounds):
+        for t in trees:
+            runs[t].append(parts_once(t, file, args.mode))
+            print(f"round {r + 1} {t}: loop "
+                  f"{runs[t][-1]['parts']['loop (fly_schedule, no tlog, timers included)']:.3f} s",
+                  flush=True)
+    base = trees[0]
+    labels = list(runs[base][0]["parts"])
+    for t in trees[1:]:
+        labels += [k for k in runs[t][0]["parts"] if k not in labels]
+    per: dict[Path, dict[str, float]] = {}
+    for t, rs in runs.items():
+        per[t] = {k: statistics.median(r["parts"].get(k, math.nan) / r["cycles"] * 1e6
+                                       for r in rs) for k in labels}
+    names = [t.name if t != ROOT else "this tree" for t in trees]
+    lines = [
+        f"Parts of the lockstep loop of `{file.name}` ({args.mode} mode, no tlog), us per "
+        f"setpoint cycle (medians of {args.rounds} rounds, trees alternating; a part missing "
+        "in a tree: nan):",
+        "",
+        "| part | " + " | ".join(names) + " | " + " | ".join(f"{n} / {names[0]}"
+                                                         for n in names[1:]) + " |",
+        "| --- |" + " ---: |" * (2 * len(trees) - 1),
+    ]
+    for k in labels:
+        cells = [f"{per[t][k]:.1f}" for t in trees]
+        ratios = [f"{per[t][k] / per[base][k]:.2f}" for t in trees[1:]]
+        lines.append(f"| {k} | " + " | ".join(cells + ratios) + " |")
     return "\n".join(lines)
 
 
@@ -262,6 +390,7 @@ def fingerprint_cases() -> dict[str, tuple[str, dict[str, Any]]]:
         "square_8ms attitude": (sq8, {"mode": "attitude"}),
         "square_8ms position": (sq8, {"mode": "position"}),
         "square_8ms rates": (sq8, {"mode": "rates"}),
+        "square attitude": (sq, {"mode": "attitude"}),
         "square perturbed, attitude": (sq, {
             "mode": "attitude", "seed": 7, "wind_m_s": 4.0, "wind_from_deg": 200.0,
             "latency_s": 0.03, "jitter_s": 0.01, "loss_pct": 2.0, "hover_thrust": 0.54,
@@ -297,7 +426,7 @@ def fingerprint(tree: Path) -> dict[str, dict[str, Any]]:
 
 
 def cmd_fingerprint(args: argparse.Namespace) -> str:
-    trees = [t.resolve() for t in args.trees]
+    trees = [resolve_tree(t) for t in args.trees]
     prints = {t: fingerprint(t) for t in trees}
     base = prints[trees[0]]
     lines = ["| case | " + " | ".join(t.name or str(t) for t in trees) + " | same |",
@@ -355,7 +484,7 @@ def campaign_once(tree: Path, runs: int, workers: int, modes: str) -> dict[str, 
 
 
 def cmd_campaign(args: argparse.Namespace) -> str:
-    trees = [t.resolve() for t in args.trees]
+    trees = [resolve_tree(t) for t in args.trees]
     res: dict[Path, list[dict[str, Any]]] = {t: [] for t in trees}
     for r in range(args.rounds):
         for t in trees:
@@ -427,7 +556,7 @@ def loop_instructions(tree: Path, file: Path, mode: str, tlog: bool) -> int:
 def cmd_instructions(args: argparse.Namespace) -> str:
     if shutil.which("valgrind") is None:
         raise SystemExit("valgrind not found")
-    trees = [t.resolve() for t in args.trees]
+    trees = [resolve_tree(t) for t in args.trees]
     file = args.file.resolve()
     rows = []
     for tlog in (True, False):
@@ -456,31 +585,37 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     a = sub.add_parser("ab")
-    a.add_argument("trees", nargs="+", type=Path)
+    a.add_argument("trees", nargs="+")
     a.add_argument("--file", type=Path, default=DEFAULT_FILE)
     a.add_argument("--mode", default="attitude", choices=("attitude", "position", "rates"))
     a.add_argument("--rounds", type=int, default=5)
     a.add_argument("--bytecode", default="cached", choices=("cached", "none"))
     a.add_argument("--plot", action="store_true", help="draw flight.png (default: --no-plot)")
+    q = sub.add_parser("parts")
+    q.add_argument("trees", nargs="+")
+    q.add_argument("--file", type=Path, default=DEFAULT_FILE)
+    q.add_argument("--mode", default="attitude", choices=("attitude", "position", "rates"))
+    q.add_argument("--rounds", type=int, default=3)
     p = sub.add_parser("profile")
     p.add_argument("--file", type=Path, default=DEFAULT_FILE)
     p.add_argument("--mode", default="attitude", choices=("attitude", "position", "rates"))
     p.add_argument("--top", type=int, default=30)
     f = sub.add_parser("fingerprint")
-    f.add_argument("trees", nargs="+", type=Path)
+    f.add_argument("trees", nargs="+")
     c = sub.add_parser("campaign")
-    c.add_argument("trees", nargs="+", type=Path)
+    c.add_argument("trees", nargs="+")
     c.add_argument("--runs", type=int, default=20, help="runs per mode")
     c.add_argument("--workers", type=int, default=2)
     c.add_argument("--rounds", type=int, default=1)
     c.add_argument("--modes", default="attitude,position,rates")
     n = sub.add_parser("instructions")
-    n.add_argument("trees", nargs="+", type=Path)
+    n.add_argument("trees", nargs="+")
     n.add_argument("--file", type=Path, default=DEFAULT_FILE)
     n.add_argument("--mode", default="attitude", choices=("attitude", "position", "rates"))
     args = ap.parse_args()
     text = {"ab": cmd_ab, "profile": cmd_profile, "fingerprint": cmd_fingerprint,
-            "campaign": cmd_campaign, "instructions": cmd_instructions}[args.cmd](args)
+            "campaign": cmd_campaign, "instructions": cmd_instructions,
+            "parts": cmd_parts}[args.cmd](args)
     print()
     print(text)
 

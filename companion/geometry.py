@@ -18,6 +18,8 @@ same leading shape. All are NaN-free at the edges (angle 0, angle pi, gimbal loc
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 
@@ -197,6 +199,10 @@ def dcm_to_quat(C: ArrayLike) -> FloatArray:
     """
     M = _as_float(C)
     _check_mat(M)
+    if M.shape == (3, 3):
+        q1 = _dcm_to_quat_single(M)
+        if q1 is not None:
+            return q1
     m00, m01, m02 = M[..., 0, 0], M[..., 0, 1], M[..., 0, 2]
     m10, m11, m12 = M[..., 1, 0], M[..., 1, 1], M[..., 1, 2]
     m20, m21, m22 = M[..., 2, 0], M[..., 2, 1], M[..., 2, 2]
@@ -216,6 +222,45 @@ def dcm_to_quat(C: ArrayLike) -> FloatArray:
     qs[..., 3, :] = np.stack([(m10 - m01) / s3, (m02 + m20) / s3, (m12 + m21) / s3, 0.25 * s3], -1)
     q = np.take_along_axis(qs, k[..., None, None], axis=-2)[..., 0, :]
     return quat_normalize(q)
+
+
+def _dcm_to_quat_single(M: FloatArray) -> FloatArray | None:
+    """`dcm_to_quat` of one finite (3, 3) matrix in floats: the same branch (the first largest
+    candidate, as argmax), the same operations in the same order, numpy's sum of squares order
+    for the norm (sequential over w, x, y, z) and the same w >= 0 sign, so the same bits, ~10x
+    faster (the rates-mode controller calls it every setpoint). None for a non-finite matrix
+    (the array path handles it)."""
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = M.tolist()
+    isfinite = math.isfinite
+    if not (isfinite(m00) and isfinite(m01) and isfinite(m02) and isfinite(m10)
+            and isfinite(m11) and isfinite(m12) and isfinite(m20) and isfinite(m21)
+            and isfinite(m22)):
+        return None
+    tr = m00 + m11 + m22
+    k, best = 0, tr
+    if m00 > best:
+        k, best = 1, m00
+    if m11 > best:
+        k, best = 2, m11
+    if m22 > best:
+        k = 3
+    if k == 0:
+        s = 2.0 * math.sqrt(max(1.0 + tr, 1e-300))
+        w, x, y, z = 0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s
+    elif k == 1:
+        s = 2.0 * math.sqrt(max(1.0 + m00 - m11 - m22, 1e-300))
+        w, x, y, z = (m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s
+    elif k == 2:
+        s = 2.0 * math.sqrt(max(1.0 - m00 + m11 - m22, 1e-300))
+        w, x, y, z = (m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s
+    else:
+        s = 2.0 * math.sqrt(max(1.0 - m00 - m11 + m22, 1e-300))
+        w, x, y, z = (m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s
+    n = math.sqrt(w * w + x * x + y * y + z * z)  # > 0: one component is >= 0.25 s > 0
+    w, x, y, z = w / n, x / n, y / n, z / n
+    if w < 0.0:
+        w, x, y, z = w * -1.0, x * -1.0, y * -1.0, z * -1.0
+    return np.array([w, x, y, z])
 
 
 def quat_exp(rotvec: ArrayLike) -> FloatArray:

@@ -24,6 +24,7 @@ Drag: `DragEstimator` estimates `k = D / m` [1/s] from the horizontal balance
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -265,6 +266,23 @@ class DragConfig:
     g: float = G0
 
 
+def body_z_ned(q_wxyz: FloatArray) -> tuple[float, float, float]:
+    """Body z axis in NED of a quaternion (w, x, y, z): `so3.quat_to_dcm(q_wxyz)[:, 2]` as
+    floats by the same operations (normalised first; zero or non-finite -> (0, 0, 1)), for the
+    drag estimator's input at the telemetry rate."""
+    w, x, y, z = q_wxyz.tolist()
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if not (math.isfinite(n) and n > 0.0):
+        return (0.0, 0.0, 1.0)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    return (2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y))
+
+
+def _floats(x: FloatArray | Sequence[float]) -> list[float]:
+    """A vector as a list of Python floats (an array's `tolist`)."""
+    return x.tolist() if isinstance(x, np.ndarray) else [float(c) for c in x]
+
+
 class DragEstimator:
     """Scalar Kalman filter for the linear drag per unit mass `k = D / m` [1/s].
 
@@ -292,10 +310,10 @@ class DragEstimator:
     def update(
         self,
         now: float,
-        acc_ned: FloatArray,
-        vel_ned: FloatArray,
+        acc_ned: FloatArray | Sequence[float],
+        vel_ned: FloatArray | Sequence[float],
         thrust_norm: float,
-        z_b_ned: FloatArray,
+        z_b_ned: FloatArray | Sequence[float],
         hover_thrust: float,
         airborne: bool = True,
         disturbance_ne: tuple[float, float] = (0.0, 0.0),
@@ -313,27 +331,28 @@ class DragEstimator:
         dt = 0.0 if self._t_last is None else max(0.0, now - self._t_last)
         self._t_last = now if self._t_last is None else max(now, self._t_last)
         self._var = min(self._var + c.process_noise_std**2 * dt, 4.0)
-        a = np.asarray(acc_ned, dtype=float)
-        v = np.asarray(vel_ned, dtype=float)
-        zb = np.asarray(z_b_ned, dtype=float)
-        if not (airborne and np.all(np.isfinite(a)) and np.all(np.isfinite(v))
-                and np.all(np.isfinite(zb)) and math.isfinite(thrust_norm)
+        # Python floats, not numpy scalars: the estimate is the controller's drag, which
+        # enters every setpoint's arithmetic (a numpy scalar operation costs ~5x more; the
+        # same IEEE results)
+        af, vf, zf = _floats(acc_ned), _floats(vel_ned), _floats(z_b_ned)
+        if not (airborne and all(map(math.isfinite, af)) and all(map(math.isfinite, vf))
+                and all(map(math.isfinite, zf)) and math.isfinite(thrust_norm)
                 and math.isfinite(hover_thrust) and hover_thrust > 0.0):
             return False
-        if math.hypot(v[0], v[1]) < c.min_speed:
+        if math.hypot(vf[0], vf[1]) < c.min_speed:
             return False
         fused_any = False
         R = c.acc_noise_std**2
         for i in (0, 1):
-            y = a[i] + c.g * thrust_norm * zb[i] / hover_thrust - disturbance_ne[i]
-            H = -v[i]
+            y = af[i] + c.g * thrust_norm * zf[i] / hover_thrust - disturbance_ne[i]
+            H = -vf[i]
             innov = y - H * self._k
             S = H * H * self._var + R
             if innov * innov > c.gate_sigma**2 * S:
                 continue
             K = self._var * H / S
-            self._k = min(max(self._k + K * innov, 0.0), c.max_value)
-            self._var = max((1.0 - K * H) * self._var, 1e-12)
+            self._k = float(min(max(self._k + K * innov, 0.0), c.max_value))
+            self._var = float(max((1.0 - K * H) * self._var, 1e-12))
             fused_any = True
         return fused_any
 
@@ -345,6 +364,7 @@ __all__ = [
     "HoverThrustConfig",
     "HoverThrustEstimator",
     "HoverThrustStatus",
+    "body_z_ned",
 ]
 
 

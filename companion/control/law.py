@@ -57,6 +57,7 @@ from companion.control.estimation import (
     DragEstimator,
     HoverThrustConfig,
     HoverThrustEstimator,
+    body_z_ned,
 )
 from companion.control.gains import (
     AttitudeGains,
@@ -350,11 +351,15 @@ class TrackingController:
             zb_mid_z = 0.5 * (body_z_down(est.q_wxyz) + body_z_down(last.q_wxyz))
             self.hover_estimator.update(est.t_s, acc_z, u, zb_mid_z, v_mid_z, airborne)
         if drag:
-            acc = est.acc_ned if est.acc_ned is not None else (est.vel_ned - last.vel_ned) / dt
-            zb = quat_to_dcm(est.q_wxyz)[:, 2]
-            zb_prev = quat_to_dcm(last.q_wxyz)[:, 2]
-            zb_mid = 0.5 * (zb + zb_prev)
-            v_mid = 0.5 * (est.vel_ned + last.vel_ned) if est.acc_ned is None else est.vel_ned
+            # plain floats (the same element-wise IEEE operations as the array expressions)
+            v1, v0 = est.vel_ned.tolist(), last.vel_ned.tolist()
+            if est.acc_ned is None:
+                acc, v_mid = [(a - b) / dt for a, b in zip(v1, v0, strict=True)], [
+                    0.5 * (a + b) for a, b in zip(v1, v0, strict=True)]
+            else:
+                acc, v_mid = est.acc_ned.tolist(), v1
+            zb_mid = [0.5 * (a + b) for a, b in
+                      zip(body_z_ned(est.q_wxyz), body_z_ned(last.q_wxyz), strict=True)]
             self.drag_estimator.update(
                 est.t_s, acc, v_mid, u, zb_mid, self.hover_thrust, airborne,
                 self.disturbance.acc_ne if dist else (0.0, 0.0),

@@ -3,7 +3,9 @@
 - the float quaternion helpers of the controller vs scipy's Rotation;
 - `StateEstimate.is_finite` still catches a non-finite value anywhere, and the constructor keeps
   its shape validation; `state_estimate_of_arrays` (no conversions) vs the constructor;
-- `TrackingController.attitude_values` vs `attitude` on the same input sequence.
+- `TrackingController.attitude_values` vs `attitude` on the same input sequence;
+- the drag estimator's float update vs its former numpy-array update, bit for bit, and the
+  controller's body z axes (`law._body_z`) vs `quat_to_dcm`.
 """
 
 from __future__ import annotations
@@ -24,7 +26,8 @@ from companion.control import (
     TrackingController,
     state_estimate_of_arrays,
 )
-from companion.control.so3 import body_z_down, quat_integrate_f, quat_normalize_f
+from companion.control.estimation import DragConfig, DragEstimator, body_z_ned
+from companion.control.so3 import body_z_down, quat_integrate_f, quat_normalize_f, quat_to_dcm
 from companion.flatness import MultirotorParams
 from tests.support.fields import fields_equal
 
@@ -141,3 +144,91 @@ def test_attitude_values_equals_attitude_on_a_sequence() -> None:
         assert q == tuple(cmd.q_wxyz.tolist())
         assert (thrust, rate_ff, sat) == (cmd.thrust_norm, cmd.yaw_rate_ff, cmd.saturated)
     assert a.hover_thrust == b.hover_thrust
+
+
+# ----------------------------------------------------------------------------- drag estimate
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.tuples(*[st.floats(-2.0, 2.0)] * 4))
+def test_body_z_is_the_third_dcm_column_bit_for_bit(q) -> None:  # type: ignore[no-untyped-def]
+    expected = quat_to_dcm(np.array(q))[:, 2].tolist()
+    got = body_z_ned(np.array(q))
+    assert all(type(c) is float for c in got)
+    assert list(got) == expected
+
+
+@pytest.mark.parametrize("q", [(0.0, 0.0, 0.0, 0.0), (math.nan, 0.0, 0.0, 1.0),
+                               (math.inf, 0.0, 0.0, 0.0)])
+def test_body_z_of_degenerate_quaternions_is_the_identity_column(q) -> None:  # type: ignore[no-untyped-def]
+    assert list(body_z_ned(np.array(q))) == quat_to_dcm(np.array(q))[:, 2].tolist() == [0, 0, 1]
+
+
+class _ArrayDragEstimator:
+    """`DragEstimator.update` as it was before its float rewrite (numpy arrays and scalars)."""
+
+    def __init__(self, config: DragConfig) -> None:
+        self.config = config
+        self._k = config.initial_drag_over_mass
+        self._var = config.initial_std**2
+        self._t_last: float | None = None
+
+    def update(self, now, acc_ned, vel_ned, thrust_norm, z_b_ned, hover_thrust,  # type: ignore[no-untyped-def]
+               airborne=True, disturbance_ne=(0.0, 0.0)):
+        c = self.config
+        dt = 0.0 if self._t_last is None else max(0.0, now - self._t_last)
+        self._t_last = now if self._t_last is None else max(now, self._t_last)
+        self._var = min(self._var + c.process_noise_std**2 * dt, 4.0)
+        a = np.asarray(acc_ned, dtype=float)
+        v = np.asarray(vel_ned, dtype=float)
+        zb = np.asarray(z_b_ned, dtype=float)
+        if not (airborne and np.all(np.isfinite(a)) and np.all(np.isfinite(v))
+                and np.all(np.isfinite(zb)) and math.isfinite(thrust_norm)
+                and math.isfinite(hover_thrust) and hover_thrust > 0.0):
+            return False
+        if math.hypot(v[0], v[1]) < c.min_speed:
+            return False
+        fused_any = False
+        R = c.acc_noise_std**2
+        for i in (0, 1):
+            y = a[i] + c.g * thrust_norm * zb[i] / hover_thrust - disturbance_ne[i]
+            H = -v[i]
+            innov = y - H * self._k
+            S = H * H * self._var + R
+            if innov * innov > c.gate_sigma**2 * S:
+                continue
+            K = self._var * H / S
+            self._k = min(max(self._k + K * innov, 0.0), c.max_value)
+            self._var = max((1.0 - K * H) * self._var, 1e-12)
+            fused_any = True
+        return fused_any
+
+
+@pytest.mark.parametrize("as_lists", [False, True])
+def test_drag_estimator_floats_equal_the_array_update(as_lists: bool) -> None:
+    """The same fused samples (random flight-like inputs, gated ones, slow ones, non-finite
+    ones, on the ground) give the same estimate to the bit, and it is a Python float (it was a
+    numpy scalar, which made every setpoint's arithmetic numpy-scalar arithmetic)."""
+    rng = np.random.default_rng(5)
+    cfg = DragConfig(initial_drag_over_mass=0.3, acc_noise_std=0.5)
+    new, old = DragEstimator(cfg), _ArrayDragEstimator(cfg)
+    fused = 0
+    for k in range(400):
+        v = rng.normal(0.0, 4.0, 3)
+        a = rng.normal(0.0, 2.0, 3) - 0.6 * v
+        zb = rng.normal(0.0, 0.2, 3) + np.array([0.0, 0.0, -1.0])
+        u, h = float(rng.uniform(0.3, 0.7)), float(rng.uniform(0.4, 0.6))
+        if k % 50 == 7:
+            a[1] = math.nan
+        if k % 40 == 3:
+            v[:2] *= 0.1  # below min_speed
+        airborne = k % 30 != 0
+        dist = (float(rng.normal(0.0, 0.3)), float(rng.normal(0.0, 0.3)))
+        args = ((a.tolist(), v.tolist(), u, zb.tolist()) if as_lists else (a, v, u, zb))
+        r_new = new.update(0.03 * k, *args, h, airborne, dist)
+        r_old = old.update(0.03 * k, a, v, u, zb, h, airborne, dist)
+        assert r_new == r_old
+        fused += r_new
+        assert new.drag_over_mass == old._k and new.std == math.sqrt(old._var)
+        assert type(new.drag_over_mass) is float
+    assert fused > 200  # the comparison covers fused updates, not only rejected ones
