@@ -24,6 +24,7 @@ from companion.control import (
     rates_mode_gains,
     so3_rate_command,
 )
+from companion.control.prediction import predict_attitude
 from companion.control.so3 import quat_integrate_f
 from companion.flatness import MultirotorParams
 
@@ -315,7 +316,7 @@ def test_rates_mode_attitude_prediction_follows_the_rates_commanded_since_the_sa
     q0 = Rotation.from_euler("ZYX", [0.3, 0.2, -0.4])
     x, y, z, w_ = q0.as_quat()
     w0 = [3.0, -1.5, 0.5]
-    got = np.array(c._predict_attitude(t_s, tau, [w_, x, y, z], w0, lag))
+    got = np.array(predict_attitude(c._rate_hist, t_s, tau, [w_, x, y, z], w0, lag))
     rot, w = q0, np.array(w0)
     h = 1e-5
     for t in np.arange(t_s, t_s + tau - h / 2, h):
