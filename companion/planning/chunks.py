@@ -92,8 +92,14 @@ class VehicleLimits:
     on chunks of at most ``ROVER_RETRY_MAX_LEGS`` legs) and the first pattern whose path keeps
     within ``corridor_m`` is flown; if none does (e.g. legs of kilometres: the joints are
     fractions of a leg), the one closest to the legs, with a warning."""
-    rover_max_yaw_rate_rad_s: float = math.radians(90.0)
-    rover_max_lat_acc_m_s2: float = 1.5
+    rover_max_yaw_rate_rad_s: float = math.radians(180.0)
+    """The rover's planned yaw rate [rad/s], also capped at PX4's RO_YAW_RATE_LIM (180 deg/s on
+    PX4 main's SIH Ackermann airframe, which slows its own AUTO.MISSION corners by it)."""
+    rover_max_lat_acc_m_s2: float = 3.0
+    """The rover's planned lateral acceleration [m/s^2] (PX4's Ackermann rover has no parameter
+    for it; 3.0 = its RO_ACCEL_LIM / RO_DECEL_LIM on PX4 main's SIH airframe, whose
+    AUTO.MISSION rounds the rover square's corners at 1.9-2.2 m/s; at 1.5 m/s^2 and 90 deg/s the
+    companion slowed to ~1.0-1.3 m/s there and took 1.08x AUTO.MISSION's time)."""
     rover_max_speed_m_s: float | None = None
     """Cap on the rover's planned speed [m/s] (leave the controller headroom below the
     vehicle's top speed); None plans at the mission's leg speeds."""
@@ -251,15 +257,16 @@ def _rover_corridor_deviation(traj: PiecewiseBezier, pts: FloatArray,
 
 
 #: A rover plans at this share of PX4's RO_SPEED_LIM and of its RO_ACCEL_LIM / RO_DECEL_LIM (the
-#: norm of the acceleration: speeding up, braking and turning together). The speed is planned
-#: at the whole limit: PX4 clamps the speed command at RO_SPEED_LIM but drives its speed on a
-#: throttle feed-forward that overshoots it (SIH Ackermann rover: 15-18 % over, truth; its
-#: AUTO.MISSION cruises at ~3.5 m/s on RO_SPEED_LIM 3), and the controller's learnt speed ratio
-#: then commands the plan's speed at ~0.85 of the limit, which leaves the along-track feedback
-#: its room; a rover that truly cannot exceed the plan is waited for (ProgressGovernor). At 0.9
-#: (session 19) the companion took 1.17x AUTO.MISSION's time on rover_square.
+#: norm of the acceleration: speeding up, braking and turning together). Both are the whole
+#: limit: PX4 clamps the speed command at RO_SPEED_LIM and slews it at RO_ACCEL_LIM itself, and
+#: its own AUTO.MISSION drives at them (SIH Ackermann rover, rover_square: 2.5-3.1 m/s on the
+#: legs, estimate; 2.8 m/s one second after the start); its speed loop is mostly throttle
+#: feed-forward (15-18 % over a 2 m/s command, truth), so the controller's learnt speed ratio
+#: leaves the along-track feedback some room, and a rover that cannot keep up is waited for
+#: (ProgressGovernor). At 0.9 / 0.8 (session 19) the companion took 1.17x AUTO.MISSION's time
+#: on rover_square.
 ROVER_SPEED_SHARE = 1.0
-ROVER_ACC_SHARE = 0.8
+ROVER_ACC_SHARE = 1.0
 
 
 def rover_limits(limits: VehicleLimits, px4: Px4PlanningParams, speed_m_s: float) -> RoverLimits:
