@@ -95,11 +95,12 @@ class VehicleLimits:
     rover_max_yaw_rate_rad_s: float = math.radians(180.0)
     """The rover's planned yaw rate [rad/s], also capped at PX4's RO_YAW_RATE_LIM (180 deg/s on
     PX4 main's SIH Ackermann airframe, which slows its own AUTO.MISSION corners by it)."""
-    rover_max_lat_acc_m_s2: float = 3.0
+    rover_max_lat_acc_m_s2: float = 2.0
     """The rover's planned lateral acceleration [m/s^2] (PX4's Ackermann rover has no parameter
-    for it; 3.0 = its RO_ACCEL_LIM / RO_DECEL_LIM on PX4 main's SIH airframe, whose
-    AUTO.MISSION rounds the rover square's corners at 1.9-2.2 m/s; at 1.5 m/s^2 and 90 deg/s the
-    companion slowed to ~1.0-1.3 m/s there and took 1.08x AUTO.MISSION's time)."""
+    for it). PX4 main's SIH rover, one flight each (its AUTO.MISSION rounds corners at 1.9-2.2
+    m/s): at 3.0 the companion came out of rover_stairs.plan's corners 0.5-0.9 m wide (legs RMS
+    0.34 m); at 1.5 rover_square took 1.08x AUTO.MISSION's time (1.03x at 2.0 and 3.0) and a
+    stairs waypoint 0.50 m off; at 2.0 every waypoint within 0.35 m, legs RMS 0.20-0.22 m."""
     rover_max_speed_m_s: float | None = None
     """Cap on the rover's planned speed [m/s] (leave the controller headroom below the
     vehicle's top speed); None plans at the mission's leg speeds."""
