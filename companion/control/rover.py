@@ -34,7 +34,7 @@ class RoverGains:
     k_cross: float = 0.8
     lookahead_s: float = 0.7
     """The heading correction's gain is at most 1 / (lookahead_s * v) [1/m] at the driven speed
-    v (see :meth:`RoverController.cross_gain`)."""
+    v (see :meth:`RoverController.cross_gain`); <= 0: no cap."""
     k_heading: float = 2.0
     max_speed: float = 3.0
     max_yaw_rate: float = math.radians(90.0)
@@ -179,7 +179,9 @@ class RoverController:
         RO_SPEED_LIM); the cap holds it at 1 / lookahead_s (1.4 rad/s, binding above 1.8 m/s)."""
         k = self.gains
         v = abs(speed_m_s) if math.isfinite(speed_m_s) else 0.0
-        return min(k.k_cross, 1.0 / (k.lookahead_s * v)) if v > 0.0 else k.k_cross
+        if v > 0.0 and k.lookahead_s > 0.0:  # (lookahead_s <= 0: no cap)
+            return min(k.k_cross, 1.0 / (k.lookahead_s * v))
+        return k.k_cross
 
     def _learn_speed_ratio(self, dt: float, est: StateEstimate, planned_m_s: float) -> None:
         """Low-pass driven / commanded speed while the planned speed is steady and the rover

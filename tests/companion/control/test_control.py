@@ -679,6 +679,7 @@ def test_rover_cross_gain_holds_the_closing_rate_at_speed() -> None:
     for v in (v_knee * 1.001, 2.5, 3.0, 10.0):
         assert v * ctl.cross_gain(v) == pytest.approx(1.0 / g.lookahead_s, rel=1e-12)
     assert ctl.cross_gain(math.nan) == g.k_cross
+    assert RoverController(RoverGains(lookahead_s=0.0)).cross_gain(3.0) == g.k_cross
     # closing rate from the heading the controller commands (finite difference at e = 0)
     for v in (1.0, 3.0):
         est = _est(0.0, [0.0, 0.0, 0.0], [v, 0.0, 0.0])
@@ -695,8 +696,8 @@ def test_rover_cross_gain_holds_the_closing_rate_at_speed() -> None:
 def test_rover_at_speed_closes_a_cross_track_error_without_weaving() -> None:
     """At 3 m/s behind a heading lag and a link delay (`_weave`), the speed-scheduled gain
     comes in with at most 10 % overshoot of the initial metre, less than half the fixed gain
-    k_cross's (lookahead off), and settles within 5 cm."""
-    fixed = _weave(RoverGains(lookahead_s=1e-9))
+    k_cross's (lookahead_s 0: no cap), and settles within 5 cm."""
+    fixed = _weave(RoverGains(lookahead_s=0.0))
     sched = _weave(RoverGains())
     assert -min(sched) < 0.10
     assert -min(sched) < 0.5 * -min(fixed)
