@@ -92,8 +92,15 @@ class VehicleLimits:
     on chunks of at most ``ROVER_RETRY_MAX_LEGS`` legs) and the first pattern whose path keeps
     within ``corridor_m`` is flown; if none does (e.g. legs of kilometres: the joints are
     fractions of a leg), the one closest to the legs, with a warning."""
-    rover_max_yaw_rate_rad_s: float = math.radians(90.0)
-    rover_max_lat_acc_m_s2: float = 1.5
+    rover_max_yaw_rate_rad_s: float = math.radians(180.0)
+    """The rover's planned yaw rate [rad/s], also capped at PX4's RO_YAW_RATE_LIM (180 deg/s on
+    PX4 main's SIH Ackermann airframe, which slows its own AUTO.MISSION corners by it)."""
+    rover_max_lat_acc_m_s2: float = 2.0
+    """The rover's planned lateral acceleration [m/s^2] (PX4's Ackermann rover has no parameter
+    for it). PX4 main's SIH rover, one flight each (its AUTO.MISSION rounds corners at 1.9-2.2
+    m/s): at 3.0 the companion came out of rover_stairs.plan's corners 0.5-0.9 m wide (legs RMS
+    0.34 m); at 1.5 rover_square took 1.08x AUTO.MISSION's time (1.03x at 2.0 and 3.0) and a
+    stairs waypoint 0.50 m off; at 2.0 every waypoint within 0.35 m, legs RMS 0.20-0.22 m."""
     rover_max_speed_m_s: float | None = None
     """Cap on the rover's planned speed [m/s] (leave the controller headroom below the
     vehicle's top speed); None plans at the mission's leg speeds."""
@@ -250,11 +257,17 @@ def _rover_corridor_deviation(traj: PiecewiseBezier, pts: FloatArray,
     return float(np.max(dev))
 
 
-#: A rover plans at this share of PX4's RO_SPEED_LIM (the along-track feedback needs room above
-#: the plan) and of its RO_ACCEL_LIM / RO_DECEL_LIM (the norm of the acceleration: speeding up,
-#: braking and turning together).
-ROVER_SPEED_SHARE = 0.9
-ROVER_ACC_SHARE = 0.8
+#: A rover plans at this share of PX4's RO_SPEED_LIM and of its RO_ACCEL_LIM / RO_DECEL_LIM (the
+#: norm of the acceleration: speeding up, braking and turning together). Both are the whole
+#: limit: PX4 clamps the speed command at RO_SPEED_LIM and slews it at RO_ACCEL_LIM itself, and
+#: its own AUTO.MISSION drives at them (SIH Ackermann rover, rover_square: 2.5-3.1 m/s on the
+#: legs, estimate; 2.8 m/s one second after the start); its speed loop is mostly throttle
+#: feed-forward (15-18 % over a 2 m/s command, truth), so the controller's learnt speed ratio
+#: leaves the along-track feedback some room, and a rover that cannot keep up is waited for
+#: (ProgressGovernor). At 0.9 / 0.8 (session 19) the companion took 1.17x AUTO.MISSION's time
+#: on rover_square.
+ROVER_SPEED_SHARE = 1.0
+ROVER_ACC_SHARE = 1.0
 
 
 def rover_limits(limits: VehicleLimits, px4: Px4PlanningParams, speed_m_s: float) -> RoverLimits:

@@ -35,6 +35,7 @@ class Drive:
     last_mode: tuple[int, int]
     disarmed_at_end: bool
     report: dict[str, object]
+    arm_modes: list[tuple[int, int] | None]  # the HEARTBEAT's mode when each ARM went out
 
 
 def _read(tlog: Path, code: int, output: str) -> Drive:
@@ -44,11 +45,14 @@ def _read(tlog: Path, code: int, output: str) -> Drive:
     pos: list[tuple[float, float]] = []
     sent: set[str] = set()
     vmax = 0.0
+    arm_modes: list[tuple[int, int] | None] = []
     while True:
         msg = m.recv_match(blocking=False)
         if msg is None:
             break
         kind = msg.get_type()
+        if kind == "COMMAND_LONG" and msg.command == 400 and msg.param1 == 1.0:
+            arm_modes.append(mode)
         if kind == "HEARTBEAT" and msg.get_srcSystem() == 1 and msg.autopilot == 12:
             mode = ((msg.custom_mode >> 16) & 0xFF, (msg.custom_mode >> 24) & 0xFF)
             armed = bool(msg.base_mode & 128)
@@ -62,7 +66,7 @@ def _read(tlog: Path, code: int, output: str) -> Drive:
     assert mode is not None
     report = json.loads(Path(f"{tlog}.report.json").read_text())
     return Drive(code, output, np.array(pos).reshape(-1, 2), sent, vmax, mode,
-                 not armed, report)
+                 not armed, report, arm_modes)
 
 
 async def _drive(tmp_path: Path, name: str, *params: str) -> Drive:
@@ -93,6 +97,8 @@ async def test_fly_drives_a_rover_through_its_corners_and_a_stuck_one_is_held(
     # the rover drove on velocity setpoints only, within its speed limit, through every
     # waypoint within NAV_ACC_RAD, and ended in Hold, disarmed
     assert ok.code == 0, ok.output[-3000:]
+    # armed in OFFBOARD, its stream primed (as the replay; PX4 main's rover drives off at once)
+    assert ok.arm_modes and all(md == (OFFBOARD, 0) for md in ok.arm_modes), ok.arm_modes
     assert ok.sent == {"SET_POSITION_TARGET_LOCAL_NED"}
     assert ok.max_cmd_speed <= RO_SPEED_LIM + 1e-6
     closest = [float(np.min(np.linalg.norm(ok.pos_offboard - w, axis=1))) for w in wps]

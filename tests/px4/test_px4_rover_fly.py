@@ -1,8 +1,10 @@
 """`python -m companion fly` driving PX4 main's SIH Ackermann rover (fixture `px4_rover`)
-through tests/data/missions/rover_short.plan (14 m north, then 12 m east round a right angle),
-judged from the flight's .tlog as an outsider would: the waypoints from the file's
-latitude/longitude (independent geodesy) placed at PX4's HOME_POSITION, PX4's own
-LOCAL_POSITION_NED, the messages the companion sent and PX4's HEARTBEAT. About 35 s."""
+through tests/data/missions/rover_short.plan (14 m north, then 12 m east round a right angle;
+about 35 s) and the bundled examples/missions/rover_square.plan (a 30 m square, three right
+angles, at RO_SPEED_LIM; about 60 s), judged from the flight's .tlog as an outsider would: the
+waypoints from the file's latitude/longitude (independent geodesy) placed at PX4's
+HOME_POSITION, PX4's own LOCAL_POSITION_NED, the messages the companion sent and PX4's
+HEARTBEAT."""
 
 from __future__ import annotations
 
@@ -12,27 +14,32 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 from pymavlink import mavutil
 
 from px4_harness import Px4Sitl
 from tests.support.mission_oracle import expected_ne
 
 REPO = Path(__file__).resolve().parents[2]
-MISSION = REPO / "tests" / "data" / "missions" / "rover_short.plan"
+MISSIONS = {"rover_short": REPO / "tests" / "data" / "missions" / "rover_short.plan",
+            "rover_square": REPO / "examples" / "missions" / "rover_square.plan"}
 NAV_ACC_RAD = 0.5  # the airframe's
 RO_SPEED_LIM = 3.0
 OFFBOARD = 6 << 16
 HOLD = (4 << 16) | (3 << 24)
 
 
-async def test_fly_drives_a_rover_mission_on_real_px4(px4_rover: Px4Sitl, tmp_path: Path) -> None:
+@pytest.mark.parametrize("name", sorted(MISSIONS))
+async def test_fly_drives_a_rover_mission_on_real_px4(px4_rover: Px4Sitl, tmp_path: Path,
+                                                      name: str) -> None:
+    MISSION = MISSIONS[name]
     tlog = tmp_path / "rover.tlog"
     proc = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "companion", "fly", str(MISSION), "--connect", px4_rover.url,
         "--target-system", str(px4_rover.target_system), "--log", str(tlog), "--timeout", "30",
         stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT, cwd=REPO)
     try:
-        out, _ = await asyncio.wait_for(proc.communicate(), 150.0)
+        out, _ = await asyncio.wait_for(proc.communicate(), 180.0)
     finally:
         if proc.returncode is None:
             proc.kill()
