@@ -46,10 +46,16 @@ def _read(tlog: Path, code: int, output: str) -> Drive:
     sent: set[str] = set()
     vmax = 0.0
     arm_modes: list[tuple[int, int] | None] = []
-    while True:
-        msg = m.recv_match(blocking=False)
-        if msg is None:
-            break
+    try:
+        msgs = []
+        while True:
+            msg = m.recv_match(blocking=False)
+            if msg is None:
+                break
+            msgs.append(msg)
+    finally:
+        m.close()
+    for msg in msgs:
         kind = msg.get_type()
         if kind == "COMMAND_LONG" and msg.command == 400 and msg.param1 == 1.0:
             arm_modes.append(mode)
