@@ -19,6 +19,7 @@ from companion.control.gains import (
 )
 from companion.control.law import TrackingController
 from companion.control.rover import RoverController, RoverGains
+from companion.control.shaping import ShapedReference, ShapingConfig
 from companion.control.so3 import (
     attitude_error,
     quat_integrate,
@@ -38,6 +39,8 @@ __all__ = [
     "Reference",
     "RoverController",
     "RoverGains",
+    "ShapedReference",
+    "ShapingConfig",
     "StateEstimate",
     "Telemetry",
     "TrackingConfig",

@@ -200,6 +200,12 @@ class TrackingConfig:
     rates_separation: if > 0, `rates` mode flies `rates_mode_gains(gains, attitude_gains,
         rates_separation)` (the cascade-separation cap, 2.5 before the feed-forward); 0 (the
         default) flies the configured gains.
+    shape_reference: bend a reference that needs more tilt than `max_tilt_rad` into one within
+        it, ahead of time (`companion.control.shaping.ShapedReference`, run by the flight's
+        `TrackingSource`); a reference within the limit is flown unchanged.
+    shape_margin_rad: the tilt [rad] the bent reference leaves to the feedback; None: 2 deg in
+        `attitude` mode, 3 deg in `rates` mode (figure-8 on the mock, 0.8 kg against 45 deg:
+        BENCHMARKS.md, "The tilt limit: what it costs").
     """
 
     params: MultirotorParams
@@ -228,6 +234,8 @@ class TrackingConfig:
     estimate_disturbance: bool = True
     position_smoothing_s: float = 0.1
     disturbance_config: DisturbanceConfig | None = None
+    shape_reference: bool = True
+    shape_margin_rad: float | None = None
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_tilt_rad < math.radians(89.0):
@@ -247,6 +255,9 @@ class TrackingConfig:
             raise ValueError("rates_separation must be >= 0 (0: no cap)")
         if not (math.isfinite(self.max_yaw_rate_rad_s) and self.max_yaw_rate_rad_s > 0.0):
             raise ValueError("max_yaw_rate_rad_s must be > 0")
+        m = self.shape_margin_rad
+        if m is not None and not (math.isfinite(m) and 0.0 <= m < self.max_tilt_rad):
+            raise ValueError("shape_margin_rad must be in [0, max_tilt_rad)")
 
 
 @dataclass(frozen=True)
