@@ -51,7 +51,8 @@ class ShapingConfig:
 
     horizon_s: how far ahead each solve looks [s]; knot_s: B-spline knot spacing [s] (a solve
     every knot); sample_s: spacing of the constraint samples [s]; margin_rad: the tilt left to
-    the feedback [rad]; smooth_weight: w2, the weight of |delta''|^2 [s^4];
+    the feedback [rad]; trigger_margin_rad: a bend starts only where the plan asks for more
+    than the limit less this [rad]; smooth_weight: w2, the weight of |delta''|^2 [s^4];
     max_correction_m: a solution that moves the reference further than this [m] is not used
     (the plan is well beyond the limit: the time scaler's job, not a bend's); the correction
     under way then fades out.
@@ -61,6 +62,7 @@ class ShapingConfig:
     knot_s: float = 0.2
     sample_s: float = 0.05
     margin_rad: float = math.radians(1.0)
+    trigger_margin_rad: float = 0.0
     smooth_weight: float = 1e-3
     max_correction_m: float = 0.3
 
@@ -258,10 +260,14 @@ class ShapedReference:
         acc = np.array([r.acc_ned for r in refs]) * (s * s)
         need = acc[:, :2] + (s * dm) * np.array([r.vel_ned[:2] for r in refs]) - (dx, dy)
         tilt = max(self.max_tilt_rad - cfg.margin_rad, 0.0)
-        umax = np.maximum(self.g - acc[:, 2], 0.0) * math.tan(tilt)
+        vertical = np.maximum(self.g - acc[:, 2], 0.0)
+        umax = vertical * math.tan(tilt)
         mag = np.linalg.norm(need, axis=1)
         committed = [self._coef.get(i + 1 + int(c)) for c in self._cols[: DEGREE + 1]]
-        if not any(v is not None for v in committed) and bool(np.all(mag <= umax)):
+        # a bend starts only where the plan itself asks for more than the limit (a plan timed
+        # within it is flown as planned); once started it keeps the margin
+        trigger = vertical * math.tan(max(self.max_tilt_rad - cfg.trigger_margin_rad, 0.0))
+        if not any(v is not None for v in committed) and bool(np.all(mag <= trigger)):
             self.active = False
             return
         self.solves += 1

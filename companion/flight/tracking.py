@@ -75,11 +75,11 @@ MAX_LINK_RTT_S = 0.2
 #: The touchdown's tilt limit leaves this much [rad] above the tilt holding still in the
 #: estimated wind needs (`TrackingSource._landing_tilt`).
 LANDING_TILT_MARGIN_RAD = math.radians(5.0)
-#: The tilt [deg] a bent reference leaves to the feedback, per mode (TrackingConfig's
-#: `shape_margin_rad` overrides it): rates mode's tilt guard acts at the limit itself, so it
-#: needs more (figure-8 at 6 m/s, 0.8 kg against 45 deg on the mock: attitude 0.091 m with 2,
-#: 0.105 with 3; rates 0.182 with 1, 0.108 with 2, 0.081 with 3).
-SHAPE_MARGIN_DEG = {"attitude": 2.0, "rates": 3.0, "position": 2.0, "rover": 2.0}
+#: The tilt [deg] a bent reference leaves to the feedback (TrackingConfig's `shape_margin_rad`
+#: overrides it). Figure-8 at 6 m/s, 0.8 kg against 45 deg on the mock: attitude 0.091 m with
+#: 2, 0.105 with 3; rates 0.108 with 2, 0.081 with 3. But in the campaign's windy runs rates mode
+#: with 3 bent plans near the limit it would have flown (one_minute run 6: 0.07 -> 0.12 m).
+SHAPE_MARGIN_DEG = 2.0
 #: The handover [s] when attitude or rates setpoints follow position setpoints in OFFBOARD (the
 #: flight's first; serve's join after its hold stream): PX4 v1.16's commander republishes
 #: vehicle_control_mode only "at 2 Hz or immediately when changed", and a changed offboard
@@ -322,8 +322,8 @@ class TrackingSource:
         self.shaper: ShapedReference | None = None
         c = self.controller.config if self.controller is not None else None
         if c is not None and c.shape_reference:
-            margin = c.shape_margin_rad if c.shape_margin_rad is not None else math.radians(
-                SHAPE_MARGIN_DEG[mode])
+            margin = (c.shape_margin_rad if c.shape_margin_rad is not None
+                      else math.radians(SHAPE_MARGIN_DEG))
             self.shaper = ShapedReference(reference, ShapingConfig(margin_rad=margin),
                                           max_tilt_rad=c.max_tilt_rad, g=c.params.g)
         self.rover = RoverController() if mode == "rover" else None

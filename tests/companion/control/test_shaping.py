@@ -7,6 +7,7 @@ omega r sqrt(omega^2 + (D/m)^2) = g tan(limit)."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -115,7 +116,7 @@ def test_the_derivatives_it_reports_are_those_of_its_position() -> None:
     dt = 1e-3
     refs = fly(sh, 12.0, dt)
     names = ("pos_ned", "vel_ned", "acc_ned", "jerk_ned", "snap_ned")
-    for lo, hi in zip(names, names[1:], strict=False):
+    for lo, hi in itertools.pairwise(names):
         x = np.array([getattr(r, lo) for _, r in refs])
         d = np.array([getattr(r, hi) for _, r in refs])
         fd = (x[2:] - x[:-2]) / (2 * dt)
