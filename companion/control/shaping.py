@@ -111,7 +111,7 @@ class ShapedReference:
     solve when it first reaches a new knot interval). Calls evaluate only, at any time (the
     look-ahead, a second look at the same time); beyond the last solve's horizon the correction
     fades to zero. `solves` counts the QPs solved, `active` is True while a correction is
-    non-zero. `g` [m/s^2].
+    non-zero. `enabled` False: no new bend (one under way fades out). `g` [m/s^2].
     """
 
     def __init__(self, reference: Callable[[float], Reference],
@@ -123,6 +123,7 @@ class ShapedReference:
         self.drag_per_kg = 0.0
         self.disturbance_ne = (0.0, 0.0)
         self.rate = 1.0  # reference seconds per flight second (a time scaler's slowing)
+        self.enabled = True  # False: no new bend; one under way fades out
         self.g = g
         self._coef: dict[int, FloatArray] = {}  # knot index -> (2,) coefficient [m]
         self._interval: int | None = None  # the knot interval of the last solve
@@ -267,7 +268,8 @@ class ShapedReference:
         # a bend starts only where the plan itself asks for more than the limit (a plan timed
         # within it is flown as planned); once started it keeps the margin
         trigger = vertical * math.tan(max(self.max_tilt_rad - cfg.trigger_margin_rad, 0.0))
-        if not any(v is not None for v in committed) and bool(np.all(mag <= trigger)):
+        idle = not self.enabled or bool(np.all(mag <= trigger))
+        if not any(v is not None for v in committed) and idle:
             self.active = False
             return
         self.solves += 1
@@ -301,15 +303,15 @@ class ShapedReference:
         rhs = umax - np.sum(nrm * (need + fix[2] + dm * fix[1]), axis=1)
         lbx = np.full(2 * m + k, -np.inf)
         lbx[2 * m:] = 0.0
-        c = self._qp(hmat, gvec, amat, rhs, lbx)
+        c = self._qp(hmat, gvec, amat, rhs, lbx) if self.enabled else None
         if c is not None:
             delta = fix[0] + free[0] @ c
             if float(np.max(np.linalg.norm(delta, axis=1))) > cfg.max_correction_m:
                 c = None
         if c is None:
             # no bend within max_correction_m (the plan is well past the limit: the time
-            # scaler's job) or no solution: the correction under way fades out smoothly
-            self.failures += 1
+            # scaler's job), no solution, or not enabled: the correction under way fades out
+            self.failures += self.enabled
             c = self._qp(hmat, gvec, amat, np.full(k, np.inf), lbx)
             if c is None:
                 c = np.zeros((m, 2))

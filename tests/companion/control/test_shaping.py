@@ -91,22 +91,23 @@ def test_a_reference_within_the_limit_is_passed_through_unchanged() -> None:
 
 @pytest.mark.parametrize("dm", [0.0, 1.25])
 def test_a_circle_too_fast_is_bent_to_the_concentric_circle_at_the_limit(dm: float) -> None:
-    radius, limit, margin = 5.0, math.radians(45.0), math.radians(2.0)
+    radius, limit, margin = 3.0, math.radians(45.0), math.radians(2.0)
     tilt = limit - margin
-    # the rate at which the circle 0.15 m inside is exactly at the limit:
-    # omega^2 (omega^2 + dm^2) = (g tan(tilt) / r)^2
-    k = G * math.tan(tilt) / (radius - 0.15)
+    # the rate at which the circle 0.25 m inside is exactly at the limit less the margin:
+    # omega^2 (omega^2 + dm^2) = (g tan(tilt) / r)^2; the circle itself then asks for 45.5 deg
+    k = G * math.tan(tilt) / (radius - 0.25)
     omega = math.sqrt((-dm**2 + math.sqrt(dm**4 + 4 * k**2)) / 2)
     r_star = G * math.tan(tilt) / (omega * math.hypot(omega, dm))
-    assert r_star == pytest.approx(radius - 0.15)
-    sh = ShapedReference(circle(radius, omega), ShapingConfig(margin_rad=margin),
-                         max_tilt_rad=limit)
+    assert r_star == pytest.approx(radius - 0.25)
+    assert demand_tilt(circle(radius, omega)(20.0), dm) > limit  # a bend starts only past it
+    cfg = ShapingConfig(margin_rad=margin, max_correction_m=1.0)  # the spin-up bends more
+    sh = ShapedReference(circle(radius, omega), cfg, max_tilt_rad=limit)
     sh.drag_per_kg = dm
     steady = [r for t, r in fly(sh, 30.0) if t > 16.0]
     radii = np.array([math.hypot(r.pos_ned[0], r.pos_ned[1]) for r in steady])
     tilts = np.array([demand_tilt(r, dm) for r in steady])
     assert sh.solves > 0 and sh.failures == 0
-    assert np.max(np.abs(radii - r_star)) < 0.01  # [m], of a 0.15 m bend
+    assert np.max(np.abs(radii - r_star)) < 0.01  # [m], of a 0.25 m bend
     assert np.max(tilts) < tilt + math.radians(0.5)
 
 
