@@ -124,6 +124,7 @@ class ShapedReference:
         self.disturbance_ne = (0.0, 0.0)
         self.rate = 1.0  # reference seconds per flight second (a time scaler's slowing)
         self.enabled = True  # False: no new bend; one under way fades out
+        self.error: str | None = None  # why the QP solver was given up (see `_qp`)
         self.g = g
         self._coef: dict[int, FloatArray] = {}  # knot index -> (2,) coefficient [m]
         self._interval: int | None = None  # the knot interval of the last solve
@@ -226,13 +227,21 @@ class ShapedReference:
 
     def _qp(self, hmat: FloatArray, gvec: FloatArray, amat: FloatArray, uba: FloatArray,
             lbx: FloatArray) -> FloatArray | None:
-        """The QP's coefficients (m, 2), or None if it has no finite solution."""
-        if self._solver is None:
-            self._solver = self._build_solver()
-        sol = self._solver(h=hmat, g=gvec, a=amat, lba=-np.inf, uba=uba, lbx=lbx)
-        c: FloatArray = np.asarray(sol["x"])[: 2 * self._m].reshape(2, self._m).T
-        ok = bool(self._solver.stats().get("success", False)) and bool(np.all(np.isfinite(c)))
-        return c if ok else None
+        """The QP's coefficients (m, 2), or None if it has no finite solution. A solver that
+        cannot be built or raises (a broken install) is given up for good: the reference is
+        then flown as planned, the bend under way fading out, and `error` says why."""
+        if self.error is not None:
+            return None
+        try:
+            if self._solver is None:
+                self._solver = self._build_solver()
+            sol = self._solver(h=hmat, g=gvec, a=amat, lba=-np.inf, uba=uba, lbx=lbx)
+            c: FloatArray = np.asarray(sol["x"])[: 2 * self._m].reshape(2, self._m).T
+            ok = bool(self._solver.stats().get("success", False))
+        except Exception as exc:  # never let the bend take a flight down
+            self.error = f"reference shaping disabled: {type(exc).__name__}: {exc}"
+            return None
+        return c if ok and bool(np.all(np.isfinite(c))) else None
 
     def _sample(self, t_s: float) -> Reference:
         """The plan's reference at a sample time (kept: successive windows share samples)."""

@@ -145,3 +145,16 @@ def test_a_plan_far_past_the_limit_gets_no_bend_larger_than_the_cap() -> None:
     bend = max(float(np.linalg.norm(r.pos_ned - base(t).pos_ned)) for t, r in refs)
     assert sh.failures > 0
     assert bend <= cap * 1.2
+
+
+def test_a_solver_that_fails_to_load_leaves_the_plan_flown_as_planned() -> None:
+    class Broken(ShapedReference):
+        def _build_solver(self) -> object:
+            raise RuntimeError("Plugin 'daqp' is not found")
+
+    base = circle(3.0, 2.0)  # far past the limit: a bend would be wanted at once
+    sh = Broken(base, max_tilt_rad=math.radians(45.0))
+    refs = fly(sh, 10.0)
+    assert sh.error is not None and "daqp" in sh.error
+    for t, r in refs:
+        assert np.array_equal(r.pos_ned, base(t).pos_ned)
