@@ -377,9 +377,8 @@ def _light_figure8(mode: str, shape: bool, mass: float = 0.8) -> tuple[float, fl
 
     cfg = bt.default_controller_config(max_tilt_rad=math.radians(45.0))
     ctl = TrackingController(cfg)
-    margin = math.radians(2.0)  # companion.flight.tracking.SHAPE_MARGIN_DEG
     plan = lambda t: bt.figure8_reference(t, 6.0)[0]  # noqa: E731
-    sh = ShapedReference(plan, ShapingConfig(margin_rad=margin), max_tilt_rad=cfg.max_tilt_rad)
+    sh = ShapedReference(plan, ShapingConfig(), max_tilt_rad=cfg.max_tilt_rad)
 
     def reference(t: float) -> tuple[Reference, float]:
         phase = bt.figure8_reference(t, 6.0)[1]

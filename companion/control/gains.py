@@ -203,8 +203,8 @@ class TrackingConfig:
     shape_reference: bend a reference that needs more tilt than `max_tilt_rad` into one within
         it, ahead of time (`companion.control.shaping.ShapedReference`, run by the flight's
         `TrackingSource`); a reference within the limit is flown unchanged.
-    shape_margin_rad: the tilt [rad] the bent reference leaves to the feedback; None: 2 deg
-        (`companion.flight.tracking.SHAPE_MARGIN_DEG`).
+    shape_margin_rad: the tilt [rad] the bent reference leaves to the feedback; None:
+        `ShapingConfig`'s default (2 deg).
     """
 
     params: MultirotorParams

@@ -75,11 +75,6 @@ MAX_LINK_RTT_S = 0.2
 #: The touchdown's tilt limit leaves this much [rad] above the tilt holding still in the
 #: estimated wind needs (`TrackingSource._landing_tilt`).
 LANDING_TILT_MARGIN_RAD = math.radians(5.0)
-#: The tilt [deg] a bent reference leaves to the feedback (TrackingConfig's `shape_margin_rad`
-#: overrides it). Figure-8 at 6 m/s, 0.8 kg against 45 deg on the mock: attitude 0.091 m with
-#: 2, 0.105 with 3; rates 0.108 with 2, 0.081 with 3. But in the campaign's windy runs rates mode
-#: with 3 bent plans near the limit it would have flown (one_minute run 6: 0.07 -> 0.12 m).
-SHAPE_MARGIN_DEG = 2.0
 #: The handover [s] when attitude or rates setpoints follow position setpoints in OFFBOARD (the
 #: flight's first; serve's join after its hold stream): PX4 v1.16's commander republishes
 #: vehicle_control_mode only "at 2 Hz or immediately when changed", and a changed offboard
@@ -322,10 +317,10 @@ class TrackingSource:
         self.shaper: ShapedReference | None = None
         c = self.controller.config if self.controller is not None else None
         if c is not None and c.shape_reference:
-            margin = (c.shape_margin_rad if c.shape_margin_rad is not None
-                      else math.radians(SHAPE_MARGIN_DEG))
-            self.shaper = ShapedReference(reference, ShapingConfig(margin_rad=margin),
-                                          max_tilt_rad=c.max_tilt_rad, g=c.params.g)
+            shaping = (ShapingConfig() if c.shape_margin_rad is None
+                       else ShapingConfig(margin_rad=c.shape_margin_rad))
+            self.shaper = ShapedReference(reference, shaping, max_tilt_rad=c.max_tilt_rad,
+                                          g=c.params.g)
         self.rover = RoverController() if mode == "rover" else None
         # a rover's reference waits for it (ProgressGovernor), a multirotor's slows down for it
         # (TimeScaler, with `time_scaling`); position mode flies the clock (PX4 flies it)
@@ -456,6 +451,12 @@ class TrackingSource:
         """The plan's reference at `t_s`, bent within the tilt limit (see `shaper`)."""
         return self.reference(t_s) if self.shaper is None else self.shaper(t_s)
 
+    def _disturbance(self) -> tuple[float, float]:
+        """The horizontal disturbance [m/s^2, NE] the controller estimates (0 when it does not)."""
+        ctl = self.controller
+        assert ctl is not None
+        return ctl.disturbance.acc_ne if ctl.config.estimate_disturbance else (0.0, 0.0)
+
     def _shape(self, t_s: float) -> None:
         """Bring the shaper to reference time `t_s` with the controller's estimates (the
         drag per mass and the disturbance the tilt must also carry, the limit in force)."""
@@ -464,8 +465,7 @@ class TrackingSource:
         assert ctl is not None and sh is not None
         p = ctl.config.params
         sh.drag_per_kg = ctl.drag / p.mass
-        sh.disturbance_ne = (ctl.disturbance.acc_ne if ctl.config.estimate_disturbance
-                             else (0.0, 0.0))
+        sh.disturbance_ne = self._disturbance()
         gov = self.governor
         sh.rate = gov.rate if isinstance(gov, TimeScaler) else 1.0
         # wind the tilt limit cannot carry at the plan's pace is the time scaler's: a bend
@@ -500,7 +500,7 @@ class TrackingSource:
         the vehicle would drift with the wind instead of landing where planned)."""
         ctl = self.controller
         assert ctl is not None
-        dx, dy = ctl.disturbance.acc_ne if ctl.config.estimate_disturbance else (0.0, 0.0)
+        dx, dy = self._disturbance()
         hold = math.atan2(math.hypot(dx, dy), ctl.config.params.g) + LANDING_TILT_MARGIN_RAD
         return min(max(td.max_tilt_rad, hold), ctl.config.max_tilt_rad)
 
