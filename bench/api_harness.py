@@ -114,6 +114,8 @@ class ReferenceRecorder:
     def __init__(self, source: Callable[[float, TelemetrySnapshot], Any]) -> None:
         self.source = source
         self.clock: list[tuple[float, float]] = []
+        #: per setpoint of a multirotor TrackingSource (`TRACE_FIELDS`), for diagnosis
+        self.trace: list[tuple[float, ...]] = []
 
     @property
     def t0_unix(self) -> float | None:
@@ -123,7 +125,43 @@ class ReferenceRecorder:
     def __call__(self, t_s: float, telemetry: TelemetrySnapshot) -> Any:
         if t_s > 0.0:
             self.clock.append((time.time() - (time.monotonic() - telemetry.now_s), t_s))
-        return self.source(t_s, telemetry)
+        out = self.source(t_s, telemetry)
+        if t_s > 0.0:
+            row = trace_row(self.source, t_s, out)
+            if row is not None:
+                self.trace.append(row)
+        return out
+
+
+#: Columns of `ReferenceRecorder.trace` (NED, SI units): flight time, reference time, the
+#: time scaler's rate, the flown reference's position / velocity / acceleration, the plan's
+#: position at the reference time (the bend is the difference), the estimate's position, the
+#: controller's disturbance and drag per mass and hover thrust, the command (thrust, and the
+#: body rates of rates mode).
+TRACE_FIELDS = ("t", "t_ref", "rate", "rx", "ry", "rz", "rvx", "rvy", "rvz", "rax", "ray",
+                "raz", "px", "py", "ex", "ey", "ez", "dx", "dy", "dm", "hover", "thrust",
+                "wx", "wy", "wz")
+
+
+def trace_row(source: Any, t_s: float, out: Any) -> tuple[float, ...] | None:
+    """One `TRACE_FIELDS` row of a TrackingSource's last call (None for other sources)."""
+    ctl = getattr(source, "controller", None)
+    ref = getattr(source, "_flown", None)
+    if ctl is None or ref is None:
+        return None
+    t_ref = source.reference_time_s
+    t_ref = t_s if t_ref is None else t_ref
+    gov = getattr(source, "governor", None)
+    plan = source.reference(t_ref) if math.isfinite(t_ref) and t_ref >= 0.0 else None
+    est = getattr(source, "_est", None)
+    e = est.pos_ned.tolist() if est is not None else [math.nan] * 3
+    p = plan.pos_ned.tolist() if plan is not None else [math.nan] * 3
+    w = list(getattr(out, "omega_frd", None) or getattr(out, "rates", None) or [math.nan] * 3)
+    d = ctl.disturbance.acc_ne
+    return (t_s, t_ref, gov.rate if gov is not None else 1.0, *ref.pos_ned.tolist(),
+            *ref.vel_ned.tolist(), *ref.acc_ned.tolist(), p[0], p[1], *e, d[0], d[1],
+            ctl.drag / ctl.config.params.mass, ctl.hover_thrust,
+            float(getattr(out, "thrust_norm", getattr(out, "thrust", math.nan))), *w[:3])
 
 
 @dataclass
@@ -209,6 +247,9 @@ async def fly_on(v: Vehicle, mode: str, reference: Callable[[float], Reference],
     rec = ReferenceRecorder(source_factory(ref, mode))
     await v.fly(mode=mode, setpoint_source=rec, duration_s=duration_s)
     assert rec.t0_unix is not None
+    if rec.trace and v.config.tlog_path:
+        np.savez_compressed(Path(v.config.tlog_path).with_name("trace.npz"),
+                            fields=np.array(TRACE_FIELDS), trace=np.array(rec.trace))
     return Flight(Path(v.config.tlog_path or ""), rec.t0_unix, duration_s, ref,
                   np.array(ref(0.0).pos_ned), {"source": rec.source},
                   np.array(rec.clock).reshape(-1, 2),

@@ -553,7 +553,7 @@ HOVER_S = 30.0
 def _controller_factory(overrides: list[str]) -> Any:
     """A TrackingSource factory with TrackingConfig / TrackingGains fields overridden
     (`kp_xy=12`, `attitude_lead_s=0.1`, ...; `hover_thrust=0.55`: the hover thrust the companion
-    is told; `tilt_max_deg=50`: the tilt limit it is told, default PX4's 45 deg); None without
+    is told, `mass=0.8` likewise; `tilt_max_deg=50`: the tilt limit it is told, default PX4's 45 deg); None without
     overrides (the defaults)."""
     if not overrides:
         return None
@@ -578,7 +578,7 @@ def _controller_factory(overrides: list[str]) -> Any:
                 val = float(v)
             except ValueError:
                 val = v
-        if k == "hover_thrust":  # what the companion is told (MultirotorParams)
+        if k in ("hover_thrust", "mass"):  # what the companion is told (MultirotorParams)
             pkw[k] = val
             continue
         if k == "tilt_max_deg":  # the tilt limit the companion is told (PX4's MPC_TILTMAX_AIR)

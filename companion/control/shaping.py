@@ -13,7 +13,7 @@ a uniform quintic B-spline on the reference's own clock (knots every `knot_s`): 
 give a reference continuous through snap, so a correction never steps the feed-forward. Every
 knot the coefficients of the next `horizon_s` are chosen by a small QP,
 
-    minimise   sum_k |delta(t_k)|^2 + w2 |delta''(t_k)|^2
+    minimise   sum_k |delta(t_k)|^2 + w2 |delta''(t_k)|^2 + w3 |delta'''(t_k)|^2
     subject to n_k . (a_k + delta''(t_k) + (D/m) (v_k + delta'(t_k)) - d) <= (g - a_z,k) tan(tilt)
 
 over samples t_k of the horizon: a (acceleration), v (velocity) and a_z from the reference;
@@ -54,7 +54,12 @@ class ShapingConfig:
     the feedback [rad] (figure-8 at 6 m/s, 0.8 kg against 45 deg on the mock: attitude 0.091 m
     with 2 deg, 0.105 with 3; rates 0.108 with 2, 0.081 with 3, but in the campaign's windy
     runs rates mode with 3 bent plans near the limit it would have flown: one_minute run 6,
-    0.07 -> 0.12 m); smooth_weight: w2, the weight of |delta''|^2 [s^4];
+    0.07 -> 0.12 m); smooth_weight: w2, the weight of |delta''|^2 [s^4]; jerk_weight: w3, the
+    weight of |delta'''|^2 [s^6]: without it a bend doubled the reference's jerk (light
+    figure-8, 15 -> 30 m/s^3), which rates mode flies as body rates: on real PX4 the roll rate
+    saturated at 220 deg/s and one flight of six fell 1.5 m behind; with 1e-3 the jerk stays
+    the plan's and the mock's light figure-8 improves (rates 0.119 -> 0.079 m, attitude
+    0.091 -> 0.088; nominal 1 kg rates 0.035 -> 0.024);
     max_correction_m: a solution that moves the reference further than this [m] is not used
     (the plan is well beyond the limit: the time scaler's job, not a bend's); the correction
     under way then fades out.
@@ -65,6 +70,7 @@ class ShapingConfig:
     sample_s: float = 0.05
     margin_rad: float = math.radians(2.0)
     smooth_weight: float = 1e-3
+    jerk_weight: float = 1e-3
     max_correction_m: float = 0.3
 
 
@@ -113,7 +119,9 @@ class ShapedReference:
     solve when it first reaches a new knot interval). Calls evaluate only, at any time (the
     look-ahead, a second look at the same time); beyond the last solve's horizon the correction
     fades to zero. `solves` counts the QPs solved, `active` is True while a correction is
-    non-zero. `enabled` False: no new bend (one under way fades out). `g` [m/s^2].
+    non-zero, `fading` while the last solve found no bend within the limit and the cap (the
+    correction under way fades out). `enabled` False: no new bend (one under way fades out).
+    `g` [m/s^2].
     """
 
     def __init__(self, reference: Callable[[float], Reference],
@@ -136,6 +144,7 @@ class ShapedReference:
         self.solves = 0
         self.failures = 0
         self.active = False
+        self.fading = False  # the last solve found no bend within the limit and the cap
         self._m = round(cfg.horizon_s / cfg.knot_s)  # free coefficients per solve
         self._k = round(cfg.horizon_s / cfg.sample_s)  # constraint samples per solve
         off = np.arange(self._k) * cfg.sample_s  # sample offsets from the window start [s]
@@ -149,7 +158,7 @@ class ShapedReference:
         cols = np.arange(-DEGREE, self._m + 1)  # knot index relative to the window start
         x = off[:, None] / cfg.knot_s - cols[None, :]
         self._cols = cols
-        self._b = [cardinal_bspline(x, n) / cfg.knot_s**n for n in range(3)]
+        self._b = [cardinal_bspline(x, n) / cfg.knot_s**n for n in range(4)]
         self._solver: Any = None  # built at the first solve (casadi is imported then)
 
     def _build_solver(self) -> Any:
@@ -264,6 +273,7 @@ class ShapedReference:
         lo = round((i + 1) * h / cfg.sample_s)
         self._samples = {k: v for k, v in self._samples.items() if k >= lo}
         committed = [self._coef.get(i + 1 + int(c)) for c in self._cols[: DEGREE + 1]]
+        self.fading = False
         if not self.enabled and all(v is None for v in committed):
             self.active = False
             return
@@ -288,13 +298,13 @@ class ShapedReference:
         self.solves += 1
         nc = DEGREE + 1
         cfix = np.array([v if v is not None else np.zeros(2) for v in committed])  # (6, 2)
-        b0, b1, b2 = self._b
-        # delta and its derivatives at the samples: fixed part + free part
-        fix = [b[:, :nc] @ cfix for b in (b0, b1, b2)]  # (k, 2) each
-        free = [b[:, nc:] for b in (b0, b1, b2)]  # (k, m)
+        # delta and its derivatives 0..3 at the samples: fixed part + free part
+        fix = [b[:, :nc] @ cfix for b in self._b]  # (k, 2) each
+        free = [b[:, nc:] for b in self._b]  # (k, m)
         m = self._m
-        w2 = cfg.smooth_weight
-        hq = 2.0 * (free[0].T @ free[0] + w2 * free[2].T @ free[2]) + 1e-9 * np.eye(m)
+        w2, w3 = cfg.smooth_weight, cfg.jerk_weight
+        hq = 2.0 * (free[0].T @ free[0] + w2 * free[2].T @ free[2]
+                    + w3 * free[3].T @ free[3]) + 1e-9 * np.eye(m)
         # a slack >= 0 on each sample's constraint, weighed heavily: samples the committed
         # coefficients already carry past the limit (the window's first knot interval is all
         # committed) keep their excess without relaxing the others
@@ -305,7 +315,8 @@ class ShapedReference:
         for ax in range(2):
             sl = slice(ax * m, (ax + 1) * m)
             hmat[sl, sl] = hq
-            gvec[sl] = 2.0 * (free[0].T @ fix[0][:, ax] + w2 * free[2].T @ fix[2][:, ax])
+            gvec[sl] = 2.0 * (free[0].T @ fix[0][:, ax] + w2 * free[2].T @ fix[2][:, ax]
+                              + w3 * free[3].T @ fix[3][:, ax])
         nrm = need / np.maximum(mag, 1e-9)[:, None]
         # n . (need + s^2 fix'' + s dm fix' + (s^2 B2 + s dm B1) c) <= umax: flown at rate s,
         # d/dt of the flight is s d/dt of the reference
@@ -325,6 +336,7 @@ class ShapedReference:
             # no bend within max_correction_m (the plan is well past the limit: the time
             # scaler's job), no solution, or not enabled: the correction under way fades out
             self.failures += self.enabled
+            self.fading = self.enabled
             c = self._qp(hmat, gvec, amat, np.full(k, np.inf), lbx)
             if c is None:
                 c = np.zeros((m, 2))

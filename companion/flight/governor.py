@@ -158,10 +158,10 @@ def warped(ref: Reference, rate: float, d_rate: float) -> Reference:
 
 
 def feasible_rate(refs: list[Reference], d_ne: tuple[float, float], drag_per_kg: float,
-                  max_tilt_rad: float, g: float) -> float:
+                  max_tilt_rad: float, g: float, share: float = FEASIBLE_SHARE) -> float:
     """The largest reference rate s in [0, 1] at which every reference in `refs` (the plan at
     and after the reference time, see FEASIBLE_AHEAD_S) keeps its horizontal demand
-    |s^2 a + s (D/m) v - d| within FEASIBLE_SHARE of g tan(`max_tilt_rad`) (or 70 % of what
+    |s^2 a + s (D/m) v - d| within `share` of g tan(`max_tilt_rad`) (or 70 % of what
     holding still in the disturbance `d_ne` [m/s^2] leaves of it); 0 where holding still alone
     needs the whole limit."""
     dx, dy = d_ne
@@ -173,14 +173,14 @@ def feasible_rate(refs: list[Reference], d_ne: tuple[float, float], drag_per_kg:
     # until none is (each pass only lowers it)
     for _ in range(8):
         before = cap
-        cap = _feasible_pass(refs, dx, dy, k, full, cap)
+        cap = _feasible_pass(refs, dx, dy, k, full, cap, share)
         if cap == before or cap == 0.0:
             return cap
     return cap
 
 
 def _feasible_pass(refs: list[Reference], dx: float, dy: float, k: float, full: float,
-                   cap: float) -> float:
+                   cap: float, share: float) -> float:
     """One pass of `feasible_rate` over `refs` from the rate `cap` down."""
     for r in refs:
         ax, ay = float(r.acc_ned[0]), float(r.acc_ned[1])
@@ -193,7 +193,7 @@ def _feasible_pass(refs: list[Reference], dx: float, dy: float, k: float, full: 
         hold = need(0.0)
         if hold >= full:  # not even holding still is within the tilt limit
             return 0.0
-        lim = max(FEASIBLE_SHARE * full, hold + 0.7 * (full - hold))
+        lim = max(share * full, hold + 0.7 * (full - hold))
         if need(cap) <= lim:
             continue
         lo, hi = 0.0, cap

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -47,32 +48,44 @@ def test_the_rate_is_the_largest_within_the_limit(refs: list[tuple[float, float,
     assert got >= min(first_bad, 1.0) - 5e-4
 
 
-def test_drag_estimated_above_the_configured_one_slows_a_reference_beyond_the_tilt_limit() -> None:
+@pytest.mark.parametrize("shape", [False, True])
+def test_drag_estimated_above_the_configured_one_slows_a_reference_beyond_the_tilt_limit(
+        shape: bool) -> None:
     """A lighter vehicle than told: its drag per mass is estimated 40 % above the configured
     one, and the disturbance reads ~0 (the drag estimator took the error). A turn at 6 m/s with
-    5 m/s^2 of centripetal acceleration then needs |a + k v| = 9.8 m/s^2, beyond FEASIBLE_SHARE
-    of 45 deg's g tan(45 deg) (8.8): the source caps the rate below 1. With the configured drag
-    (7.8 m/s^2 needed, the gate's control) it keeps rate 1."""
-    import pytest
+    5 m/s^2 of centripetal acceleration then needs |a + k v| = 9.8 m/s^2, beyond 45 deg's
+    g tan(45 deg) = 9.81 less any margin: the source caps the rate below 1. Without the bend
+    the cap keeps FEASIBLE_SHARE (8.8 m/s^2) for the feedback; with the bend in charge it is
+    the bend's own limit less half its margin, 44 deg (9.47 m/s^2), so the two never disagree.
+    Oracle: the rate s at which |s^2 a + s k v| equals that limit, by SciPy's brentq. With the
+    configured drag (7.8 m/s^2 needed, the gate's control) it keeps rate 1."""
+    from scipy.optimize import brentq
 
-    from companion.control import Reference
+    from companion.control import Reference, TrackingConfig
     from companion.flatness import MultirotorParams
     from companion.flight.tracking import TrackingSource
 
     params = MultirotorParams(1.0, np.diag([0.025, 0.025, 0.03]), hover_thrust=0.5, drag=1.0)
+    a, v = np.array([-5.0, 0.0, 0.0]), np.array([0.0, 6.0, 0.0])
 
     def ref(t: float) -> Reference:
-        return Reference(np.array([0.0, 6.0 * t, -5.0]), np.array([0.0, 6.0, 0.0]),
-                         np.array([-5.0, 0.0, 0.0]))
+        return Reference(np.array([0.0, 6.0 * t, -5.0]), v, a)
 
     caps = []
     for k in (1.4, 1.0):
-        src = TrackingSource(ref, "attitude", params, max_tilt_rad=math.radians(45.0))
+        src = TrackingSource(ref, "attitude", params, max_tilt_rad=math.radians(45.0),
+                             tracking=TrackingConfig(params, max_tilt_rad=math.radians(45.0),
+                                                     shape_reference=shape))
         ctl = src.controller
         assert ctl is not None
+        assert (src.shaper is not None) == shape
         ctl.drag_estimator._k = k  # what the estimator learnt in flight [1/s]
         assert ctl.drag == pytest.approx(k)
         caps.append(src._feasible_rate(1.0))
     lighter, told = caps
-    assert lighter < 0.95
+    limit = G * (math.tan(math.radians(44.0)) if shape else FEASIBLE_SHARE * math.tan(
+        math.radians(45.0)))
+    want = brentq(lambda r: math.hypot(r * r * a[0], r * 1.4 * v[1]) - limit, 0.1, 1.0)
+    assert lighter == pytest.approx(want, abs=1e-3)
+    assert lighter < 0.99
     assert told == 1.0
