@@ -553,8 +553,8 @@ HOVER_S = 30.0
 def _controller_factory(overrides: list[str]) -> Any:
     """A TrackingSource factory with TrackingConfig / TrackingGains fields overridden
     (`kp_xy=12`, `attitude_lead_s=0.1`, ...; `hover_thrust=0.55`: the hover thrust the companion
-    is told, `mass=0.8` likewise; `tilt_max_deg=50`: the tilt limit it is told, default PX4's 45 deg); None without
-    overrides (the defaults)."""
+    is told, `mass=0.8` likewise; `tilt_max_deg=50`: the tilt limit it is told, default PX4's
+    45 deg); None without overrides (the defaults)."""
     if not overrides:
         return None
     from dataclasses import fields, replace
