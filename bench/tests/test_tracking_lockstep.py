@@ -404,7 +404,7 @@ def test_a_reference_bent_within_the_tilt_limit_is_tracked_closer(mode: str) -> 
     48.2 deg against the 45 deg limit over 17 % of a lap, where the least error any controller
     can reach is 0.02 m RMS (bench/tilt_bound.py). Reacting alone the law is off by 0.154 m
     (attitude) and 0.197 m (rates) on the mock; flying the reference bent ahead of time, by
-    0.091 and 0.119 m (the same law on the nominal vehicle: 0.065 and 0.035 m)."""
+    0.077 and 0.058 m (the same law on the nominal vehicle: 0.060 and 0.019 m)."""
     plain, _ = _light_figure8(mode, shape=False)
     bent, _ = _light_figure8(mode, shape=True)
-    assert bent < 0.65 * plain
+    assert bent < 0.6 * plain

@@ -56,12 +56,13 @@ def test_drag_estimated_above_the_configured_one_slows_a_reference_beyond_the_ti
     5 m/s^2 of centripetal acceleration then needs |a + k v| = 9.8 m/s^2, beyond 45 deg's
     g tan(45 deg) = 9.81 less any margin: the source caps the rate below 1. Without the bend
     the cap keeps FEASIBLE_SHARE (8.8 m/s^2) for the feedback; with the bend in charge it is
-    the bend's own limit less half its margin, 44 deg (9.47 m/s^2), so the two never disagree.
+    the bend's own limit less half its margin (44.5 deg, 9.64 m/s^2), so the two never
+    disagree.
     Oracle: the rate s at which |s^2 a + s k v| equals that limit, by SciPy's brentq. With the
     configured drag (7.8 m/s^2 needed, the gate's control) it keeps rate 1."""
     from scipy.optimize import brentq
 
-    from companion.control import Reference, TrackingConfig
+    from companion.control import Reference, ShapingConfig, TrackingConfig
     from companion.flatness import MultirotorParams
     from companion.flight.tracking import TrackingSource
 
@@ -83,8 +84,9 @@ def test_drag_estimated_above_the_configured_one_slows_a_reference_beyond_the_ti
         assert ctl.drag == pytest.approx(k)
         caps.append(src._feasible_rate(1.0))
     lighter, told = caps
-    limit = G * (math.tan(math.radians(44.0)) if shape else FEASIBLE_SHARE * math.tan(
-        math.radians(45.0)))
+    margin = ShapingConfig().margin_rad
+    limit = G * (math.tan(math.radians(45.0) - 0.5 * margin) if shape
+                 else FEASIBLE_SHARE * math.tan(math.radians(45.0)))
     want = brentq(lambda r: math.hypot(r * r * a[0], r * 1.4 * v[1]) - limit, 0.1, 1.0)
     assert lighter == pytest.approx(want, abs=1e-3)
     assert lighter < 0.99
