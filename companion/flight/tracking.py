@@ -35,6 +35,7 @@ from companion.flight.governor import (
     FEASIBLE_AHEAD_S,
     FEASIBLE_EVERY,
     FEASIBLE_MIN_DIST,
+    FEASIBLE_SHARE,
     ProgressGovernor,
     TimeScaler,
     feasible_rate,
@@ -533,19 +534,12 @@ class TrackingSource:
             return 1.0
         refs = [self._reference_at(t_ref + a) for a in FEASIBLE_AHEAD_S]
         sh = self.shaper
-        if sh is not None and sh.enabled and sh.error is None and not sh.fading:
-            # the bend is in charge of a plan a little past the limit: the reference checked
-            # is the bent one, against the bend's own limit (less half its margin, for the
-            # slack of its linearised cone). With FEASIBLE_SHARE here the two disagreed: real
-            # PX4, 0.8 kg figure-8, the bend held 43 deg, the check wanted 41.6 and slowed
-            # 4 of 6 flights by 0.3 s that it flew within 0.15 m unslowed (session 22). A plan
-            # the bend cannot carry (`fading`) is checked as before.
-            margin = sh.config.margin_rad
-            cap = feasible_rate(refs, (dx, dy), ctl.drag / p.mass,
-                                ctl.config.max_tilt_rad - 0.5 * margin, p.g, share=1.0)
-        else:
-            cap = feasible_rate(refs, (dx, dy), ctl.drag / p.mass, ctl.config.max_tilt_rad,
-                                p.g)
+        # while the bend is in charge: the bent reference against the bend's own limit less
+        # half its margin (two limits apart slowed flights the bend flew: control.md, 7)
+        tilt, share = ((ctl.config.max_tilt_rad - 0.5 * sh.config.margin_rad, 1.0)
+                       if sh is not None and sh.enabled and sh.error is None and not sh.fading
+                       else (ctl.config.max_tilt_rad, FEASIBLE_SHARE))
+        cap = feasible_rate(refs, (dx, dy), ctl.drag / p.mass, tilt, p.g, share)
         self._cap = cap
         return cap
 
