@@ -123,13 +123,13 @@ class ReferenceRecorder:
         return self.clock[0][0] - self.clock[0][1] if self.clock else None
 
     def __call__(self, t_s: float, telemetry: TelemetrySnapshot) -> Any:
-        if t_s > 0.0:
-            self.clock.append((time.time() - (time.monotonic() - telemetry.now_s), t_s))
+        if t_s <= 0.0:
+            return self.source(t_s, telemetry)
+        self.clock.append((time.time() - (time.monotonic() - telemetry.now_s), t_s))
         out = self.source(t_s, telemetry)
-        if t_s > 0.0:
-            row = trace_row(self.source, t_s, out)
-            if row is not None:
-                self.trace.append(row)
+        row = trace_row(self.source, t_s, out)
+        if row is not None:
+            self.trace.append(row)
         return out
 
 
@@ -146,22 +146,21 @@ TRACE_FIELDS = ("t", "t_ref", "rate", "rx", "ry", "rz", "rvx", "rvy", "rvz", "ra
 def trace_row(source: Any, t_s: float, out: Any) -> tuple[float, ...] | None:
     """One `TRACE_FIELDS` row of a TrackingSource's last call (None for other sources)."""
     ctl = getattr(source, "controller", None)
-    ref = getattr(source, "_flown", None)
+    ref = getattr(source, "last_reference", None)
     if ctl is None or ref is None:
         return None
     t_ref = source.reference_time_s
     t_ref = t_s if t_ref is None else t_ref
-    gov = getattr(source, "governor", None)
-    plan = source.reference(t_ref) if math.isfinite(t_ref) and t_ref >= 0.0 else None
-    est = getattr(source, "_est", None)
+    gov = source.governor
+    p = source.reference(max(t_ref, 0.0)).pos_ned.tolist()
+    est = source._est  # the estimate the call used (None before the first telemetry)
     e = est.pos_ned.tolist() if est is not None else [math.nan] * 3
-    p = plan.pos_ned.tolist() if plan is not None else [math.nan] * 3
-    w = list(getattr(out, "omega_frd", None) or getattr(out, "rates", None) or [math.nan] * 3)
+    w = getattr(out, "omega_frd", (math.nan,) * 3)
     d = ctl.disturbance.acc_ne
     return (t_s, t_ref, gov.rate if gov is not None else 1.0, *ref.pos_ned.tolist(),
             *ref.vel_ned.tolist(), *ref.acc_ned.tolist(), p[0], p[1], *e, d[0], d[1],
             ctl.drag / ctl.config.params.mass, ctl.hover_thrust,
-            float(getattr(out, "thrust_norm", getattr(out, "thrust", math.nan))), *w[:3])
+            float(getattr(out, "thrust_norm", math.nan)), *w)
 
 
 @dataclass

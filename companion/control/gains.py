@@ -204,7 +204,7 @@ class TrackingConfig:
         it, ahead of time (`companion.control.shaping.ShapedReference`, run by the flight's
         `TrackingSource`); a reference within the limit is flown unchanged.
     shape_margin_rad: the tilt [rad] the bent reference leaves to the feedback; None:
-        `ShapingConfig`'s default (2 deg).
+        `ShapingConfig`'s default.
     """
 
     params: MultirotorParams

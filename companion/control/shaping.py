@@ -60,8 +60,8 @@ class ShapingConfig:
     weight of |delta'''|^2 [s^6]: without it a bend doubled the reference's jerk (light
     figure-8, 15 -> 30 m/s^3), which rates mode flies as body rates: on real PX4 the roll rate
     saturated at 220 deg/s and one flight of six fell 1.5 m behind; with 1e-3 the jerk stays
-    the plan's and the mock's light figure-8 improves (rates 0.119 -> 0.079 m, attitude
-    0.091 -> 0.088; nominal 1 kg rates 0.035 -> 0.024);
+    the plan's and the mock's light figure-8 improves (at a 2 deg margin: rates 0.119 ->
+    0.079 m, attitude 0.091 -> 0.088; nominal 1 kg rates 0.035 -> 0.024);
     max_correction_m: a solution that moves the reference further than this [m] is not used
     (the plan is well beyond the limit: the time scaler's job, not a bend's); the correction
     under way then fades out.
@@ -125,6 +125,12 @@ class ShapedReference:
     correction under way fades out). `enabled` False: no new bend (one under way fades out).
     `g` [m/s^2].
     """
+
+    @property
+    def in_charge(self) -> bool:
+        """The bend carries the plan's excess over the limit: enabled, its solver working, and
+        its last solve not fading out."""
+        return self.enabled and self.error is None and not self.fading
 
     def __init__(self, reference: Callable[[float], Reference],
                  config: ShapingConfig | None = None, *, max_tilt_rad: float = math.radians(45.0),

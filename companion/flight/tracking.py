@@ -537,7 +537,7 @@ class TrackingSource:
         # while the bend is in charge: the bent reference against the bend's own limit less
         # half its margin (two limits apart slowed flights the bend flew: control.md, 7)
         tilt, share = ((ctl.config.max_tilt_rad - 0.5 * sh.config.margin_rad, 1.0)
-                       if sh is not None and sh.enabled and sh.error is None and not sh.fading
+                       if sh is not None and sh.in_charge
                        else (ctl.config.max_tilt_rad, FEASIBLE_SHARE))
         cap = feasible_rate(refs, (dx, dy), ctl.drag / p.mass, tilt, p.g, share)
         self._cap = cap

@@ -74,9 +74,8 @@ def test_drag_estimated_above_the_configured_one_slows_a_reference_beyond_the_ti
 
     caps = []
     for k in (1.4, 1.0):
-        src = TrackingSource(ref, "attitude", params, max_tilt_rad=math.radians(45.0),
-                             tracking=TrackingConfig(params, max_tilt_rad=math.radians(45.0),
-                                                     shape_reference=shape))
+        src = TrackingSource(ref, "attitude", tracking=TrackingConfig(
+            params, max_tilt_rad=math.radians(45.0), shape_reference=shape))
         ctl = src.controller
         assert ctl is not None
         assert (src.shaper is not None) == shape
