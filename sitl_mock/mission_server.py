@@ -350,6 +350,17 @@ class MissionServer:
             return
         if self.state == "download":
             self._idle()
+        if self.state == "upload":
+            # as PX4 (mavlink_mission.cpp, GETLIST): the count again before any item arrived
+            # means our first request was lost: ask again; later it is refused as busy and
+            # the transfer in progress goes on
+            self._last_recv = now
+            if self._expected == 0:
+                self._request(now)
+            else:
+                self._statustext(mavlink.MAV_SEVERITY_CRITICAL, "WPM: REJ. CMD: Busy")
+                self._ack(src, mavlink.MAV_MISSION_ERROR, mtype)
+            return
         count = int(msg.count)
         if count > MAX_ITEMS:
             self._ack(src, mavlink.MAV_MISSION_NO_SPACE, mtype)
@@ -473,17 +484,17 @@ class MissionServer:
     def _on_mission_ack(self, msg: Msg, src: tuple[int, int], now: float) -> None:
         if self.state == "idle" or src != self._partner:
             return
-        if (
-            self.state == "upload"
-            and int(msg.type) == mavlink.MAV_MISSION_UNSUPPORTED
-            and not self._use_int
-        ):
-            # the client NACKs the float MISSION_REQUEST (MAVSDK does): switch to _INT requests
-            self._use_int = True
-            self._last_recv = now
-            self._request(now)
+        if self.state == "upload":
+            # as PX4 (mavlink_mission.cpp, GETLIST): UNSUPPORTED toggles between float and
+            # _INT requests (MAVSDK NACKs the float one; a duplicated NACK toggles back and the
+            # client NACKs again), CANCELLED ends the upload, any other result is ignored
+            if int(msg.type) == mavlink.MAV_MISSION_UNSUPPORTED:
+                self._use_int = not self._use_int
+                self._request(now)
+            elif int(msg.type) == mavlink.MAV_MISSION_OPERATION_CANCELLED:
+                self._idle()
             return
-        self._idle()  # the partner ended or cancelled the transfer
+        self._idle()  # the partner ended or cancelled the download
 
     # ---------------------------------------------------------------- clear
     def _on_mission_clear_all(self, msg: Msg, src: tuple[int, int], now: float) -> None:

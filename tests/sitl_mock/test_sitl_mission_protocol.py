@@ -129,6 +129,41 @@ def test_nack_of_float_request_switches_to_int_requests() -> None:
     assert requests(h) == [("MISSION_REQUEST", 0), ("MISSION_REQUEST_INT", 0)]
 
 
+def test_a_duplicated_nack_or_count_does_not_end_the_upload() -> None:
+    """As PX4 (mavlink_mission.cpp, GETLIST), what a duplicating link delivers twice does not
+    end an upload: a second UNSUPPORTED toggles back to float requests (the client NACKs
+    again), a non-cancelling ACK is ignored, the count again before any item asks again, the
+    count again after items is refused as busy (MAV_MISSION_ERROR) while the upload goes on.
+    Only CANCELLED ends it."""
+    h = Harness()
+    h.run(0.1)
+    count = mavlink.MAVLink_mission_count_message(1, 1, 3, 0)
+    nack = mavlink.MAVLink_mission_ack_message(1, 1, mavlink.MAV_MISSION_UNSUPPORTED, 0)
+    h.send(count)
+    h.send(nack)
+    h.send(nack)  # the duplicate
+    h.send(count)  # the duplicate, before any item
+    assert requests(h) == [("MISSION_REQUEST", 0), ("MISSION_REQUEST_INT", 0),
+                           ("MISSION_REQUEST", 0), ("MISSION_REQUEST", 0)]
+    h.send(nack)
+    assert requests(h)[-1] == ("MISSION_REQUEST_INT", 0)
+    h.send(SIMPLE[0])
+    h.send(mavlink.MAVLink_mission_ack_message(1, 1, mavlink.MAV_MISSION_ERROR, 0))
+    assert not h.msgs("MISSION_ACK")
+    h.send(count)  # the duplicate, after an item
+    assert [a.type for a in h.msgs("MISSION_ACK")] == [mavlink.MAV_MISSION_ERROR]
+    assert requests(h)[-1] == ("MISSION_REQUEST_INT", 1)
+    h.send(SIMPLE[1])
+    h.send(SIMPLE[2])
+    assert h.msgs("MISSION_ACK")[-1].type == mavlink.MAV_MISSION_ACCEPTED
+    assert [m.seq for m in download(h)] == [0, 1, 2]
+
+    h.send(count)
+    h.send(mavlink.MAVLink_mission_ack_message(1, 1, mavlink.MAV_MISSION_OPERATION_CANCELLED, 0))
+    h.send(SIMPLE[0])  # no transfer any more
+    assert h.msgs("MISSION_ACK")[-1].type == mavlink.MAV_MISSION_ERROR
+
+
 def test_wrong_sequence_is_ignored_and_the_retry_timer_asks_again() -> None:
     """As PX4 (mavlink_mission.cpp, MAVLINK_WPM_STATE_GETLIST): an item out of sequence is
     ignored; the 250 ms retry asks for the expected one again."""
