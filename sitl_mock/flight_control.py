@@ -215,6 +215,7 @@ class McGains:
     tko_ramp_t: float
     spoolup_t: float
     tko_speed: float
+    airmode: int
 
     @staticmethod
     def from_params(p: Mapping[str, float]) -> McGains:
@@ -251,6 +252,7 @@ class McGains:
             tko_ramp_t=p["MPC_TKO_RAMP_T"],
             spoolup_t=p["COM_SPOOLUP_TIME"],
             tko_speed=p["MPC_TKO_SPEED"],
+            airmode=int(p["MC_AIRMODE"]),
         )
 
 
@@ -602,7 +604,6 @@ class RateController:
     def __init__(self) -> None:
         self.integral: list[float] = [0.0, 0.0, 0.0]
         self._prev_rate: Vec3 | None = None
-
     def reset(self) -> None:
         """Zero the integrators and the derivative memory."""
         self.integral = [0.0, 0.0, 0.0]
@@ -656,42 +657,82 @@ class RateController:
         )
 
 
-def mix_quad_x(torque: Vec3, thrust: float) -> tuple[float, float, float, float]:
+_ROLL_V = (-_SQRT1_2, _SQRT1_2, _SQRT1_2, -_SQRT1_2)  # PX4's quad X mix columns
+_PITCH_V = (_SQRT1_2, -_SQRT1_2, _SQRT1_2, -_SQRT1_2)
+_YAW_V = (1.0, 1.0, -1.0, -1.0)
+_THRUST_V = (-1.0, -1.0, -1.0, -1.0)  # thrust is along -z: a positive gain lowers it
+Motors = tuple[float, float, float, float]
+
+
+def _desaturation_gain(v: Motors, u: Motors, hi: float = 1.0) -> float:
+    """PX4's computeDesaturationGain: the gain along v that best brings u into [0, hi]."""
+    k_min = 0.0
+    k_max = 0.0
+    for vi, ui in zip(v, u, strict=True):
+        if ui < 0.0:
+            k = -ui / vi
+        elif ui > hi:
+            k = (hi - ui) / vi
+        else:
+            continue
+        if k < k_min:
+            k_min = k
+        if k > k_max:
+            k_max = k
+    return k_min + k_max
+
+
+def _desaturate(u: Motors, v: Motors, lower_only: bool = False, hi: float = 1.0) -> Motors:
+    """PX4's desaturateActuators: move u along v by the gain, then by half the gain that is
+    still missing; `lower_only` (its increase_only, v the thrust column) skips a move that
+    would raise the collective."""
+    g = _desaturation_gain(v, u, hi)
+    if g == 0.0 or (lower_only and g < 0.0):
+        return u
+    u = (u[0] + g * v[0], u[1] + g * v[1], u[2] + g * v[2], u[3] + g * v[3])
+    g = 0.5 * _desaturation_gain(v, u, hi)
+    if g == 0.0:
+        return u
+    return (u[0] + g * v[0], u[1] + g * v[1], u[2] + g * v[2], u[3] + g * v[3])
+
+
+def mix_quad_x(torque: Vec3, thrust: float, airmode: int = 0) -> Motors:
     """Normalised torque + collective -> four motor commands 0..1 (PX4 quad X order).
 
     Motors: 0 front-right (CCW), 1 rear-left (CCW), 2 front-left (CW), 3 rear-right (CW).
     A normalised roll/pitch torque of 1 moves each motor by 1/sqrt(2) (PX4's normalised
-    effectiveness), a yaw torque of 1 by 1. Roll/pitch have priority: the collective is shifted,
-    and roll/pitch scaled down if needed, to fit [0, 1]; yaw gets the headroom that is left.
+    effectiveness), a yaw torque of 1 by 1. Saturation is resolved as PX4's sequential
+    desaturation (control_allocator, ControlAllocationSequentialDesaturation) with `airmode` =
+    MC_AIRMODE. 0 (PX4's default): roll/pitch first, the collective only lowered, then
+    roll/pitch scaled down to fit [0, 1]; then yaw, scaled down to fit [0, 1.15], and the
+    collective lowered again to fit [0, 1]. So a low collective caps the roll/pitch torque: at
+    0.4 a motor can drop 0.4 at most. 1: the collective may also rise for roll/pitch. 2: roll,
+    pitch and yaw mixed at once, the collective moved either way, then yaw scaled down.
     """
     r = torque[0] * _SQRT1_2
     p = torque[1] * _SQRT1_2
     a = p - r  # motors 0 (+) and 1 (-)
     b = r + p  # motors 2 (+) and 3 (-)
-    m = abs(a) if abs(a) > abs(b) else abs(b)  # rp spans [-m, m]
-    if m > 0.5:
-        s = 0.5 / m
-        a *= s
-        b *= s
-        m = 0.5
     t = 0.0 if thrust < 0.0 else 1.0 if thrust > 1.0 else thrust
-    if t + m > 1.0:
-        t = 1.0 - m
-    elif t - m < 0.0:
-        t = m
-    u0, u1, u2, u3 = t + a, t - a, t + b, t - b
     y = torque[2]
-    if y > 0.0:  # motors 0,1 up, 2,3 down
-        k = min(y, 1.0 - u0, 1.0 - u1, u2, u3)
-        if k < 0.0:
-            k = 0.0
-    elif y < 0.0:
-        k = max(y, -u0, -u1, u2 - 1.0, u3 - 1.0)
-        if k > 0.0:
-            k = 0.0
+    if airmode == 2:
+        u: Motors = (t + a + y, t - a + y, t + b - y, t - b - y)
+        if min(u) < 0.0 or max(u) > 1.0:
+            u = _desaturate(u, _THRUST_V)
+            u = _desaturate(u, _YAW_V)
     else:
-        k = 0.0
-    u0, u1, u2, u3 = u0 + k, u1 + k, u2 - k, u3 - k
+        u = (t + a, t - a, t + b, t - b)
+        if min(u) < 0.0 or max(u) > 1.0:
+            u = _desaturate(u, _THRUST_V, lower_only=airmode == 0)
+            if airmode == 0:
+                u = _desaturate(u, _ROLL_V)
+                u = _desaturate(u, _PITCH_V)
+        if y != 0.0:  # PX4's mixYaw
+            u = (u[0] + y, u[1] + y, u[2] - y, u[3] - y)
+        if min(u) < 0.0 or max(u) > 1.0:
+            u = _desaturate(u, _YAW_V, hi=1.15)
+            u = _desaturate(u, _THRUST_V, lower_only=True)
+    u0, u1, u2, u3 = u
     return (
         0.0 if u0 < 0.0 else 1.0 if u0 > 1.0 else u0,
         0.0 if u1 < 0.0 else 1.0 if u1 > 1.0 else u1,

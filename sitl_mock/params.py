@@ -88,6 +88,8 @@ PARAMS: dict[str, ParamSpec] = {
     "MC_ROLLRATE_MAX": ParamSpec(220.0, False, "maximum roll rate [deg/s]"),
     "MC_PITCHRATE_MAX": ParamSpec(220.0, False, "maximum pitch rate [deg/s]"),
     "MC_YAWRATE_MAX": ParamSpec(200.0, False, "maximum yaw rate [deg/s]"),
+    "MC_AIRMODE": ParamSpec(0, True, "airmode: 0 off (saturation lowers the collective only), "
+                            "1 roll/pitch, 2 roll/pitch/yaw may raise it"),
     # SIH quadrotor model (PX4 SIH defaults)
     "SIH_MASS": ParamSpec(1.0, False, "vehicle mass [kg]"),
     "SIH_IXX": ParamSpec(0.025, False, "inertia about body x [kg m^2]"),
@@ -376,6 +378,7 @@ PX4_RANGES: dict[str, tuple[float | None, float | None, tuple[int, ...]]] = {
     "MC_ROLLRATE_MAX": (0.0, 1800.0, ()),
     "MC_PITCHRATE_MAX": (0.0, 1800.0, ()),
     "MC_YAWRATE_MAX": (0.0, 1800.0, ()),
+    "MC_AIRMODE": (None, None, (0, 1, 2)),
     "SIH_MASS": (0.0, None, ()),
     "SIH_IXX": (0.0, None, ()),
     "SIH_IYY": (0.0, None, ()),

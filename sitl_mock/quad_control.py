@@ -320,4 +320,4 @@ class QuadControl(QuadPhysics):
         omega, accel = self._gyro.update(raw, dtr, self._imu_cut[0], self._imu_cut[1])
         self._gyro_rate = omega
         torque = self._rc.update(g, omega, self._rate_sp, dtr, self._landed, accel)
-        self._motor_cmd = mix_quad_x(torque, self._thrust_sp)
+        self._motor_cmd = mix_quad_x(torque, self._thrust_sp, g.airmode)

@@ -102,6 +102,23 @@ def test_mixer_outputs_always_in_range(torque: tuple[float, float, float], thrus
 
 
 @settings(max_examples=150, deadline=None)
+@given(st.floats(-2, 2), st.floats(-2, 2), st.floats(0.0, 1.0))
+def test_mixer_without_airmode_scales_roll_pitch_instead_of_raising_thrust(
+    roll: float, pitch: float, thrust: float
+) -> None:
+    """MC_AIRMODE 0: the collective never rises above the command, the realised roll/pitch
+    keep their signs and never exceed the request."""
+    u = mix_quad_x((roll, pitch, 0.0), thrust)
+    assert all(0.0 <= c <= 1.0 for c in u)
+    assert sum(u) / 4 <= thrust + 1e-12
+    r_req, p_req = 4 * roll * math.sqrt(0.5), 4 * pitch * math.sqrt(0.5)
+    r_got = -u[0] + u[1] + u[2] - u[3]
+    p_got = u[0] - u[1] + u[2] - u[3]
+    assert r_got * roll >= -1e-12 and abs(r_got) <= abs(r_req) + 1e-9
+    assert p_got * pitch >= -1e-12 and abs(p_got) <= abs(p_req) + 1e-9
+
+
+@settings(max_examples=150, deadline=None)
 @given(quat, quat, st.one_of(st.just(math.nan), st.floats(-3.0, 3.0)))
 def test_fast_attitude_control_equals_readable_version(
     a: tuple[float, ...], b: tuple[float, ...], ff: float

@@ -239,6 +239,25 @@ def test_mixer_saturation_keeps_outputs_in_range_and_roll_priority() -> None:
     assert mix_quad_x((0.0, 0.0, 0.0), -1.0) == (0.0, 0.0, 0.0, 0.0)
 
 
+def test_mixer_without_airmode_never_raises_the_collective() -> None:
+    """PX4's sequential desaturation, worked by hand for a full right roll at 0.3 collective:
+    the linear mix is 0.3 -/+ 0.707 per motor. Without airmode (PX4's default MC_AIRMODE 0)
+    the collective may not rise, so roll is scaled down until the low motors reach 0: 0 and
+    0.6, the collective kept. Airmode 1 raises the collective instead: after the two passes
+    the mix sits around 0.5 and roll fills [0, 1]."""
+    u = mix_quad_x((1.0, 0.0, 0.0), 0.3)
+    assert u == pytest.approx((0.0, 0.6, 0.6, 0.0), abs=1e-12)
+    u = mix_quad_x((1.0, 0.0, 0.0), 0.3, airmode=1)
+    assert u == pytest.approx((0.0, 1.0, 1.0, 0.0), abs=1e-12)
+    # near full collective both lower it: a full roll at 0.9 ends between 0.4 and 1.4 before
+    # the roll pass, i.e. [0, 1] after it
+    assert mix_quad_x((1.0, 0.0, 0.0), 0.9) == pytest.approx((0.0, 1.0, 1.0, 0.0), abs=1e-12)
+    # yaw gives up at most 0.15 of the collective, then is scaled down: a full yaw at 0.95
+    u = mix_quad_x((0.0, 0.0, 1.0), 0.95)
+    assert sum(u) / 4 == pytest.approx(0.80, abs=1e-12)
+    assert u[0] == u[1] == 1.0 and u[2] == u[3] == pytest.approx(0.6, abs=1e-12)
+
+
 def test_torque_signs_follow_frd_conventions() -> None:
     """Positive rate commands produce positive body rates (right roll, nose up, clockwise yaw)."""
     p = ParamStore()
