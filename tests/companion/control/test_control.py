@@ -762,3 +762,40 @@ def test_rover_at_speed_closes_a_cross_track_error_without_weaving() -> None:
     assert -min(sched) < 0.10
     assert -min(sched) < 0.5 * -min(fixed)
     assert max(abs(e) for e in sched[-100:]) < 0.05
+
+
+def test_rates_feed_forward_follows_the_thrust_axis_while_tilt_limited() -> None:
+    """Riding the tilt cone the thrust axis still turns: on a circle whose centripetal
+    acceleration (12 m/s^2) is beyond a 35 deg tilt, with the yaw held, the desired attitude
+    cones around the vertical. The rates-mode feed-forward (the vehicle exactly on the
+    reference and at the desired attitude, so no feedback) equals the body rates of the
+    desired attitude by finite differences; a zero jerk while saturated gave none."""
+    r, v = 3.0, 6.0  # v^2 / r = 12 m/s^2
+    w_c = v / r
+
+    def ref_at(t: float) -> Reference:
+        c, s = math.cos(w_c * t), math.sin(w_c * t)
+        return Reference(np.array([r * c, r * s, -10.0]), np.array([-v * s, v * c, 0.0]),
+                         np.array([-r * w_c**2 * c, -r * w_c**2 * s, 0.0]),
+                         np.array([r * w_c**3 * s, -r * w_c**3 * c, 0.0]),
+                         np.array([r * w_c**4 * c, r * w_c**4 * s, 0.0]))
+
+    cfg = TrackingConfig(params=_params(), max_tilt_rad=math.radians(35.0),
+                         estimate_hover_thrust=False)
+
+    def q_des(t: float) -> np.ndarray:
+        ctl = TrackingController(cfg)
+        ref = ref_at(t)
+        out = ctl.rates(t, _est(t, ref.pos_ned, ref.vel_ned), ref)
+        assert out.saturated
+        assert ctl.last_q_des is not None
+        return np.array(ctl.last_q_des)
+
+    t0, dt = 1.0, 1e-4
+    q0 = q_des(t0)
+    ref = ref_at(t0)
+    ctl = TrackingController(cfg)
+    out = ctl.rates(t0, _est(t0, ref.pos_ned, ref.vel_ned, q=q0), ref)
+    w_fd = (_rot(q0).inv() * _rot(q_des(t0 + dt))).as_rotvec() / dt
+    assert np.linalg.norm(w_fd[:2]) > 0.5  # the cone: tilt 35 deg x 2 rad/s about the vertical
+    np.testing.assert_allclose(out.omega_frd[:2], w_fd[:2], atol=0.02 * np.linalg.norm(w_fd))
