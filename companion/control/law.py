@@ -66,6 +66,7 @@ from companion.control.gains import (
     rates_mode_gains,
 )
 from companion.control.prediction import predict_attitude, predict_held, predict_lagged
+from companion.control.saturation import saturated_jerk
 from companion.control.so3 import (
     all_finite,
     body_z_down,
@@ -546,7 +547,10 @@ class TrackingController:
 
         # 4. flatness map
         params = self._params_for_drag(D)
-        jerk = self._saturated_jerk(t_vec, t_sat, j_ff, a_sat, (dx, dy), ra, h) if sat else j_ff
+        v_dot = ((a_sat[0] + dx, a_sat[1] + dy, a_sat[2]) if c.drag_velocity == "estimate"
+                 else (ra[0], ra[1], ra[2]))  # the velocity's rate in the drag term
+        jerk = (saturated_jerk(lambda t: self._saturate(t, h)[0], t_vec, t_sat, j_ff, v_dot, m, D)
+                if sat else j_ff)
         snap = (0.0, 0.0, 0.0) if sat else rs
         yaw, yaw_rate, slewed = self._slew_yaw(ref, dt_ctrl)
         yaw_acc = 0.0 if sat or slewed else ref.yaw_acc
@@ -690,35 +694,6 @@ class TrackingController:
             self._params_cache = cached
         self._drag_seen = drag
         return cached[1]
-
-    def _saturated_jerk(
-        self, t_vec: tuple[float, float, float], t_sat: tuple[float, float, float],
-        j_cmd: tuple[float, float, float], a_sat: tuple[float, float, float],
-        dist: tuple[float, float], ref_acc: Sequence[float], hover_thrust: float,
-    ) -> tuple[float, float, float]:
-        """The jerk [m/s^3, NED] of the saturated acceleration `a_sat` while the thrust vector
-        `t_vec` [N] is limited to `t_sat`: the limit's derivative along the rate of `t_vec`
-        (-m `j_cmd` - D dv/dt; dv/dt what the saturated thrust, drag and disturbance `dist`
-        give, or `ref_acc` when the drag uses the reference velocity), as a one-sided
-        difference over 1 ms. Riding the tilt cone, the thrust axis still turns with the
-        commanded acceleration's azimuth; a zero jerk there held the body rates' feed-forward
-        at zero and released it all at once when the limit let go (rates mode on real PX4: a
-        step of 2-4 rad/s where the figure-8 crosses its centre)."""
-        m = self.config.params.mass
-        D = self.drag
-        if self.config.drag_velocity == "estimate":
-            vd = (a_sat[0] + dist[0], a_sat[1] + dist[1], a_sat[2])
-        else:
-            vd = (ref_acc[0], ref_acc[1], ref_acc[2])
-        eps = 1e-3
-        t2, _ = self._saturate(
-            (t_vec[0] - eps * (m * j_cmd[0] + D * vd[0]),
-             t_vec[1] - eps * (m * j_cmd[1] + D * vd[1]),
-             t_vec[2] - eps * (m * j_cmd[2] + D * vd[2])), hover_thrust)
-        # a_sat = -(t_sat + D v) / m (horizontal; vertical g - ...): its rate
-        return (-((t2[0] - t_sat[0]) / eps + D * vd[0]) / m,
-                -((t2[1] - t_sat[1]) / eps + D * vd[1]) / m,
-                -((t2[2] - t_sat[2]) / eps + D * vd[2]) / m)
 
     def _saturate(
         self, t_vec: tuple[float, float, float], hover_thrust: float

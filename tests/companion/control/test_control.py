@@ -765,11 +765,10 @@ def test_rover_at_speed_closes_a_cross_track_error_without_weaving() -> None:
 
 
 def test_rates_feed_forward_follows_the_thrust_axis_while_tilt_limited() -> None:
-    """Riding the tilt cone the thrust axis still turns: on a circle whose centripetal
-    acceleration (12 m/s^2) is beyond a 35 deg tilt, with the yaw held, the desired attitude
-    cones around the vertical. The rates-mode feed-forward (the vehicle exactly on the
-    reference and at the desired attitude, so no feedback) equals the body rates of the
-    desired attitude by finite differences; a zero jerk while saturated gave none."""
+    """Riding the tilt cone the thrust axis still turns: on a circle needing 12 m/s^2, beyond a
+    35 deg tilt, yaw held, the desired attitude cones around the vertical. The rates-mode
+    feed-forward (the vehicle on the reference and at the desired attitude: no feedback)
+    equals the desired attitude's body rates by finite differences (a zero jerk gave none)."""
     r, v = 3.0, 6.0  # v^2 / r = 12 m/s^2
     w_c = v / r
 
