@@ -604,6 +604,7 @@ class RateController:
     def __init__(self) -> None:
         self.integral: list[float] = [0.0, 0.0, 0.0]
         self._prev_rate: Vec3 | None = None
+
     def reset(self) -> None:
         """Zero the integrators and the derivative memory."""
         self.integral = [0.0, 0.0, 0.0]

@@ -249,10 +249,11 @@ def test_mixer_without_airmode_never_raises_the_collective() -> None:
     assert u == pytest.approx((0.0, 0.6, 0.6, 0.0), abs=1e-12)
     u = mix_quad_x((1.0, 0.0, 0.0), 0.3, airmode=1)
     assert u == pytest.approx((0.0, 1.0, 1.0, 0.0), abs=1e-12)
-    # near full collective both lower it: a full roll at 0.9 ends between 0.4 and 1.4 before
-    # the roll pass, i.e. [0, 1] after it
+    # near full collective the collective is lowered: a full roll at 0.9 (0.19 / 1.61) is at
+    # -0.21 / 1.21 after the two thrust passes, and [0, 1] after the roll pass
     assert mix_quad_x((1.0, 0.0, 0.0), 0.9) == pytest.approx((0.0, 1.0, 1.0, 0.0), abs=1e-12)
-    # yaw gives up at most 0.15 of the collective, then is scaled down: a full yaw at 0.95
+    # yaw (PX4's mixYaw): a full yaw at 0.95 (1.95 / -0.05) is scaled to fit [0, 1.15] (1.15 /
+    # 0.75), then the collective lowered to fit [0, 1]
     u = mix_quad_x((0.0, 0.0, 1.0), 0.95)
     assert sum(u) / 4 == pytest.approx(0.80, abs=1e-12)
     assert u[0] == u[1] == 1.0 and u[2] == u[3] == pytest.approx(0.6, abs=1e-12)
