@@ -51,6 +51,7 @@ import numpy as np
 import numpy.typing as npt
 
 from companion.control.commands import AttitudeCommand, RateCommand
+from companion.control.core import tracking_post, tracking_pre
 from companion.control.estimation import (
     DisturbanceObserver,
     DragConfig,
@@ -66,7 +67,6 @@ from companion.control.gains import (
     rates_mode_gains,
 )
 from companion.control.prediction import predict_attitude, predict_held, predict_lagged
-from companion.control.saturation import saturated_jerk
 from companion.control.so3 import (
     all_finite,
     body_z_down,
@@ -82,6 +82,7 @@ from companion.control.so3 import (
 )
 from companion.control.state import StateEstimate
 from companion.flatness import MultirotorParams
+from companion.flatness._formulas import FLOAT
 from companion.flatness.numeric import multirotor_attitude_scalar
 from companion.flatness.reference import Reference
 
@@ -502,76 +503,45 @@ class TrackingController:
             a_ff = (ra[0] + rj[0] * L + rs[0] * hL2, ra[1] + rj[1] * L + rs[1] * hL2,
                     ra[2] + rj[2] * L + rs[2] * hL2)
             j_ff = (rj[0] + rs[0] * L, rj[1] + rs[1] * L, rj[2] + rs[2] * L)
-        kp, kd, integ = self._kp_l, self._kd_l, self._integ_l
-        # (per component, written out: a comprehension costs a frame per call)
-        e_p = (rp[0] - pos[0], rp[1] - pos[1], rp[2] - pos[2])
-        e_v = (rv[0] - vel[0], rv[1] - vel[1], rv[2] - vel[2])
-        a_cmd = (
-            a_ff[0] + kp[0] * e_p[0] + kd[0] * e_v[0] + integ[0],
-            a_ff[1] + kp[1] * e_p[1] + kd[1] * e_v[1] + integ[1],
-            a_ff[2] + kp[2] * e_p[2] + kd[2] * e_v[2] + integ[2],
-        )
-        if rates and c.feedback_rate_ff > 0.0 and self._thrust_hist:
-            j_ff = self._feedback_jerk(j_ff, ra, e_p, e_v, vel, c.feedback_rate_ff)
-
-        # 3. thrust vector t = m (g e3 - a) - D v with drag, saturation
+        # 3. the core (companion.control.core, the source of the generated C): feedback,
+        # thrust vector t = m (g e3 - a) - D v with drag and disturbance, limits, anti-windup
         h = self._command_hover_thrust(dt_ctrl)
         D = self.drag
-        v_drag = vel if c.drag_velocity == "estimate" else rv
-        m = p.mass
-        g0 = p.g
-        # the estimated disturbance: the thrust also cancels it (a_sat below is what the thrust
-        # and drag give, the vehicle's acceleration is a_sat + d)
+        params = self._params_for_drag(D)
+        # the feedback's derivative in the jerk (rates mode): the vehicle's acceleration from
+        # its (extrapolated) attitude and the last thrust command, not differentiated velocities
+        share = c.feedback_rate_ff if rates and self._thrust_hist else 0.0
+        a_m = (self._acc_of(self._q_now, self._thrust_hist[-1][1], vel) if share > 0.0
+               else (0.0, 0.0, 0.0))
         dx, dy = self.disturbance.acc_ne if c.estimate_disturbance else (0.0, 0.0)
-        t_vec = (
-            -m * (a_cmd[0] - dx) - D * v_drag[0],
-            -m * (a_cmd[1] - dy) - D * v_drag[1],
-            m * (g0 - a_cmd[2]) - D * v_drag[2],
-        )
-        t_sat, sat = self._saturate(t_vec, h)
-        a_sat = (
-            -(t_sat[0] + D * v_drag[0]) / m,
-            -(t_sat[1] + D * v_drag[1]) / m,
-            g0 - (t_sat[2] + D * v_drag[2]) / m,
-        )
-
-        # anti-windup: integrate only in the air and when not saturated (or when it unwinds)
-        if dt_ctrl > 0.0 and est.airborne and self.learning:
-            ki, imax = self._ki_l, self._imax_l
-            for i in range(3):
-                di = ki[i] * e_p[i] * dt_ctrl
-                if sat and di * integ[i] >= 0.0:
-                    continue  # saturated: only let the integrator unwind
-                integ[i] = min(max(integ[i] + di, -imax[i]), imax[i])
-        self._acc_hist.append((now, a_sat[0] + dx, a_sat[1] + dy, a_sat[2]))
+        yaw, yaw_rate, slewed = self._slew_yaw(ref, dt_ctrl)
+        integ = self._integ_l
+        pre = tracking_pre(FLOAT, (
+            *rp, *rv, *ra, *a_ff, *j_ff, *rs, *pos, *vel, *a_m, *integ, *self._kp_l,
+            *self._kd_l, *self._ki_l, *self._imax_l, dx, dy, yaw, yaw_rate,
+            0.0 if slewed else ref.yaw_acc, h, D, params.drag, p.mass, p.g, c.thrust_min,
+            c.thrust_max, self._cos_tilt, self._tan_tilt, share,
+            1.0 if c.drag_velocity == "estimate" else 0.0, dt_ctrl,
+            1.0 if est.airborne and self.learning else 0.0))
+        integ[:] = pre["integ"]
+        sat = pre["sat"]
+        self._acc_hist.append((now, *pre["acc_d"]))
 
         # 4. flatness map
-        params = self._params_for_drag(D)
-        v_dot = ((a_sat[0] + dx, a_sat[1] + dy, a_sat[2]) if c.drag_velocity == "estimate"
-                 else (ra[0], ra[1], ra[2]))  # the velocity's rate in the drag term
-        jerk = (saturated_jerk(lambda t: self._saturate(t, h)[0], t_vec, t_sat, j_ff, v_dot, m, D)
-                if sat else j_ff)
-        snap = (0.0, 0.0, 0.0) if sat else rs
-        yaw, yaw_rate, slewed = self._slew_yaw(ref, dt_ctrl)
-        yaw_acc = 0.0 if sat or slewed else ref.yaw_acc
         try:
             qw, qx, qy, qz, thrust_n, wx, wy, wz, singular = multirotor_attitude_scalar(
-                v_drag, a_sat, jerk, snap, yaw, yaw_rate, yaw_acc, params
-            )
+                pre["v_drag"], pre["acc"], pre["jerk"], pre["snap"], yaw, yaw_rate,
+                pre["yaw_acc"], params)
         except ValueError as exc:  # e.g. absurd magnitudes the flatness map refuses
             self._fallback_reason = f"flatness map refused the input: {exc}"
             return None
-        # normalised thrust with the hover thrust in use
-        # (docs/theory/multirotor.md, "Thrust for MAVLink")
-        thrust = h * thrust_n / (m * p.g)
-        if not all(map(isfinite, (qw, qx, qy, qz, wx, wy, wz, thrust))):
+        if not all(map(isfinite, (qw, qx, qy, qz, wx, wy, wz, h * thrust_n / (p.mass * p.g)))):
             self._fallback_reason = "flatness output not finite"
             return None
-        omega_ff = (0.0, 0.0, 0.0) if singular else (float(wx), float(wy), float(wz))
-        q_des = quat_normalize_f(float(qw), float(qx), float(qy), float(qz))
-        thrust = min(max(thrust, c.thrust_min), c.thrust_max)
-        self._diag = (now, e_p, e_v, (a_sat[0] + dx, a_sat[1] + dy, a_sat[2]), tuple(integ), h,
-                      D, tau, sat,
+        q_des, thrust, omega_ff = tracking_post(FLOAT, (qw, qx, qy, qz), thrust_n,
+                                                (wx, wy, wz), singular, h, p.mass, p.g,
+                                                c.thrust_min, c.thrust_max)
+        self._diag = (now, pre["e_p"], pre["e_v"], pre["acc_d"], tuple(integ), h, D, tau, sat,
                       "singular flatness point" if singular else "")
         self.last_q_des = q_des
         return q_des, thrust, omega_ff, sat
@@ -653,31 +623,6 @@ class TrackingController:
         return (-f * zx - dm * vel[0] + dx, -f * zy - dm * vel[1] + dy,
                 g0 - f * zz - dm * vel[2])
 
-    def _feedback_jerk(
-        self,
-        j_ref: tuple[float, float, float],
-        a_ref: list[float],
-        e_p: tuple[float, float, float],
-        e_v: tuple[float, float, float],
-        vel: tuple[float, float, float],
-        share: float,
-    ) -> tuple[float, float, float]:
-        """Time derivative of the commanded acceleration [m/s^3, NED], its feedback part scaled
-        by `share`: j_ref + share (kp e_v + kd (a_ref - a) + ki e_p). The vehicle's acceleration
-        `a` comes from its (extrapolated) attitude and the last thrust command,
-        a = g e3 - (u g / h) z_b - D v / m, not from differentiated velocities. Fed to the
-        flatness map in `rates` mode, the body rates then carry the commanded attitude's own
-        rotation forward (share 1: exactly; tests/companion/control/test_control.py checks it
-        against finite differences), so the P attitude loop only corrects what the rate loop
-        missed."""
-        a = self._acc_of(self._q_now, self._thrust_hist[-1][1], vel)
-        kp, kd, ki = self._kp_l, self._kd_l, self._ki_l
-        return (
-            j_ref[0] + share * (kp[0] * e_v[0] + kd[0] * (a_ref[0] - a[0]) + ki[0] * e_p[0]),
-            j_ref[1] + share * (kp[1] * e_v[1] + kd[1] * (a_ref[1] - a[1]) + ki[1] * e_p[1]),
-            j_ref[2] + share * (kp[2] * e_v[2] + kd[2] * (a_ref[2] - a[2]) + ki[2] * e_p[2]),
-        )
-
     def _publish_diag(self, e_R: FloatArray | None, e_omega: FloatArray | None = None) -> None:
         """Diagnostics of this update (from `_diag`), built lazily by `last`."""
         self._diag_pending = (e_R, e_omega)
@@ -694,35 +639,6 @@ class TrackingController:
             self._params_cache = cached
         self._drag_seen = drag
         return cached[1]
-
-    def _saturate(
-        self, t_vec: tuple[float, float, float], hover_thrust: float
-    ) -> tuple[tuple[float, float, float], bool]:
-        """Limit the thrust vector [N]: min upward, tilt, max magnitude (vertical first)."""
-        c = self.config
-        p = c.params
-        n_per_norm = p.mass * p.g / hover_thrust  # N per unit normalised thrust
-        T_min = c.thrust_min * n_per_norm
-        T_max = c.thrust_max * n_per_norm
-        tx, ty, tz = t_vec
-        # t = T z_b points along body z (down when level); the lift is -t. Vertical part: t_z.
-        sat = False
-        if tz < T_min * self._cos_tilt:
-            tz = T_min * self._cos_tilt
-            sat = True
-        if tz > T_max:
-            tz = T_max
-            sat = True
-        h_lim = min(tz * self._tan_tilt, math.sqrt(max(T_max * T_max - tz * tz, 0.0)))
-        hn = math.hypot(tx, ty)
-        if hn > h_lim:
-            k = h_lim / hn
-            tx, ty = tx * k, ty * k
-            sat = True
-        if T_min > math.hypot(tx, ty, tz):
-            tz = math.sqrt(max(T_min * T_min - tx * tx - ty * ty, 0.0))
-            sat = True
-        return (tx, ty, tz), sat
 
     def _fallback_q(self, est: StateEstimate) -> FloatArray:
         yaw = self._last_yaw

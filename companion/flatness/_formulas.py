@@ -87,6 +87,19 @@ class Backend:
     def land(self, a: S, b: S) -> S:
         raise NotImplementedError
 
+    def lnot(self, a: S) -> S:
+        raise NotImplementedError
+
+    def hypot(self, *xs: S) -> S:
+        """sqrt of the sum of squares (floats: `math.hypot`, correctly rounded)."""
+        raise NotImplementedError
+
+    def lazy_where(self, c: S, a: Any, b: Any, n: int) -> tuple[S, ...]:
+        """`where` on the n-tuples `a()` and `b()` (callables): on floats only the taken one
+        is evaluated."""
+        ta, tb = a(), b()
+        return tuple(self.where(c, ta[i], tb[i]) for i in range(n))
+
 
 class CasadiBackend(Backend):
     """CasADi ``SX`` symbols. casadi is imported when the backend is made (by the symbolic
@@ -130,6 +143,12 @@ class CasadiBackend(Backend):
     def land(self, a: S, b: S) -> S:
         return self._ca.logic_and(a, b)
 
+    def lnot(self, a: S) -> S:
+        return self._ca.logic_not(a)
+
+    def hypot(self, *xs: S) -> S:
+        return self._ca.sqrt(sum((x * x for x in xs[1:]), xs[0] * xs[0]))
+
 
 class NumpyBackend(Backend):
     def where(self, c: S, a: S, b: S) -> S:
@@ -165,6 +184,12 @@ class NumpyBackend(Backend):
     def land(self, a: S, b: S) -> S:
         return np.logical_and(a, b)
 
+    def lnot(self, a: S) -> S:
+        return np.logical_not(a)
+
+    def hypot(self, *xs: S) -> S:
+        return np.sqrt(sum((np.asarray(x) * x for x in xs[1:]), np.asarray(xs[0]) * xs[0]))
+
 
 class FloatBackend(Backend):
     # The elementary functions are the math builtins themselves (no wrapper frame: this
@@ -190,6 +215,14 @@ class FloatBackend(Backend):
 
     def land(self, a: S, b: S) -> S:
         return bool(a) and bool(b)
+
+    def lnot(self, a: S) -> S:
+        return not a
+
+    hypot = staticmethod(math.hypot)
+
+    def lazy_where(self, c: S, a: Any, b: Any, n: int) -> tuple[S, ...]:
+        return tuple(a() if c else b())
 
 
 NUMPY = NumpyBackend()
