@@ -412,10 +412,24 @@ def library_functions(variant: str) -> list[ca.Function]:
         # ~9 KB more flash per variant (drop it with --gc-sections if unused).
         full_function(f"ecca_{variant}_full", bezier, multirotor),
         ackermann_function(f"ecca_{variant}_ackermann", sf.rover),
+        tracking_core_function(f"ecca_{variant}_tracking_core"),
     ]
 
 
+def tracking_core_function(name: str) -> ca.Function:
+    """The tracking law's core (``companion.control.core``, the expressions the companion
+    flies): one input vector (``CORE_INPUTS``), one output vector (``CORE_OUTPUTS``), common
+    subexpressions shared."""
+    from companion.control.core import symbolic_core
+
+    f = symbolic_core(name)
+    x = ca.SX.sym("x", f.size1_in(0))
+    return ca.Function(name, [x], [ca.cse(f(x))], ["x"], ["y"])
+
+
 def _info_header() -> str:
+    from companion.control.core import CORE_N_IN, CORE_N_OUT
+
     return (
         "/* ecca_setpoint: ecca_setpoint_gen.h\n"
         " * GENERATED FILE, DO NOT EDIT. Regenerate with `python -m gen_c` (check: `--check`).\n"
@@ -423,6 +437,8 @@ def _info_header() -> str:
         + "#ifndef ECCA_SETPOINT_GEN_H\n#define ECCA_SETPOINT_GEN_H\n\n"
         + f'#define ECCA_GEN_CASADI_VERSION "{CASADI_VERSION}"\n'
         + f"#define ECCA_GEN_BEZIER_DEGREE {BEZIER_DEGREE}\n"
+        + f"#define ECCA_GEN_CORE_N_IN {CORE_N_IN}\n"
+        + f"#define ECCA_GEN_CORE_N_OUT {CORE_N_OUT}\n"
         + "\n#endif /* ECCA_SETPOINT_GEN_H */\n"
     )
 

@@ -313,6 +313,7 @@ class NativeSetpoint:
                                    [P(s["segment"]), real, real, P(s["state"]),
                                     P(s["steering"])]),
             }
+            sig["tracking_core"] = ("ecca_tracking_core", [P(real), P(real)])
             for key, (cname, argtypes) in sig.items():
                 fn = getattr(self._lib, cname + sfx)
                 fn.argtypes = argtypes
@@ -456,6 +457,17 @@ class NativeSetpoint:
         self._call(precision, "ackermann", ctypes.byref(st), float(wheel_base_m),
                    ctypes.byref(sp))
         return self._heading(sp.heading, jerk_xy is not None, sp)
+
+    def tracking_core(self, x: npt.ArrayLike, *,
+                      precision: Precision = "double") -> FloatArray:
+        """``ecca_tracking_core``: the tracking law's core on one input vector `x` (the 60
+        values of ``companion.control.core.CORE_INPUTS``); the 16 outputs (``CORE_OUTPUTS``).
+        ValueError on a refused input or a non-finite result."""
+        real = ctypes.c_double if precision == "double" else ctypes.c_float
+        xin = (real * 60)(*_vec(x, 60, "x").tolist())
+        out = (real * 16)()
+        self._call(precision, "tracking_core", xin, out)
+        return np.array(out[:], dtype=np.float64)
 
     def full_rover(self, ctrl_pts: npt.ArrayLike, duration: float, t: float,
                    wheel_base_m: float | None = None, *, precision: Precision = "double",

@@ -27,8 +27,13 @@ extern "C" {
 #endif
 
 /* 2: adds ecca_steering_setpoint, ecca_ackermann_setpoint and ecca_full_ackermann_setpoint
- * (everything of version 1 unchanged). */
-#define ECCA_SETPOINT_API_VERSION 2
+ * (everything of version 1 unchanged).
+ * 3: adds ecca_tracking_core (everything of version 2 unchanged). */
+#define ECCA_SETPOINT_API_VERSION 3
+
+/** Sizes of ecca_tracking_core's input and output vectors. */
+#define ECCA_CORE_N_IN 60
+#define ECCA_CORE_N_OUT 16
 
 /** Bezier degree of a segment and its number of control points. */
 #define ECCA_BEZIER_DEGREE 7
@@ -147,6 +152,20 @@ int ecca_ackermann_setpoint(const ecca_flat_state *state, double wheel_base_m,
 int ecca_full_ackermann_setpoint(const ecca_bezier_segment *seg, double t_s, double wheel_base_m,
                                  ecca_flat_state *state_out, ecca_steering_setpoint *out);
 
+/** The companion's tracking law core (companion.control.core; one source with the law the
+ *  companion flies): reference and latency-compensated estimate -> desired attitude, thrust
+ *  and feed-forward rates, with the position/velocity feedback, the integrator and its
+ *  anti-windup, the drag and disturbance feed-forward, the thrust limits (minimum, tilt,
+ *  maximum) and the flatness map. in: ECCA_CORE_N_IN values in the order of
+ *  companion.control.core.CORE_INPUTS (ref_pos[3] ref_vel[3] ref_acc[3] acc_ff[3] jerk_ff[3]
+ *  snap_ff[3] pos[3] vel[3] acc_meas[3] integ[3] kp[3] kd[3] ki[3] i_max[3] dist_ne[2]
+ *  yaw, yaw_rate, yaw_acc, hover, drag, drag_map, mass, g, thrust_min, thrust_max, cos_tilt,
+ *  tan_tilt, fb_share, drag_est, dt, learn; NED, SI units); out: ECCA_CORE_N_OUT values in
+ *  the order of CORE_OUTPUTS (q_wxyz[4] thrust omega_ff_frd[3] saturated integ[3] acc[3]
+ *  singular). The caller keeps the integrator: feed out[9..11] back as the next integ.
+ *  ECCA_ERR_INPUT: a non-finite or |value| > ECCA_INPUT_LIMIT input, mass, g or hover <= 0. */
+int ecca_tracking_core(const double *in, double *out);
+
 /* ------------------------------------------------------------------------------- float */
 
 typedef struct {
@@ -219,6 +238,8 @@ int ecca_ackermann_setpoint_f(const ecca_flat_state_f *state, float wheel_base_m
 int ecca_full_ackermann_setpoint_f(const ecca_bezier_segment_f *seg, float t_s,
                                    float wheel_base_m, ecca_flat_state_f *state_out,
                                    ecca_steering_setpoint_f *out);
+
+int ecca_tracking_core_f(const float *in, float *out);
 
 /** CasADi version the generated code came from, e.g. "3.8.2". */
 const char *ecca_setpoint_casadi_version(void);

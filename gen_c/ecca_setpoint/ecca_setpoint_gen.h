@@ -7,5 +7,7 @@
 
 #define ECCA_GEN_CASADI_VERSION "3.8.2"
 #define ECCA_GEN_BEZIER_DEGREE 7
+#define ECCA_GEN_CORE_N_IN 60
+#define ECCA_GEN_CORE_N_OUT 16
 
 #endif /* ECCA_SETPOINT_GEN_H */
