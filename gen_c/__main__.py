@@ -1,4 +1,5 @@
-"""``python -m gen_c [--check] [--out DIR] [--vectors]``: (re)generate the C setpoint library.
+"""``python -m gen_c [--check] [--out DIR] [--vectors]``: (re)generate the C setpoint library;
+``python -m gen_c px4-module --sdk SDK -o FILE``: build the onboard PX4 module (gen_c.px4module).
 
 Without options: regenerate ``gen_c/ecca_setpoint`` in place. ``--out DIR``: write a complete
 copy of the library (generated + hand-written files) to DIR. ``--check``: regenerate into a
@@ -16,8 +17,32 @@ from pathlib import Path
 from gen_c import generate
 
 
+def px4_module_main(argv: list[str]) -> int:
+    """``python -m gen_c px4-module --sdk SDK -o FILE``: build the onboard module (dyn)."""
+    from gen_c import px4module
+
+    parser = argparse.ArgumentParser(
+        prog="python -m gen_c px4-module",
+        description="Build the onboard PX4 module gen_c/px4_module/ecca_onboard.c as a shared "
+        "object for PX4's dyn command, against a PX4 dyn SDK (e.g. ../shared/px4_sitl/sdk).")
+    parser.add_argument("--sdk", type=Path, required=True, help="the PX4 dyn SDK folder")
+    parser.add_argument("-o", "--out", type=Path, required=True,
+                        help="the module file (outside /tmp when PX4 runs under with-px4)")
+    args = parser.parse_args(argv)
+    try:
+        path = px4module.build_px4_module(args.sdk, args.out)
+    except px4module.ModuleBuildError as exc:
+        print(f"gen_c px4-module: {exc}", file=sys.stderr)
+        return 2
+    print(f"built {path}: load it with `dyn {path} start`")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point; returns the exit code."""
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["px4-module"]:
+        return px4_module_main(argv[1:])
     parser = argparse.ArgumentParser(
         prog="python -m gen_c",
         description="(Re)generate the freestanding C setpoint library gen_c/ecca_setpoint "

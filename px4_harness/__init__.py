@@ -166,6 +166,7 @@ class Px4Sitl:
         self._run: Path | None = None
         self._proc: subprocess.Popen[bytes] | None = None
         self._console: IO[bytes] | None = None
+        self._bin: Path | None = None
 
     # -- addresses ------------------------------------------------------------------------
     @property
@@ -244,7 +245,8 @@ class Px4Sitl:
         self._run = Path(tempfile.mkdtemp(prefix="ecca-px4-", dir="/var/tmp"))
         rootfs = self._run / "rootfs"
         rootfs.mkdir()
-        binary = self._bin_dir() / "px4"
+        self._bin = self._bin_dir()
+        binary = self._bin / "px4"
         env = dict(os.environ, PX4_SIM_MODEL=self.model, PX4_SIMULATOR="sihsim", HEADLESS="1")
         # PX4's rcS sets PX4_PARAM_<NAME> before the airframe's defaults (which it overrides)
         env.update({f"PX4_PARAM_{k}": f"{v:g}" for k, v in self.params.items()})
@@ -277,6 +279,20 @@ class Px4Sitl:
             self.stop()
             raise
         return self
+
+    def command(self, name: str, *args: str,
+                timeout_s: float = 30.0) -> subprocess.CompletedProcess[str]:
+        """Run PX4 shell command `name` with `args` in this PX4 (what `pxh> name args` does:
+        `px4-<name> --instance N args`; inside PX4's mount namespace when PX4 has its own /tmp,
+        as `px4-cmd` does). Returns the finished process (its output: stdout; PX4's exit
+        status: returncode)."""
+        if self._proc is None or self._bin is None or self._proc.poll() is not None:
+            raise Px4SitlError("PX4 is not running")
+        argv = [str(self._bin / f"px4-{name}"), "--instance", str(self.instance), *args]
+        if _can_unshare():
+            argv = ["nsenter", "-t", str(self._proc.pid), "-m", *argv]
+        return subprocess.run(argv, capture_output=True, text=True, timeout=timeout_s,
+                              check=False, stdin=subprocess.DEVNULL)
 
     def stop(self) -> None:
         """Stop PX4 (SIGTERM, then SIGKILL after 5 s), keep its console in `log`, clean up."""

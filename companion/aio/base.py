@@ -42,6 +42,7 @@ from companion.mavlink.commands import (
     MAV_CMD_NAV_LAND,
     MAV_CMD_NAV_TAKEOFF,
     MAV_CMD_SET_MESSAGE_INTERVAL,
+    UnsolicitedAck,
 )
 
 from .broadcast import Broadcast
@@ -121,6 +122,7 @@ class VehicleBase:
         self._mode_bc: Broadcast[FlightMode] = Broadcast(8)
         self._armed_bc: Broadcast[bool] = Broadcast(8)
         self._text_bc: Broadcast[StatusText] = Broadcast(64)
+        self._ack_bc: Broadcast[UnsolicitedAck] = Broadcast(64)
         self.last_status_text: StatusText | None = None
 
     # -- connection ---------------------------------------------------------------------------
@@ -179,6 +181,11 @@ class VehicleBase:
             if self.tlog is not None:
                 self.tlog.write(frame)
 
+    def send_float_array(self, name: str, array_id: int, data: Sequence[float]) -> None:
+        """Send a DEBUG_FLOAT_ARRAY to the autopilot now (`VehicleLink.send_float_array`)."""
+        self.link.send_float_array(name, array_id, data, time.monotonic())
+        self._flush()
+
     def _dispatch(self, events: Sequence[Any]) -> None:
         for e in events:
             if isinstance(e, CommandFinished):
@@ -204,6 +211,8 @@ class VehicleBase:
                 log.info("flight mode %s", e.new.name)
             elif isinstance(e, ArmedChanged):
                 self._armed_bc.publish(e.armed)
+            elif isinstance(e, UnsolicitedAck):
+                self._ack_bc.publish(e)
             elif isinstance(e, StatusText):
                 self.last_status_text = e
                 self._text_bc.publish(e)
@@ -366,6 +375,10 @@ class VehicleBase:
     def attitude(self) -> AsyncIterator[Attitude]:
         """Attitude quaternion / body-rate updates."""
         return self._att_bc.stream()
+
+    def command_acks(self) -> AsyncIterator[UnsolicitedAck]:
+        """COMMAND_ACKs from the autopilot that answer none of our commands (a module's)."""
+        return self._ack_bc.stream()
 
     def global_position(self) -> AsyncIterator[GlobalPosition]:
         """GLOBAL_POSITION_INT updates."""

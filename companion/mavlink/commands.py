@@ -76,7 +76,19 @@ class CommandProgress:
     progress: int
 
 
-CommandEvent = CommandFinished | CommandProgress
+@dataclass(frozen=True)
+class UnsolicitedAck:
+    """A COMMAND_ACK from the autopilot that answers no pending command (a module's report,
+    e.g. the onboard module's upload acknowledgements): its fields as received."""
+
+    t_s: float
+    command: int
+    result: int
+    progress: int
+    result_param2: int
+
+
+CommandEvent = CommandFinished | CommandProgress | UnsolicitedAck
 
 
 class CommandBusyError(RuntimeError):
@@ -167,7 +179,9 @@ class CommandClient:
             return []
         pend = self._pending.get(int(msg.command))
         if pend is None:
-            return []
+            return [UnsolicitedAck(now, int(msg.command), int(msg.result),
+                                   int(getattr(msg, "progress", 0)),
+                                   int(getattr(msg, "result_param2", 0)))]
         result = int(msg.result)
         if pend.mode_custom is not None:
             return self._mode_ack(pend, result, now)

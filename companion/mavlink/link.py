@@ -111,6 +111,14 @@ class VehicleLink:
         """Queue an arbitrary message (encoded with our ids)."""
         self._queue(msg)
 
+    def send_float_array(self, name: str, array_id: int, data: Sequence[float],
+                         now: float) -> None:
+        """Queue a DEBUG_FLOAT_ARRAY (58 values; PX4 publishes it as uORB debug_array)."""
+        if len(data) != 58:
+            raise ValueError(f"DEBUG_FLOAT_ARRAY carries 58 values, got {len(data)}")
+        self._queue(mavlink2.MAVLink_debug_float_array_message(
+            int(now * 1e6), name.encode(), array_id, [float(x) for x in data]))
+
     def advance_signing_clock(self, unix_time_s: float) -> None:
         """Give the signer the wall clock (UNIX seconds): outgoing signing timestamps never fall
         behind it. Call before the first send and periodically; a no-op without signing."""

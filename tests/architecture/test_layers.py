@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[2]
 #: companion's packages by layer, lowest first; a module may import its own layer or lower
 LAYERS: list[set[str]] = [
     {"geometry", "_frozen"},
-    {"flatness", "mavlink"},
+    {"flatness", "mavlink", "onboard"},
     {"trajectory", "control"},
     {"mission"},
     {"planning"},

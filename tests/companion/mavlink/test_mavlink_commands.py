@@ -7,6 +7,7 @@ from collections.abc import Sequence
 import pytest
 
 from companion.mavlink import CommandBusyError, CommandClient, CommandFinished, CommandProgress
+from companion.mavlink.commands import UnsolicitedAck
 from companion.mavlink.px4_mode import FlightMode, custom_mode_of
 from tests.support.mavlink_fakes import Outbox, Px4Side, command_ack
 
@@ -77,7 +78,10 @@ def test_ack_matching_ignores_foreign_acks(ack_kwargs: dict[str, int],
 def test_ack_for_other_command_ignored_and_broadcast_target_accepted(px4: Px4Side) -> None:
     cc, _ = make()
     cc.send_command(ARM, [1.0], now=0.0)
-    assert cc.on_command_ack(px4.msg(command_ack(22, 0)), 0.1) == []
+    # an answer to no pending command: reported as such (a module's report), ARM still waits
+    (other,) = cc.on_command_ack(px4.msg(command_ack(22, 0)), 0.1)
+    assert isinstance(other, UnsolicitedAck) and (other.command, other.result) == (22, 0)
+    assert cc.is_pending(ARM)
     (fin,) = finished(cc.on_command_ack(px4.msg(command_ack(ARM, 2, 0, 0)), 0.2))
     assert not fin.ok and fin.result == 2  # DENIED, carried through
 

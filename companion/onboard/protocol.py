@@ -1,0 +1,227 @@
+"""The trajectory upload protocol to the onboard PX4 module (gen_c/px4_module), sans I/O.
+
+Companion -> module: MAVLink DEBUG_FLOAT_ARRAY named ``ecca`` (PX4 publishes it as uORB
+``debug_array``), ``array_id`` an opcode, 58 float32 values. Module -> companion: COMMAND_ACK
+with ``command`` ACK_CMD (``progress`` = the module's state, ``result_param2`` = opcode << 24 |
+a 24-bit value) or ACK_CRC (the answer to COMMIT: ``result_param2`` = the module's CRC-32 of the
+upload). One part in flight at a time: `Uploader` sends the next part when the previous one is
+acknowledged and the same part again when no acknowledgement came within `timeout_s`; the
+upload verifies only if the module echoes the companion's CRC-32 (zlib's, over the float32
+values as sent). The numbers are those of gen_c/px4_module/ecca_onboard_proto.h (a test
+compares them).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+
+PROTO_VERSION = 1
+PROTO_NAME = "ecca"
+MAX_SEGMENTS = 256
+N_FLOATS = 58  # DEBUG_FLOAT_ARRAY.data
+
+OP_BEGIN, OP_SEGMENT, OP_COMMIT, OP_ABORT, OP_STATUS = 1, 2, 3, 4, 5
+STATE_READY, STATE_RECEIVING, STATE_LOADED, STATE_FLYING = 0, 1, 2, 3
+STATE_HOLDING, STATE_DONE, STATE_STOPPED, STATE_ERROR = 4, 5, 6, 7
+STATE_NAMES = {STATE_READY: "ready", STATE_RECEIVING: "receiving", STATE_LOADED: "loaded",
+               STATE_FLYING: "flying", STATE_HOLDING: "holding", STATE_DONE: "done",
+               STATE_STOPPED: "stopped", STATE_ERROR: "error"}
+ACK_CMD, ACK_CRC = 31010, 31011
+FINAL_HOLD, FINAL_LAND, FINAL_RTL = 0, 1, 2
+FINAL_ACTIONS = {"hold": FINAL_HOLD, "land": FINAL_LAND, "rtl": FINAL_RTL}
+
+# BEGIN layout
+B_VERSION, B_N_SEGMENTS, B_SYSID, B_COMPID, B_FINAL_ACTION, B_HOLD_S, B_START_TOL_M = range(7)
+B_KP, B_KD, B_KI, B_IMAX = 7, 10, 13, 16
+B_HOVER, B_DRAG, B_MASS, B_G, B_THRUST_MIN, B_THRUST_MAX, B_TILT_MAX, B_DRAG_EST = range(19, 27)
+B_COUNT = 27
+# SEGMENT layout
+S_INDEX, S_DURATION, S_CTRL, S_YAW, S_COUNT = 0, 1, 2, 26, 34
+DEGREE = 7
+
+
+def _f32(values: Sequence[float]) -> list[float]:
+    """The values as the float32 the message carries (what the module stores and hashes)."""
+    return list(struct.unpack(f"<{len(values)}f", struct.pack(f"<{len(values)}f", *values)))
+
+
+@dataclass(frozen=True)
+class LawParams:
+    """What the module's law needs besides the trajectory (the companion's values at upload):
+    gains per axis (x, y, z), hover thrust [normalised], drag [N/(m/s)], mass [kg], g [m/s^2],
+    thrust bounds [normalised], tilt limit [rad], drag of the estimated velocity or not."""
+
+    kp: tuple[float, float, float]
+    kd: tuple[float, float, float]
+    ki: tuple[float, float, float]
+    i_max: tuple[float, float, float]
+    hover: float
+    drag: float
+    mass: float
+    g: float
+    thrust_min: float
+    thrust_max: float
+    max_tilt_rad: float
+    drag_estimate: bool = True
+
+
+@dataclass(frozen=True)
+class Upload:
+    """The messages of one upload: (opcode, 58 float32 values) each, and the CRC-32."""
+
+    begin: tuple[float, ...]
+    segments: tuple[tuple[float, ...], ...]
+    crc: int
+    duration_s: float
+
+    def commit(self) -> tuple[float, ...]:
+        return _pad([float(self.crc & 0xFFFF), float(self.crc >> 16)])
+
+
+def _pad(values: Sequence[float]) -> tuple[float, ...]:
+    return tuple(values) + (0.0,) * (N_FLOATS - len(values))
+
+
+def _elevate(points: FloatArray, count: int) -> FloatArray:
+    """Degree-elevate Bezier control points (n+1, d) to `count` points (the same curve)."""
+    pts = points.reshape(points.shape[0], -1)
+    if pts.shape[0] > count:
+        raise ValueError(f"segment degree {pts.shape[0] - 1} exceeds the module's {count - 1}")
+    while pts.shape[0] < count:
+        n = pts.shape[0] - 1  # Q_i = i/(n+1) P_{i-1} + (1 - i/(n+1)) P_i
+        a = (np.arange(n + 2) / (n + 1))[:, None]
+        pts = a * np.vstack([pts[:1], pts]) + (1 - a) * np.vstack([pts, pts[-1:]])
+    return pts
+
+
+def encode_upload(breaks: Sequence[float], control_points: Sequence[FloatArray],
+                  yaw_control_points: Sequence[FloatArray] | None, law: LawParams, *,
+                  sysid: int, compid: int, final_action: str = "hold", hold_s: float = 2.0,
+                  start_tolerance_m: float = 1.5) -> Upload:
+    """The messages of a piecewise Bezier trajectory (`breaks` [s], per segment the NED
+    control points (n+1, 3) [m] and the yaw's (n+1,) [rad], degree <= 7) for the module."""
+    n = len(breaks) - 1
+    if not 1 <= n <= MAX_SEGMENTS:
+        raise ValueError(f"{n} segments: the module holds 1 to {MAX_SEGMENTS}")
+    if final_action not in FINAL_ACTIONS:
+        raise ValueError(f"final action {final_action!r}: one of {sorted(FINAL_ACTIONS)}")
+    head = [float(PROTO_VERSION), float(n), float(sysid), float(compid),
+            float(FINAL_ACTIONS[final_action]), hold_s, start_tolerance_m, *law.kp, *law.kd,
+            *law.ki, *law.i_max, law.hover, law.drag, law.mass, law.g, law.thrust_min,
+            law.thrust_max, law.max_tilt_rad, 1.0 if law.drag_estimate else 0.0]
+    assert len(head) == B_COUNT
+    begin = _f32(head)
+    crc = zlib.crc32(struct.pack(f"<{B_COUNT}f", *begin))
+    segs = []
+    for i in range(n):
+        dur = float(breaks[i + 1]) - float(breaks[i])
+        if not dur > 0.0:
+            raise ValueError(f"segment {i} has duration {dur} s")
+        cp = _elevate(np.asarray(control_points[i], dtype=np.float64), DEGREE + 1)
+        if cp.shape != (DEGREE + 1, 3):
+            raise ValueError(f"segment {i}: control points {cp.shape}, want (n+1, 3)")
+        ycp = (np.zeros(DEGREE + 1) if yaw_control_points is None else
+               _elevate(np.asarray(yaw_control_points[i], dtype=np.float64), DEGREE + 1)[:, 0])
+        vals = _f32([float(i), dur, *cp.ravel().tolist(), *ycp.tolist()])
+        assert len(vals) == S_COUNT
+        crc = zlib.crc32(struct.pack(f"<{S_COUNT}f", *vals), crc)
+        segs.append(_pad(vals))
+    return Upload(_pad(begin), tuple(segs), crc & 0xFFFFFFFF, float(breaks[-1]) - float(breaks[0]))
+
+
+@dataclass(frozen=True)
+class Ack:
+    """One COMMAND_ACK of the module: `state` (STATE_*), `result` (MAV_RESULT), the opcode it
+    answers (0 for a CRC answer) and its value (segment index, progress; the CRC)."""
+
+    state: int
+    result: int
+    op: int
+    value: int
+    crc: bool = False
+
+
+def decode_ack(command: int, result: int, progress: int, result_param2: int) -> Ack | None:
+    """The module's acknowledgement in a COMMAND_ACK, or None for any other COMMAND_ACK."""
+    if command == ACK_CRC:
+        return Ack(progress, result, OP_COMMIT, result_param2 & 0xFFFFFFFF, crc=True)
+    if command == ACK_CMD:
+        v = result_param2 & 0xFFFFFFFF
+        return Ack(progress, result, v >> 24, v & 0xFFFFFF)
+    return None
+
+
+@dataclass
+class Uploader:
+    """Stop-and-wait upload of `upload`: `poll(now)` gives the message to send now (or None),
+    `on_ack(ack, now)` takes each acknowledgement. Finished when `verified` (the module echoed
+    the CRC) or `failed` (a refusal, or `retries` sends of one part without an answer)."""
+
+    upload: Upload
+    timeout_s: float = 0.3
+    retries: int = 10
+    verified: bool = False
+    failed: str = ""
+    sent: int = 0
+    resent: int = 0
+    _part: int = 0  # 0 BEGIN, 1..n segments, n+1 COMMIT
+    _sent_at: float = -math.inf
+    _tries: int = 0
+    _log: list[str] = field(default_factory=list)
+
+    @property
+    def done(self) -> bool:
+        return self.verified or bool(self.failed)
+
+    def _message(self) -> tuple[int, tuple[float, ...]]:
+        n = len(self.upload.segments)
+        if self._part == 0:
+            return OP_BEGIN, self.upload.begin
+        if self._part <= n:
+            return OP_SEGMENT, self.upload.segments[self._part - 1]
+        return OP_COMMIT, self.upload.commit()
+
+    def poll(self, now: float) -> tuple[int, tuple[float, ...]] | None:
+        if self.done or now - self._sent_at < self.timeout_s:
+            return None
+        if self._tries >= self.retries:
+            self.failed = f"no acknowledgement of part {self._part} after {self._tries} sends"
+            return None
+        self._tries += 1
+        self.sent += 1
+        self.resent += self._tries > 1
+        self._sent_at = now
+        return self._message()
+
+    def on_ack(self, ack: Ack, now: float) -> None:
+        if self.done:
+            return
+        n = len(self.upload.segments)
+        op, _ = self._message()
+        if ack.crc:
+            if op != OP_COMMIT:
+                return
+            if ack.result == 0 and ack.value == self.upload.crc:
+                self.verified = True
+            else:
+                self.failed = (f"the module's CRC 0x{ack.value:08x} is not the upload's "
+                               f"0x{self.upload.crc:08x} (result {ack.result})")
+            return
+        if ack.op != op or (op == OP_SEGMENT and ack.value != self._part - 1):
+            return  # an answer to an earlier send, or a status report
+        if ack.result != 0:
+            self.failed = f"the module refused part {self._part} (result {ack.result})"
+            return
+        self._part += 1
+        self._tries = 0
+        self._sent_at = -math.inf  # the next part at once
+        assert self._part <= n + 1
