@@ -79,7 +79,8 @@ def build_px4_module(sdk: Path, out: Path, *, cc: str | None = None,
                "-Wall", "-Wextra", "-Werror", "-Wno-unused-parameter",
                "-include", str(inc / "visibility.h"), f"-I{inc}", f"-I{LIB_DIR}",
                f"-I{MODULE_DIR}", f"-I{tmp}", "-DECCA_DYN", "-DECCA_SETPOINT_NO_FLOAT",
-               str(MODULE_DIR / "ecca_onboard.c"), str(LIB_DIR / "ecca_setpoint.c"),
+               str(MODULE_DIR / "ecca_onboard.c"), str(MODULE_DIR / "ecca_onboard_core.c"),
+               str(LIB_DIR / "ecca_setpoint.c"),
                str(LIB_DIR / "ecca_gen_d.c"), "-lm", "-o", str(out)]
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, check=False)
         if proc.returncode != 0:

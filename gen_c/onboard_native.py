@@ -1,0 +1,154 @@
+"""The onboard module's logic (gen_c/px4_module/ecca_onboard_core.c) on the host, via ctypes.
+
+The same C the PX4 module runs, without PX4: the upload protocol's receiving end, the flight's
+state machine and the tracking law. The tests drive it against the companion's uploader; the
+mock autopilot can fly it behind the same MAVLink protocol. Imports nothing from ``companion``.
+
+    lib = load_onboard_library()          # None without a C compiler
+    m = OnboardModule(lib)
+    ack = m.message(op, data58)           # OnboardAck or None
+    out = m.step(now_s, offboard, pos_ok, pos_ned, vel_ned)
+"""
+
+from __future__ import annotations
+
+import ctypes
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from gen_c.native import LIB_DIR, NativeBuildError, build_library, find_compiler
+
+_CORE = "../px4_module/ecca_onboard_core.c"
+SOURCES = ("ecca_setpoint.c", "ecca_gen_d.c", _CORE)
+HEADERS = ("ecca_setpoint.h", "ecca_setpoint_gen.h", "ecca_setpoint_impl.inc", "ecca_gen_d.h",
+           "../px4_module/ecca_onboard_core.h", "../px4_module/ecca_onboard_proto.h")
+N_FLOATS = 58
+
+
+class _Ack(ctypes.Structure):
+    _fields_ = [("command", ctypes.c_uint32), ("result", ctypes.c_uint8),
+                ("state", ctypes.c_uint8), ("value", ctypes.c_int32)]
+
+
+class _Output(ctypes.Structure):
+    _fields_ = [("publish_mode", ctypes.c_int), ("publish_setpoint", ctypes.c_int),
+                ("q_d", ctypes.c_float * 4), ("thrust", ctypes.c_float),
+                ("yaw_rate", ctypes.c_float), ("final_action", ctypes.c_int),
+                ("event", ctypes.c_int), ("start_error_m", ctypes.c_double)]
+
+
+@dataclass(frozen=True)
+class OnboardAck:
+    """An acknowledgement the module sends as COMMAND_ACK: command, result (MAV_RESULT),
+    state (its progress field), value (result_param2, signed 32 bit)."""
+
+    command: int
+    result: int
+    state: int
+    value: int
+
+
+@dataclass(frozen=True)
+class OnboardOutput:
+    """One step's requests (see ecca_onboard_core.h): publish offboard_control_mode, publish
+    the attitude setpoint q_d (w, x, y, z) / thrust [normalised] / yaw_rate [rad/s], command
+    final_action (-1: none), the event (ECCA_EV_*) and the start error [m]."""
+
+    publish_mode: bool
+    publish_setpoint: bool
+    q_d: tuple[float, float, float, float]
+    thrust: float
+    yaw_rate: float
+    final_action: int
+    event: int
+    start_error_m: float
+
+
+class OnboardLibrary:
+    """The compiled onboard core (shared by every `OnboardModule`)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        lib = ctypes.CDLL(str(path))
+        lib.ecca_onboard_size.restype = ctypes.c_ulong
+        lib.ecca_onboard_size.argtypes = []
+        lib.ecca_onboard_init.restype = None
+        lib.ecca_onboard_init.argtypes = [ctypes.c_void_p]
+        lib.ecca_onboard_message.restype = ctypes.c_int
+        lib.ecca_onboard_message.argtypes = [ctypes.c_void_p, ctypes.c_int,
+                                             ctypes.POINTER(ctypes.c_float),
+                                             ctypes.POINTER(_Ack)]
+        lib.ecca_onboard_status.restype = None
+        lib.ecca_onboard_status.argtypes = [ctypes.c_void_p, ctypes.POINTER(_Ack)]
+        lib.ecca_onboard_step.restype = None
+        lib.ecca_onboard_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_int,
+                                          ctypes.c_int, ctypes.POINTER(ctypes.c_double),
+                                          ctypes.POINTER(ctypes.c_double),
+                                          ctypes.POINTER(_Output)]
+        self.lib = lib
+        self.size = int(lib.ecca_onboard_size())
+
+
+class OnboardModule:
+    """One module instance (its whole state in a buffer this object owns)."""
+
+    def __init__(self, library: OnboardLibrary) -> None:
+        self._lib = library.lib
+        self._buf = ctypes.create_string_buffer(library.size)
+        self._lib.ecca_onboard_init(self._buf)
+
+    def message(self, op: int, data: Sequence[float]) -> OnboardAck | None:
+        """Take one protocol message (opcode, up to 58 values); the acknowledgement or None."""
+        if len(data) > N_FLOATS:
+            raise ValueError(f"at most {N_FLOATS} values, got {len(data)}")
+        arr = (ctypes.c_float * N_FLOATS)(*[float(x) for x in data])
+        ack = _Ack()
+        if not self._lib.ecca_onboard_message(self._buf, int(op), arr, ctypes.byref(ack)):
+            return None
+        return OnboardAck(ack.command, ack.result, ack.state, ack.value)
+
+    def status(self) -> OnboardAck:
+        """The periodic status report."""
+        ack = _Ack()
+        self._lib.ecca_onboard_status(self._buf, ctypes.byref(ack))
+        return OnboardAck(ack.command, ack.result, ack.state, ack.value)
+
+    def step(self, now_s: float, offboard: bool, pos_ok: bool, pos_ned: Sequence[float],
+             vel_ned: Sequence[float]) -> OnboardOutput:
+        """One control step at `now_s` [s]: armed in OFFBOARD or not, the estimate valid or
+        not, position [m] and velocity [m/s] NED."""
+        p = (ctypes.c_double * 3)(*[float(x) for x in pos_ned])
+        v = (ctypes.c_double * 3)(*[float(x) for x in vel_ned])
+        o = _Output()
+        self._lib.ecca_onboard_step(self._buf, float(now_s), int(bool(offboard)),
+                                    int(bool(pos_ok)), p, v, ctypes.byref(o))
+        return OnboardOutput(bool(o.publish_mode), bool(o.publish_setpoint),
+                             (o.q_d[0], o.q_d[1], o.q_d[2], o.q_d[3]), o.thrust, o.yaw_rate,
+                             o.final_action, o.event, o.start_error_m)
+
+
+_lock = threading.Lock()
+_loaded: dict[str, OnboardLibrary | None] = {}
+
+
+def build_onboard_library(*, cache: Path | None = None) -> Path:
+    """Compile the onboard core with the setpoint library (double) into the cache."""
+    return build_library(LIB_DIR, cache=cache, sources=SOURCES, headers=HEADERS,
+                         extra_flags=("-DECCA_SETPOINT_NO_FLOAT",), name="ecca_onboard")
+
+
+def load_onboard_library() -> OnboardLibrary | None:
+    """The compiled onboard core (built on first use), or None without a C compiler or when
+    the build fails."""
+    with _lock:
+        if "lib" not in _loaded:
+            lib: OnboardLibrary | None = None
+            if find_compiler() is not None:
+                try:
+                    lib = OnboardLibrary(build_onboard_library())
+                except (NativeBuildError, OSError):
+                    lib = None
+            _loaded["lib"] = lib
+        return _loaded["lib"]

@@ -1,0 +1,93 @@
+/* ecca_onboard_core.h: the onboard module's logic without PX4 (hand-written): the upload
+ * protocol's receiving end, the trajectory, the flight's state machine and the law
+ * (ecca_tracking_core). ecca_onboard.c wires it to uORB inside PX4; the tests and the mock call
+ * the same C through ctypes (gen_c.onboard_native). C99, no allocation, no globals: all state
+ * is in one ecca_onboard struct the caller owns (~35 KB).
+ */
+#ifndef ECCA_ONBOARD_CORE_H
+#define ECCA_ONBOARD_CORE_H
+
+#include <stdint.h>
+
+#include "ecca_onboard_proto.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/** An acknowledgement to send as COMMAND_ACK (to peer_sys / peer_comp). */
+typedef struct {
+  uint32_t command; /**< ECCA_ACK_CMD or ECCA_ACK_CRC */
+  uint8_t result;   /**< MAV_RESULT */
+  uint8_t state;    /**< ECCA_STATE_* (COMMAND_ACK.progress) */
+  int32_t value;    /**< COMMAND_ACK.result_param2 */
+} ecca_onboard_ack;
+
+/* ecca_onboard_output.event */
+#define ECCA_EV_NONE 0
+#define ECCA_EV_FLYING 1        /* the trajectory's clock started */
+#define ECCA_EV_HOLDING 2       /* past the last segment */
+#define ECCA_EV_DONE 3          /* the final action is due (final_action) */
+#define ECCA_EV_STOPPED 4       /* OFFBOARD left while flying */
+#define ECCA_EV_START_REFUSED 5 /* too far from the start (start_error_m): final_action is due */
+
+/** What one step asks the PX4 side to do. */
+typedef struct {
+  int publish_mode;     /**< publish offboard_control_mode (attitude) now */
+  int publish_setpoint; /**< publish vehicle_attitude_setpoint from the fields below */
+  float q_d[4];         /**< desired attitude, body FRD -> NED (w, x, y, z) */
+  float thrust;         /**< normalised thrust (thrust_body[2] = -thrust) */
+  float yaw_rate;       /**< yaw rate feed-forward [rad/s] */
+  int final_action;     /**< -1, or ECCA_FINAL_* to command now (once) */
+  int event;            /**< ECCA_EV_* */
+  double start_error_m; /**< distance from the start point when the start was refused */
+} ecca_onboard_output;
+
+typedef struct {
+  float duration;
+  float ctrl[8][3];
+  float yaw[8];
+} ecca_onboard_segment;
+
+/** All the module's state. */
+typedef struct {
+  int state;
+  int n_expected;
+  int n_received;
+  uint8_t have[ECCA_MAX_SEGMENTS];
+  float begin[ECCA_B_COUNT];
+  ecca_onboard_segment seg[ECCA_MAX_SEGMENTS];
+  double t_start_seg[ECCA_MAX_SEGMENTS + 1];
+  uint32_t crc;
+  uint8_t peer_sys;
+  uint8_t peer_comp;
+  double t0;
+  double t_hold;
+  double t_last;
+  double integ[3];
+  double progress;
+  double t_final; /* when the final action was last commanded */
+} ecca_onboard;
+
+/** A fresh module: ECCA_STATE_READY, no trajectory, no peer. */
+void ecca_onboard_init(ecca_onboard *m);
+
+/** Take one protocol message (opcode `op`, 58 floats); 1 if `ack` is to be sent. */
+int ecca_onboard_message(ecca_onboard *m, int op, const float *data, ecca_onboard_ack *ack);
+
+/** The periodic status report (an ECCA_OP_STATUS acknowledgement). */
+void ecca_onboard_status(const ecca_onboard *m, ecca_onboard_ack *ack);
+
+/** One control step at `now_s` [s, any monotonic clock]: `offboard` = armed in OFFBOARD,
+ *  `pos_ok` = position and velocity valid, `pos` / `vel` the estimate [m, m/s NED]. */
+void ecca_onboard_step(ecca_onboard *m, double now_s, int offboard, int pos_ok,
+                       const double pos[3], const double vel[3], ecca_onboard_output *out);
+
+/** sizeof(ecca_onboard), for callers that allocate it (ctypes). */
+unsigned long ecca_onboard_size(void);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* ECCA_ONBOARD_CORE_H */

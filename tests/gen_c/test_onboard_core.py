@@ -1,0 +1,307 @@
+"""The onboard module's logic (gen_c/px4_module/ecca_onboard_core.c, through ctypes) against the
+companion's side of the upload protocol (companion.onboard.protocol): both ends sans I/O over a
+simulated link that loses, duplicates, delays and corrupts messages (hypothesis); the flight's
+state machine; and the module's setpoint against the Python law on the same inputs."""
+
+from __future__ import annotations
+
+import math
+import re
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import companion.flatness._formulas as fm
+import companion.onboard.protocol as P
+from companion.control.core import CORE_OUTPUTS, tracking_core
+from companion.trajectory import Bezier, PiecewiseBezier
+from gen_c import onboard_native as N
+
+HEADER = Path(N.__file__).resolve().parent / "px4_module" / "ecca_onboard_proto.h"
+OUT = {name: sum(n for _, n in CORE_OUTPUTS[:i]) for i, (name, _) in enumerate(CORE_OUTPUTS)}
+LAW = P.LawParams(kp=(2.0, 2.0, 3.0), kd=(2.5, 2.5, 3.0), ki=(0.2, 0.2, 0.3),
+                  i_max=(2.0, 2.0, 3.0), hover=0.5, drag=0.4, mass=1.2, g=9.80665,
+                  thrust_min=0.08, thrust_max=1.0, max_tilt_rad=math.radians(40.0))
+
+
+@pytest.fixture(scope="module")
+def lib(tmp_path_factory: pytest.TempPathFactory) -> N.OnboardLibrary:
+    return N.OnboardLibrary(N.build_onboard_library(cache=tmp_path_factory.mktemp("onboard")))
+
+
+def trajectory(n: int, seed: int = 0) -> PiecewiseBezier:
+    """`n` degree-7 segments joined with C0 continuity (enough for the protocol), random
+    points a few metres apart starting at (0, 0, -5), yaw channel too."""
+    rng = np.random.default_rng(seed)
+    segs, yaws = [], []
+    p0, y0 = np.array([0.0, 0.0, -5.0]), 0.0
+    for _ in range(n):
+        cp = p0 + np.cumsum(rng.normal(0, 0.5, (8, 3)), axis=0)
+        cp[0] = p0
+        dur = float(rng.uniform(0.5, 2.0))
+        yc = y0 + np.cumsum(rng.normal(0, 0.05, 8))
+        yc[0] = y0
+        segs.append(Bezier(cp, dur))
+        yaws.append(Bezier(yc[:, None], dur))
+        p0, y0 = cp[-1], float(yc[-1])
+    return PiecewiseBezier(segs, yaw=PiecewiseBezier(yaws))
+
+
+def encode(traj: PiecewiseBezier, **kw: object) -> P.Upload:
+    m = len(traj.breaks) - 1
+    return P.encode_upload(traj.breaks, [traj.control_points[i] for i in range(m)],
+                           [traj.yaw.control_points[i] for i in range(m)],  # type: ignore[union-attr]
+                           LAW, sysid=255, compid=190, **kw)  # type: ignore[arg-type]
+
+
+def ack_of(a: N.OnboardAck) -> P.Ack:
+    out = P.decode_ack(a.command, a.result, a.state, a.value)
+    assert out is not None
+    return out
+
+
+def upload_direct(m: N.OnboardModule, up: P.Upload) -> P.Uploader:
+    u = P.Uploader(up)
+    t = 0.0
+    while not u.done and t < 100.0:
+        msg = u.poll(t)
+        if msg is not None:
+            a = m.message(*msg)
+            if a is not None:
+                u.on_ack(ack_of(a), t)
+        t += 0.01
+    return u
+
+
+def test_the_python_constants_are_the_header_s() -> None:
+    defines = {k: int(v) for k, v in re.findall(r"#define (ECCA_\w+) (-?\d+)", HEADER.read_text())}
+    names = {"PROTO_VERSION": "ECCA_PROTO_VERSION", "MAX_SEGMENTS": "ECCA_MAX_SEGMENTS",
+             "ACK_CMD": "ECCA_ACK_CMD", "ACK_CRC": "ECCA_ACK_CRC", "B_COUNT": "ECCA_B_COUNT",
+             "S_COUNT": "ECCA_S_COUNT", "S_CTRL": "ECCA_S_CTRL", "S_YAW": "ECCA_S_YAW"}
+    for py, c in names.items():
+        assert getattr(P, py) == defines[c], py
+    for prefix in ("OP_", "STATE_", "FINAL_", "B_"):
+        for k, v in defines.items():
+            if k.startswith("ECCA_" + prefix) and k[5:] in vars(P):
+                assert getattr(P, k[5:]) == v, k
+    name = re.search(r'#define ECCA_PROTO_NAME "(\w+)"', HEADER.read_text())
+    assert name is not None and name[1] == P.PROTO_NAME
+
+
+def test_an_upload_verifies_and_the_module_holds_what_was_sent(lib: N.OnboardLibrary) -> None:
+    m = N.OnboardModule(lib)
+    up = encode(trajectory(P.MAX_SEGMENTS))  # the most the module holds
+    u = upload_direct(m, up)
+    assert u.verified and not u.failed and u.resent == 0
+    st_ = ack_of(m.status())
+    assert st_.state == P.STATE_LOADED and st_.value == P.MAX_SEGMENTS
+    # the CRC is zlib's over the float32 values sent: an independent recomputation
+    blob = b"".join(struct.pack(f"<{n}f", *vals[:n])
+                    for vals, n in [(up.begin, P.B_COUNT)]
+                    + [(s, P.S_COUNT) for s in up.segments])
+    assert zlib.crc32(blob) == up.crc
+    with pytest.raises(ValueError):
+        encode(trajectory(P.MAX_SEGMENTS + 1))
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 10_000), loss=st.floats(0.0, 0.2), dup=st.floats(0.0, 0.2),
+       delay=st.floats(0.0, 0.3), corrupt=st.floats(0.0, 0.1), n=st.integers(1, 12))
+def test_an_upload_over_a_faulty_link_verifies_only_what_the_module_really_holds(
+        lib: N.OnboardLibrary, seed: int, loss: float, dup: float, delay: float,
+        corrupt: float, n: int) -> None:
+    rng = np.random.default_rng(seed)
+    m = N.OnboardModule(lib)
+    up = encode(trajectory(n, seed))
+    u = P.Uploader(up, timeout_s=0.3, retries=30)
+    to_module: list[tuple[float, int, list[float]]] = []
+    to_companion: list[tuple[float, P.Ack]] = []
+    t = 0.0
+    while not u.done and t < 600.0:
+        msg = u.poll(t)
+        if msg is not None:
+            for _ in range(1 + (rng.random() < dup)):
+                if rng.random() < loss:
+                    continue
+                data = list(msg[1])
+                if msg[0] == P.OP_SEGMENT and rng.random() < corrupt:
+                    data[int(rng.integers(P.S_CTRL, P.S_COUNT))] += 0.25  # a bit flipped en route
+                to_module.append((t + rng.random() * delay, msg[0], data))
+        for item in sorted(i for i in to_module if i[0] <= t):
+            to_module.remove(item)
+            a = m.message(item[1], item[2])
+            if a is not None and rng.random() >= loss:
+                for _ in range(1 + (rng.random() < dup)):
+                    to_companion.append((t + rng.random() * delay, ack_of(a)))
+        for item in sorted((i for i in to_companion if i[0] <= t), key=lambda i: i[0]):
+            to_companion.remove(item)
+            u.on_ack(item[1], t)
+        t += 0.01
+    assert u.done
+    state = ack_of(m.status()).state
+    if u.verified:
+        # the module's CRC of what it holds is the upload's: it holds the trajectory sent
+        assert state == P.STATE_LOADED
+        a = m.message(P.OP_COMMIT, up.commit())
+        assert a is not None and a.result == 0 and (a.value & 0xFFFFFFFF) == up.crc
+    else:
+        assert u.failed
+        assert corrupt > 0.0, u.failed  # a lossy, duplicating, reordering link still gets it
+    if state == P.STATE_LOADED:  # loaded only what verified
+        assert u.verified or "CRC" not in u.failed
+
+
+def test_a_late_copy_of_begin_does_not_restart_the_upload(lib: N.OnboardLibrary) -> None:
+    m = N.OnboardModule(lib)
+    up = encode(trajectory(3))
+    order = [(P.OP_BEGIN, up.begin), (P.OP_SEGMENT, up.segments[0]), (P.OP_BEGIN, up.begin),
+             (P.OP_SEGMENT, up.segments[1]), (P.OP_SEGMENT, up.segments[2])]
+    for op, data in order:
+        a = m.message(op, data)
+        assert a is not None and a.result == 0
+    a = m.message(P.OP_COMMIT, up.commit())
+    assert a is not None and a.result == 0 and (a.value & 0xFFFFFFFF) == up.crc
+
+
+def test_a_corrupted_upload_is_refused_and_never_flown(lib: N.OnboardLibrary) -> None:
+    m = N.OnboardModule(lib)
+    up = encode(trajectory(4))
+    bad = list(up.segments[2])
+    bad[P.S_CTRL + 5] += 1.0
+    for op, data in [(P.OP_BEGIN, up.begin), (P.OP_SEGMENT, up.segments[0]),
+                     (P.OP_SEGMENT, up.segments[1]), (P.OP_SEGMENT, tuple(bad)),
+                     (P.OP_SEGMENT, up.segments[3])]:
+        a = m.message(op, data)
+        assert a is not None and a.result == 0  # every part is acknowledged ...
+    a = m.message(P.OP_COMMIT, up.commit())
+    assert a is not None and a.command == P.ACK_CRC and a.result != 0  # ... the whole is not
+    assert a.state == P.STATE_READY and (a.value & 0xFFFFFFFF) != up.crc
+    out = m.step(0.0, True, True, (0.0, 0.0, -5.0), (0.0, 0.0, 0.0))
+    assert not out.publish_mode and not out.publish_setpoint  # nothing to fly
+    # a missing part: refused too
+    m2 = N.OnboardModule(lib)
+    for op, data in [(P.OP_BEGIN, up.begin), (P.OP_SEGMENT, up.segments[0])]:
+        m2.message(op, data)
+    a = m2.message(P.OP_COMMIT, up.commit())
+    assert a is not None and a.result != 0 and a.state == P.STATE_READY
+
+
+def test_invalid_parts_are_refused(lib: N.OnboardLibrary) -> None:
+    m = N.OnboardModule(lib)
+    up = encode(trajectory(2))
+    begin = list(up.begin)
+    begin[P.B_HOVER] = 1.5
+    a = m.message(P.OP_BEGIN, begin)
+    assert a is not None and a.result == 2 and a.state == P.STATE_READY
+    a = m.message(P.OP_SEGMENT, up.segments[0])  # no upload under way
+    assert a is not None and a.result == 2
+    m.message(P.OP_BEGIN, up.begin)
+    seg = list(up.segments[1])
+    seg[P.S_DURATION] = 0.0
+    a = m.message(P.OP_SEGMENT, seg)
+    assert a is not None and a.result == 2
+    seg[P.S_DURATION], seg[P.S_INDEX] = 1.0, 7.0  # beyond the upload's count
+    a = m.message(P.OP_SEGMENT, seg)
+    assert a is not None and a.result == 2
+    assert m.message(99, [0.0]) is None
+
+
+def _py_setpoint(up: P.Upload, traj: PiecewiseBezier, t: float, pos: np.ndarray,
+                 vel: np.ndarray, integ: list[float], dt: float) -> list[float]:
+    """The Python law on the inputs the module assembles: the float32 trajectory it holds."""
+    m = len(traj.breaks) - 1
+    segs = [Bezier(np.array(s[P.S_CTRL:P.S_YAW], dtype=np.float64).reshape(8, 3),
+                   float(s[P.S_DURATION])) for s in up.segments[:m]]
+    ysegs = [Bezier(np.array(s[P.S_YAW:P.S_COUNT], dtype=np.float64)[:, None],
+                    float(s[P.S_DURATION])) for s in up.segments[:m]]
+    held = PiecewiseBezier(segs, yaw=PiecewiseBezier(ysegs))
+    st_ = [held.evaluate(t, k) for k in range(5)]
+    yaw = [held.yaw.evaluate(t, k) for k in range(3)]  # type: ignore[union-attr]
+    b = up.begin
+    x = [*st_[0], *st_[1], *st_[2], *st_[2], *st_[3], *st_[4], *pos, *vel, 0.0, 0.0, 0.0,
+         *integ, *b[P.B_KP:P.B_KP + 3], *b[P.B_KD:P.B_KD + 3], *b[P.B_KI:P.B_KI + 3],
+         *b[P.B_IMAX:P.B_IMAX + 3], 0.0, 0.0, float(yaw[0][0]), float(yaw[1][0]),
+         float(yaw[2][0]), b[P.B_HOVER], b[P.B_DRAG], b[P.B_DRAG], b[P.B_MASS], b[P.B_G],
+         b[P.B_THRUST_MIN], b[P.B_THRUST_MAX], math.cos(b[P.B_TILT_MAX]),
+         math.tan(b[P.B_TILT_MAX]), 0.0, b[P.B_DRAG_EST], dt, 1.0]
+    return [float(v) for v in tracking_core(fm.FLOAT, x)]
+
+
+def test_the_flight_follows_the_protocol_s_states_and_the_python_law(
+        lib: N.OnboardLibrary) -> None:
+    m = N.OnboardModule(lib)
+    traj = trajectory(3, seed=4)
+    up = encode(traj, final_action="land", hold_s=1.5)
+    assert upload_direct(m, up).verified
+    start = np.array(traj.evaluate(0.0))
+    # loaded, not in OFFBOARD: offboard_control_mode (commander may switch), no setpoint
+    out = m.step(10.0, False, True, start, np.zeros(3))
+    assert out.publish_mode and not out.publish_setpoint and out.final_action == -1
+    # armed in OFFBOARD: the clock starts, setpoints flow, the law is Python's
+    out = m.step(10.0, True, True, start, np.zeros(3))
+    assert out.event == 1 and out.publish_setpoint
+    integ = [0.0, 0.0, 0.0]
+    rng = np.random.default_rng(1)
+    for k in range(1, 300):
+        t = 10.0 + 0.004 * k
+        pos = np.array(traj.evaluate(t - 10.0)) + rng.normal(0, 0.3, 3)
+        vel = rng.normal(0, 1.0, 3)
+        out = m.step(t, True, True, pos, vel)
+        ref = _py_setpoint(up, traj, t - 10.0, pos, vel, integ, 0.004)
+        integ = ref[OUT["integ"]:OUT["integ"] + 3]
+        assert out.publish_setpoint
+        np.testing.assert_allclose(out.q_d, ref[0:4], atol=2e-6)
+        assert out.thrust == pytest.approx(ref[OUT["thrust"]], abs=2e-6)
+        assert out.yaw_rate == pytest.approx(ref[OUT["omega_ff"] + 2], abs=2e-6)
+        assert abs(math.hypot(*out.q_d) - 1.0) < 1e-6
+    # a new upload while flying is refused
+    a = m.message(P.OP_BEGIN, up.begin)
+    assert a is not None and a.result == 1 and a.state == P.STATE_FLYING
+    # past the end: hold, then after hold_s the final action (land), again a second later
+    end = 10.0 + up.duration_s
+    out = m.step(end + 0.01, True, True, start, np.zeros(3))
+    assert out.event == 2 and out.publish_setpoint and out.final_action == -1
+    out = m.step(end + 1.0, True, True, start, np.zeros(3))
+    assert out.final_action == -1
+    out = m.step(end + 1.6, True, True, start, np.zeros(3))
+    assert out.event == 3 and out.final_action == P.FINAL_LAND
+    out = m.step(end + 2.7, True, True, start, np.zeros(3))
+    assert out.final_action == P.FINAL_LAND and out.publish_setpoint  # still OFFBOARD: again
+    out = m.step(end + 2.8, False, True, start, np.zeros(3))  # PX4 landing
+    assert not out.publish_mode and not out.publish_setpoint
+    assert ack_of(m.status()).state == P.STATE_DONE
+
+
+def test_leaving_offboard_stops_the_module_for_good(lib: N.OnboardLibrary) -> None:
+    m = N.OnboardModule(lib)
+    traj = trajectory(2, seed=2)
+    up = encode(traj)
+    assert upload_direct(m, up).verified
+    start = np.array(traj.evaluate(0.0))
+    assert m.step(0.0, True, True, start, np.zeros(3)).event == 1
+    out = m.step(0.5, False, True, start, np.zeros(3))  # the pilot switched to POSCTL
+    assert out.event == 4 and not out.publish_setpoint and not out.publish_mode
+    out = m.step(0.6, True, True, start, np.zeros(3))  # back in OFFBOARD: not resumed
+    assert not out.publish_setpoint and not out.publish_mode
+    assert ack_of(m.status()).state == P.STATE_STOPPED
+
+
+def test_a_vehicle_far_from_the_start_is_not_flown(lib: N.OnboardLibrary) -> None:
+    m = N.OnboardModule(lib)
+    traj = trajectory(2, seed=3)
+    up = encode(traj, start_tolerance_m=1.0, final_action="land")
+    assert upload_direct(m, up).verified
+    start = np.array(traj.evaluate(0.0))
+    out = m.step(0.0, True, True, start + np.array([1.5, 0.0, 0.0]), np.zeros(3))
+    assert out.event == 5 and out.start_error_m == pytest.approx(1.5, abs=1e-5)
+    assert not out.publish_setpoint and out.final_action == P.FINAL_LAND
+    # and without a valid position, not either
+    m2 = N.OnboardModule(lib)
+    assert upload_direct(m2, up).verified
+    out = m2.step(0.0, True, False, start, np.zeros(3))
+    assert out.event == 5 and not out.publish_setpoint
