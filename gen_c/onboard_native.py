@@ -82,6 +82,8 @@ class OnboardLibrary:
                                              ctypes.POINTER(_Ack)]
         lib.ecca_onboard_status.restype = None
         lib.ecca_onboard_status.argtypes = [ctypes.c_void_p, ctypes.POINTER(_Ack)]
+        lib.ecca_onboard_start_report.restype = ctypes.c_int
+        lib.ecca_onboard_start_report.argtypes = [ctypes.c_void_p, ctypes.POINTER(_Ack)]
         lib.ecca_onboard_step.restype = None
         lib.ecca_onboard_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_int,
                                           ctypes.c_int, ctypes.POINTER(ctypes.c_double),
@@ -113,6 +115,13 @@ class OnboardModule:
         """The periodic status report."""
         ack = _Ack()
         self._lib.ecca_onboard_status(self._buf, ctypes.byref(ack))
+        return OnboardAck(ack.command, ack.result, ack.state, ack.value)
+
+    def start_report(self) -> OnboardAck | None:
+        """The start report sent with each status while flown (None before)."""
+        ack = _Ack()
+        if not self._lib.ecca_onboard_start_report(self._buf, ctypes.byref(ack)):
+            return None
         return OnboardAck(ack.command, ack.result, ack.state, ack.value)
 
     def step(self, now_s: float, offboard: bool, pos_ok: bool, pos_ned: Sequence[float],

@@ -441,13 +441,14 @@ class VehicleBase:
         await self._wait_for(self._armable, self.config.armable_timeout_s,
                              "the vehicle to be ready to arm (estimator / preflight checks)")
 
-    async def arm(self, force: bool = False) -> None:
+    async def arm(self, force: bool = False, keep_mode: bool = False) -> None:
         """Arm (after the vehicle reports it is armable); switches to Hold first if the current
-        mode cannot arm without RC (PX4 returns to OFFBOARD/POSCTL after a landing)."""
+        mode cannot arm without RC (PX4 returns to OFFBOARD/POSCTL after a landing), unless
+        `keep_mode` (arming in OFFBOARD with an onboard module's offboard stream)."""
         if self.is_armed:
             return
         await self.wait_armable()
-        if self.mode in _CAN_NOT_ARM:
+        if self.mode in _CAN_NOT_ARM and not keep_mode:
             await self.set_mode(FlightMode.HOLD)
         await self._command(lambda now: self.link.arm(now, force), MAV_CMD_COMPONENT_ARM_DISARM,
                             "arming")

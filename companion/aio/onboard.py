@@ -105,7 +105,8 @@ async def upload(v: VehicleBase, up: Upload, *, timeout_s: float = 60.0,
         await q.close()
 
 
-async def module_states(v: VehicleBase) -> AsyncIterator[Ack]:
-    """The module's reports as they come (its status every 0.5 s, its answers)."""
-    async for _, ack in _acks(v):
-        yield ack
+async def module_states(v: VehicleBase) -> AsyncIterator[tuple[float, Ack]]:
+    """The module's reports as they come (its status every 0.5 s, its answers), with their
+    receive times [s, time.monotonic]."""
+    async for t, ack in _acks(v):
+        yield t, ack

@@ -292,6 +292,10 @@ def _cmd_fly(args: argparse.Namespace) -> int:
         busy_wait=args.busy_wait, sender_cpu=args.sender_cpu, target_system=args.target_system,
         signing_key=args.signing_key, connect_timeout_s=args.timeout, wind=args.wind,
     )
+    if args.onboard:
+        from companion.app.fly_onboard import fly_onboard
+
+        return _run_vehicle_command(lambda: asyncio.run(fly_onboard(opts, console)))
     return _run_vehicle_command(lambda: asyncio.run(fly(opts, console)))
 
 
@@ -484,6 +488,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="pin the setpoint sender thread to core N")
     fl.add_argument("--mock-param", type=mock_param, action="append", default=[],
                     metavar="NAME=VALUE", help="parameter of the embedded mock (repeatable)")
+    fl.add_argument("--onboard", action="store_true",
+                    help="upload the trajectory to the onboard PX4 module (gen_c/px4_module) "
+                         "and let it fly inside the autopilot: no setpoint streamed "
+                         "(--connect and attitude mode; see docs/guides/onboard.md)")
     fl.set_defaults(func=_cmd_fly)
 
     sv = sub.add_parser(

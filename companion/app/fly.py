@@ -58,6 +58,7 @@ from companion.planning.fence_check import (
 from companion.planning.legs import leg_figures, plan_bounds, plan_legs, worst_leg_text
 from companion.planning.schedule import Schedule, build_schedule, trajectory_reference
 from companion.planning.vehicle_params import ResolvedPlanningParams, read_planning_params
+from companion.trajectory import PiecewiseBezier
 from companion.trajectory.patterns import PATTERNS, pattern_trajectory, pattern_waypoints
 
 DEFAULT_HOME = (47.397742, 8.545594, 488.0)
@@ -231,6 +232,7 @@ class PlannedFlight:
     flight_plan: FlightPlan | None = None  # a mission's plan (legs, geofence); None: pattern
     schedule: Schedule | None = None  # a mission's schedule (the plan's frame)
     t_off_s: float = 0.0  # schedule time at which the offboard part starts [s]
+    trajectory: PiecewiseBezier | None = None  # a pattern's trajectory (the plan's frame)
 
 
 def plan_flight(opts: FlyOptions, inputs: FlyInputs, rover: bool,
@@ -276,7 +278,7 @@ def plan_flight(opts: FlyOptions, inputs: FlyInputs, rover: bool,
 
     wps = pattern_waypoints(opts.target, np.zeros(3), opts.size_m, opts.laps)
     return PlannedFlight(opts.alt_m, traj.duration, np.zeros(3), pat_ref, wps,
-                         (PATTERN_ACCEPTANCE_M,) * len(wps), "land")
+                         (PATTERN_ACCEPTANCE_M,) * len(wps), "land", trajectory=traj)
 
 
 async def _home_offset_m(v: Any, mission: Mission,

@@ -35,7 +35,7 @@ STATE_HOLDING, STATE_DONE, STATE_STOPPED, STATE_ERROR = 4, 5, 6, 7
 STATE_NAMES = {STATE_READY: "ready", STATE_RECEIVING: "receiving", STATE_LOADED: "loaded",
                STATE_FLYING: "flying", STATE_HOLDING: "holding", STATE_DONE: "done",
                STATE_STOPPED: "stopped", STATE_ERROR: "error"}
-ACK_CMD, ACK_CRC = 31010, 31011
+ACK_CMD, ACK_CRC, ACK_START = 31010, 31011, 31012
 FINAL_HOLD, FINAL_LAND, FINAL_RTL = 0, 1, 2
 FINAL_ACTIONS = {"hold": FINAL_HOLD, "land": FINAL_LAND, "rtl": FINAL_RTL}
 
@@ -43,7 +43,8 @@ FINAL_ACTIONS = {"hold": FINAL_HOLD, "land": FINAL_LAND, "rtl": FINAL_RTL}
 B_VERSION, B_N_SEGMENTS, B_SYSID, B_COMPID, B_FINAL_ACTION, B_HOLD_S, B_START_TOL_M = range(7)
 B_KP, B_KD, B_KI, B_IMAX = 7, 10, 13, 16
 B_HOVER, B_DRAG, B_MASS, B_G, B_THRUST_MIN, B_THRUST_MAX, B_TILT_MAX, B_DRAG_EST = range(19, 27)
-B_COUNT = 27
+B_LEAD_S = 27
+B_COUNT = 28
 # SEGMENT layout
 S_INDEX, S_DURATION, S_CTRL, S_YAW, S_COUNT = 0, 1, 2, 26, 34
 DEGREE = 7
@@ -58,7 +59,8 @@ def _f32(values: Sequence[float]) -> list[float]:
 class LawParams:
     """What the module's law needs besides the trajectory (the companion's values at upload):
     gains per axis (x, y, z), hover thrust [normalised], drag [N/(m/s)], mass [kg], g [m/s^2],
-    thrust bounds [normalised], tilt limit [rad], drag of the estimated velocity or not."""
+    thrust bounds [normalised], tilt limit [rad], drag of the estimated velocity or not, the
+    feed-forward's lead [s] (`TrackingConfig.attitude_lead_s`)."""
 
     kp: tuple[float, float, float]
     kd: tuple[float, float, float]
@@ -72,6 +74,7 @@ class LawParams:
     thrust_max: float
     max_tilt_rad: float
     drag_estimate: bool = True
+    lead_s: float = 0.15
 
 
 @dataclass(frozen=True)
@@ -117,7 +120,7 @@ def encode_upload(breaks: Sequence[float], control_points: Sequence[FloatArray],
     head = [float(PROTO_VERSION), float(n), float(sysid), float(compid),
             float(FINAL_ACTIONS[final_action]), hold_s, start_tolerance_m, *law.kp, *law.kd,
             *law.ki, *law.i_max, law.hover, law.drag, law.mass, law.g, law.thrust_min,
-            law.thrust_max, law.max_tilt_rad, 1.0 if law.drag_estimate else 0.0]
+            law.thrust_max, law.max_tilt_rad, 1.0 if law.drag_estimate else 0.0, law.lead_s]
     assert len(head) == B_COUNT
     begin = _f32(head)
     crc = zlib.crc32(struct.pack(f"<{B_COUNT}f", *begin))
@@ -148,12 +151,15 @@ class Ack:
     op: int
     value: int
     crc: bool = False
+    start: bool = False  # a start report: `value` = the start on the autopilot's clock [ms]
 
 
 def decode_ack(command: int, result: int, progress: int, result_param2: int) -> Ack | None:
     """The module's acknowledgement in a COMMAND_ACK, or None for any other COMMAND_ACK."""
     if command == ACK_CRC:
         return Ack(progress, result, OP_COMMIT, result_param2 & 0xFFFFFFFF, crc=True)
+    if command == ACK_START:
+        return Ack(progress, result, 0, result_param2, start=True)
     if command == ACK_CMD:
         v = result_param2 & 0xFFFFFFFF
         return Ack(progress, result, v >> 24, v & 0xFFFFFF)
@@ -203,7 +209,7 @@ class Uploader:
         return self._message()
 
     def on_ack(self, ack: Ack, now: float) -> None:
-        if self.done:
+        if self.done or ack.start:
             return
         n = len(self.upload.segments)
         op, _ = self._message()

@@ -265,6 +265,9 @@ static int task_main(int argc, char *argv[]) {
       t_status = now;
       ecca_onboard_status(&g_core, &ack);
       publish_ack(&ack);
+      if (ecca_onboard_start_report(&g_core, &ack)) {
+        publish_ack(&ack);
+      }
     }
   }
   orb_unsubscribe(sub_dbg);

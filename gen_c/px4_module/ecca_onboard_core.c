@@ -51,10 +51,16 @@ static void op_ack(const ecca_onboard *m, ecca_onboard_ack *ack, int op, uint8_t
 }
 
 static int32_t progress_value(const ecca_onboard *m) {
+  double ms;
   if (m->state == ECCA_STATE_RECEIVING || m->state == ECCA_STATE_LOADED) {
     return m->n_received;
   }
-  return (int32_t)(m->progress * 1000.0 + 0.5);
+  if (m->state == ECCA_STATE_FLYING || m->state == ECCA_STATE_HOLDING ||
+      m->state == ECCA_STATE_DONE) {
+    ms = (m->t_last - m->t0) * 1000.0; /* the trajectory's clock at the last step [ms] */
+    return (int32_t)(ms < 0.0 ? 0.0 : ms > 16777215.0 ? 16777215.0 : ms + 0.5);
+  }
+  return 0;
 }
 
 void ecca_onboard_init(ecca_onboard *m) {
@@ -68,6 +74,19 @@ void ecca_onboard_status(const ecca_onboard *m, ecca_onboard_ack *ack) {
   op_ack(m, ack, ECCA_OP_STATUS, 0, progress_value(m));
 }
 
+int ecca_onboard_start_report(const ecca_onboard *m, ecca_onboard_ack *ack) {
+  double ms = m->t0 * 1000.0;
+  if (!(m->state == ECCA_STATE_FLYING || m->state == ECCA_STATE_HOLDING ||
+        m->state == ECCA_STATE_DONE) || !(ms >= 0.0 && ms < 2147483647.0)) {
+    return 0;
+  }
+  ack->command = ECCA_ACK_START;
+  ack->result = 0;
+  ack->state = (uint8_t)m->state;
+  ack->value = (int32_t)(ms + 0.5);
+  return 1;
+}
+
 static int begin_valid(const float *d) {
   int n = (int)d[ECCA_B_N_SEGMENTS];
   int i;
@@ -79,7 +98,8 @@ static int begin_valid(const float *d) {
   return (int)d[ECCA_B_VERSION] == ECCA_PROTO_VERSION && n >= 1 && n <= ECCA_MAX_SEGMENTS &&
          d[ECCA_B_HOVER] > 0.0f && d[ECCA_B_HOVER] < 1.0f && d[ECCA_B_MASS] > 0.0f &&
          d[ECCA_B_G] > 0.0f && d[ECCA_B_TILT_MAX] > 0.0f && d[ECCA_B_TILT_MAX] < 1.5f &&
-         d[ECCA_B_THRUST_MAX] > d[ECCA_B_THRUST_MIN] && d[ECCA_B_START_TOL_M] > 0.0f;
+         d[ECCA_B_THRUST_MAX] > d[ECCA_B_THRUST_MIN] && d[ECCA_B_START_TOL_M] > 0.0f &&
+         d[ECCA_B_LEAD_S] >= 0.0f && d[ECCA_B_LEAD_S] <= 1.0f;
 }
 
 static int segment_valid(const float *d) {
@@ -209,21 +229,23 @@ static void reference_at(const ecca_onboard *m, double t, ecca_flat_state *s) {
   }
 }
 
-/* One step of the law (attitude mode: no feedback jerk, no lead); 0 if no finite setpoint. */
+/* One step of the law (attitude mode: no feedback jerk); 0 if no finite setpoint. */
 static int control(ecca_onboard *m, double t, double dt, const double pos[3],
                    const double vel[3], ecca_onboard_output *o) {
-  ecca_flat_state r;
+  ecca_flat_state r, a;
   double in[ECCA_CORE_N_IN], out[ECCA_CORE_N_OUT];
   const float *b = m->begin;
   double tilt = (double)b[ECCA_B_TILT_MAX];
   int i, n = 0;
   reference_at(m, t, &r);
+  /* the feed-forward of the reference lead_s ahead: it offsets PX4's attitude loop's lag */
+  reference_at(m, t + (double)b[ECCA_B_LEAD_S], &a);
   for (i = 0; i < 3; ++i) in[n++] = r.pos_ned_m[i];
   for (i = 0; i < 3; ++i) in[n++] = r.vel_ned_m_s[i];
   for (i = 0; i < 3; ++i) in[n++] = r.acc_ned_m_s2[i];
-  for (i = 0; i < 3; ++i) in[n++] = r.acc_ned_m_s2[i]; /* acc_ff: no lead onboard */
-  for (i = 0; i < 3; ++i) in[n++] = r.jerk_ned_m_s3[i];
-  for (i = 0; i < 3; ++i) in[n++] = r.snap_ned_m_s4[i];
+  for (i = 0; i < 3; ++i) in[n++] = a.acc_ned_m_s2[i];
+  for (i = 0; i < 3; ++i) in[n++] = a.jerk_ned_m_s3[i];
+  for (i = 0; i < 3; ++i) in[n++] = a.snap_ned_m_s4[i];
   for (i = 0; i < 3; ++i) in[n++] = pos[i];
   for (i = 0; i < 3; ++i) in[n++] = vel[i];
   for (i = 0; i < 3; ++i) in[n++] = 0.0; /* acc_meas: unused without feedback jerk */

@@ -78,6 +78,10 @@ int ecca_onboard_message(ecca_onboard *m, int op, const float *data, ecca_onboar
 /** The periodic status report (an ECCA_OP_STATUS acknowledgement). */
 void ecca_onboard_status(const ecca_onboard *m, ecca_onboard_ack *ack);
 
+/** The start report (ECCA_ACK_START) to send with a status report; 0 while not flown. The
+ *  step clock must be the autopilot's (seconds since boot). */
+int ecca_onboard_start_report(const ecca_onboard *m, ecca_onboard_ack *ack);
+
 /** One control step at `now_s` [s, any monotonic clock]: `offboard` = armed in OFFBOARD,
  *  `pos_ok` = position and velocity valid, `pos` / `vel` the estimate [m, m/s NED]. */
 void ecca_onboard_step(ecca_onboard *m, double now_s, int offboard, int pos_ok,

@@ -7,8 +7,9 @@
  * Module -> companion: uORB vehicle_command_ack, sent by PX4 as MAVLink COMMAND_ACK to the
  * companion (target system/component from ECCA_OP_BEGIN / ECCA_OP_STATUS):
  *   command ECCA_ACK_CMD: progress = module state (ECCA_STATE_*), result = MAV_RESULT,
- *     result_param2 = (opcode << 24) | value (24 bits: segment index, segments held, progress
- *     in permille of the trajectory's time);
+ *     result_param2 = (opcode << 24) | value (24 bits: the segment index acknowledged; in a
+ *     status report the segments held, or from the start of the flight the trajectory's
+ *     clock in ms);
  *   command ECCA_ACK_CRC: the answer to ECCA_OP_COMMIT, result_param2 = the module's CRC-32
  *     of the upload (ACCEPTED: equal to the companion's; DENIED: it differs or a part is
  *     missing), progress = state.
@@ -42,6 +43,9 @@
 /* acknowledgement commands (MAV_CMD_USER_1 / _2: commander never sends these) */
 #define ECCA_ACK_CMD 31010
 #define ECCA_ACK_CRC 31011
+#define ECCA_ACK_START 31012 /* with each status report while flying: result_param2 = the
+                                trajectory's start on the autopilot's clock [ms since boot,
+                                the clock of LOCAL_POSITION_NED.time_boot_ms] */
 
 /* final actions (ECCA_B_FINAL_ACTION) */
 #define ECCA_FINAL_HOLD 0
@@ -68,7 +72,8 @@
 #define ECCA_B_THRUST_MAX 24  /* [normalised] */
 #define ECCA_B_TILT_MAX 25    /* [rad] */
 #define ECCA_B_DRAG_EST 26    /* 1: drag of the estimated velocity, 0: of the reference's */
-#define ECCA_B_COUNT 27       /* values of ECCA_OP_BEGIN covered by the CRC */
+#define ECCA_B_LEAD_S 27      /* the feed-forward's lead (attitude_lead_s) [s] */
+#define ECCA_B_COUNT 28       /* values of ECCA_OP_BEGIN covered by the CRC */
 
 /* ECCA_OP_SEGMENT data layout */
 #define ECCA_S_INDEX 0

@@ -221,9 +221,10 @@ def _py_setpoint(up: P.Upload, traj: PiecewiseBezier, t: float, pos: np.ndarray,
                     float(s[P.S_DURATION])) for s in up.segments[:m]]
     held = PiecewiseBezier(segs, yaw=PiecewiseBezier(ysegs))
     st_ = [held.evaluate(t, k) for k in range(5)]
-    yaw = [held.yaw.evaluate(t, k) for k in range(3)]  # type: ignore[union-attr]
     b = up.begin
-    x = [*st_[0], *st_[1], *st_[2], *st_[2], *st_[3], *st_[4], *pos, *vel, 0.0, 0.0, 0.0,
+    ahead = [held.evaluate(t + b[P.B_LEAD_S], k) for k in range(5)]  # the lead's feed-forward
+    yaw = [held.yaw.evaluate(t, k) for k in range(3)]  # type: ignore[union-attr]
+    x = [*st_[0], *st_[1], *st_[2], *ahead[2], *ahead[3], *ahead[4], *pos, *vel, 0.0, 0.0, 0.0,
          *integ, *b[P.B_KP:P.B_KP + 3], *b[P.B_KD:P.B_KD + 3], *b[P.B_KI:P.B_KI + 3],
          *b[P.B_IMAX:P.B_IMAX + 3], 0.0, 0.0, float(yaw[0][0]), float(yaw[1][0]),
          float(yaw[2][0]), b[P.B_HOVER], b[P.B_DRAG], b[P.B_DRAG], b[P.B_MASS], b[P.B_G],
