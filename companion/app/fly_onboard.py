@@ -183,7 +183,11 @@ async def fly_onboard(opts: FlyOptions, console: Console) -> int:
         pos = v.telemetry.position
         if pos is None:
             raise OnboardError("no position telemetry")
+        # a mission is flown from the ground (its plan takes off); a pattern starts where
+        # PX4's takeoff ends, `alt_m` above here
         origin = np.asarray(pos.pos_ned, dtype=float) - planned.start_rel
+        if inputs.mission is None:
+            origin = origin + np.array([0.0, 0.0, -planned.alt_m])
         breaks, cps, ycps = planned_segments(planned, origin)
         if len(cps) > MAX_SEGMENTS:
             raise OnboardError(f"the trajectory has {len(cps)} segments; the module holds "
@@ -202,8 +206,13 @@ async def fly_onboard(opts: FlyOptions, console: Console) -> int:
         console.print(f"Trajectory uploaded: {len(cps)} segments, {up.duration_s:.1f} s, CRC "
                       f"0x{up.crc:08x} echoed by the module ({time.monotonic() - t_up:.2f} s, "
                       f"{u.resent} parts sent again)")
-        await v.set_mode(FlightMode.OFFBOARD)
-        await v.arm(keep_mode=True)
+        if inputs.mission is None:
+            await v.arm()
+            await v.takeoff(planned.alt_m)
+            await v.set_mode(FlightMode.OFFBOARD)
+        else:
+            await v.set_mode(FlightMode.OFFBOARD)
+            await v.arm(keep_mode=True)
         t_armed = time.monotonic()
         # the module's start on the autopilot's clock (its start reports): the reference of a
         # position sample is the trajectory at the sample's own autopilot time (a simulator

@@ -95,9 +95,9 @@ static int layouts_match(void) {
   for (i = 0; i < sizeof(t) / sizeof(t[0]); ++i) {
     if (t[i].meta->o_size != t[i].size || t[i].meta->o_size_no_padding != t[i].no_pad ||
         t[i].meta->message_hash != t[i].hash) {
-      PX4_ERR("uORB layout of %s differs from the build's (size %u/%u, hash 0x%08x, built for "
-              "%u/%u, 0x%08x): refusing to start",
-              t[i].meta->o_name, (unsigned)t[i].meta->o_size,
+      /* (PX4 cuts a log line at ~120 characters: two short lines) */
+      PX4_ERR("refusing to start: uORB %s is not the layout built for", t[i].meta->o_name);
+      PX4_ERR("  size %u/%u hash 0x%08x, built for %u/%u 0x%08x", (unsigned)t[i].meta->o_size,
               (unsigned)t[i].meta->o_size_no_padding, (unsigned)t[i].meta->message_hash,
               t[i].size, t[i].no_pad, (unsigned)t[i].hash);
       ok = 0;

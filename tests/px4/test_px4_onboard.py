@@ -1,0 +1,146 @@
+"""The onboard module in real PX4 (v1.16 SITL, loaded with `dyn`): it refuses a foreign uORB
+layout, refuses a corrupted upload, flies a mission uploaded by `fly --onboard` and finishes it
+(lands, no failsafe) after the companion is killed mid-flight; a pilot's mode change stops it
+for good. The companion runs as a subprocess, as a user runs it."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+import companion.onboard.protocol as P
+from companion.aio import Vehicle, VehicleConfig
+from companion.aio.onboard import _AckQueue, module_status
+from companion.mavlink import LinkConfig
+from gen_c import px4module
+from px4_harness import Px4Sitl
+from tests.support.onboard import module_folder, module_state, sdk_dir
+
+REPO = Path(__file__).resolve().parents[2]
+MISSION = REPO / "tests" / "data" / "missions" / "px4_short.plan"
+SDK = sdk_dir()
+pytestmark = pytest.mark.skipif(SDK is None, reason="no PX4 dyn SDK beside the PX4 SITL")
+
+
+@pytest.fixture(scope="module")
+def modules() -> Iterator[tuple[Path, Path]]:
+    """(the module, one built for another vehicle_status layout), outside /tmp."""
+    assert SDK is not None
+    with module_folder() as d:
+        good = px4module.build_px4_module(SDK, d / "ecca_onboard.px4mod")
+        bad = px4module.build_px4_module(SDK, d / "ecca_onboard_other.px4mod",
+                                         hash_overrides={"vehicle_status": 12345})
+        yield good, bad
+
+
+def _fly(px4: Px4Sitl, log: Path) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "companion", "fly", str(MISSION), "--onboard", "--connect",
+         px4.url, "--target-system", str(px4.target_system), "--log", str(log)],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def _wait_state(px4: Px4Sitl, module: Path, want: set[int], timeout_s: float,
+                min_progress: float = 0.0) -> tuple[int, float]:
+    end = time.monotonic() + timeout_s
+    st = (-1, 0.0)
+    while time.monotonic() < end:
+        st = module_state(px4, module)
+        if st[0] in want and st[1] >= min_progress:
+            return st
+        time.sleep(0.2)  # polling the module's status (bounded by the deadline)
+    raise AssertionError(f"module state {st}, waited for {want} (progress {min_progress})")
+
+
+async def _corrupted_upload(px4: Px4Sitl) -> P.Ack | None:
+    """Upload a 2-segment trajectory whose second segment is altered after the CRC was
+    taken (as a link corrupting one value would), COMMIT; the module's CRC answer."""
+    law = P.LawParams((2.0, 2.0, 3.0), (2.5, 2.5, 3.0), (0.2, 0.2, 0.3), (2.0, 2.0, 3.0), 0.5,
+                      0.4, 1.0, 9.80665, 0.08, 1.0, math.radians(40.0))
+    cp = [[[0.0, 0.0, -float(i + k)] for i in range(8)] for k in range(2)]
+    link = LinkConfig(target_sysid=px4.target_system)
+    async with Vehicle.connect(px4.url, config=VehicleConfig(),
+                               link_config=link) as v:
+        st = await module_status(v)
+        assert st is not None and st.state == P.STATE_READY
+        up = P.encode_upload([0.0, 1.0, 2.0], cp, None, law, sysid=link.sysid,  # type: ignore[arg-type]
+                             compid=link.compid)
+        bad = list(up.segments[1])
+        bad[P.S_CTRL + 4] += 0.5
+        q = _AckQueue(v)
+        try:
+            for op, data in ((P.OP_BEGIN, up.begin), (P.OP_SEGMENT, up.segments[0]),
+                             (P.OP_SEGMENT, tuple(bad)), (P.OP_COMMIT, up.commit())):
+                v.send_float_array(P.PROTO_NAME, op, data)
+                ack = None
+                while ack is None or ack.start or (ack.op == P.OP_STATUS and not ack.crc):
+                    ack = await q.get(2.0)
+                    assert ack is not None, f"no answer to opcode {op}"
+            return ack
+        finally:
+            await q.close()
+
+
+def test_onboard_module_refuses_a_foreign_layout_and_a_bad_upload_and_finishes_without_the_companion(  # noqa: E501
+        px4: Px4Sitl, modules: tuple[Path, Path], tmp_path: Path) -> None:
+    good, other = modules
+    r = px4.command("dyn", str(other), "start")
+    assert r.returncode != 0 and "vehicle_status" in r.stdout and "refusing" in r.stdout
+    r = px4.command("dyn", str(good), "start")
+    assert r.returncode == 0, r.stdout
+    # a corrupted upload: every part acknowledged, the whole refused, nothing held
+    ack = asyncio.run(_corrupted_upload(px4))
+    assert ack is not None and ack.crc and ack.result != 0 and ack.state == P.STATE_READY
+    assert module_state(px4, good)[0] == P.STATE_READY
+    # the mission, and the companion killed a third of the way through
+    fly = _fly(px4, tmp_path / "flight.tlog")
+    try:
+        _wait_state(px4, good, {P.STATE_FLYING}, 90.0, min_progress=0.3)
+        os.kill(fly.pid, signal.SIGKILL)
+        fly.wait(timeout=10)
+        _, progress = _wait_state(px4, good, {P.STATE_DONE}, 60.0)
+        assert progress == 1.0
+        end = time.monotonic() + 40.0
+        while "Disarmed by landing" not in px4.console_text() and time.monotonic() < end:
+            time.sleep(0.5)  # PX4's AUTO.LAND, commanded by the module (bounded)
+    finally:
+        if fly.poll() is None:
+            fly.kill()
+            fly.wait(timeout=10)
+        if fly.stdout is not None:
+            fly.stdout.close()
+    console = px4.console_text()
+    assert "Disarmed by landing" in console, console[-2000:]
+    assert "final action commanded" in console
+    assert "failsafe" not in console.lower(), console[-2000:]
+
+
+def test_a_pilot_mode_change_stops_the_onboard_module_for_good(
+        px4: Px4Sitl, modules: tuple[Path, Path], tmp_path: Path) -> None:
+    good, _ = modules
+    assert px4.command("dyn", str(good), "start").returncode == 0
+    fly = _fly(px4, tmp_path / "flight.tlog")
+    try:
+        _wait_state(px4, good, {P.STATE_FLYING}, 90.0, min_progress=0.2)
+        r = px4.command("commander", "mode", "auto:loiter")  # as a pilot's switch would
+        assert r.returncode == 0, r.stdout
+        out, _ = fly.communicate(timeout=60)
+    finally:
+        if fly.poll() is None:
+            fly.kill()
+            fly.wait(timeout=10)
+    assert fly.returncode == 1, out
+    assert "stopped" in out
+    assert module_state(px4, good)[0] == P.STATE_STOPPED
+    time.sleep(1.5)  # the module must not take OFFBOARD back: look again after a while
+    assert module_state(px4, good)[0] == P.STATE_STOPPED
+    assert "OFFBOARD left: trajectory stopped" in px4.console_text()
