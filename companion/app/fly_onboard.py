@@ -38,13 +38,13 @@ from companion.onboard.protocol import (
     Upload,
     encode_upload,
 )
+from companion.planning.config import VehicleFile
 from companion.planning.schedule import Schedule
 from companion.planning.vehicle_params import read_planning_params
 
 from .fly import (
     HOME_WAIT_S,
     MAX_HOME_OFFSET_M,
-    FlyInputs,
     FlyOptions,
     PlannedFlight,
     _home_offset_m,
@@ -124,10 +124,9 @@ def planned_segments(planned: PlannedFlight, origin: FloatArray) -> Segments:
     return [float(b) for b in traj.breaks], cps, ycps
 
 
-def law_params(inputs: FlyInputs, hover: float, tilt_rad: float) -> LawParams:
+def law_params(vf: VehicleFile, hover: float, tilt_rad: float) -> LawParams:
     """The module's law parameters: the vehicle file's attitude-mode gains and model, PX4's
     hover thrust and tilt limit."""
-    vf = inputs.vehicle
     cfg = vf.tracking_config(tilt_rad)
     g = cfg.gains
     p = vf.params
@@ -195,7 +194,7 @@ async def fly_onboard(opts: FlyOptions, console: Console) -> int:
         hover = (await v.read_params(["MPC_THR_HOVER"]))["MPC_THR_HOVER"]
         limits = SetpointLimits.of_px4(px4.params if px4 is not None else Px4PlanningParams())
         final = {"land": "land", "rtl": "rtl"}.get(planned.final_action, "hold")
-        up: Upload = encode_upload(breaks, cps, ycps, law_params(inputs, hover,
+        up: Upload = encode_upload(breaks, cps, ycps, law_params(inputs.vehicle, hover,
                                                                  limits.tilt_max_rad),
                                    sysid=link.sysid, compid=link.compid, final_action=final,
                                    hold_s=HOLD_S, start_tolerance_m=START_TOLERANCE_M)

@@ -1,0 +1,278 @@
+"""Onboard module vs streamed setpoints vs PX4's own position control, on real PX4 (issue 26).
+
+One fresh PX4 v1.16 SITL per flight, real time. Every cell flies the figure-8 of
+bench_tracking.py (two laps; lap 2 judged, horizontal error against the reference at the
+plan's clock, PX4's estimate and the simulator's truth):
+
+- `onboard`: the trajectory (the figure-8 as degree-7 Hermite segments of 0.25 s) uploaded to
+  the module (gen_c/px4_module) after the takeoff; OFFBOARD; the module flies it. Its clock is
+  the autopilot's (the module's start report).
+- `attitude`: the companion streams attitude setpoints at 100 Hz (bench_tracking's API cell).
+- `position`: PX4's position control fed position, velocity and acceleration (the same).
+
+Cells: 6 m/s, and 8 m/s on the figure scaled 2x; `--degraded`: the onboard and streamed
+cells again through a relay that delays every datagram by 20 ms and drops 5 % (bench/
+udp_degrade.py). After each onboard flight the module's own timing (`dyn ... status`: the
+step's CPU time, mean and p99). `--square`: the bundled square mission by `fly` and by
+`fly --onboard` (report figures).
+
+Usage:
+  python bench/bench_onboard.py --out bench_out/onboard [--repeat 1] [--degraded] [--square]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import math
+import re
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(REPO))
+
+import api_harness as H  # noqa: E402, N812
+import bench_tracking as B  # noqa: E402, N812
+from udp_degrade import DegradedLink  # noqa: E402
+
+from companion.aio.onboard import module_states, upload  # noqa: E402
+from companion.app.fly_onboard import law_params  # noqa: E402
+from companion.control import Reference  # noqa: E402
+from companion.mavlink import FlightMode  # noqa: E402
+from companion.onboard import protocol as P  # noqa: E402, N812
+from companion.planning.config import VehicleFile  # noqa: E402
+from companion.trajectory.bezier import hermite  # noqa: E402
+from gen_c import px4module  # noqa: E402
+from px4_harness import Px4Sitl, find_px4_sitl, flight_lock  # noqa: E402
+
+SEG_S = 0.25
+TILT_DEG = 45.0
+
+
+def scaled_figure8(scale: float) -> Callable[[float, float], Reference]:
+    """bench_tracking's figure-8, `scale` times larger at the same peak speed."""
+    def ref(t: float, speed: float) -> Reference:
+        r, _ = B.figure8_reference(t, speed / scale)
+        return Reference(np.array([r.pos_ned[0] * scale, r.pos_ned[1] * scale, r.pos_ned[2]]),
+                         r.vel_ned * scale, r.acc_ned * scale, r.jerk_ned * scale,
+                         r.snap_ned * scale)
+    return ref
+
+
+@contextlib.contextmanager
+def patched_figure(scale: float) -> Iterator[None]:
+    """bench_tracking's reference and duration for the scaled figure (its cells use them)."""
+    f8, secs = B.figure8_reference, B.figure8_seconds
+
+    def fig(t: float, speed: float, alt_m: float = 5.0) -> tuple[Reference, float]:
+        _, phi = f8(t, speed / scale, alt_m)
+        return scaled_figure8(scale)(t, speed), phi
+
+    B.figure8_reference = fig  # type: ignore[assignment]
+    B.figure8_seconds = lambda speed, laps=2.0: secs(speed / scale, laps)  # type: ignore[assignment]
+    try:
+        yield
+    finally:
+        B.figure8_reference, B.figure8_seconds = f8, secs  # type: ignore[assignment]
+
+
+def hermite_segments(ref: Callable[[float], Reference], duration: float
+                     ) -> tuple[list[float], list[np.ndarray]]:
+    """The reference as degree-7 Hermite segments (position..jerk matched at every joint)."""
+    n = max(1, math.ceil(duration / SEG_S))
+    ts = np.linspace(0.0, duration, n + 1)
+
+    def derivs(t: float) -> np.ndarray:
+        r = ref(float(t))
+        return np.array([r.pos_ned, r.vel_ned, r.acc_ned, r.jerk_ned])
+
+    d = [derivs(t) for t in ts]
+    cps = [hermite(d[i], d[i + 1], float(ts[i + 1] - ts[i])).control_points for i in range(n)]
+    return [float(t) for t in ts], cps
+
+
+async def _onboard_flight(url: str, target: int, module: Path, px4: Px4Sitl, speed: float,
+                          scale: float, tlog: Path) -> dict[str, Any]:
+    ep = H.Endpoint("px4", url, target)
+    fig = scaled_figure8(scale)
+    duration = B.figure8_seconds(speed / scale)
+    async with H.airborne(ep, tlog=tlog) as v:
+        await H.fresh_position(v)
+        pos = v.telemetry.position
+        assert pos is not None
+        r0 = fig(0.0, speed).pos_ned
+        ref = H.shifted(lambda t: fig(t, speed), pos.pos_ned[0] - r0[0], pos.pos_ned[1] - r0[1])
+        breaks, cps = hermite_segments(ref, duration)
+        hover = (await v.read_params(["MPC_THR_HOVER"]))["MPC_THR_HOVER"]
+        cfg = v.link.config
+        up = P.encode_upload(breaks, cps, None, law_params(VehicleFile(), hover,
+                                                           math.radians(TILT_DEG)),
+                             sysid=cfg.sysid, compid=cfg.compid, final_action="hold",
+                             hold_s=1.0, start_tolerance_m=3.0)
+        t_up = time.monotonic()
+        u = await upload(v, up)
+        up_s = time.monotonic() - t_up
+        if not u.verified:
+            raise RuntimeError(f"upload failed: {u.failed}")
+        await v.set_mode(FlightMode.OFFBOARD)
+        t0_boot = math.nan
+        end = time.monotonic() + duration + 30.0
+        async for _, a in module_states(v):
+            if a.start:
+                t0_boot = a.value / 1000.0
+            elif a.state in (P.STATE_DONE, P.STATE_STOPPED, P.STATE_ERROR):
+                state = a.state
+                break
+            if time.monotonic() > end:
+                state = a.state
+                break
+        status = px4.command("dyn", str(module), "status").stdout
+    data = H.read_flight_tlog(tlog, target)
+    fl = H.Flight(tlog, 0.0, duration, ref, np.zeros(3),
+                  clock=np.column_stack([data.lpos_t, data.lpos_boot - t0_boot]))
+
+    def select(t: float) -> bool:
+        return 2 * math.pi <= B.figure8_reference(t, speed / scale)[1] < 4 * math.pi
+
+    est = H.horizontal_errors(data.lpos_t, data.lpos[:, :3], fl, select)
+    tr = H.horizontal_errors(data.truth_t, data.truth, fl, select)
+    rms, mx = H.rms_max(est)
+    trms, tmx = H.rms_max(tr)
+    m = re.search(r"step mean (\d+) ns p99 < (\d+) ns", status)
+    return {"rms": rms, "max": mx, "truth_rms": trms, "truth_max": tmx, "n": len(est),
+            "state": P.STATE_NAMES.get(state, state), "segments": len(cps),
+            "upload_s": up_s, "resent": u.resent,
+            "step_mean_ns": float(m[1]) if m else math.nan,
+            "step_p99_ns": float(m[2]) if m else math.nan}
+
+
+def onboard_cell(module: Path, speed: float, scale: float, out: Path, degraded: bool
+                 ) -> dict[str, Any]:
+    loc, why = find_px4_sitl()
+    if loc is None:
+        raise RuntimeError(why)
+    out.mkdir(parents=True, exist_ok=True)
+    with Px4Sitl(location=loc, log=out / "px4-console.log") as px4:
+        r = px4.command("dyn", str(module), "start")
+        if r.returncode != 0:
+            raise RuntimeError(f"module did not start: {r.stdout}")
+        if degraded:
+            with DegradedLink(px4.port) as relay:
+                return asyncio.run(_onboard_flight(relay.url, px4.target_system, module, px4,
+                                                   speed, scale, out / "flight.tlog"))
+        return asyncio.run(_onboard_flight(px4.url, px4.target_system, module, px4, speed,
+                                           scale, out / "flight.tlog"))
+
+
+@contextlib.contextmanager
+def degraded_launch() -> Iterator[None]:
+    """api_harness.launch through the degrading relay (the streamed cells)."""
+    orig = H.launch
+
+    @contextlib.contextmanager
+    def launch(kind: str, log_dir: Path, **kw: Any) -> Iterator[H.Endpoint]:
+        with orig(kind, log_dir, **kw) as ep:
+            port = int(ep.url.rsplit(":", 1)[1])
+            with DegradedLink(port) as relay:
+                yield H.Endpoint(ep.kind, relay.url, ep.target_system)
+
+    H.launch = launch  # type: ignore[assignment]
+    try:
+        yield
+    finally:
+        H.launch = orig  # type: ignore[assignment]
+
+
+def streamed_cell(mode: str, speed: float, scale: float, out: Path, degraded: bool
+                  ) -> dict[str, Any]:
+    with patched_figure(scale), (degraded_launch() if degraded else contextlib.nullcontext()):
+        return B._api_cell_retry("px4", mode, speed, out, 0, [], None, {})
+
+
+def square_cell(module: Path, onboard: bool, out: Path) -> dict[str, Any]:
+    loc, why = find_px4_sitl()
+    if loc is None:
+        raise RuntimeError(why)
+    out.mkdir(parents=True, exist_ok=True)
+    with Px4Sitl(location=loc, log=out / "px4-console.log") as px4:
+        if onboard:
+            px4.command("dyn", str(module), "start")
+        log = out / "flight.tlog"
+        proc = subprocess.run(
+            [sys.executable, "-m", "companion", "fly", "examples/missions/square.plan",
+             *(["--onboard"] if onboard else []), "--connect", px4.url, "--target-system",
+             str(px4.target_system), "--log", str(log)],
+            cwd=REPO, capture_output=True, text=True, timeout=400, check=False)
+        rep = json.loads(Path(str(log) + ".report.json").read_text())
+    return {"exit": proc.returncode, "result": rep.get("result"),
+            "waypoints": f"{rep.get('waypoints_reached')}/{rep.get('waypoints_total')}",
+            "rms": rep.get("rms_error_m"), "max": rep.get("max_error_m"),
+            "duration_s": rep.get("duration_s"), "planned_s": rep.get("planned_duration_s")}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", type=Path, default=Path("bench_out/onboard"))
+    ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--degraded", action="store_true")
+    ap.add_argument("--square", action="store_true")
+    ap.add_argument("--cells", nargs="+", default=["6:1", "8:2"], metavar="SPEED:SCALE")
+    ap.add_argument("--modes", nargs="+", default=["onboard", "attitude", "position"])
+    args = ap.parse_args(argv)
+    loc, why = find_px4_sitl()
+    if loc is None:
+        print(f"no PX4 SITL: {why}")
+        return 2
+    sdk = loc.root / "sdk"
+    args.out.mkdir(parents=True, exist_ok=True)
+    module = px4module.build_px4_module(sdk, Path("/var/tmp") / "ecca-bench-onboard.px4mod")
+    rows: list[dict[str, Any]] = []
+    results = args.out / "onboard.json"
+    t_start = time.perf_counter()
+    with flight_lock():
+        for cell in args.cells:
+            speed, scale = (float(x) for x in cell.split(":"))
+            for link in ([False, True] if args.degraded else [False]):
+                for mode in args.modes:
+                    if link and mode == "position":
+                        continue  # PX4's own control: no companion link in its loop
+                    for k in range(args.repeat):
+                        name = f"{mode}-{speed:g}-x{scale:g}{'-degraded' if link else ''}-{k}"
+                        out = args.out / name
+                        t = time.perf_counter()
+                        try:
+                            res = (onboard_cell(module, speed, scale, out, link)
+                                   if mode == "onboard" else
+                                   streamed_cell(mode, speed, scale, out, link))
+                        except Exception as exc:  # one failed flight is reported, not fatal
+                            res = {"error": f"{type(exc).__name__}: {exc}"}
+                        res.update(mode=mode, speed=speed, scale=scale, degraded=link,
+                                   run=k, wall_s=time.perf_counter() - t)
+                        rows.append(res)
+                        print(json.dumps({k2: v for k2, v in res.items()
+                                          if not isinstance(v, list)}), flush=True)
+                        results.write_text(json.dumps(rows, indent=1, default=str))
+        if args.square:
+            for onboard in (False, True):
+                res = square_cell(module, onboard, args.out / f"square-{int(onboard)}")
+                res.update(mode="onboard" if onboard else "attitude", cell="square")
+                rows.append(res)
+                print(json.dumps(res), flush=True)
+                results.write_text(json.dumps(rows, indent=1, default=str))
+    print(f"wall time {time.perf_counter() - t_start:.0f} s; {results}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
