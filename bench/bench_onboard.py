@@ -28,6 +28,7 @@ import contextlib
 import json
 import math
 import re
+import shutil
 import subprocess
 import sys
 import time
@@ -58,12 +59,13 @@ from px4_harness import Px4Sitl, find_px4_sitl, flight_lock  # noqa: E402
 
 SEG_S = 0.25
 TILT_DEG = 45.0
+FIGURE8 = B.figure8_reference  # the original (patched_figure replaces the module's name)
 
 
 def scaled_figure8(scale: float) -> Callable[[float, float], Reference]:
     """bench_tracking's figure-8, `scale` times larger at the same peak speed."""
     def ref(t: float, speed: float) -> Reference:
-        r, _ = B.figure8_reference(t, speed / scale)
+        r, _ = FIGURE8(t, speed / scale)
         return Reference(np.array([r.pos_ned[0] * scale, r.pos_ned[1] * scale, r.pos_ned[2]]),
                          r.vel_ned * scale, r.acc_ned * scale, r.jerk_ned * scale,
                          r.snap_ned * scale)
@@ -143,7 +145,7 @@ async def _onboard_flight(url: str, target: int, module: Path, px4: Px4Sitl, spe
                   clock=np.column_stack([data.lpos_t, data.lpos_boot - t0_boot]))
 
     def select(t: float) -> bool:
-        return 2 * math.pi <= B.figure8_reference(t, speed / scale)[1] < 4 * math.pi
+        return 2 * math.pi <= FIGURE8(t, speed / scale)[1] < 4 * math.pi
 
     est = H.horizontal_errors(data.lpos_t, data.lpos[:, :3], fl, select)
     tr = H.horizontal_errors(data.truth_t, data.truth, fl, select)
@@ -162,7 +164,8 @@ def onboard_cell(module: Path, speed: float, scale: float, out: Path, degraded: 
     loc, why = find_px4_sitl()
     if loc is None:
         raise RuntimeError(why)
-    out.mkdir(parents=True, exist_ok=True)
+    shutil.rmtree(out, ignore_errors=True)  # tlogs append: start each cell afresh
+    out.mkdir(parents=True)
     with Px4Sitl(location=loc, log=out / "px4-console.log") as px4:
         r = px4.command("dyn", str(module), "start")
         if r.returncode != 0:
@@ -204,7 +207,8 @@ def square_cell(module: Path, onboard: bool, out: Path) -> dict[str, Any]:
     loc, why = find_px4_sitl()
     if loc is None:
         raise RuntimeError(why)
-    out.mkdir(parents=True, exist_ok=True)
+    shutil.rmtree(out, ignore_errors=True)
+    out.mkdir(parents=True)
     with Px4Sitl(location=loc, log=out / "px4-console.log") as px4:
         if onboard:
             px4.command("dyn", str(module), "start")
@@ -215,10 +219,16 @@ def square_cell(module: Path, onboard: bool, out: Path) -> dict[str, Any]:
              str(px4.target_system), "--log", str(log)],
             cwd=REPO, capture_output=True, text=True, timeout=400, check=False)
         rep = json.loads(Path(str(log) + ".report.json").read_text())
+    wps = rep.get("waypoints") or []
+    closest = [w.get("closest_approach_m") for w in wps]
+    sent = subprocess.run([sys.executable, str(HERE / "tlog_setpoints.py"), str(log)],
+                          capture_output=True, text=True, timeout=120, check=False).stdout
     return {"exit": proc.returncode, "result": rep.get("result"),
-            "waypoints": f"{rep.get('waypoints_reached')}/{rep.get('waypoints_total')}",
+            "waypoints": f"{rep.get('waypoints_reached')}/{len(wps)}",
+            "worst_waypoint_m": max((c for c in closest if c is not None), default=None),
             "rms": rep.get("rms_error_m"), "max": rep.get("max_error_m"),
-            "duration_s": rep.get("duration_s"), "planned_s": rep.get("planned_duration_s")}
+            "duration_s": rep.get("duration_s"), "planned_s": rep.get("planned_duration_s"),
+            "companion_setpoints_in_offboard": sent.strip()}
 
 
 def main(argv: list[str] | None = None) -> int:
