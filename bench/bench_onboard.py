@@ -47,10 +47,11 @@ import api_harness as H  # noqa: E402, N812
 import bench_tracking as B  # noqa: E402, N812
 from udp_degrade import DegradedLink  # noqa: E402
 
+from companion.aio import Vehicle, VehicleConfig  # noqa: E402
 from companion.aio.onboard import module_states, upload  # noqa: E402
 from companion.app.fly_onboard import law_params  # noqa: E402
 from companion.control import Reference  # noqa: E402
-from companion.mavlink import FlightMode  # noqa: E402
+from companion.mavlink import FlightMode, LinkConfig  # noqa: E402
 from companion.onboard import protocol as P  # noqa: E402, N812
 from companion.planning.config import VehicleFile  # noqa: E402
 from companion.trajectory.bezier import hermite  # noqa: E402
@@ -60,6 +61,10 @@ from px4_harness import Px4Sitl, find_px4_sitl, flight_lock  # noqa: E402
 SEG_S = 0.25
 TILT_DEG = 45.0
 FIGURE8 = B.figure8_reference  # the original (patched_figure replaces the module's name)
+#: the degraded link (`--latency`, `--loss`)
+LINK = {"latency_s": 0.02, "loss": 0.05}
+#: extra hover before OFFBOARD [s] (`--hover-s`: separates the hover's length from the link)
+HOVER = {"s": 0.0}
 
 
 def scaled_figure8(scale: float) -> Callable[[float, float], Reference]:
@@ -106,14 +111,21 @@ def hermite_segments(ref: Callable[[float], Reference], duration: float
 
 async def _onboard_flight(url: str, target: int, module: Path, px4: Px4Sitl, speed: float,
                           scale: float, tlog: Path) -> dict[str, Any]:
-    ep = H.Endpoint("px4", url, target)
+    """Upload on the ground, then take off and switch to OFFBOARD 1 s after the takeoff, as
+    the streamed cells start: PX4's estimate errs differently the longer it has flown (a 7 s
+    longer hover before the start: 0.13-0.16 m instead of 0.085 m), so every cell starts its
+    pattern at the same time after the takeoff, whatever the upload took."""
     fig = scaled_figure8(scale)
     duration = B.figure8_seconds(speed / scale)
-    async with H.airborne(ep, tlog=tlog) as v:
+    config = VehicleConfig(tlog_path=str(tlog), connect_timeout_s=20.0, armable_timeout_s=40.0,
+                           stale_telemetry_s=1.0)
+    async with Vehicle.connect(url, config=config,
+                               link_config=LinkConfig(target_sysid=target)) as v:
+        await v.set_message_interval(H.HIL_STATE_QUATERNION, 50.0)
         await H.fresh_position(v)
         pos = v.telemetry.position
         assert pos is not None
-        r0 = fig(0.0, speed).pos_ned
+        r0 = fig(0.0, speed).pos_ned  # (its height: 5 m up, where the takeoff ends)
         ref = H.shifted(lambda t: fig(t, speed), pos.pos_ned[0] - r0[0], pos.pos_ned[1] - r0[1])
         breaks, cps = hermite_segments(ref, duration)
         hover = (await v.read_params(["MPC_THR_HOVER"]))["MPC_THR_HOVER"]
@@ -127,8 +139,12 @@ async def _onboard_flight(url: str, target: int, module: Path, px4: Px4Sitl, spe
         up_s = time.monotonic() - t_up
         if not u.verified:
             raise RuntimeError(f"upload failed: {u.failed}")
+        await v.arm()
+        await v.takeoff(5.0)
+        await asyncio.sleep(1.0 + HOVER["s"])  # the streamed cells' settle (not a sync)
         await v.set_mode(FlightMode.OFFBOARD)
         t0_boot = math.nan
+        state: Any = None
         end = time.monotonic() + duration + 30.0
         async for _, a in module_states(v):
             if a.start:
@@ -171,7 +187,7 @@ def onboard_cell(module: Path, speed: float, scale: float, out: Path, degraded: 
         if r.returncode != 0:
             raise RuntimeError(f"module did not start: {r.stdout}")
         if degraded:
-            with DegradedLink(px4.port) as relay:
+            with DegradedLink(px4.port, **LINK) as relay:
                 return asyncio.run(_onboard_flight(relay.url, px4.target_system, module, px4,
                                                    speed, scale, out / "flight.tlog"))
         return asyncio.run(_onboard_flight(px4.url, px4.target_system, module, px4, speed,
@@ -187,7 +203,7 @@ def degraded_launch() -> Iterator[None]:
     def launch(kind: str, log_dir: Path, **kw: Any) -> Iterator[H.Endpoint]:
         with orig(kind, log_dir, **kw) as ep:
             port = int(ep.url.rsplit(":", 1)[1])
-            with DegradedLink(port) as relay:
+            with DegradedLink(port, **LINK) as relay:
                 yield H.Endpoint(ep.kind, relay.url, ep.target_system)
 
     H.launch = launch  # type: ignore[assignment]
@@ -239,7 +255,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--square", action="store_true")
     ap.add_argument("--cells", nargs="+", default=["6:1", "8:2"], metavar="SPEED:SCALE")
     ap.add_argument("--modes", nargs="+", default=["onboard", "attitude", "position"])
+    ap.add_argument("--latency", type=float, default=0.02, help="degraded link: delay [s]")
+    ap.add_argument("--loss", type=float, default=0.05, help="degraded link: loss (0..1)")
+    ap.add_argument("--hover-s", type=float, default=0.0,
+                    help="onboard cells: hover this much longer before OFFBOARD [s]")
     args = ap.parse_args(argv)
+    LINK.update(latency_s=args.latency, loss=args.loss)
+    HOVER["s"] = args.hover_s
     loc, why = find_px4_sitl()
     if loc is None:
         print(f"no PX4 SITL: {why}")
