@@ -65,6 +65,9 @@ FIGURE8 = B.figure8_reference  # the original (patched_figure replaces the modul
 LINK = {"latency_s": 0.02, "loss": 0.05}
 #: extra hover before OFFBOARD [s] (`--hover-s`: separates the hover's length from the link)
 HOVER = {"s": 0.0}
+#: arm at this time since PX4's boot [s] (`--arm-at`; 0: at once): PX4's estimate errs the same
+#: way at the same time since boot (SIH's sensor noise), so cells compared at equal boot times
+ARM_AT = {"s": 0.0}
 
 
 def scaled_figure8(scale: float) -> Callable[[float, float], Reference]:
@@ -139,6 +142,11 @@ async def _onboard_flight(url: str, target: int, module: Path, px4: Px4Sitl, spe
         up_s = time.monotonic() - t_up
         if not u.verified:
             raise RuntimeError(f"upload failed: {u.failed}")
+        while True:  # bounded: PX4's boot clock reaches ARM_AT (seconds)
+            p = v.telemetry.position
+            if p is None or p.time_boot_s >= ARM_AT["s"]:
+                break
+            await asyncio.sleep(0.05)
         await v.arm()
         await v.takeoff(5.0)
         await asyncio.sleep(1.0 + HOVER["s"])  # the streamed cells' settle (not a sync)
@@ -259,9 +267,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--loss", type=float, default=0.05, help="degraded link: loss (0..1)")
     ap.add_argument("--hover-s", type=float, default=0.0,
                     help="onboard cells: hover this much longer before OFFBOARD [s]")
+    ap.add_argument("--arm-at", type=float, default=0.0,
+                    help="onboard cells: arm at this time since PX4's boot [s]")
     args = ap.parse_args(argv)
     LINK.update(latency_s=args.latency, loss=args.loss)
     HOVER["s"] = args.hover_s
+    ARM_AT["s"] = args.arm_at
     loc, why = find_px4_sitl()
     if loc is None:
         print(f"no PX4 SITL: {why}")
