@@ -312,8 +312,8 @@ class NativeSetpoint:
                 "full_ackermann": ("ecca_full_ackermann_setpoint",
                                    [P(s["segment"]), real, real, P(s["state"]),
                                     P(s["steering"])]),
+                "tracking_core": ("ecca_tracking_core", [P(real), P(real)]),
             }
-            sig["tracking_core"] = ("ecca_tracking_core", [P(real), P(real)])
             for key, (cname, argtypes) in sig.items():
                 fn = getattr(self._lib, cname + sfx)
                 fn.argtypes = argtypes

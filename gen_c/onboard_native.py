@@ -4,7 +4,7 @@ The same C the PX4 module runs, without PX4: the upload protocol's receiving end
 state machine and the tracking law. The tests drive it against the companion's uploader; the
 mock autopilot can fly it behind the same MAVLink protocol. Imports nothing from ``companion``.
 
-    lib = load_onboard_library()          # None without a C compiler
+    lib = OnboardLibrary(build_onboard_library())   # NativeBuildError without a C compiler
     m = OnboardModule(lib)
     ack = m.message(op, data58)           # OnboardAck or None
     out = m.step(now_s, offboard, pos_ok, pos_ned, vel_ned)
@@ -13,12 +13,11 @@ mock autopilot can fly it behind the same MAVLink protocol. Imports nothing from
 from __future__ import annotations
 
 import ctypes
-import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from gen_c.native import LIB_DIR, NativeBuildError, build_library, find_compiler
+from gen_c.native import LIB_DIR, build_library
 
 _CORE = "../px4_module/ecca_onboard_core.c"
 SOURCES = ("ecca_setpoint.c", "ecca_gen_d.c", _CORE)
@@ -138,26 +137,8 @@ class OnboardModule:
                              o.final_action, o.event, o.start_error_m)
 
 
-_lock = threading.Lock()
-_loaded: dict[str, OnboardLibrary | None] = {}
-
-
 def build_onboard_library(*, cache: Path | None = None) -> Path:
     """Compile the onboard core with the setpoint library (double) into the cache."""
     return build_library(LIB_DIR, cache=cache, sources=SOURCES, headers=HEADERS,
                          extra_flags=("-DECCA_SETPOINT_NO_FLOAT",), name="ecca_onboard")
 
-
-def load_onboard_library() -> OnboardLibrary | None:
-    """The compiled onboard core (built on first use), or None without a C compiler or when
-    the build fails."""
-    with _lock:
-        if "lib" not in _loaded:
-            lib: OnboardLibrary | None = None
-            if find_compiler() is not None:
-                try:
-                    lib = OnboardLibrary(build_onboard_library())
-                except (NativeBuildError, OSError):
-                    lib = None
-            _loaded["lib"] = lib
-        return _loaded["lib"]

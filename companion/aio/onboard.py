@@ -24,8 +24,9 @@ from companion.onboard.protocol import (
 from .base import VehicleBase
 
 
-async def _acks(v: VehicleBase) -> AsyncIterator[tuple[float, Ack]]:
-    """The module's acknowledgements (receive time, decoded)."""
+async def module_states(v: VehicleBase) -> AsyncIterator[tuple[float, Ack]]:
+    """The module's reports as they come (its status every 0.5 s, its answers), with their
+    receive times [s, time.monotonic]."""
     stream: AsyncIterator[UnsolicitedAck] = v.command_acks()
     async for a in stream:
         ack = decode_ack(a.command, a.result, a.progress, a.result_param2)
@@ -38,12 +39,10 @@ class _AckQueue:
 
     def __init__(self, v: VehicleBase) -> None:
         self.queue: asyncio.Queue[Ack] = asyncio.Queue()
-        self.last: Ack | None = None
         self._task = asyncio.get_running_loop().create_task(self._run(v))
 
     async def _run(self, v: VehicleBase) -> None:
-        async for _, ack in _acks(v):
-            self.last = ack
+        async for _, ack in module_states(v):
             self.queue.put_nowait(ack)
 
     async def get(self, timeout_s: float) -> Ack | None:
@@ -104,9 +103,3 @@ async def upload(v: VehicleBase, up: Upload, *, timeout_s: float = 60.0,
     finally:
         await q.close()
 
-
-async def module_states(v: VehicleBase) -> AsyncIterator[tuple[float, Ack]]:
-    """The module's reports as they come (its status every 0.5 s, its answers), with their
-    receive times [s, time.monotonic]."""
-    async for t, ack in _acks(v):
-        yield t, ack

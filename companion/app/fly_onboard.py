@@ -18,6 +18,7 @@ import contextlib
 import dataclasses
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from rich.console import Console
@@ -41,6 +42,7 @@ from companion.onboard.protocol import (
 from companion.planning.config import VehicleFile
 from companion.planning.schedule import Schedule
 from companion.planning.vehicle_params import read_planning_params
+from companion.trajectory import PiecewiseBezier
 
 from .fly import (
     HOME_WAIT_S,
@@ -55,6 +57,9 @@ from .fly import (
     summary_table,
     write_report,
 )
+
+if TYPE_CHECKING:
+    from companion.aio.base import VehicleBase
 
 #: The module refuses to start farther than this from the trajectory's start [m].
 START_TOLERANCE_M = 1.5
@@ -71,27 +76,34 @@ class OnboardError(ValueError):
 Segments = tuple[list[float], list[FloatArray], list[FloatArray]]
 
 
+def _trajectory_segments(out: Segments, traj: PiecewiseBezier, yaw: PiecewiseBezier | None,
+                         yaw0: float, origin: FloatArray) -> None:
+    """Append `traj`'s segments (positions shifted by `origin`; the yaw's, or `yaw0` held)."""
+    breaks, cps, ycps = out
+    for i, d in enumerate(np.diff(np.asarray(traj.breaks, dtype=np.float64))):
+        cp = np.asarray(traj.control_points[i], dtype=np.float64)
+        if cp.shape[1] != 3:
+            raise OnboardError("the onboard module flies 3-D trajectories only")
+        cps.append(cp + origin)
+        ycps.append(np.full(cp.shape[0], yaw0) if yaw is None
+                    else np.asarray(yaw.control_points[i], dtype=np.float64)[:, 0])
+        breaks.append(breaks[-1] + float(d))
+
+
 def schedule_segments(schedule: Schedule, origin: FloatArray) -> Segments:
     """A schedule as back-to-back Bezier segments (breaks [s], NED control points [m] shifted
     by `origin`, yaw control points [rad]): trajectories segment by segment, in-place turns
     as their yaw segments at the held point, holds as constant segments."""
-    breaks, cps, ycps = [0.0], [], []
+    out: Segments = ([0.0], [], [])
+    breaks, cps, ycps = out
     for piece in schedule.pieces:
         if piece.duration_s <= 0.0:
             continue
         if piece.kind == "traj":
             tr = piece.traj
             assert tr is not None
-            yaw = piece.turn if piece.turn is not None else tr.yaw
-            dur = np.diff(np.asarray(tr.breaks, dtype=np.float64))
-            for i, d in enumerate(dur):
-                cp = np.asarray(tr.control_points[i], dtype=np.float64)
-                if cp.shape[1] != 3:
-                    raise OnboardError("the onboard module flies 3-D trajectories only")
-                cps.append(cp + origin)
-                ycps.append(np.full(cp.shape[0], piece.yaw0) if yaw is None
-                            else np.asarray(yaw.control_points[i], dtype=np.float64)[:, 0])
-                breaks.append(breaks[-1] + float(d))
+            _trajectory_segments(out, tr, piece.turn if piece.turn is not None else tr.yaw,
+                                 piece.yaw0, origin)
         elif piece.kind == "turn":
             turn = piece.turn
             assert turn is not None
@@ -105,7 +117,7 @@ def schedule_segments(schedule: Schedule, origin: FloatArray) -> Segments:
             cps.append(np.tile(piece.pos_ned + origin, (2, 1)))
             ycps.append(np.full(2, piece.yaw0))
             breaks.append(breaks[-1] + piece.duration_s)
-    return breaks, cps, ycps
+    return out
 
 
 def planned_segments(planned: PlannedFlight, origin: FloatArray) -> Segments:
@@ -116,12 +128,9 @@ def planned_segments(planned: PlannedFlight, origin: FloatArray) -> Segments:
         return schedule_segments(planned.schedule, origin)
     traj = planned.trajectory
     assert traj is not None
-    m = len(traj.breaks) - 1
-    cps = [np.asarray(traj.control_points[i], dtype=np.float64) + origin for i in range(m)]
-    ycps = [np.zeros(cps[i].shape[0]) if traj.yaw is None
-            else np.asarray(traj.yaw.control_points[i], dtype=np.float64)[:, 0]
-            for i in range(m)]
-    return [float(b) for b in traj.breaks], cps, ycps
+    out: Segments = ([float(traj.breaks[0])], [], [])
+    _trajectory_segments(out, traj, traj.yaw, 0.0, origin)
+    return out
 
 
 def law_params(vf: VehicleFile, hover: float, tilt_rad: float) -> LawParams:
@@ -278,6 +287,6 @@ async def fly_onboard(opts: FlyOptions, console: Console) -> int:
     return 0 if report.result == "ok" else 1
 
 
-async def _disarmed(v: object) -> None:
-    while getattr(v, "is_armed", False):
+async def _disarmed(v: VehicleBase) -> None:
+    while v.is_armed:
         await asyncio.sleep(0.2)  # poll the armed state until PX4 disarms after landing

@@ -17,7 +17,7 @@ symbols; on floats only the taken one where it costs: ``lazy_where``), every div
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import companion.flatness._formulas as fm
@@ -199,8 +199,7 @@ def tracking_post(ops: fm.Backend, quat: Sequence[S], thrust_n: S, omega: Vec3, 
     return q, thrust, omega_ff
 
 
-def tracking_core(ops: fm.Backend, x: Sequence[S],
-                  flat: Callable[..., Any] | None = None) -> list[S]:
+def tracking_core(ops: fm.Backend, x: Sequence[S]) -> list[S]:
     """The whole core on inputs `x` (`CORE_INPUTS`, flattened): the outputs (`CORE_OUTPUTS`,
     flattened). The flatness map is `companion.flatness._formulas.multirotor` on `ops` (the
     source of the generated C)."""
@@ -208,8 +207,8 @@ def tracking_core(ops: fm.Backend, x: Sequence[S],
     yaw, yaw_rate = x[44], x[45]
     hover, drag_map, mass, g = x[47], x[49], x[50], x[51]
     eye = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))  # inertia: moments are not used
-    f = (flat or fm.multirotor)(ops, pre["v_drag"], pre["acc"], pre["jerk"], pre["snap"], yaw,
-                                 yaw_rate, pre["yaw_acc"], mass, eye, g, hover, drag_map)
+    f = fm.multirotor(ops, pre["v_drag"], pre["acc"], pre["jerk"], pre["snap"], yaw, yaw_rate,
+                      pre["yaw_acc"], mass, eye, g, hover, drag_map)
     q, thrust, omega = tracking_post(ops, f["q_wxyz"], f["thrust"], f["omega_frd"],
                                      f["singular"] > 0.5, hover, mass, g, x[52], x[53])
     return [*q, thrust, *omega, ops.where(pre["sat"], 1.0, 0.0), *pre["integ"], *pre["acc_d"],

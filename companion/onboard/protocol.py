@@ -17,10 +17,12 @@ import math
 import struct
 import zlib
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+
+from companion.trajectory import Bezier
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -95,15 +97,13 @@ def _pad(values: Sequence[float]) -> tuple[float, ...]:
 
 
 def _elevate(points: FloatArray, count: int) -> FloatArray:
-    """Degree-elevate Bezier control points (n+1, d) to `count` points (the same curve)."""
-    pts = points.reshape(points.shape[0], -1)
-    if pts.shape[0] > count:
-        raise ValueError(f"segment degree {pts.shape[0] - 1} exceeds the module's {count - 1}")
-    while pts.shape[0] < count:
-        n = pts.shape[0] - 1  # Q_i = i/(n+1) P_{i-1} + (1 - i/(n+1)) P_i
-        a = (np.arange(n + 2) / (n + 1))[:, None]
-        pts = a * np.vstack([pts[:1], pts]) + (1 - a) * np.vstack([pts, pts[-1:]])
-    return pts
+    """Bezier control points (n+1, d) degree-elevated to `count` points (the same curve)."""
+    seg = Bezier(points.reshape(points.shape[0], -1), 1.0)  # (the duration plays no part)
+    if seg.degree >= count:
+        raise ValueError(f"segment degree {seg.degree} exceeds the module's {count - 1}")
+    while seg.degree < count - 1:
+        seg = seg.elevate()
+    return seg.control_points
 
 
 def encode_upload(breaks: Sequence[float], control_points: Sequence[FloatArray],
@@ -182,7 +182,6 @@ class Uploader:
     _part: int = 0  # 0 BEGIN, 1..n segments, n+1 COMMIT
     _sent_at: float = -math.inf
     _tries: int = 0
-    _log: list[str] = field(default_factory=list)
 
     @property
     def done(self) -> bool:

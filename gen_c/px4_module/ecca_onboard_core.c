@@ -167,15 +167,10 @@ int ecca_onboard_message(ecca_onboard *m, int op, const float *d, ecca_onboard_a
   case ECCA_OP_COMMIT: {
     uint32_t want = (uint32_t)d[0] | ((uint32_t)d[1] << 16);
     uint32_t got = 0;
-    int complete = m->state == ECCA_STATE_RECEIVING && m->n_received == m->n_expected;
     if (m->state == ECCA_STATE_LOADED && want == m->crc) {
-      complete = 1; /* a repeated COMMIT (its first answer lost): answer it again */
-    } else if (complete) {
-      got = upload_crc(m);
-    }
-    if (m->state == ECCA_STATE_LOADED && want == m->crc) {
-      got = m->crc;
-    } else if (complete && got == want) {
+      got = m->crc; /* a repeated COMMIT (its first answer lost): answer it again */
+    } else if (m->state == ECCA_STATE_RECEIVING && m->n_received == m->n_expected &&
+               (got = upload_crc(m)) == want) {
       m->crc = got;
       m->t_start_seg[0] = 0.0;
       for (i = 0; i < m->n_expected; ++i) {

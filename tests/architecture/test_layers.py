@@ -18,8 +18,8 @@ ROOT = Path(__file__).resolve().parents[2]
 #: companion's packages by layer, lowest first; a module may import its own layer or lower
 LAYERS: list[set[str]] = [
     {"geometry", "_frozen"},
-    {"flatness", "mavlink", "onboard"},
-    {"trajectory", "control"},
+    {"flatness", "mavlink"},
+    {"trajectory", "control", "onboard"},
     {"mission"},
     {"planning"},
     {"flight"},
