@@ -24,6 +24,8 @@ SOURCES = ("ecca_setpoint.c", "ecca_gen_d.c", _CORE)
 HEADERS = ("ecca_setpoint.h", "ecca_setpoint_gen.h", "ecca_setpoint_impl.inc", "ecca_gen_d.h",
            "../px4_module/ecca_onboard_core.h", "../px4_module/ecca_onboard_proto.h")
 N_FLOATS = 58
+MAX_SEGMENTS = 256  # ECCA_MAX_SEGMENTS
+B_COUNT = 28  # ECCA_B_COUNT
 
 
 class _Ack(ctypes.Structure):
@@ -36,6 +38,26 @@ class _Output(ctypes.Structure):
                 ("q_d", ctypes.c_float * 4), ("thrust", ctypes.c_float),
                 ("yaw_rate", ctypes.c_float), ("final_action", ctypes.c_int),
                 ("event", ctypes.c_int), ("start_error_m", ctypes.c_double)]
+
+
+@dataclass(frozen=True)
+class _Segment(ctypes.Structure):
+    _fields_ = [("duration", ctypes.c_float), ("ctrl", ctypes.c_float * 3 * 8),
+                ("yaw", ctypes.c_float * 8)]
+
+
+class _Core(ctypes.Structure):
+    """The head of `ecca_onboard` (ecca_onboard_core.h; its size is checked at load)."""
+
+    _fields_ = [("state", ctypes.c_int), ("n_expected", ctypes.c_int),
+                ("n_received", ctypes.c_int), ("have", ctypes.c_uint8 * MAX_SEGMENTS),
+                ("begin", ctypes.c_float * B_COUNT), ("seg", _Segment * MAX_SEGMENTS),
+                ("t_start_seg", ctypes.c_double * (MAX_SEGMENTS + 1)),
+                ("crc", ctypes.c_uint32), ("peer_sys", ctypes.c_uint8),
+                ("peer_comp", ctypes.c_uint8), ("t0", ctypes.c_double),
+                ("t_hold", ctypes.c_double), ("t_last", ctypes.c_double),
+                ("integ", ctypes.c_double * 3), ("progress", ctypes.c_double),
+                ("t_final", ctypes.c_double)]
 
 
 @dataclass(frozen=True)
@@ -90,6 +112,9 @@ class OnboardLibrary:
                                           ctypes.POINTER(_Output)]
         self.lib = lib
         self.size = int(lib.ecca_onboard_size())
+        if self.size != ctypes.sizeof(_Core):
+            raise RuntimeError(f"{path}: ecca_onboard is {self.size} bytes, the ctypes mirror "
+                               f"{ctypes.sizeof(_Core)}: ecca_onboard_core.h changed")
 
 
 class OnboardModule:
@@ -99,6 +124,18 @@ class OnboardModule:
         self._lib = library.lib
         self._buf = ctypes.create_string_buffer(library.size)
         self._lib.ecca_onboard_init(self._buf)
+
+    @property
+    def state(self) -> int:
+        """The module's state (ECCA_STATE_*)."""
+        return int(_Core.from_buffer(self._buf).state)
+
+    @property
+    def peer(self) -> tuple[int, int]:
+        """The module's peer: the system and component id its acknowledgements go to (0, 0
+        before a STATUS or BEGIN named one)."""
+        c = _Core.from_buffer(self._buf)
+        return int(c.peer_sys), int(c.peer_comp)
 
     def message(self, op: int, data: Sequence[float]) -> OnboardAck | None:
         """Take one protocol message (opcode, up to 58 values); the acknowledgement or None."""

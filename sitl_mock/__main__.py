@@ -119,6 +119,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="MAVLink 2 signing key (64 hex digits or 32 raw bytes): sign everything sent, "
         "refuse unsigned and wrongly signed frames (like PX4 with MAV_SIGN_CFG 2)",
     )
+    s.add_argument(
+        "--onboard",
+        action="store_true",
+        help="host the onboard module (gen_c/px4_module, the same C through ctypes; compiled "
+        "with the system C compiler at first use) as PX4 hosts `dyn ecca_onboard.px4mod "
+        "start`: `python -m companion fly MISSION --onboard` flies against it",
+    )
     f = s.add_argument_group("fault injection (offboard link unless --fault-gcs)")
     f.add_argument("--loss", type=float, default=0.0, help="packet loss [%%] both directions")
     f.add_argument("--latency", type=float, default=0.0, help="one-way latency [s]")
@@ -160,6 +167,18 @@ async def _serve(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"sitl_mock: {exc}", file=sys.stderr)
         return 2
+    if args.onboard:
+        if args.vehicle != "quad":
+            print("sitl_mock: --onboard flies a quad only", file=sys.stderr)
+            return 2
+        from gen_c.native import NativeBuildError
+        from sitl_mock.onboard import onboard_library
+
+        try:
+            onboard_library()  # compile (or load from the cache) before the clock runs
+        except (NativeBuildError, OSError) as exc:
+            print(f"sitl_mock: --onboard: cannot build the module: {exc}", file=sys.stderr)
+            return 1
     links = [LinkConfig("offboard", args.bind, args.remote, serial=args.serial,
                         baud=args.serial_baud)]
     if not args.no_gcs:
@@ -182,6 +201,7 @@ async def _serve(args: argparse.Namespace) -> int:
             estimator_ready_s=args.estimator_ready,
             signing_key=args.signing_key,
             unix_boot_s=time.time(),
+            onboard=args.onboard,
         )
 
     try:
@@ -203,7 +223,8 @@ async def _serve(args: argparse.Namespace) -> int:
         remote = f"{lk.remote[0]}:{lk.remote[1]}" if lk.remote else "none"
         parts.append(f"{lk.name}={host}:{port}->{remote}")
     signed = " signing=required" if args.signing_key is not None else ""
-    print(f"sitl_mock ready {args.vehicle} " + " ".join(parts) + signed, flush=True)
+    onboard = " onboard" if args.onboard else ""
+    print(f"sitl_mock ready {args.vehicle} " + " ".join(parts) + signed + onboard, flush=True)
     await server.run()
     print("sitl_mock stopped", flush=True)
     return 0

@@ -28,6 +28,7 @@ class LockstepSim:
     `recv()` returns (and forgets) every datagram the autopilot has sent up to now.
     `unread_streams`: telemetry message ids the caller never reads (and logs nowhere); they
     are not built, and every other datagram is the same (`Autopilot.quiet_streams`).
+    `onboard`: the autopilot hosts the onboard module (`sitl_mock.onboard`).
     """
 
     def __init__(
@@ -42,6 +43,7 @@ class LockstepSim:
         scenario: ScenarioFaults | None = None,
         estimator_ready_s: float = 3.0,
         unread_streams: frozenset[int] = frozenset(),
+        onboard: bool = False,
     ) -> None:
         self.autopilot = Autopilot(
             kind,
@@ -54,6 +56,7 @@ class LockstepSim:
             link_faults={"offboard": faults} if faults is not None else None,
             scenario=scenario,
             estimator_ready_s=estimator_ready_s,
+            onboard=onboard,
         )
         if unread_streams:
             self.autopilot.quiet_streams("offboard", unread_streams)

@@ -72,3 +72,35 @@ class TlogWriter:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+#: The offboard setpoint messages a companion streams.
+SETPOINT_MESSAGES = ("SET_ATTITUDE_TARGET", "SET_POSITION_TARGET_LOCAL_NED")
+_PX4_OFFBOARD = 6  # PX4's main mode OFFBOARD (custom_mode bits 16-23)
+
+
+def offboard_setpoints(path: str | Path) -> tuple[int, int]:
+    """Setpoints sent while PX4 was in OFFBOARD, from a flight's .tlog: (SET_ATTITUDE_TARGET +
+    SET_POSITION_TARGET_LOCAL_NED frames from anyone but the autopilot, component 1, sent
+    while the autopilot's last HEARTBEAT said OFFBOARD; the autopilot's HEARTBEATs in
+    OFFBOARD). An onboard flight (the module flies) has 0 setpoints."""
+    from pymavlink import mavutil
+    from pymavlink.dialects.v20 import common as mavlink2
+
+    conn = mavutil.mavlink_connection(str(path), dialect="common")
+    offboard, n_sp, n_hb = False, 0, 0
+    try:
+        for _ in range(50_000_000):
+            msg = conn.recv_match()
+            if msg is None:
+                break
+            kind = msg.get_type()
+            autopilot = msg.get_srcComponent() == 1
+            if kind == "HEARTBEAT" and autopilot and msg.type != mavlink2.MAV_TYPE_GCS:
+                offboard = ((msg.custom_mode >> 16) & 0xFF) == _PX4_OFFBOARD
+                n_hb += offboard
+            elif kind in SETPOINT_MESSAGES and not autopilot and offboard:
+                n_sp += 1
+    finally:
+        conn.close()
+    return n_sp, n_hb

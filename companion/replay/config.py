@@ -39,7 +39,12 @@ class ReplayConfig:
     (e.g. a wrong hover thrust), `mock_params` the mock's truth (SIH_MASS, SIH_KDV, SIM_*...);
     `latency_s`/`jitter_s` delay the telemetry (mock -> companion), `loss_pct` drops datagrams
     in both directions; `start_offset_ne_m` puts the vehicle that far (north, east) [m] from
-    the mission's planned home (the companion plans from where it stands, like `fly`)."""
+    the mission's planned home (the companion plans from where it stands, like `fly`).
+
+    `onboard`: the onboard module inside the mock flies the plan (`companion.replay.onboard`,
+    as `fly --onboard` on PX4): the companion uploads it and streams no setpoint; a quad in
+    attitude mode only, PX4's own landing after the plan (its final descent ends
+    HANDOVER_HEIGHT_M up)."""
 
     vehicle: Literal["quad", "rover"] = "quad"
     mode: Mode = "attitude"
@@ -57,6 +62,7 @@ class ReplayConfig:
     jitter_s: float = 0.0
     loss_pct: float = 0.0
     start_offset_ne_m: tuple[float, float] = (0.0, 0.0)
+    onboard: bool = False
 
     def __post_init__(self) -> None:
         if self.vehicle not in ("quad", "rover"):
@@ -77,6 +83,8 @@ class ReplayConfig:
             raise ValueError(f"packet loss must be 0..100 %, got {self.loss_pct}")
         if not all(math.isfinite(v) and abs(v) <= 1000.0 for v in self.start_offset_ne_m):
             raise ValueError(f"start offset must be within 1 km, got {self.start_offset_ne_m}")
+        if self.onboard and (self.vehicle != "quad" or self.mode != "attitude"):
+            raise ValueError("the onboard module flies a quad in attitude mode only")
         from sitl_mock.params import PARAMS
 
         for name, value in self.mock_params:
@@ -102,6 +110,15 @@ def planning_limits(config: ReplayConfig) -> VehicleLimits:
 
 
 def self_lands(config: ReplayConfig, final_action: str) -> bool:
-    """The companion lands the vehicle itself (`companion.flight.self_lands`)."""
-    return policy.self_lands(config.vehicle, config.mode, final_action)
+    """The companion lands the vehicle itself (`companion.flight.self_lands`; never in an
+    onboard flight: the module commands PX4's landing)."""
+    return not config.onboard and policy.self_lands(config.vehicle, config.mode, final_action)
+
+
+def handover_height_m(config: ReplayConfig, final_action: str) -> float:
+    """Where the planned final descent ends above the ground [m] (`policy.handover_height_m`;
+    an onboard flight: where PX4's landing takes over, as `fly --onboard` plans it)."""
+    if config.onboard:
+        return policy.HANDOVER_HEIGHT_M
+    return policy.handover_height_m(config.vehicle, config.mode, final_action)
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -213,10 +213,27 @@ class Flight:
             stalled_s=self.source.stalled_s)
         self.perform(self.seq.update(now, view), now)
 
+    def late_s(self) -> float:
+        """How late the reference runs [s]: a multirotor's reference slowed down for the
+        vehicle (TimeScaler) moves the deadline with it; a reference that stands still ends
+        the flight itself (STALL_S)."""
+        return float(getattr(self.source.governor, "delay_s", 0.0))
+
     def abort(self, now: float, reason: str) -> None:
         """End the flight (the replay's time limit)."""
         self.perform(self.seq.fail(now, reason), now)
 
+
+
+def recorded_link(config: ReplayConfig, home: tuple[float, float, float],
+                  tlog: TlogWriter | None) -> tuple[LockstepLink, FlightLog]:
+    """A fresh mock for `config` and the companion's link to it, every message recorded into
+    a new flight log (without a tlog the streams nobody reads are not built: `UNREAD_STREAMS`)."""
+    sim = make_sim(config, home, unread=UNREAD_STREAMS if tlog is None else frozenset())
+    log = FlightLog()
+    lk = LockstepLink(sim, VehicleLink(LinkConfig()), tlog)
+    lk.on_message = functools.partial(record_message, log)
+    return lk, log
 
 
 def fly_schedule(
@@ -232,22 +249,36 @@ def fly_schedule(
     and the expected end of the flight (the schedule plus the start-up and landing). Without
     a tlog the mock leaves the streams the companion does not read unbuilt (the same flight,
     bit for bit: `UNREAD_STREAMS`)."""
-    sim = make_sim(config, home, unread=UNREAD_STREAMS if tlog is None else frozenset())
-    link = VehicleLink(LinkConfig())
-    log = FlightLog()
-    lk = LockstepLink(sim, link, tlog)
-    lk.on_message = functools.partial(record_message, log)
+    lk, log = recorded_link(config, home, tlog)
     flight = Flight(config, schedule, lk, log)
+    drive(flight, lk, config, schedule.duration_s, progress)
+    return flight, log
+
+
+class Driven(Protocol):
+    """A companion flight `drive` runs: the link's events in, one cycle per period."""
+
+    @property
+    def done(self) -> bool: ...
+    def late_s(self) -> float: ...
+    def on_events(self, events: list[Any], now: float) -> None: ...
+    def tick(self, now: float) -> None: ...
+    def abort(self, now: float, reason: str) -> None: ...
+
+
+def drive(flight: Driven, lk: LockstepLink, config: ReplayConfig, duration_s: float,
+          progress: Callable[[float, float], None] | None) -> None:
+    """Run `flight` over `lk` in cycles of 1 / `config.rate_hz` until it is done or late
+    (`duration_s` + the config's margin + `flight.late_s()`), then 1 s more for the last
+    frames and the landing; `progress(now_s, expected_s)` every 100 cycles."""
     dt = 1.0 / config.rate_hz
-    t_max = schedule.duration_s + config.timeout_margin_s
-    expected = schedule.duration_s + EXPECTED_OVERHEAD_S
+    t_max = duration_s + config.timeout_margin_s
+    expected = duration_s + EXPECTED_OVERHEAD_S
     k = 0
     while not flight.done:
         k += 1
         now = k * dt
-        # a multirotor's reference slowed down for the vehicle (TimeScaler) moves the deadline
-        # with it; a reference that stands still ends the flight itself (STALL_S)
-        late = getattr(flight.source.governor, "delay_s", 0.0)
+        late = flight.late_s()
         if now > t_max + late:
             flight.abort(now, f"timed out after {t_max + late:.0f} s of simulated time")
             break
@@ -259,7 +290,6 @@ def fly_schedule(
     end = lk.now + 1.0
     while lk.now < end:
         lk.advance(lk.now + dt)
-    return flight, log
 
 
 def mission_frames(mission: Mission, config: LinkConfig | None = None) -> list[bytes]:

@@ -131,7 +131,8 @@ def make_sim(config: ReplayConfig, home: tuple[float, float, float], *,
                            jitter_s=config.jitter_s)
         faults = (f_in, f_out)
     sim = LockstepSim(config.vehicle, ParamStore(dict(config.mock_params)), home, config.seed,
-                      physics_hz=config.physics_hz, faults=faults, unread_streams=unread)
+                      physics_hz=config.physics_hz, faults=faults, unread_streams=unread,
+                      onboard=config.onboard)
     if config.wind_m_s > 0.0:
         sim.autopilot.vehicle.set_wind(config.wind_ned())
     return sim

@@ -30,7 +30,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from companion.aio.tlog import TlogWriter
-from companion.flight import policy
 from companion.flight.report import (
     FlightReport,
     breach_result,
@@ -60,11 +59,13 @@ from companion.replay.config import (
     TLOG_EPOCH_S,
     Mode,
     ReplayConfig,
+    handover_height_m,
     planning_limits,
     self_lands,
 )
 from companion.replay.flight import Flight, fly_px4_mission, fly_schedule, mission_frames
 from companion.replay.lockstep import COMPANION_MSG_IDS, LockstepLink, read_mock_params
+from companion.replay.onboard import OnboardFlight, fly_onboard_schedule
 
 FloatArray = NDArray[np.float64]
 
@@ -142,8 +143,7 @@ def prepare_mission(
     params = None if config.vehicle == "rover" else config.params
     schedule = build_schedule(
         flight_plan, params, planning_limits(config),
-        handover_height_m=policy.handover_height_m(config.vehicle, config.mode,
-                                                   flight_plan.final_action))
+        handover_height_m=handover_height_m(config, flight_plan.final_action))
     require_plan_inside(flight_plan, schedule)
     warnings = (*flight_plan.warnings, *px4.warnings, *schedule.warnings)
     if not bounds:
@@ -166,11 +166,16 @@ def fence_shift(config: ReplayConfig, origin: FloatArray) -> FloatArray:
 
 @dataclass(frozen=True)
 class ReplayRun:
-    """One flight of a prepared mission: the flight, its log and its report (see summarize)."""
+    """One flight of a prepared mission: the flight (streamed, or onboard: the module flies),
+    its log and its report (see summarize)."""
 
-    flight: Flight
+    flight: Flight | OnboardFlight
     log: FlightLog
     report: FlightReport
+
+    @property
+    def schedule(self) -> Schedule:
+        return self.flight.schedule
 
     @property
     def ok(self) -> bool:
@@ -189,6 +194,8 @@ def run_prepared(
     wall0 = time.perf_counter()
     if tlog is not None:  # the mission first, so QGroundControl/MAVExplorer show it
         tlog.write_many(mission_frames(prep.mission), TLOG_EPOCH_S)
+    if config.onboard:
+        return _run_onboard(prep, config, tlog, progress, wall0)
     flight, log = fly_schedule(config, schedule, prep.home, tlog, progress)
     wall = time.perf_counter() - wall0
     flown = summarize(log, schedule, prep.mission, flight.origin, flight_plan=prep.flight_plan,
@@ -213,10 +220,49 @@ def run_prepared(
         setpoint_quality=quality.figures(),
         estimates=flight.source.estimates(),
     )
-    result = breach_result(report)
     bad = quality.failure()
-    if bad is not None and result == "ok":
-        result = f"setpoints: {bad}"
+    return _finish(ReplayRun(flight, log, report), config,
+                   None if bad is None else f"setpoints: {bad}")
+
+
+def _run_onboard(prep: PreparedMission, config: ReplayConfig, tlog: TlogWriter | None,
+                 progress: Callable[[float, float], None] | None, wall0: float) -> ReplayRun:
+    """`run_prepared` of an onboard flight (`companion.replay.onboard`): the module's law
+    is given PX4's MPC_THR_HOVER, read from the mock as `fly --onboard` reads it."""
+    hover = read_mock_params(config, prep.home, ("MPC_THR_HOVER",)).values["MPC_THR_HOVER"]
+    flight, log = fly_onboard_schedule(config, prep.schedule, prep.home, tlog, hover, progress)
+    wall = time.perf_counter() - wall0
+    flown = summarize(log, prep.schedule, prep.mission, flight.origin,
+                      flight_plan=prep.flight_plan,
+                      fence_shift_ned=fence_shift(config, flight.origin),
+                      leg_bounds_s=prep.leg_bounds_s, bound_s=prep.bound_s)
+    sim_s = flight.lk.now
+    report = dataclasses.replace(
+        flown,
+        file=str(prep.path),
+        vehicle=config.vehicle,
+        mode="onboard",
+        setpoint_rate_hz=None,
+        setpoints_sent=flight.setpoints_sent,
+        tlog_frames=tlog.frames if tlog is not None else None,
+        result="ok" if flight.ok else f"aborted: {flight.reason}",
+        simulated_s=round(sim_s, 3),
+        wall_s=round(wall, 3),
+        real_time_factor=round(sim_s / wall, 1) if wall > 0 else None,
+        warnings=tuple(prep.warnings),
+        px4_params=None if prep.px4 is None else prep.px4.as_report(),
+    )
+    return _finish(ReplayRun(flight, log, report), config, None)
+
+
+def _finish(run: ReplayRun, config: ReplayConfig, setpoint_failure: str | None) -> ReplayRun:
+    """The run's result and verdict: the geofence, the setpoints' quality, the waypoints
+    (and, started away from the planned home, how far it passed from the mission's)."""
+    flight, log, report = run.flight, run.log, run.report
+    schedule = run.schedule
+    result = breach_result(report)
+    if setpoint_failure is not None and result == "ok":
+        result = setpoint_failure
     # a waypoint passed outside its acceptance radius fails the flight in its result too,
     # not only in `ok` (a campaign's row and report.json said "ok" for such a flight)
     report = dataclasses.replace(report, result=result)

@@ -149,12 +149,14 @@ class CommandHandler:
         base, main, sub = p[0], p[1], p[2]
 
         def verdict() -> None:
-            result = self._mode_request(base, main, sub)
+            result = self.mode_request(base, main, sub)
             self._ack(link, msg, mavlink.MAV_CMD_DO_SET_MODE, result)
 
         self.schedule(MODE_ACK_DELAY_S, verdict)
 
-    def _mode_request(self, base: float, main: float, sub: float) -> int:
+    def mode_request(self, base: float, main: float, sub: float) -> int:
+        """DO_SET_MODE (base mode, PX4 main and sub mode) to the commander: the MAV_RESULT
+        (also a vehicle_command from inside the autopilot, e.g. the onboard module)."""
         if not finite(base, main, sub) or not int(base) & 1:
             return RESULT_UNSUPPORTED
         mode = Mode.from_custom(int(main), int(sub))

@@ -19,9 +19,11 @@ Two links like PX4 SITL: "offboard" (the API / onboard link, PX4 binds 14580 and
 from __future__ import annotations
 
 import heapq
+import logging
 import math
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
+from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -43,6 +45,10 @@ from sitl_mock.params import ParamStore
 from sitl_mock.setpoints import Target
 from sitl_mock.vehicle import DEFAULT_HOME, Vehicle, VehicleState, make_vehicle
 
+if TYPE_CHECKING:
+    from sitl_mock.onboard import OnboardHost
+
+_log = logging.getLogger(__name__)
 COMMANDER_PERIOD_S = 0.005
 _OFFBOARD = Mode.OFFBOARD
 _AUTO_MISSION = Mode.AUTO_MISSION
@@ -63,7 +69,9 @@ class Autopilot:
     link_faults: link name -> (inbound, outbound) LinkFaults; scenario: vehicle-level faults;
     estimator_ready_s: time after boot before the estimator is ready and arming is possible;
     signing_key: 32-byte MAVLink 2 signing key (None: no signing; see sitl_mock/signing.py),
-    then unix_boot_s, the wall clock at boot [UNIX s], starts the signing timestamps.
+    then unix_boot_s, the wall clock at boot [UNIX s], starts the signing timestamps;
+    onboard: host the onboard module (gen_c/px4_module, `sitl_mock.onboard`) as PX4 hosts
+    ecca_onboard (its C compiled at first use; a quad only).
     """
 
     def __init__(
@@ -82,6 +90,7 @@ class Autopilot:
         vehicle: Vehicle | None = None,
         signing_key: bytes | None = None,
         unix_boot_s: float | None = None,
+        onboard: bool = False,
     ) -> None:
         if not (math.isfinite(physics_hz) and physics_hz >= 250.0):
             raise ValueError(f"physics rate must be >= 250 Hz, got {physics_hz!r}")
@@ -147,6 +156,18 @@ class Autopilot:
         handlers["SET_ATTITUDE_TARGET"] = self.offboard.on_set_attitude_target
         handlers.update(self.commands.handlers())
         self.comms.attitude_fields = self.offboard.attitude_setpoint
+        self.onboard: OnboardHost | None = None
+        if onboard:
+            if vehicle_kind != "quad":
+                raise ValueError("the onboard module flies a quad only")
+            from sitl_mock.onboard import OnboardHost
+
+            self.onboard = OnboardHost(
+                self.clock, self.view, self.comms, self.stats, self._onboard_inputs,
+                self.offboard.control_mode, self.offboard.module_attitude,
+                self.commands.mode_request, self._module_log,
+            )
+            handlers.update(self.onboard.handlers())
 
     # ================================================================== public sans-IO API
     @property
@@ -226,6 +247,20 @@ class Autopilot:
             break
         clock.t = max(clock.t, t_end)
 
+    def _onboard_inputs(self) -> tuple[bool, bool]:
+        """What the onboard module reads of vehicle_status / vehicle_local_position: armed in
+        OFFBOARD, and the position and velocity estimate valid."""
+        cmdr = self.commander
+        return cmdr.armed and cmdr.mode is _OFFBOARD, cmdr.local_position_valid
+
+    def _module_log(self, severity: int, text: str) -> None:
+        """The onboard module's console: warnings and errors reach the links as STATUSTEXT
+        (PX4's log_message), information stays in the log."""
+        if severity <= mavlink.MAV_SEVERITY_WARNING:
+            self.comms.statustext(severity, f"ecca_onboard: {text}")
+        else:
+            _log.info("ecca_onboard: %s", text)
+
     # ================================================================== time and events
     def _next_input_time(self) -> float:
         """Time of the next scheduled event or delayed inbound datagram (inf if none)."""
@@ -249,6 +284,9 @@ class Autopilot:
     def _physics_step(self, t_phys: float) -> None:
         self._n_steps += 1
         self.clock.t = t_phys
+        onboard = self.onboard
+        if onboard is not None and onboard.due(t_phys):
+            onboard.cycle()  # before the controllers: its setpoint is flown from this step on
         cmdr = self.commander
         ob_target = self.offboard.target
         if (cmdr.armed and cmdr.mode is _OFFBOARD and ob_target is not None
@@ -274,8 +312,9 @@ class Autopilot:
         telemetry, navigator or event work), without its per-step bookkeeping.
         """
         cmdr = self.commander
-        if cmdr.descend or (cmdr.nav_active and cmdr.nav_target is None):
-            return
+        if self.onboard is not None or cmdr.descend or (cmdr.nav_active
+                                                        and cmdr.nav_target is None):
+            return  # (the onboard module runs at every 4 ms step)
         dt = self.dt
         n = self._n_steps
         t_next = (n + 1) * dt

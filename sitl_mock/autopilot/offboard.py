@@ -165,6 +165,18 @@ class OffboardInput:
         target = make_attitude_target(q_wxyz, min(max(thrust, 0.0), 1.0), rates, yaw_ff)
         self._accept(target)
 
+    def control_mode(self) -> None:
+        """An offboard_control_mode publication inside the autopilot (the onboard module,
+        `sitl_mock.onboard`): the offboard signal, as a streamed setpoint proves it."""
+        self.last_t = self.clock.t
+        self.on_setpoint()
+
+    def module_attitude(self, target: AttitudeTarget) -> None:
+        """A vehicle_attitude_setpoint published inside the autopilot (the onboard module):
+        flown in OFFBOARD as an offboard attitude setpoint (not a received message)."""
+        self.target = target
+        self.last_attitude = target
+
     def _accept(self, target: PositionTarget | AttitudeTarget) -> None:
         self.stats["rx_setpoints"] += 1
         self.last_t = self.clock.t
