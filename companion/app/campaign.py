@@ -23,7 +23,10 @@ if TYPE_CHECKING:
     from companion.campaign.runner import Keep
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
-MODES = ("position", "attitude", "rates")
+#: The modes a campaign compares: the streamed setpoint modes, and onboard (the mock's onboard
+#: module flies the upload, as `fly --onboard` on PX4); the default is the streamed ones.
+MODES = ("position", "attitude", "rates", "onboard")
+DEFAULT_MODES = ("position", "attitude", "rates")
 
 #: Range options: (option, PerturbationRanges field, metavar, help)
 _RANGE_OPTIONS = (
@@ -50,7 +53,7 @@ class CampaignOptions:
     files: list[str]
     runs: int = 20
     seed: int = 0
-    modes: tuple[str, ...] = MODES
+    modes: tuple[str, ...] = DEFAULT_MODES
     rate_hz: float = 100.0
     ranges: PerturbationRanges = field(default_factory=PerturbationRanges)
     out: str = "campaign_out"
@@ -70,8 +73,13 @@ def add_campaign_parser(sub: Any) -> None:
     cp.add_argument("--runs", type=int, required=True, metavar="N",
                     help="runs per mission and mode")
     cp.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
-    cp.add_argument("--mode", dest="modes", default=",".join(MODES), metavar="M[,M...]",
-                    help="setpoint modes (default position,attitude,rates)")
+    cp.add_argument("--mode", dest="modes", default=",".join(DEFAULT_MODES), metavar="M[,M...]",
+                    help="modes: position, attitude, rates (streamed setpoints), onboard (the "
+                         "mock's onboard module flies the upload) (default "
+                         "position,attitude,rates)")
+    cp.add_argument("--onboard", action="store_true",
+                    help="add the onboard mode to --mode's: onboard and streamed flights under "
+                         "the same perturbations (docs/guides/onboard.md)")
     cp.add_argument("--rate", type=float, default=100.0, help="setpoint rate [Hz] (default 100)")
     cp.add_argument("--scheduler", default=None, metavar="tcp://HOST:8786",
                     help="an existing Dask scheduler (default: a local cluster on all cores)")
@@ -95,6 +103,8 @@ def add_campaign_parser(sub: Any) -> None:
 def options_from_args(args: argparse.Namespace) -> CampaignOptions:
     """Validate the parsed options (ValueError with the reason)."""
     modes = tuple(m.strip() for m in args.modes.split(",") if m.strip())
+    if getattr(args, "onboard", False) and "onboard" not in modes:
+        modes = (*modes, "onboard")
     bad = [m for m in modes if m not in MODES]
     if bad or not modes:
         raise ValueError(f"--mode takes {', '.join(MODES)}; got {args.modes!r}")

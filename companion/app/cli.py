@@ -191,7 +191,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
                         import time
 
                         time.sleep(0.1)  # UI refresh period, not synchronisation
-    mode_label = "velocity + yaw-rate" if args.vehicle == "rover" else f"{args.mode} mode"
+    mode_label = ("velocity + yaw-rate" if args.vehicle == "rover" else
+                  "onboard module" if args.onboard else f"{args.mode} mode")
     table = Table(title=escape(f"Replay summary ({args.vehicle}, {mode_label}); outputs in "
                                f"{args.out}"))
     # file names are never cut: they wrap (fold) in their own column
@@ -438,6 +439,9 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--mode", choices=("position", "attitude", "rates"), default="attitude",
                     help="setpoint mode (default attitude)")
     rp.add_argument("--rate", type=float, default=100.0, help="setpoint rate [Hz] (default 100)")
+    rp.add_argument("--onboard", action="store_true",
+                    help="the mock's onboard module flies the uploaded trajectory (the PX4 "
+                         "module's C; a quad in attitude mode; see docs/guides/onboard.md)")
     rp.add_argument("--compare-px4-mission", action="store_true",
                     help="also fly the file in the mock's AUTO.MISSION and report both")
     rp.add_argument("--wind", type=float, default=0.0, metavar="SPEED",

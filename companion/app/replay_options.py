@@ -66,4 +66,5 @@ def replay_config_kwargs(args: argparse.Namespace) -> dict[str, Any]:
         "jitter_s": args.jitter,
         "loss_pct": args.loss,
         "start_offset_ne_m": tuple(args.start_offset),
+        "onboard": bool(getattr(args, "onboard", False)),
     }

@@ -69,7 +69,8 @@ class RunOutcome:
 
 def replay_command(file: str, mode: str, rate_hz: float, p: Perturbation) -> str:
     """The `python -m companion replay` command that re-creates one campaign run."""
-    args = ["python", "-m", "companion", "replay", file, "--mode", mode]
+    args = ["python", "-m", "companion", "replay", file]
+    args += ["--onboard"] if mode == ONBOARD else ["--mode", mode]
     if rate_hz != 100.0:
         args += ["--rate", repr(rate_hz)]
     return shlex.join([*args, *p.replay_args()])
@@ -119,11 +120,9 @@ def execute_run(task: RunTask) -> RunOutcome:
     import time
 
     t0 = time.perf_counter()
-    from companion.replay.runner import ReplayConfig, prepare_mission
+    from companion.replay.runner import prepare_mission
 
-    config = task.perturbation.replay_config(
-        ReplayConfig(vehicle="quad", mode=_mode(task.mode), rate_hz=task.rate_hz)
-    )
+    config = task.perturbation.replay_config(base_config(task.mode, task.rate_hz))
     tlog_bytes = None
     with tempfile.TemporaryDirectory(prefix="ecca-run-") as tmp:
         tlog_path = Path(tmp) / "flight.tlog"
@@ -151,11 +150,20 @@ def execute_run(task: RunTask) -> RunOutcome:
     return RunOutcome(row, tlog_bytes)
 
 
-def _mode(mode: str) -> Mode:
-    """A task's setpoint mode, checked."""
+#: The campaign's mode in which the onboard module flies (the streamed ones: setpoint modes).
+ONBOARD = "onboard"
+
+
+def base_config(mode: str, rate_hz: float) -> ReplayConfig:
+    """A run's configuration before its perturbation: a quad, streaming setpoints in `mode`
+    at `rate_hz`, or ONBOARD: the mock's onboard module flies (attitude law, no stream)."""
+    from companion.replay.runner import ReplayConfig
+
+    if mode == ONBOARD:
+        return ReplayConfig(vehicle="quad", mode="attitude", rate_hz=rate_hz, onboard=True)
     if mode not in ("position", "attitude", "rates"):
-        raise ValueError(f"mode must be position, attitude or rates, got {mode!r}")
-    return cast("Mode", mode)
+        raise ValueError(f"mode must be position, attitude, rates or {ONBOARD}, got {mode!r}")
+    return ReplayConfig(vehicle="quad", mode=cast("Mode", mode), rate_hz=rate_hz)
 
 
 def _fly(prep: PreparedMission, config: ReplayConfig, tlog_path: Path | None) -> ReplayRun:

@@ -318,7 +318,9 @@ def replay_file(
             json.dump(report.to_dict(), f, indent=2, allow_nan=False, default=_json_default)
         if draw is not None:
             draw(tmp / "flight.png", FlightPicture(
-                f"{src.name}: {config.vehicle}, {config.mode} mode", log, schedule,
+                f"{src.name}: {config.vehicle}, "
+                f"{'the onboard module' if config.onboard else config.mode + ' mode'}", log,
+                schedule,
                 flight.origin, px4_log, report.legs))
         final = out_root / name
         if final.exists():

@@ -259,7 +259,7 @@ class Autopilot:
         if severity <= mavlink.MAV_SEVERITY_WARNING:
             self.comms.statustext(severity, f"ecca_onboard: {text}")
         else:
-            _log.info("ecca_onboard: %s", text)
+            _log.debug("ecca_onboard: %s", text)
 
     # ================================================================== time and events
     def _next_input_time(self) -> float:

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from companion.app.cli import build_parser
 from companion.app.replay_options import replay_config_kwargs
 from companion.campaign.perturb import PerturbationRanges, sample
-from companion.campaign.runner import make_tasks, replay_command
+from companion.campaign.runner import base_config, make_tasks, replay_command
 from companion.replay.runner import ReplayConfig
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -30,10 +30,10 @@ def _config_from_command(command: str) -> ReplayConfig:
 
 @settings(max_examples=60, deadline=None)
 @given(seed=st.integers(0, 2**32), index=st.integers(0, 10_000),
-       mode=st.sampled_from(["position", "attitude", "rates"]))
+       mode=st.sampled_from(["position", "attitude", "rates", "onboard"]))
 def test_replay_command_recreates_the_campaign_config(seed: int, index: int, mode: str) -> None:
     p = sample(PerturbationRanges(), seed, index)
-    flown = p.replay_config(ReplayConfig(mode=mode))  # type: ignore[arg-type]
+    flown = p.replay_config(base_config(mode, 100.0))
     assert _config_from_command(replay_command(MISSION, mode, 100.0, p)) == flown
 
 
