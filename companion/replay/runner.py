@@ -25,6 +25,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -197,26 +198,13 @@ def run_prepared(
     if config.onboard:
         return _run_onboard(prep, config, tlog, progress, wall0)
     flight, log = fly_schedule(config, schedule, prep.home, tlog, progress)
-    wall = time.perf_counter() - wall0
-    flown = summarize(log, schedule, prep.mission, flight.origin, flight_plan=prep.flight_plan,
-                      fence_shift_ned=fence_shift(config, flight.origin),
-                      leg_bounds_s=prep.leg_bounds_s, bound_s=prep.bound_s)
-    sim_s = flight.lk.now
     quality = flight.source.quality
-    report = dataclasses.replace(
-        flown,
-        file=str(prep.path),
-        vehicle=config.vehicle,
+    report = _flown_report(
+        prep, config, flight, log, tlog, wall0,
         mode=config.mode,
         setpoint_rate_hz=config.rate_hz,
         setpoints_sent=flight.setpoints_sent,
-        tlog_frames=tlog.frames if tlog is not None else None,
         result="ok" if flight.phase == Phase.DONE else f"aborted: {flight.reason}",
-        simulated_s=round(sim_s, 3),
-        wall_s=round(wall, 3),
-        real_time_factor=round(sim_s / wall, 1) if wall > 0 else None,
-        warnings=tuple(prep.warnings),
-        px4_params=None if prep.px4 is None else prep.px4.as_report(),
         setpoint_quality=quality.figures(),
         estimates=flight.source.estimates(),
     )
@@ -231,28 +219,36 @@ def _run_onboard(prep: PreparedMission, config: ReplayConfig, tlog: TlogWriter |
     is given PX4's MPC_THR_HOVER, read from the mock as `fly --onboard` reads it."""
     hover = read_mock_params(config, prep.home, ("MPC_THR_HOVER",)).values["MPC_THR_HOVER"]
     flight, log = fly_onboard_schedule(config, prep.schedule, prep.home, tlog, hover, progress)
+    report = _flown_report(
+        prep, config, flight, log, tlog, wall0, mode="onboard", setpoint_rate_hz=None,
+        setpoints_sent=flight.setpoints_sent,
+        result="ok" if flight.ok else f"aborted: {flight.reason}")
+    return _finish(ReplayRun(flight, log, report), config, None)
+
+
+def _flown_report(prep: PreparedMission, config: ReplayConfig, flight: Flight | OnboardFlight,
+                  log: FlightLog, tlog: TlogWriter | None, wall0: float,
+                  **fields: Any) -> FlightReport:
+    """The flight's summary (`summarize`) with the run's figures and `fields` (the flight
+    kind's own: mode, result, setpoint figures)."""
     wall = time.perf_counter() - wall0
     flown = summarize(log, prep.schedule, prep.mission, flight.origin,
                       flight_plan=prep.flight_plan,
                       fence_shift_ned=fence_shift(config, flight.origin),
                       leg_bounds_s=prep.leg_bounds_s, bound_s=prep.bound_s)
     sim_s = flight.lk.now
-    report = dataclasses.replace(
+    return dataclasses.replace(
         flown,
         file=str(prep.path),
         vehicle=config.vehicle,
-        mode="onboard",
-        setpoint_rate_hz=None,
-        setpoints_sent=flight.setpoints_sent,
         tlog_frames=tlog.frames if tlog is not None else None,
-        result="ok" if flight.ok else f"aborted: {flight.reason}",
         simulated_s=round(sim_s, 3),
         wall_s=round(wall, 3),
         real_time_factor=round(sim_s / wall, 1) if wall > 0 else None,
         warnings=tuple(prep.warnings),
         px4_params=None if prep.px4 is None else prep.px4.as_report(),
+        **fields,
     )
-    return _finish(ReplayRun(flight, log, report), config, None)
 
 
 def _finish(run: ReplayRun, config: ReplayConfig, setpoint_failure: str | None) -> ReplayRun:
