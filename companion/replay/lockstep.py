@@ -115,6 +115,7 @@ def make_sim(config: ReplayConfig, home: tuple[float, float, float], *,
     """A fresh mock for `config` (its mock parameters, start offset, link faults and wind)
     booting at `home` (lat [deg], lon [deg], alt AMSL [m]) at simulated t = 0; `unread`:
     telemetry streams nobody reads nor logs (e.g. `UNREAD_STREAMS` without a tlog)."""
+    from gen_c.native import NativeBuildError
     from sitl_mock.faults import LinkFaults
     from sitl_mock.params import ParamStore
 
@@ -130,9 +131,14 @@ def make_sim(config: ReplayConfig, home: tuple[float, float, float], *,
         f_out = LinkFaults(loss_pct=config.loss_pct, latency_s=config.latency_s,
                            jitter_s=config.jitter_s)
         faults = (f_in, f_out)
-    sim = LockstepSim(config.vehicle, ParamStore(dict(config.mock_params)), home, config.seed,
-                      physics_hz=config.physics_hz, faults=faults, unread_streams=unread,
-                      onboard=config.onboard)
+    try:
+        sim = LockstepSim(config.vehicle, ParamStore(dict(config.mock_params)), home,
+                          config.seed, physics_hz=config.physics_hz, faults=faults,
+                          unread_streams=unread, onboard=config.onboard)
+    except (NativeBuildError, OSError) as exc:
+        if not config.onboard:
+            raise
+        raise ValueError(f"the mock's onboard module cannot be built: {exc}") from exc
     if config.wind_m_s > 0.0:
         sim.autopilot.vehicle.set_wind(config.wind_ned())
     return sim
