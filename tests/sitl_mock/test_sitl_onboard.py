@@ -161,3 +161,17 @@ def test_leaving_offboard_stops_the_module_for_good(h: Harness) -> None:
     h.run(1.0)
     assert h.ap.stats["onboard_setpoints"] == n
     assert h.ap.mode.name != "OFFBOARD"
+
+
+def test_debug_array_holds_one_message_per_cycle(h: Harness) -> None:
+    """Two parts within one 4 ms cycle: the module sees the newer only (uORB debug_array)."""
+    up = climb_upload()
+    t = h.now_boot
+    send_part(h, P.OP_STATUS, [*PEER] + [0.0] * 56)
+    send_part(h, P.OP_BEGIN, up.begin)  # the same instant: overwrites the status query
+    h.run(0.01)
+    answers = [a for _, a in module_acks(h, t)]
+    # the BEGIN answered first (the query never was); then, the BEGIN having named the peer,
+    # the module's periodic status
+    assert [a.op for a in answers] == [P.OP_BEGIN, P.OP_STATUS]
+    assert answers[0].state == P.STATE_RECEIVING
