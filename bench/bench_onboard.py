@@ -49,7 +49,7 @@ from udp_degrade import DegradedLink  # noqa: E402
 
 from companion.aio import Vehicle, VehicleConfig  # noqa: E402
 from companion.aio.onboard import module_states, upload  # noqa: E402
-from companion.app.fly_onboard import law_params  # noqa: E402
+from companion.planning.onboard_segments import law_params  # noqa: E402
 from companion.control import Reference  # noqa: E402
 from companion.mavlink import FlightMode, LinkConfig  # noqa: E402
 from companion.onboard import protocol as P  # noqa: E402, N812

@@ -35,14 +35,19 @@ from companion.onboard.protocol import (
     STATE_NAMES,
     STATE_READY,
     STATE_STOPPED,
-    LawParams,
     Upload,
     encode_upload,
 )
-from companion.planning.config import VehicleFile
-from companion.planning.schedule import Schedule
+from companion.planning.onboard_segments import (
+    HOLD_S,
+    START_TOLERANCE_M,
+    OnboardError,
+    Segments,
+    law_params,
+    schedule_segments,
+    trajectory_segments,
+)
 from companion.planning.vehicle_params import read_planning_params
-from companion.trajectory import PiecewiseBezier
 
 from .fly import (
     HOME_WAIT_S,
@@ -61,63 +66,8 @@ from .fly import (
 if TYPE_CHECKING:
     from companion.aio.base import VehicleBase
 
-#: The module refuses to start farther than this from the trajectory's start [m].
-START_TOLERANCE_M = 1.5
-#: The module holds the end point this long before the final action [s].
-HOLD_S = 1.0
 #: After the trajectory, how long the companion follows PX4's landing or hold [s].
 END_WAIT_S = 60.0
-
-
-class OnboardError(ValueError):
-    """The onboard flight cannot start (exit 2): no module, not ready, refused upload."""
-
-
-Segments = tuple[list[float], list[FloatArray], list[FloatArray]]
-
-
-def _trajectory_segments(out: Segments, traj: PiecewiseBezier, yaw: PiecewiseBezier | None,
-                         yaw0: float, origin: FloatArray) -> None:
-    """Append `traj`'s segments (positions shifted by `origin`; the yaw's, or `yaw0` held)."""
-    breaks, cps, ycps = out
-    for i, d in enumerate(np.diff(np.asarray(traj.breaks, dtype=np.float64))):
-        cp = np.asarray(traj.control_points[i], dtype=np.float64)
-        if cp.shape[1] != 3:
-            raise OnboardError("the onboard module flies 3-D trajectories only")
-        cps.append(cp + origin)
-        ycps.append(np.full(cp.shape[0], yaw0) if yaw is None
-                    else np.asarray(yaw.control_points[i], dtype=np.float64)[:, 0])
-        breaks.append(breaks[-1] + float(d))
-
-
-def schedule_segments(schedule: Schedule, origin: FloatArray) -> Segments:
-    """A schedule as back-to-back Bezier segments (breaks [s], NED control points [m] shifted
-    by `origin`, yaw control points [rad]): trajectories segment by segment, in-place turns
-    as their yaw segments at the held point, holds as constant segments."""
-    out: Segments = ([0.0], [], [])
-    breaks, cps, ycps = out
-    for piece in schedule.pieces:
-        if piece.duration_s <= 0.0:
-            continue
-        if piece.kind == "traj":
-            tr = piece.traj
-            assert tr is not None
-            _trajectory_segments(out, tr, piece.turn if piece.turn is not None else tr.yaw,
-                                 piece.yaw0, origin)
-        elif piece.kind == "turn":
-            turn = piece.turn
-            assert turn is not None
-            dur = np.diff(np.asarray(turn.breaks, dtype=np.float64))
-            for i, d in enumerate(dur):
-                yc = np.asarray(turn.control_points[i], dtype=np.float64)[:, 0]
-                cps.append(np.tile(piece.pos_ned + origin, (len(yc), 1)))
-                ycps.append(yc)
-                breaks.append(breaks[-1] + float(d))
-        else:
-            cps.append(np.tile(piece.pos_ned + origin, (2, 1)))
-            ycps.append(np.full(2, piece.yaw0))
-            breaks.append(breaks[-1] + piece.duration_s)
-    return out
 
 
 def planned_segments(planned: PlannedFlight, origin: FloatArray) -> Segments:
@@ -129,25 +79,8 @@ def planned_segments(planned: PlannedFlight, origin: FloatArray) -> Segments:
     traj = planned.trajectory
     assert traj is not None
     out: Segments = ([float(traj.breaks[0])], [], [])
-    _trajectory_segments(out, traj, traj.yaw, 0.0, origin)
+    trajectory_segments(out, traj, traj.yaw, 0.0, origin)
     return out
-
-
-def law_params(vf: VehicleFile, hover: float, tilt_rad: float) -> LawParams:
-    """The module's law parameters: the vehicle file's attitude-mode gains and model, PX4's
-    hover thrust and tilt limit."""
-    cfg = vf.tracking_config(tilt_rad)
-    g = cfg.gains
-    p = vf.params
-
-    def three(a: object) -> tuple[float, float, float]:
-        x = np.asarray(a, dtype=np.float64)
-        return float(x[0]), float(x[1]), float(x[2])
-
-    return LawParams(three(g.kp()), three(g.kd()), three(g.ki()), three(g.i_max()), hover,
-                     p.drag if cfg.drag_feedforward else 0.0, p.mass, p.g, cfg.thrust_min,
-                     cfg.thrust_max, cfg.max_tilt_rad, cfg.drag_velocity == "estimate",
-                     cfg.attitude_lead_s)
 
 
 async def fly_onboard(opts: FlyOptions, console: Console) -> int:

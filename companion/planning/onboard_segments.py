@@ -1,0 +1,129 @@
+"""Planned flights as the onboard module's segments (companion.onboard.protocol uploads them):
+back-to-back Bezier segments (breaks [s], NED control points [m], yaw control points [rad]),
+and the module's law parameters from a vehicle file. Shared by `fly --onboard`
+(companion.app.fly_onboard) and `serve --onboard` (companion.serve.onboard)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from companion.onboard.protocol import LawParams
+from companion.planning.config import VehicleFile
+from companion.planning.schedule import Schedule
+from companion.trajectory import Bezier, PiecewiseBezier
+
+FloatArray = NDArray[np.float64]
+Segments = tuple[list[float], list[FloatArray], list[FloatArray]]
+
+#: The module refuses to start farther than this from the trajectory's start [m].
+START_TOLERANCE_M = 1.5
+#: The module holds the end point this long before the final action [s].
+HOLD_S = 1.0
+
+
+class OnboardError(ValueError):
+    """The onboard flight cannot start (exit 2): no module, not ready, refused upload."""
+
+
+def trajectory_segments(out: Segments, traj: PiecewiseBezier, yaw: PiecewiseBezier | None,
+                        yaw0: float, origin: FloatArray) -> None:
+    """Append `traj`'s segments (positions shifted by `origin`; the yaw's, or `yaw0` held)."""
+    breaks, cps, ycps = out
+    for i, d in enumerate(np.diff(np.asarray(traj.breaks, dtype=np.float64))):
+        cp = np.asarray(traj.control_points[i], dtype=np.float64)
+        if cp.shape[1] != 3:
+            raise OnboardError("the onboard module flies 3-D trajectories only")
+        cps.append(cp + origin)
+        ycps.append(np.full(cp.shape[0], yaw0) if yaw is None
+                    else np.asarray(yaw.control_points[i], dtype=np.float64)[:, 0])
+        breaks.append(breaks[-1] + float(d))
+
+
+def schedule_segments(schedule: Schedule, origin: FloatArray) -> Segments:
+    """A schedule as back-to-back Bezier segments (breaks [s], NED control points [m] shifted
+    by `origin`, yaw control points [rad]): trajectories segment by segment, in-place turns
+    as their yaw segments at the held point, holds as constant segments."""
+    out: Segments = ([0.0], [], [])
+    breaks, cps, ycps = out
+    for piece in schedule.pieces:
+        if piece.duration_s <= 0.0:
+            continue
+        if piece.kind == "traj":
+            tr = piece.traj
+            assert tr is not None
+            trajectory_segments(out, tr, piece.turn if piece.turn is not None else tr.yaw,
+                                piece.yaw0, origin)
+        elif piece.kind == "turn":
+            turn = piece.turn
+            assert turn is not None
+            dur = np.diff(np.asarray(turn.breaks, dtype=np.float64))
+            for i, d in enumerate(dur):
+                yc = np.asarray(turn.control_points[i], dtype=np.float64)[:, 0]
+                cps.append(np.tile(piece.pos_ned + origin, (len(yc), 1)))
+                ycps.append(yc)
+                breaks.append(breaks[-1] + float(d))
+        else:
+            cps.append(np.tile(piece.pos_ned + origin, (2, 1)))
+            ycps.append(np.full(2, piece.yaw0))
+            breaks.append(breaks[-1] + piece.duration_s)
+    return out
+
+
+#: Pieces shorter than this [s] left at a window's ends are dropped (their time is kept).
+MIN_SEGMENT_S = 1e-3
+
+
+def window(segs: Segments, t_from: float, t_to: float) -> Segments:
+    """The part of `segs` between its times `t_from` and `t_to` [s] (segments cut with de
+    Casteljau's split, the same curve), its breaks from 0."""
+    breaks, cps, ycps = segs
+    out: Segments = ([0.0], [], [])
+    for i in range(len(cps)):
+        a, b = breaks[i], breaks[i + 1]
+        lo, hi = max(a, t_from), min(b, t_to)
+        if hi - lo < MIN_SEGMENT_S:
+            continue
+        pos, yaw = Bezier(cps[i], b - a), Bezier(ycps[i][:, None], b - a)
+        if hi < b - MIN_SEGMENT_S:
+            pos, yaw = pos.split(hi - a)[0], yaw.split(hi - a)[0]
+        if lo > a + MIN_SEGMENT_S:
+            pos, yaw = pos.split(lo - a)[1], yaw.split(lo - a)[1]
+        out[1].append(np.array(pos.control_points))
+        out[2].append(np.array(yaw.control_points)[:, 0])
+        out[0].append(out[0][-1] + (hi - lo))
+    return out
+
+
+def concatenate(first: Segments, second: Segments) -> Segments:
+    """`first` then `second`, the yaw of `second` shifted by whole turns to go on from where
+    `first`'s ends (the module's law takes the yaw as an angle: only the jump would matter)."""
+    breaks, cps, ycps = ([*first[0]], [*first[1]], [*first[2]])
+    shift = 0.0
+    if ycps and second[2]:
+        gap = float(ycps[-1][-1]) - float(second[2][0][0])
+        shift = 2.0 * math.pi * round(gap / (2.0 * math.pi))
+    for i, (cp, ycp) in enumerate(zip(second[1], second[2], strict=True)):
+        cps.append(cp)
+        ycps.append(ycp + shift)
+        breaks.append(breaks[-1] + second[0][i + 1] - second[0][i])
+    return breaks, cps, ycps
+
+
+def law_params(vf: VehicleFile, hover: float, tilt_rad: float) -> LawParams:
+    """The module's law parameters: the vehicle file's attitude-mode gains and model, PX4's
+    hover thrust and tilt limit."""
+    cfg = vf.tracking_config(tilt_rad)
+    g = cfg.gains
+    p = vf.params
+
+    def three(a: object) -> tuple[float, float, float]:
+        x = np.asarray(a, dtype=np.float64)
+        return float(x[0]), float(x[1]), float(x[2])
+
+    return LawParams(three(g.kp()), three(g.kd()), three(g.ki()), three(g.i_max()), hover,
+                     p.drag if cfg.drag_feedforward else 0.0, p.mass, p.g, cfg.thrust_min,
+                     cfg.thrust_max, cfg.max_tilt_rad, cfg.drag_velocity == "estimate",
+                     cfg.attitude_lead_s)
