@@ -8,6 +8,11 @@ Logs go to one folder: rotating ``.tlog`` files (a new one at every arming and w
 past ``tlog_max_bytes``; the newest ``tlog_keep`` are kept) and ``events.jsonl`` (one JSON object
 per line: ``t`` UNIX seconds, ``event``, fields). SIGTERM/SIGINT: Hold first if the vehicle flies
 on our stream in OFFBOARD (while still streaming), then stop.
+
+With ``--onboard`` (:mod:`companion.serve.onboard`) the onboard PX4 module is checked before
+anything else is sent (`check_module`: exit 2), there is no sender thread at all, the module's
+reports feed the observations, and the service's uploads are planned off the event loop and
+sent part by part with their CRC verified (`_upload_onboard`).
 """
 
 from __future__ import annotations
