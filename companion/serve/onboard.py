@@ -73,6 +73,8 @@ REUPLOAD_M = 0.5
 UPLOAD_RETRY_S = 5.0
 #: The module's reports (every 0.5 s) older than this [s] say nothing of its state.
 MODULE_STALE_S = 2.0
+#: EXTENDED_SYS_STATE's landing: no upload while PX4 lands.
+LANDED_STATE_LANDING = 4
 
 
 @dataclass(frozen=True)
@@ -132,6 +134,7 @@ class OnboardServeService(ServeService):
         self._loaded: _Loaded | None = None  # verified in the module, not flown yet
         self._flown: _Loaded | None = None  # the one the module flies
         self._retry_at = -math.inf
+        self._clock_s = 0.0  # the flown trajectory's clock, from the module's reports [s]
         self._said: tuple[int, int] | None = None  # (program, reached) last announced ready
 
     # -- inputs ------------------------------------------------------------------------------
@@ -214,6 +217,7 @@ class OnboardServeService(ServeService):
             loaded = self._loaded
             if loaded is not None and mstate in (STATE_FLYING, STATE_HOLDING):
                 self.state, self._flown, self._loaded = "onboard", loaded, None
+                self._clock_s = 0.0
                 out += [Announce(f"ecca: module flying mission from {self._progress_text()}"),
                         LogEvent("state", {"state": "onboard",
                                            "t_join": round(loaded.traj.t_join, 3),
@@ -238,20 +242,23 @@ class OnboardServeService(ServeService):
         assert fl is not None
         mstate = None if ack is None else ack.state
         if (ack is not None and ack.op == OP_STATUS and not ack.crc and not ack.start
-                and mstate in (STATE_FLYING, STATE_HOLDING, STATE_DONE)
-                and prog is fl.req.program):
-            clock = ack.value / 1000.0
-            t = fl.traj.t_join + max(0.0, clock - fl.traj.join_s)
-            self.t_progress = max(self.t_progress, min(t, prog.t_end))
-            while (self.reached < len(prog.wp_times) and prog.wp_times[self.reached] <= t
-                   and clock >= fl.traj.join_s):
+                and mstate in (STATE_FLYING, STATE_HOLDING, STATE_DONE)):
+            self._clock_s = max(self._clock_s, ack.value / 1000.0)
+            t = fl.traj.t_join + max(0.0, self._clock_s - fl.traj.join_s)
+            while (prog is fl.req.program and self.reached < len(prog.wp_times)
+                   and prog.wp_times[self.reached] <= t and self._clock_s >= fl.traj.join_s):
                 self.reached += 1
-        if mstate in (STATE_HOLDING, STATE_DONE):
+            if prog is fl.req.program:
+                self.t_progress = max(self.t_progress, min(t, prog.t_end))
+        # its end: holding, done, or its clock there (a lost report)
+        if mstate in (STATE_HOLDING, STATE_DONE) or self._clock_s >= fl.traj.duration_s:
             self.done, self.state, self._flown = True, "finishing", None
             return [Announce(f"ecca: mission complete, {fl.traj.final_action} by the module"),
                     LogEvent("mission_complete", {"reached": self.reached, "onboard": True,
                                                   "final_action": fl.traj.final_action})]
-        if mstate in (STATE_STOPPED, STATE_ERROR) or not offboard:
+        # its stop: the module's own report, or out of OFFBOARD with no report from it (after
+        # a mode change its next report says STOPPED, or DONE when its end came first)
+        if mstate in (STATE_STOPPED, STATE_ERROR) or (not offboard and mstate != STATE_FLYING):
             self.state, self._flown = "hold", None
             return [Announce(f"ecca: module stopped at {self._progress_text()} (OFFBOARD "
                              f"left); OFFBOARD again flies the rest from there"),
@@ -264,6 +271,7 @@ class OnboardServeService(ServeService):
         flying and the vehicle holds still (again when it drifted or the module lost it)."""
         prog, pos = self.program, obs.position
         if (prog is None or self.done or not fresh or pos is None or self._uploading is not None
+                or obs.landed_state == LANDED_STATE_LANDING
                 or mstate is None or mstate in (STATE_FLYING, STATE_HOLDING)
                 or obs.now_s < self._retry_at or float(np.linalg.norm(pos.vel_ned)) > STILL_M_S):
             return []

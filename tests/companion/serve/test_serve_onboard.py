@@ -142,9 +142,12 @@ def test_the_modules_reports_are_announced_and_a_pilots_mode_change_is_never_fou
     svc.update(see(5.0, status(P.STATE_FLYING, int(t_wp1 * 1000) + 50), pos=(10.0, 0.5, -4.0),
                    mode=off))
     assert svc.reached >= 2 and svc.t_progress > program.t_begin
-    # the pilot's Hold: the module stops itself; the service requests nothing, streams nothing
+    # the pilot's Hold: the module stops itself (its next report says so); the service
+    # requests nothing, streams nothing
     acts = svc.update(see(5.5, status(P.STATE_FLYING, 3500), pos=(10.0, 1.0, -4.0),
                           mode=FlightMode.HOLD))
+    acts += svc.update(see(5.8, status(P.STATE_STOPPED), pos=(10.0, 1.0, -4.0),
+                           mode=FlightMode.HOLD))
     assert any("module stopped at wp" in t for t in texts(acts))
     assert not any(isinstance(a, RequestMode) for a in acts) and svc.stream is None
     # held still again: a fresh trajectory from there joins the rest of the plan
@@ -220,3 +223,31 @@ def test_serve_onboard_accepts_a_ready_module(monkeypatch: pytest.MonkeyPatch,
         asyncio.run(check_module(_Vehicle(), events))
     finally:
         events.close()
+
+
+def test_the_modules_end_counts_when_its_final_mode_is_seen_before_its_done_report(
+        program: MissionProgram) -> None:
+    """PX4's LAND (the module's final action) seen before the module's HOLDING or DONE report:
+    the module's next report decides (complete, not stopped); nothing uploaded while landing."""
+    svc = planned(program)
+    req = next(a for a in svc.update(see(1.0, status(0), pos=HOVER))
+               if isinstance(a, UploadOnboard))
+    tr = svc.plan_onboard(req)
+    assert isinstance(tr, OnboardTrajectory)
+    svc.on_uploaded(req.token, tr, 1.2)
+    off = FlightMode.OFFBOARD
+    svc.update(see(2.0, status(P.STATE_FLYING, 0), pos=HOVER, mode=off))
+    svc.update(see(9.0, status(P.STATE_FLYING, int(tr.duration_s * 1000) - 300),
+                   pos=(10.0, 8.0, -4.0), mode=off))
+    # PX4's LAND seen before the module's next report: no verdict yet
+    acts = svc.update(see(10.0, status(P.STATE_FLYING, int(tr.duration_s * 1000) - 300),
+                          pos=(10.0, 8.0, -3.9), mode=FlightMode.LAND, landed=4))
+    assert not texts(acts) and svc.state == "onboard"
+    acts = svc.update(see(10.3, status(P.STATE_DONE, int(tr.duration_s * 1000) + 1000),
+                          pos=(10.0, 8.0, -3.8), mode=FlightMode.LAND, landed=4))
+    assert any("mission complete" in t for t in texts(acts)), texts(acts)
+    assert not any("stopped" in t for t in texts(acts))
+    for k in range(5):  # slowing down near the ground: still nothing to upload
+        acts = svc.update(see(11.0 + k, status(P.STATE_STOPPED), pos=(10.0, 8.0, -0.2),
+                              mode=FlightMode.LAND, landed=4))
+        assert not any(isinstance(a, UploadOnboard) for a in acts)
