@@ -63,6 +63,17 @@ def planned(program: MissionProgram) -> OnboardServeService:
     return svc
 
 
+def loaded(program: MissionProgram) -> tuple[OnboardServeService, OnboardTrajectory,
+                                             list[Any]]:
+    """A service whose trajectory from HOVER was uploaded and verified (and what it did)."""
+    svc = planned(program)
+    req = next(a for a in svc.update(see(1.0, status(P.STATE_READY), pos=HOVER))
+               if isinstance(a, UploadOnboard))
+    tr = svc.plan_onboard(req)
+    assert isinstance(tr, OnboardTrajectory)
+    return svc, tr, svc.on_uploaded(req.token, tr, 1.4, crc=0x1234)
+
+
 def evaluate(tr: OnboardTrajectory, t: float) -> np.ndarray:
     breaks, cps, _ = tr.segments
     i = int(np.clip(np.searchsorted(breaks, t, side="right") - 1, 0, len(cps) - 1))
@@ -122,12 +133,7 @@ def test_a_refused_upload_is_announced_nothing_flown_and_tried_again_later(
 
 def test_the_modules_reports_are_announced_and_a_pilots_mode_change_is_never_fought(
         program: MissionProgram) -> None:
-    svc = planned(program)
-    req = next(a for a in svc.update(see(1.0, status(P.STATE_READY), pos=HOVER))
-               if isinstance(a, UploadOnboard))
-    tr = svc.plan_onboard(req)
-    assert isinstance(tr, OnboardTrajectory)
-    acts = svc.on_uploaded(req.token, tr, 1.4, crc=0x1234)
+    svc, tr, acts = loaded(program)
     assert any("onboard ready" in t for t in texts(acts))
     # loaded and still there: not uploaded again
     assert not any(isinstance(a, UploadOnboard)
@@ -174,12 +180,7 @@ def test_the_modules_reports_are_announced_and_a_pilots_mode_change_is_never_fou
 
 
 def test_a_module_that_refuses_the_start_is_announced(program: MissionProgram) -> None:
-    svc = planned(program)
-    req = next(a for a in svc.update(see(1.0, status(0), pos=HOVER))
-               if isinstance(a, UploadOnboard))
-    tr = svc.plan_onboard(req)
-    assert isinstance(tr, OnboardTrajectory)
-    svc.on_uploaded(req.token, tr, 1.2)
+    svc, _, _ = loaded(program)
     acts = svc.update(see(2.0, status(P.STATE_ERROR), pos=HOVER, mode=FlightMode.OFFBOARD))
     assert any("refused to start" in t for t in texts(acts))
     assert svc.stream is None and svc.state == "hold"
@@ -229,12 +230,7 @@ def test_the_modules_end_counts_when_its_final_mode_is_seen_before_its_done_repo
         program: MissionProgram) -> None:
     """PX4's LAND (the module's final action) seen before the module's HOLDING or DONE report:
     the module's next report decides (complete, not stopped); nothing uploaded while landing."""
-    svc = planned(program)
-    req = next(a for a in svc.update(see(1.0, status(0), pos=HOVER))
-               if isinstance(a, UploadOnboard))
-    tr = svc.plan_onboard(req)
-    assert isinstance(tr, OnboardTrajectory)
-    svc.on_uploaded(req.token, tr, 1.2)
+    svc, tr, _ = loaded(program)
     off = FlightMode.OFFBOARD
     svc.update(see(2.0, status(P.STATE_FLYING, 0), pos=HOVER, mode=off))
     svc.update(see(9.0, status(P.STATE_FLYING, int(tr.duration_s * 1000) - 300),
