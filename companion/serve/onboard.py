@@ -54,7 +54,9 @@ from companion.planning.onboard_segments import (
 )
 from companion.serve.program import MissionProgram
 from companion.serve.service import (
+    MAV_SEVERITY_INFO,
     MAV_SEVERITY_WARNING,
+    AbortOnboard,
     Action,
     Announce,
     LogEvent,
@@ -135,6 +137,7 @@ class OnboardServeService(ServeService):
         self._flown: _Loaded | None = None  # the one the module flies
         self._retry_at = -math.inf
         self._clock_s = 0.0  # the flown trajectory's clock, from the module's reports [s]
+        self._module_ok: bool | None = None  # its reports came lately (None: not yet seen)
         self._said: tuple[int, int] | None = None  # (program, reached) last announced ready
 
     # -- inputs ------------------------------------------------------------------------------
@@ -199,9 +202,17 @@ class OnboardServeService(ServeService):
         out: list[Action] = []
         ack = self._module(obs)
         mstate = None if ack is None else ack.state
+        if (ack is not None) != self._module_ok and (ack is not None or self._module_ok):
+            out += [Announce("ecca: onboard module answers again" if ack is not None else
+                             "ecca: onboard module silent, OFFBOARD will be refused",
+                             MAV_SEVERITY_INFO if ack is not None else MAV_SEVERITY_WARNING),
+                    LogEvent("onboard_module", {"answers": ack is not None})]
+        self._module_ok = ack is not None
         if not is_flying(obs):
             if self.state != "idle":
                 out.append(LogEvent("state", {"state": "idle", "why": "not flying"}))
+            if self._loaded is not None:  # on the ground: no OFFBOARD for an unflown one
+                out.append(AbortOnboard("the vehicle landed or disarmed"))
             self.state, self._loaded, self._flown = "idle", None, None
             return out
         offboard = obs.mode is FlightMode.OFFBOARD

@@ -36,12 +36,13 @@ from rich.console import Console
 from companion.mavlink import FlightMode, LinkConfig, VehicleLink
 from companion.mavlink.codec import MavMessage
 from companion.mission.px4_params import Px4PlanningParams
-from companion.onboard.protocol import Ack
+from companion.onboard.protocol import N_FLOATS, OP_ABORT, OP_STATUS, PROTO_NAME, Ack
 from companion.planning.config import VehicleFile, load_vehicle_file
 from companion.planning.vehicle_params import ResolvedPlanningParams, read_planning_params
 from companion.serve.onboard import OnboardServeService
 from companion.serve.program import MissionProgram, plan_program
 from companion.serve.service import (
+    AbortOnboard,
     Action,
     Announce,
     DownloadMission,
@@ -60,6 +61,9 @@ log = logging.getLogger("companion.serve")
 MSG_HOME_POSITION = 242
 MAV_MISSION_TYPE_FENCE = 1
 _TS_BYTES = 8
+#: serve --onboard: ask the onboard module for its state when it has not reported for this
+#: long [s] (it reports every 0.5 s to whoever asked last)
+MODULE_POLL_S = 2.0
 
 
 @dataclass(frozen=True)
@@ -276,6 +280,9 @@ class _Session:
                 self._spawn(self._plan_join(a))
             elif isinstance(a, UploadOnboard):
                 self._spawn(self._upload_onboard(a))
+            elif isinstance(a, AbortOnboard):
+                self.events.write("onboard_abort", why=a.why)
+                self._module_request(OP_ABORT)
 
     def announce(self, text: str, severity: int) -> None:
         self._text_id = self._text_id % 65535 + 1
@@ -305,6 +312,12 @@ class _Session:
         except Exception as exc:  # a planner failure holds, with its reason
             result = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         self.perform(self.service.on_joined(req.token, result, time.monotonic()))
+
+    def _module_request(self, op: int) -> None:
+        """One message to the onboard module (STATUS: also makes us the peer it reports to)."""
+        cfg = self.v.link.config
+        self.v.send_float_array(PROTO_NAME, op, [float(cfg.sysid), float(cfg.compid)]
+                                + [0.0] * (N_FLOATS - 2))
 
     async def _follow_module(self) -> None:
         """The onboard module's reports (its status every 0.5 s, its answers), the latest kept
@@ -406,12 +419,17 @@ class _Session:
         # read the planning parameters beside the hold stream (never delay it); a mission
         # download waits for them before it is planned
         self._px4 = asyncio.get_running_loop().create_task(self.read_px4_params())
+        polled = time.monotonic()  # (check_module asked the module at connect)
         try:
             while not stop.is_set():
                 obs = self.observe()
                 if obs.armed and not self._armed:
                     self.tlog.rotate()  # one .tlog per flight
                 self._armed = obs.armed
+                if self.opts.onboard and (obs.module_t_s is None or obs.now_s - obs.module_t_s
+                                          > MODULE_POLL_S) and obs.now_s - polled > MODULE_POLL_S:
+                    polled = obs.now_s  # a module restarted since reports to no one: ask it
+                    self._module_request(OP_STATUS)
                 self.perform(self.service.update(obs))
                 with contextlib.suppress(TimeoutError):
                     async with asyncio.timeout(0.05):  # 20 Hz service loop

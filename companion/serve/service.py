@@ -193,7 +193,16 @@ class UploadOnboard:
     t_progress: float  # schedule time flown so far [s]
 
 
-Action = DownloadMission | RequestMode | Announce | LogEvent | PlanJoin | UploadOnboard
+@dataclass(frozen=True)
+class AbortOnboard:
+    """serve --onboard: have the onboard module drop the trajectory it holds, not flown (it
+    keeps OFFBOARD available while it holds one)."""
+
+    why: str
+
+
+Action = (DownloadMission | RequestMode | Announce | LogEvent | PlanJoin | UploadOnboard
+          | AbortOnboard)
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ from companion.serve.onboard import (
 from companion.serve.program import MissionProgram, plan_program
 from companion.serve.runner import check_module
 from companion.serve.service import (
+    AbortOnboard,
     Announce,
     LogEvent,
     Observation,
@@ -247,3 +248,19 @@ def test_the_modules_end_counts_when_its_final_mode_is_seen_before_its_done_repo
         acts = svc.update(see(11.0 + k, status(P.STATE_STOPPED), pos=(10.0, 8.0, -0.2),
                               mode=FlightMode.LAND, landed=4))
         assert not any(isinstance(a, UploadOnboard) for a in acts)
+
+
+def test_an_unflown_trajectory_is_dropped_on_landing_and_a_silent_module_is_announced(
+        program: MissionProgram) -> None:
+    svc, _, _ = loaded(program)
+    last = dataclasses.replace(see(2.0, status(P.STATE_LOADED), pos=HOVER), module_t_s=1.5)
+    assert not texts(svc.update(last))  # its last report 0.5 s ago: it answers
+    acts = svc.update(dataclasses.replace(last, now_s=4.0))  # 2.5 s ago: silent
+    assert any("onboard module silent" in t for t in texts(acts))
+    acts = svc.update(see(4.5, status(P.STATE_LOADED), pos=HOVER))
+    assert any("answers again" in t for t in texts(acts))
+    acts = svc.update(see(5.0, status(P.STATE_LOADED), pos=(0.2, 0.1, 0.0), armed=False,
+                          landed=1))
+    assert [a for a in acts if isinstance(a, AbortOnboard)]
+    assert not any(isinstance(a, AbortOnboard)
+                   for a in svc.update(see(5.5, status(P.STATE_READY), armed=False, landed=1)))
