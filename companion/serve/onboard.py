@@ -202,12 +202,14 @@ class OnboardServeService(ServeService):
         out: list[Action] = []
         ack = self._module(obs)
         mstate = None if ack is None else ack.state
-        if (ack is not None) != self._module_ok and (ack is not None or self._module_ok):
-            out += [Announce("ecca: onboard module answers again" if ack is not None else
+        ok = ack is not None
+        if self._module_ok is not None and ok != self._module_ok:  # (seen once before)
+            out += [Announce("ecca: onboard module answers again" if ok else
                              "ecca: onboard module silent, OFFBOARD will be refused",
-                             MAV_SEVERITY_INFO if ack is not None else MAV_SEVERITY_WARNING),
-                    LogEvent("onboard_module", {"answers": ack is not None})]
-        self._module_ok = ack is not None
+                             MAV_SEVERITY_INFO if ok else MAV_SEVERITY_WARNING),
+                    LogEvent("onboard_module", {"answers": ok})]
+        if ok or self._module_ok is not None:
+            self._module_ok = ok
         if not is_flying(obs):
             if self.state != "idle":
                 out.append(LogEvent("state", {"state": "idle", "why": "not flying"}))

@@ -211,6 +211,8 @@ async def _serve_onboard_flies_the_mission(px4: Px4Sitl, logs: Path) -> None:
     assert n_sp == 0
     ev = [e["event"] for e in _events(logs)]
     assert "mission_complete" in ev and "mode_request" not in ev
+    said = [str(e["text"]) for e in _events(logs) if e["event"] == "announce"]
+    assert not any("module silent" in t or "answers again" in t for t in said), said
 
 
 def _events(logs: Path) -> list[dict[str, object]]:

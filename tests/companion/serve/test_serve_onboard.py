@@ -252,7 +252,14 @@ def test_the_modules_end_counts_when_its_final_mode_is_seen_before_its_done_repo
 
 def test_an_unflown_trajectory_is_dropped_on_landing_and_a_silent_module_is_announced(
         program: MissionProgram) -> None:
-    svc, _, _ = loaded(program)
+    svc = planned(program)
+    assert not texts(svc.update(see(0.5, None, pos=HOVER)))  # no report yet: nothing said
+    acts = svc.update(see(1.0, status(P.STATE_READY), pos=HOVER))
+    assert not texts(acts)  # its first report: nothing said either
+    req = next(a for a in acts if isinstance(a, UploadOnboard))
+    tr = svc.plan_onboard(req)
+    assert isinstance(tr, OnboardTrajectory)
+    svc.on_uploaded(req.token, tr, 1.4)
     last = dataclasses.replace(see(2.0, status(P.STATE_LOADED), pos=HOVER), module_t_s=1.5)
     assert not texts(svc.update(last))  # its last report 0.5 s ago: it answers
     acts = svc.update(dataclasses.replace(last, now_s=4.0))  # 2.5 s ago: silent
