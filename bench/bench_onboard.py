@@ -49,11 +49,11 @@ from udp_degrade import DegradedLink  # noqa: E402
 
 from companion.aio import Vehicle, VehicleConfig  # noqa: E402
 from companion.aio.onboard import module_states, upload  # noqa: E402
-from companion.app.fly_onboard import law_params  # noqa: E402
 from companion.control import Reference  # noqa: E402
 from companion.mavlink import FlightMode, LinkConfig  # noqa: E402
 from companion.onboard import protocol as P  # noqa: E402, N812
 from companion.planning.config import VehicleFile  # noqa: E402
+from companion.planning.onboard_segments import law_params  # noqa: E402
 from companion.trajectory.bezier import hermite  # noqa: E402
 from gen_c import px4module  # noqa: E402
 from px4_harness import Px4Sitl, find_px4_sitl, flight_lock  # noqa: E402

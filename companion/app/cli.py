@@ -320,7 +320,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         connect=args.connect, mode=args.mode, rate_hz=args.rate, vehicle_file=args.vehicle_file,
         log_dir=args.log_dir, target_system=args.target_system,
         tlog_max_bytes=int(args.tlog_max_mb * 1024 * 1024), tlog_keep=args.tlog_keep,
-        signing_key=args.signing_key,
+        signing_key=args.signing_key, onboard=args.onboard,
     )
     return _run_vehicle_command(lambda: asyncio.run(serve(opts, console)))
 
@@ -517,6 +517,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="start a new .tlog beyond this size [MiB] (default 64)")
     sv.add_argument("--tlog-keep", type=int, default=20,
                     help="keep the newest N .tlog files (default 20)")
+    sv.add_argument("--onboard", action="store_true",
+                    help="the onboard PX4 module (gen_c/px4_module) flies the mission: checked "
+                         "at start (absent or not ready: exit 2), the trajectory uploaded "
+                         "while the vehicle holds, no setpoint streamed (attitude mode; see "
+                         "docs/guides/onboard.md)")
     add_signing_option(sv)
     sv.set_defaults(func=_cmd_serve)
 

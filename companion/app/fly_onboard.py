@@ -24,15 +24,6 @@ import numpy as np
 from rich.console import Console
 from rich.markup import escape
 
-from companion.flight.onboard import (
-    HOLD_S,
-    START_TOLERANCE_M,
-    OnboardError,
-    Segments,
-    law_from_tracking,
-    schedule_segments,
-    trajectory_segments,
-)
 from companion.flight.policy import HANDOVER_HEIGHT_M
 from companion.flight.report import FloatArray, SetpointLimits, TrackRecorder, missed_result
 from companion.mavlink import FlightMode, LinkConfig
@@ -44,11 +35,18 @@ from companion.onboard.protocol import (
     STATE_NAMES,
     STATE_READY,
     STATE_STOPPED,
-    LawParams,
     Upload,
     encode_upload,
 )
-from companion.planning.config import VehicleFile
+from companion.planning.onboard_segments import (
+    HOLD_S,
+    START_TOLERANCE_M,
+    OnboardError,
+    Segments,
+    law_params,
+    schedule_segments,
+    trajectory_segments,
+)
 from companion.planning.vehicle_params import read_planning_params
 
 from .fly import (
@@ -83,12 +81,6 @@ def planned_segments(planned: PlannedFlight, origin: FloatArray) -> Segments:
     out: Segments = ([float(traj.breaks[0])], [], [])
     trajectory_segments(out, traj, traj.yaw, 0.0, origin)
     return out
-
-
-def law_params(vf: VehicleFile, hover: float, tilt_rad: float) -> LawParams:
-    """The module's law parameters: the vehicle file's attitude-mode gains and model, PX4's
-    hover thrust and tilt limit."""
-    return law_from_tracking(vf.tracking_config(tilt_rad), hover)
 
 
 async def fly_onboard(opts: FlyOptions, console: Console) -> int:

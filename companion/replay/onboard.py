@@ -5,7 +5,7 @@
 Order: wait for a healthy vehicle; ask the module for its state (OP_STATUS until it answers;
 no answer within STATUS_TIMEOUT_S, or not ready: the flight fails with nothing else sent);
 convert the schedule to the module's segments at where the vehicle stands
-(`companion.flight.onboard.schedule_segments`); upload them with the sans-IO `Uploader`
+(`companion.planning.onboard_segments.schedule_segments`); upload them with the sans-IO `Uploader`
 (each part acknowledged, the CRC-32 echoed); OFFBOARD, arm; then follow the module's reports
 until it is done and PX4's final action (land, RTL) disarmed the vehicle, or hold is reached.
 The companion streams no setpoint. The flight's clock is the module's: its start report gives
@@ -22,12 +22,6 @@ import numpy as np
 
 from companion.aio.tlog import TlogWriter
 from companion.control import TrackingConfig
-from companion.flight.onboard import (
-    HOLD_S,
-    START_TOLERANCE_M,
-    law_from_tracking,
-    schedule_segments,
-)
 from companion.flight.report import SetpointLimits
 from companion.flight.summary import FlightLog
 from companion.flight.tracking import vehicle_limited
@@ -53,6 +47,12 @@ from companion.onboard.protocol import (
     Uploader,
     decode_ack,
     encode_upload,
+)
+from companion.planning.onboard_segments import (
+    HOLD_S,
+    START_TOLERANCE_M,
+    law_from_tracking,
+    schedule_segments,
 )
 from companion.planning.schedule import Schedule
 from companion.replay.config import ReplayConfig

@@ -8,6 +8,11 @@ Logs go to one folder: rotating ``.tlog`` files (a new one at every arming and w
 past ``tlog_max_bytes``; the newest ``tlog_keep`` are kept) and ``events.jsonl`` (one JSON object
 per line: ``t`` UNIX seconds, ``event``, fields). SIGTERM/SIGINT: Hold first if the vehicle flies
 on our stream in OFFBOARD (while still streaming), then stop.
+
+With ``--onboard`` (:mod:`companion.serve.onboard`) the onboard PX4 module is checked before
+anything else is sent (`check_module`: exit 2), there is no sender thread at all, the module's
+reports feed the observations, and the service's uploads are planned off the event loop and
+sent part by part with their CRC verified (`_upload_onboard`).
 """
 
 from __future__ import annotations
@@ -31,10 +36,13 @@ from rich.console import Console
 from companion.mavlink import FlightMode, LinkConfig, VehicleLink
 from companion.mavlink.codec import MavMessage
 from companion.mission.px4_params import Px4PlanningParams
+from companion.onboard.protocol import N_FLOATS, OP_ABORT, OP_STATUS, PROTO_NAME, Ack
 from companion.planning.config import VehicleFile, load_vehicle_file
 from companion.planning.vehicle_params import ResolvedPlanningParams, read_planning_params
+from companion.serve.onboard import OnboardServeService
 from companion.serve.program import MissionProgram, plan_program
 from companion.serve.service import (
+    AbortOnboard,
     Action,
     Announce,
     DownloadMission,
@@ -46,12 +54,16 @@ from companion.serve.service import (
     RequestMode,
     ServeService,
     ServiceConfig,
+    UploadOnboard,
 )
 
 log = logging.getLogger("companion.serve")
 MSG_HOME_POSITION = 242
 MAV_MISSION_TYPE_FENCE = 1
 _TS_BYTES = 8
+#: serve --onboard: ask the onboard module for its state when it has not reported for this
+#: long [s] (it reports every 0.5 s to whoever asked last)
+MODULE_POLL_S = 2.0
 
 
 @dataclass(frozen=True)
@@ -68,6 +80,7 @@ class ServeOptions:
     tlog_keep: int = 20
     connect_timeout_s: float = 10.0
     signing_key: bytes | None = None  # MAVLink 2 signing (32-byte key) when set
+    onboard: bool = False  # the onboard PX4 module flies (companion.serve.onboard)
 
 
 class RotatingTlog:
@@ -170,9 +183,11 @@ class _Session:
     """One connected Vehicle driven by the service until ``stop`` is set."""
 
     def __init__(self, v: Any, service: ServeService, events: EventLog, tlog: RotatingTlog,
-                 opts: ServeOptions, px4_overrides: dict[str, float] | None = None) -> None:
+                 opts: ServeOptions, vehicle_file: VehicleFile | None = None) -> None:
         self.v, self.service, self.events, self.tlog, self.opts = v, service, events, tlog, opts
-        self.px4_overrides = px4_overrides or {}  # the vehicle file's [px4] table
+        self.vehicle_file = vehicle_file or VehicleFile()
+        self.px4_overrides = self.vehicle_file.px4_overrides  # the vehicle file's [px4] table
+        self.module: tuple[Ack, float] | None = None  # the onboard module's latest report
         self._tasks: set[asyncio.Task[None]] = set()
         self._mode_task: asyncio.Task[None] | None = None
         self._text_id = 0
@@ -218,7 +233,9 @@ class _Session:
             landed_state=None if ext is None else ext.landed_state, position=snap.position,
             yaw=None if snap.attitude is None else _yaw(snap.attitude.q_wxyz), home=snap.home,
             mission=v.link.telemetry.mission_current,
-            attitude_q=None if snap.attitude is None else snap.attitude.q_wxyz)
+            attitude_q=None if snap.attitude is None else snap.attitude.q_wxyz,
+            module=None if self.module is None else self.module[0],
+            module_t_s=None if self.module is None else self.module[1])
 
     def producer(self, now: float) -> bytes | None:
         s = self.service.stream
@@ -261,6 +278,11 @@ class _Session:
                 self._spawn(self._download_and_plan(a.key))
             elif isinstance(a, PlanJoin):
                 self._spawn(self._plan_join(a))
+            elif isinstance(a, UploadOnboard):
+                self._spawn(self._upload_onboard(a))
+            elif isinstance(a, AbortOnboard):
+                self.events.write("onboard_abort", why=a.why)
+                self._module_request(OP_ABORT)
 
     def announce(self, text: str, severity: int) -> None:
         self._text_id = self._text_id % 65535 + 1
@@ -290,6 +312,54 @@ class _Session:
         except Exception as exc:  # a planner failure holds, with its reason
             result = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         self.perform(self.service.on_joined(req.token, result, time.monotonic()))
+
+    def _module_request(self, op: int) -> None:
+        """One message to the onboard module (STATUS: also makes us the peer it reports to)."""
+        cfg = self.v.link.config
+        self.v.send_float_array(PROTO_NAME, op, [float(cfg.sysid), float(cfg.compid)]
+                                + [0.0] * (N_FLOATS - 2))
+
+    async def _follow_module(self) -> None:
+        """The onboard module's reports (its status every 0.5 s, its answers), the latest kept
+        for the observations."""
+        from companion.aio.onboard import module_states
+
+        async for t_s, ack in module_states(self.v):
+            self.module = (ack, t_s)
+
+    async def _upload_onboard(self, req: UploadOnboard) -> None:
+        """Plan the onboard trajectory off the event loop, upload it and verify its CRC."""
+        from companion.aio import VehicleError
+        from companion.aio.onboard import upload
+        from companion.flight.report import SetpointLimits
+        from companion.onboard.protocol import encode_upload
+        from companion.planning.onboard_segments import HOLD_S, START_TOLERANCE_M, law_params
+        from companion.serve.onboard import OnboardTrajectory
+
+        svc = self.service
+        assert isinstance(svc, OnboardServeService)
+        result: OnboardTrajectory | str
+        crc = 0
+        try:
+            result = await asyncio.to_thread(svc.plan_onboard, req)
+            if isinstance(result, OnboardTrajectory):
+                px4 = await self._px4 if self._px4 is not None else None
+                if isinstance(px4, str):
+                    raise ValueError(px4)
+                hover = (await self.v.read_params(["MPC_THR_HOVER"]))["MPC_THR_HOVER"]
+                tilt = SetpointLimits.of_px4(px4 or Px4PlanningParams()).tilt_max_rad
+                cfg = self.v.link.config
+                up = encode_upload(*result.segments, law_params(self.vehicle_file, hover, tilt),
+                                   sysid=cfg.sysid, compid=cfg.compid,
+                                   final_action=result.final_action, hold_s=HOLD_S,
+                                   start_tolerance_m=START_TOLERANCE_M)
+                u = await upload(self.v, up)
+                crc = up.crc
+                if not u.verified:
+                    result = f"not verified ({u.failed})"
+        except (ValueError, VehicleError, TimeoutError) as exc:
+            result = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        self.perform(svc.on_uploaded(req.token, result, time.monotonic(), crc))
 
     async def _download_and_plan(self, key: tuple[int, int]) -> None:
         from companion.aio import VehicleError
@@ -339,18 +409,27 @@ class _Session:
         def on_sent(frame: bytes, _t: float) -> None:
             self.tlog.write(frame)
 
-        streamer = FixedRateStreamer(self.opts.rate_hz, send, self.producer, on_sent=on_sent,
-                                     name="serve-streamer")
-        streamer.start()
+        streamer = None
+        if self.opts.onboard:  # the module flies: no setpoint stream at all
+            self._spawn(self._follow_module())
+        else:
+            streamer = FixedRateStreamer(self.opts.rate_hz, send, self.producer,
+                                         on_sent=on_sent, name="serve-streamer")
+            streamer.start()
         # read the planning parameters beside the hold stream (never delay it); a mission
         # download waits for them before it is planned
         self._px4 = asyncio.get_running_loop().create_task(self.read_px4_params())
+        polled = time.monotonic()  # (check_module asked the module at connect)
         try:
             while not stop.is_set():
                 obs = self.observe()
                 if obs.armed and not self._armed:
                     self.tlog.rotate()  # one .tlog per flight
                 self._armed = obs.armed
+                if self.opts.onboard and (obs.module_t_s is None or obs.now_s - obs.module_t_s
+                                          > MODULE_POLL_S) and obs.now_s - polled > MODULE_POLL_S:
+                    polled = obs.now_s  # a module restarted since reports to no one: ask it
+                    self._module_request(OP_STATUS)
                 self.perform(self.service.update(obs))
                 with contextlib.suppress(TimeoutError):
                     async with asyncio.timeout(0.05):  # 20 Hz service loop
@@ -368,13 +447,37 @@ class _Session:
                 elif isinstance(a, LogEvent):
                     self.events.write(a.event, **a.fields)
         finally:
-            streamer.stop()
+            if streamer is not None:
+                streamer.stop()
             self.service.stream = None
             for t in [*self._tasks, *([self._px4] if self._px4 is not None else [])]:
                 t.cancel()
             for t in [*self._tasks, *([self._px4] if self._px4 is not None else [])]:
                 with contextlib.suppress(asyncio.CancelledError, Exception):
                     await t
+
+
+async def check_module(v: Any, events: EventLog) -> None:
+    """`serve --onboard`: the onboard module answers and is ready for a trajectory (not
+    receiving or flying one); else OnboardError (exit 2), with nothing else sent."""
+    from companion.aio.onboard import module_status
+    from companion.onboard.protocol import (
+        STATE_FLYING,
+        STATE_HOLDING,
+        STATE_NAMES,
+        STATE_RECEIVING,
+    )
+    from companion.planning.onboard_segments import OnboardError
+
+    st = await module_status(v)
+    if st is None:
+        events.write("onboard_module", state=None)
+        raise OnboardError("no onboard module answers (load it: `dyn FILE.px4mod start`, see "
+                           "docs/guides/onboard.md); nothing was sent to fly")
+    name = STATE_NAMES.get(st.state, str(st.state))
+    events.write("onboard_module", state=name)
+    if st.state in (STATE_RECEIVING, STATE_FLYING, STATE_HOLDING):
+        raise OnboardError(f"the onboard module is {name}: not ready")
 
 
 async def serve(opts: ServeOptions, console: Console) -> int:
@@ -388,12 +491,17 @@ async def serve(opts: ServeOptions, console: Console) -> int:
         raise ValueError(f"--mode must be position, attitude or rates, got {opts.mode!r}")
     if not 2.0 < opts.rate_hz <= 500.0:
         raise ValueError(f"--rate must be above 2 Hz and at most 500, got {opts.rate_hz:g}")
+    if opts.onboard and opts.mode != "attitude":
+        raise ValueError("--onboard: the onboard module flies attitude setpoints "
+                         "(--mode attitude)")
     folder = Path(opts.log_dir)
     folder.mkdir(parents=True, exist_ok=True)
     config = ServiceConfig(setpoint_mode=opts.mode, params=vf.params,  # type: ignore[arg-type]
                            limits=vf.limits, tracking=vf.tracking_config(math.radians(50.0)),
                            rate_hz=opts.rate_hz)
-    service = ServeService(config, defer_join=True)
+    service = OnboardServeService(config) if opts.onboard else ServeService(config,
+                                                                            defer_join=True)
+    module_checked = not opts.onboard
     events = EventLog(folder / "events.jsonl", console)
     tlog = RotatingTlog(folder, opts.tlog_max_bytes, opts.tlog_keep)
     stop = asyncio.Event()
@@ -421,7 +529,10 @@ async def serve(opts: ServeOptions, console: Console) -> int:
             v.tlog = tlog  # type: ignore[assignment]  # same write/close interface
             events.write("connected", url=opts.connect)
             try:
-                await _Session(v, service, events, tlog, opts, vf.px4_overrides).run(stop)
+                if not module_checked:  # before anything else is sent: the module is there
+                    await check_module(v, events)
+                    module_checked = True
+                await _Session(v, service, events, tlog, opts, vf).run(stop)
             finally:
                 await v.close()
     finally:

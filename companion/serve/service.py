@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -60,13 +59,14 @@ from companion.mavlink.px4_mode import FlightMode
 from companion.mavlink.setpoints import PositionSetpoint, SetpointCommand
 from companion.mavlink.telemetry import HomePosition, LocalPosition, MissionCurrent
 from companion.mission.px4_params import Px4PlanningParams
+from companion.onboard.protocol import Ack
 from companion.planning.schedule import (
     VehicleLimits,
     trajectory_reference,
 )
 from companion.planning.wind import WindCheck, check_wind
 from companion.serve.program import MissionProgram
-from companion.trajectory import Limits, check, plan
+from companion.trajectory import Limits, PiecewiseBezier, check, plan
 
 FloatArray = NDArray[np.float64]
 
@@ -131,6 +131,8 @@ class Observation:
     home: HomePosition | None = None
     mission: MissionCurrent | None = None
     attitude_q: tuple[float, float, float, float] | None = None  # ATTITUDE_QUATERNION (w, x, y, z)
+    module: Ack | None = None  # the onboard module's latest report (serve --onboard)
+    module_t_s: float | None = None  # when it came [s, the caller's monotonic clock]
 
 
 @dataclass(frozen=True)
@@ -178,7 +180,29 @@ class PlanJoin:
     t_progress: float  # schedule time flown so far [s]
 
 
-Action = DownloadMission | RequestMode | Announce | LogEvent | PlanJoin
+@dataclass(frozen=True)
+class UploadOnboard:
+    """serve --onboard: plan the trajectory from ``obs`` (``OnboardServeService.plan_onboard``,
+    off the caller's event loop), upload it to the onboard module with its CRC verified, then
+    call ``on_uploaded`` with ``token`` and the result."""
+
+    token: int
+    program: MissionProgram
+    obs: Observation  # where the vehicle holds
+    reached: int  # waypoints reached so far
+    t_progress: float  # schedule time flown so far [s]
+
+
+@dataclass(frozen=True)
+class AbortOnboard:
+    """serve --onboard: have the onboard module drop the trajectory it holds, not flown (it
+    keeps OFFBOARD available while it holds one)."""
+
+    why: str
+
+
+Action = (DownloadMission | RequestMode | Announce | LogEvent | PlanJoin | UploadOnboard
+          | AbortOnboard)
 
 
 @dataclass(frozen=True)
@@ -214,6 +238,11 @@ class MissionStream:
 
 
 Stream = HoldStream | MissionStream
+
+
+def is_flying(obs: Observation) -> bool:
+    """Armed and, when PX4 reports it, in the air (taking off, flying or landing)."""
+    return obs.armed and (obs.landed_state is None or obs.landed_state in FLYING_STATES)
 
 
 def _yaw_of(ref: Reference) -> float:
@@ -253,14 +282,21 @@ class ServeService:
     # -- inputs ------------------------------------------------------------------------------
     def update(self, obs: Observation) -> list[Action]:
         """Advance on a new observation; returns the actions to perform."""
-        self._obs = obs
         out: list[Action] = []
+        fresh = self._observe(obs, out)
+        return out if fresh is None else out + self._decide(obs, fresh)
+
+    def _observe(self, obs: Observation, out: list[Action]) -> bool | None:
+        """What every mode of the service follows (the link, the mode, the mission on the
+        vehicle, the waypoints reached, a disarm's reset), into ``out``; None when the link is
+        down, else whether the position is fresh."""
+        self._obs = obs
         if obs.link_ok != self._link_ok:
             self._link_ok = obs.link_ok
             out.append(LogEvent("link", {"ok": obs.link_ok}))
         if not obs.link_ok:
             self.stream = None  # nothing reaches the vehicle; PX4 runs its own failsafe
-            return out
+            return None
         if obs.mode is not self._last_mode:
             out.append(LogEvent("mode", {"mode": obs.mode.name if obs.mode else None,
                                          "armed": obs.armed}))
@@ -276,10 +312,15 @@ class ServeService:
                     <= prog.acceptance[self.reached]):
                 out.append(LogEvent("waypoint", {"index": self.reached}))
                 self.reached += 1
-        flying = obs.armed and (obs.landed_state is None or obs.landed_state in FLYING_STATES)
         if not obs.armed and (self.reached or self.done or self.t_progress):
             out.append(LogEvent("flight_reset", {"reached": self.reached}))
             self._reset_progress()
+        return fresh
+
+    def _decide(self, obs: Observation, fresh: bool) -> list[Action]:
+        """The streaming service's decisions on a new observation (link up)."""
+        out: list[Action] = []
+        flying = is_flying(obs)
         if not flying:
             if self.state != "idle":
                 out.append(LogEvent("state", {"state": "idle", "why": "not flying"}))
@@ -527,6 +568,33 @@ class ServeService:
 
     def _join(self, prog: MissionProgram, obs: Observation, reached: int, t_progress: float
               ) -> MissionStream:
+        cfg = self.config
+        t_join, join = self.join_choice(prog, obs, reached, t_progress)
+        if join is None:
+            join_s = 0.0
+
+            def ref(t: float) -> Reference:
+                return prog.reference(t_join + t)
+        else:
+            join_s = join.duration
+            join_ref = trajectory_reference(join)
+
+            def ref(t: float) -> Reference:
+                if t < join_s:
+                    return join_ref(t)
+                return prog.reference(t_join + t - join_s)
+        source = TrackingSource(ref, cfg.setpoint_mode, cfg.params,
+                                tracking=cfg.tracking if cfg.setpoint_mode in ("attitude", "rates")
+                                else None,
+                                limits=SetpointLimits.of_px4(cfg.px4 or Px4PlanningParams()))
+        return MissionStream(source, obs.now_s, join_s, t_join)
+
+    def join_choice(self, prog: MissionProgram, obs: Observation, reached: int,
+                    t_progress: float) -> tuple[float, PiecewiseBezier | None]:
+        """Where to join ``prog`` from ``obs`` (its fresh position) with ``reached`` waypoints
+        and ``t_progress`` [s] flown: (the schedule time where the join ends [s], the joining
+        trajectory in local NED with its yaw, or None when already there). ValueError if no
+        join keeps the limits."""
         assert obs.position is not None
         cfg = self.config
         here = np.asarray(obs.position.pos_ned, dtype=np.float64)
@@ -545,7 +613,7 @@ class ServeService:
         # ending on the plan's velocity and acceleration or on its velocity only (an
         # acceleration step the controller absorbs, counted as JOIN_ACC_STEP_S later); the
         # earliest end of the mission wins (each candidate takes ~5-50 ms)
-        best: tuple[float, tuple[Callable[[float], Reference], float] | None] | None = None
+        best: tuple[float, PiecewiseBezier | None] | None = None
         best_end = math.inf
         last: Exception | None = None
         t_cands = [prog.lead_in(here, t_near, frac * cfg.limits.max_acc_m_s2)
@@ -560,36 +628,18 @@ class ServeService:
                 except ValueError as exc:
                     last = exc
                     continue
-                t_mission_end = ((cand[1] if cand else 0.0) + prog.t_end - t_cand
+                t_mission_end = ((cand.duration if cand else 0.0) + prog.t_end - t_cand
                                  + (0.0 if with_acc else JOIN_ACC_STEP_S))
                 if t_mission_end < best_end:
                     best, best_end = (t_cand, cand), t_mission_end
         if best is None:
             assert last is not None
             raise last
-        t_join, join = best
-        if join is None:
-            join_s = 0.0
-
-            def ref(t: float) -> Reference:
-                return prog.reference(t_join + t)
-        else:
-            join_ref, join_s = join
-
-            def ref(t: float) -> Reference:
-                if t < join_s:
-                    return join_ref(t)
-                return prog.reference(t_join + t - join_s)
-        source = TrackingSource(ref, cfg.setpoint_mode, cfg.params,
-                                tracking=cfg.tracking if cfg.setpoint_mode in ("attitude", "rates")
-                                else None,
-                                limits=SetpointLimits.of_px4(cfg.px4 or Px4PlanningParams()))
-        return MissionStream(source, obs.now_s, join_s, t_join)
+        return best
 
     def _join_trajectory(self, here: FloatArray, vel: FloatArray, yaw_here: float | None,
-                         target: Reference, with_acc: bool
-                         ) -> tuple[Callable[[float], Reference], float] | None:
-        """(reference function, duration [s]) from ``here`` moving at ``vel`` to ``target``
+                         target: Reference, with_acc: bool) -> PiecewiseBezier | None:
+        """The trajectory (with its yaw) from ``here`` moving at ``vel`` to ``target``
         (its position, velocity and, with ``with_acc``, acceleration), or None when already
         there. One degree-7 segment (its ends fixed through jerk), the shortest of a geometric
         series of durations that keeps the speed, acceleration and tilt limits and never backs
@@ -620,7 +670,7 @@ class ServeService:
             v_along = traj.evaluate(np.linspace(0.0, duration, JOIN_SAMPLES), 1) @ along
             if float(np.min(v_along)) >= floor and not any(
                     r.exceeded for r in check(traj, lim, cfg.params).values()):
-                return trajectory_reference(traj, yaw0), duration
+                return traj
             duration *= JOIN_STRETCH
         raise ValueError(f"no joining trajectory to the plan {dist:.1f} m away within the "
                          f"limits without backing up")

@@ -335,3 +335,14 @@ async def test_serve_refuses_a_mission_that_crosses_the_vehicles_geofence(
         assert not gcs.text_seen("ecca: mission 5 wp")
         rejected = [e for e in svc.events() if e["event"] == "mission_rejected"]
         assert rejected and "geofence" in str(rejected[0]["why"])
+
+
+async def test_serve_onboard_exits_2_when_no_onboard_module_answers(tmp_path: Path) -> None:
+    """The mock runs no onboard module: `serve --onboard` asks for its state, hears nothing,
+    and exits 2 before it reads a parameter or sends anything that could move the vehicle."""
+    port = free_udp_port()
+    async with run_mock() as mock, relay(mock.client_port, port), \
+            run_service(port, tmp_path / "logs", "--onboard") as svc:
+        assert await bounded(svc.proc.wait(), 20.0, "serve --onboard to give up") == 2
+        ev = [e["event"] for e in svc.events()]
+        assert "onboard_module" in ev and "px4_params" not in ev, ev

@@ -18,6 +18,7 @@ PURE = [
     "companion/planning",
     "companion/flight",
     "companion/serve/service.py",
+    "companion/serve/onboard.py",
 ]
 
 

@@ -22,12 +22,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from pymavlink import mavutil
-from pymavlink.dialects.v20 import common as mavlink2
 
-from companion.mission import load_mission, mission_upload_items
 from px4_harness import Px4Sitl
 from tests.integration.test_serve_mock import relay
-from tests.support.gcs import Gcs, ground_station, local_of
+from tests.support.gcs import Gcs, ground_station, local_of, plan_file_items
 from tests.support.mock_process import free_udp_port
 
 REPO = Path(__file__).resolve().parents[2]
@@ -97,12 +95,7 @@ async def test_px4_serve_flies_pauses_resumes_and_lands(px4: Px4Sitl, tmp_path: 
         async with ground_station(px4.gcs_port, px4.target_system) as gcs:
             gcs_seen.append(gcs)
             await gcs.wait_for(lambda: gcs.heartbeat is not None, 15.0, "PX4's HEARTBEAT")
-            m = load_mission(MISSION)
-            items = [mavlink2.MAVLink_mission_item_int_message(
-                px4.target_system, 1, i, u.frame, u.command, int(i == 0), u.autocontinue,
-                u.param1, u.param2, u.param3, u.param4, u.x, u.y, u.z, 0)
-                for i, u in enumerate(mission_upload_items(m))]
-            await gcs.upload_mission(items)
+            await gcs.upload_mission(plan_file_items(MISSION, px4.target_system))
             await gcs.wait_for(lambda: any(e["event"] == "mission_planned"
                                            for e in events(logs)), 20.0, "the plan")
             # the announcement reaches the ground station through PX4's forwarding
@@ -248,11 +241,7 @@ async def test_px4_serve_link_loss_and_kill_leave_it_to_px4s_failsafe(
             stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.DEVNULL)
         try:
             await gcs.wait_for(lambda: gcs.heartbeat is not None, 15.0, "PX4's HEARTBEAT")
-            m = load_mission(MISSION)
-            await gcs.upload_mission([mavlink2.MAVLink_mission_item_int_message(
-                px4.target_system, 1, i, u.frame, u.command, int(i == 0), u.autocontinue,
-                u.param1, u.param2, u.param3, u.param4, u.x, u.y, u.z, 0)
-                for i, u in enumerate(mission_upload_items(m))])
+            await gcs.upload_mission(plan_file_items(MISSION, px4.target_system))
             await gcs.wait_for(lambda: any(e["event"] == "mission_planned"
                                            for e in events(logs)), 20.0, "the plan")
             await pilot_takes_off(gcs)

@@ -200,6 +200,16 @@ def mission_item(seq: int, command: int, lat: float, lon: float, alt_rel_m: floa
         round(lat * 1e7), round(lon * 1e7), alt_rel_m, 0)
 
 
+def plan_file_items(path: Any, target_system: int) -> list[Any]:
+    """A mission file's items as the MISSION_ITEM_INTs a ground station uploads to PX4."""
+    from companion.mission import load_mission, mission_upload_items
+
+    return [mavlink2.MAVLink_mission_item_int_message(
+        target_system, 1, i, u.frame, u.command, int(i == 0), u.autocontinue, u.param1,
+        u.param2, u.param3, u.param4, u.x, u.y, u.z, 0)
+        for i, u in enumerate(mission_upload_items(load_mission(path)))]
+
+
 def local_of(home: Any, lat_deg: float, lon_deg: float) -> tuple[float, float]:
     """(north, east) [m] in the autopilot's local frame of a point near HOME_POSITION `home`:
     its local x/y plus the offset from its lat/lon (spherical Earth, R 6371 km; < 1 cm at

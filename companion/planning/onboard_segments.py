@@ -1,19 +1,24 @@
-"""What the onboard module (gen_c/px4_module) is given to fly: a plan as back-to-back Bezier
-segments (`schedule_segments`) and the tracking law's parameters (`law_from_tracking`).
-
-Shared by `fly --onboard` (companion.app.fly_onboard) and the lockstep replay's onboard flight
-(companion.replay.onboard); the upload protocol itself is `companion.onboard.protocol`.
-"""
+"""Planned flights as the onboard module's segments (companion.onboard.protocol uploads them):
+back-to-back Bezier segments (breaks [s], NED control points [m], yaw control points [rad]),
+and the module's law parameters from a vehicle file. Shared by `fly --onboard`
+(companion.app.fly_onboard), `serve --onboard` (companion.serve.onboard) and the lockstep
+replay's onboard flight (companion.replay.onboard)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numpy.typing import NDArray
 
 from companion.control import TrackingConfig
-from companion.flight.report import FloatArray
 from companion.onboard.protocol import LawParams
+from companion.planning.config import VehicleFile
 from companion.planning.schedule import Schedule
-from companion.trajectory import PiecewiseBezier
+from companion.trajectory import Bezier, PiecewiseBezier
+
+FloatArray = NDArray[np.float64]
+Segments = tuple[list[float], list[FloatArray], list[FloatArray]]
 
 #: The module refuses to start farther than this from the trajectory's start [m].
 START_TOLERANCE_M = 1.5
@@ -23,9 +28,6 @@ HOLD_S = 1.0
 
 class OnboardError(ValueError):
     """The onboard flight cannot start (exit 2): no module, not ready, refused upload."""
-
-
-Segments = tuple[list[float], list[FloatArray], list[FloatArray]]
 
 
 def trajectory_segments(out: Segments, traj: PiecewiseBezier, yaw: PiecewiseBezier | None,
@@ -72,6 +74,46 @@ def schedule_segments(schedule: Schedule, origin: FloatArray) -> Segments:
     return out
 
 
+#: Pieces shorter than this [s] left at a window's ends are dropped (their time is kept).
+MIN_SEGMENT_S = 1e-3
+
+
+def window(segs: Segments, t_from: float, t_to: float) -> Segments:
+    """The part of `segs` between its times `t_from` and `t_to` [s] (segments cut with de
+    Casteljau's split, the same curve), its breaks from 0."""
+    breaks, cps, ycps = segs
+    out: Segments = ([0.0], [], [])
+    for i in range(len(cps)):
+        a, b = breaks[i], breaks[i + 1]
+        lo, hi = max(a, t_from), min(b, t_to)
+        if hi - lo < MIN_SEGMENT_S:
+            continue
+        pos, yaw = Bezier(cps[i], b - a), Bezier(ycps[i][:, None], b - a)
+        if hi < b - MIN_SEGMENT_S:
+            pos, yaw = pos.split(hi - a)[0], yaw.split(hi - a)[0]
+        if lo > a + MIN_SEGMENT_S:
+            pos, yaw = pos.split(lo - a)[1], yaw.split(lo - a)[1]
+        out[1].append(np.array(pos.control_points))
+        out[2].append(np.array(yaw.control_points)[:, 0])
+        out[0].append(out[0][-1] + (hi - lo))
+    return out
+
+
+def concatenate(first: Segments, second: Segments) -> Segments:
+    """`first` then `second`, the yaw of `second` shifted by whole turns to go on from where
+    `first`'s ends (the module's law takes the yaw as an angle: only the jump would matter)."""
+    breaks, cps, ycps = ([*first[0]], [*first[1]], [*first[2]])
+    shift = 0.0
+    if ycps and second[2]:
+        gap = float(ycps[-1][-1]) - float(second[2][0][0])
+        shift = 2.0 * math.pi * round(gap / (2.0 * math.pi))
+    for i, (cp, ycp) in enumerate(zip(second[1], second[2], strict=True)):
+        cps.append(cp)
+        ycps.append(ycp + shift)
+        breaks.append(breaks[-1] + second[0][i + 1] - second[0][i])
+    return breaks, cps, ycps
+
+
 def law_from_tracking(cfg: TrackingConfig, hover: float) -> LawParams:
     """The module's law parameters: the attitude-mode tracking configuration's gains, model
     and limits, and the vehicle's hover thrust (PX4's MPC_THR_HOVER) [normalised]."""
@@ -86,3 +128,9 @@ def law_from_tracking(cfg: TrackingConfig, hover: float) -> LawParams:
                      p.drag if cfg.drag_feedforward else 0.0, p.mass, p.g, cfg.thrust_min,
                      cfg.thrust_max, cfg.max_tilt_rad, cfg.drag_velocity == "estimate",
                      cfg.attitude_lead_s)
+
+
+def law_params(vf: VehicleFile, hover: float, tilt_rad: float) -> LawParams:
+    """The module's law parameters: the vehicle file's attitude-mode gains and model, PX4's
+    hover thrust and tilt limit [rad]."""
+    return law_from_tracking(vf.tracking_config(tilt_rad), hover)
