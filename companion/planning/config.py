@@ -21,6 +21,9 @@ Example `vehicle.toml` (every key optional; defaults are PX4's SIH quadrotor)::
     ki_xy = 3.0                             # kp_xy 6, kd_xy 4.5, ki_xy 1, k_roll 6.5
     k_roll = 10.0                           # attitude gains of rates mode [1/s]
 
+    [onboard]                               # the onboard module's law (fly/serve --onboard):
+    ki_xy = 18.0                            # [tracking]'s gains with these over them
+
     [px4]                                   # PX4 parameters the mission planner uses: these
     MPC_XY_CRUISE = 8.0                     # win over the values read from the vehicle at
     NAV_ACC_RAD = 1.0                       # connect (names: companion.mission.px4_params)
@@ -46,7 +49,23 @@ _LIMIT_KEYS = {
 _GAIN_KEYS = {f.name for f in fields(TrackingGains)}
 _ATT_KEYS = {"k_roll", "k_pitch", "k_yaw"}
 _SECTIONS = {"vehicle": _VEHICLE_KEYS, "limits": _LIMIT_KEYS, "tracking": _GAIN_KEYS | _ATT_KEYS,
+             "onboard": _GAIN_KEYS,
              "px4": set()}  # [px4]: checked by check_overrides (PX4 parameter names)
+
+#: The onboard law's gains that differ from the streamed law's (`[onboard]` overrides them).
+#: The module reads PX4's estimate with no link in the loop, and its horizontal integrator can
+#: be faster. PX4's velocity estimate disagrees with the rate of its position estimate by
+#: 0.1-0.4 m/s for seconds in the SIH, and the position and velocity terms then settle on a
+#: position offset that only the integrator removes. On real PX4, figure-8 at three start times,
+#: ki_xy 18 against 3 gave 0.081-0.092 m against 0.086-0.126 m at 6 m/s and 0.095-0.189 m
+#: against 0.108-0.44 m at 8 m/s (scale 2); BENCHMARKS.md, "Onboard module", session 25.
+ONBOARD_GAINS: dict[str, float] = {"ki_xy": 18.0}
+
+
+def onboard_gains(gains: TrackingGains, overrides: dict[str, float] | None = None
+                  ) -> TrackingGains:
+    """The onboard law's gains: `gains` with ONBOARD_GAINS, then `overrides`, over them."""
+    return replace(gains, **{**ONBOARD_GAINS, **(overrides or {})})
 
 
 @dataclass(frozen=True)
@@ -64,11 +83,18 @@ class VehicleFile:
     attitude_gains: AttitudeGains = field(default_factory=AttitudeGains)
     px4_overrides: dict[str, float] = field(default_factory=dict)
     """``[px4]``: PX4 parameter values that win over those read from the vehicle."""
+    onboard_overrides: dict[str, float] = field(default_factory=dict)
+    """``[onboard]``: the onboard law's gains over ``gains`` and ONBOARD_GAINS."""
 
     def tracking_config(self, max_tilt_rad: float) -> TrackingConfig:
         """The controller configuration for attitude/rates mode (tilt limit [rad])."""
         return TrackingConfig(params=self.params, gains=self.gains,
                               attitude_gains=self.attitude_gains, max_tilt_rad=max_tilt_rad)
+
+    def onboard_tracking_config(self, max_tilt_rad: float) -> TrackingConfig:
+        """`tracking_config` with the onboard law's gains (`onboard_gains`)."""
+        cfg = self.tracking_config(max_tilt_rad)
+        return replace(cfg, gains=onboard_gains(self.gains, self.onboard_overrides))
 
 
 def _number(table: dict[str, Any], key: str, where: str, default: float) -> float:
@@ -138,6 +164,11 @@ def load_vehicle_file(path: str | Path) -> VehicleFile:
     if (any(getattr(gains, k) < 0 for k in _GAIN_KEYS)
             or any(getattr(att, k) <= 0 for k in _ATT_KEYS)):
         raise ValueError(f"{where}: gains must be >= 0 (attitude gains > 0)")
+    where = f"{p} [onboard]"
+    onb = data.get("onboard", {})
+    onboard = {k: _number(onb, k, where, 0.0) for k in _GAIN_KEYS if k in onb}
+    if any(v < 0 for v in onboard.values()):
+        raise ValueError(f"{where}: gains must be >= 0")
     px4 = check_overrides(data.get("px4", {}), f"{p} [px4]")
     return VehicleFile(params=params, limits=limits, gains=gains, attitude_gains=att,
-                       px4_overrides=px4)
+                       px4_overrides=px4, onboard_overrides=onboard)

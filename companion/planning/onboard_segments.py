@@ -132,5 +132,5 @@ def law_from_tracking(cfg: TrackingConfig, hover: float) -> LawParams:
 
 def law_params(vf: VehicleFile, hover: float, tilt_rad: float) -> LawParams:
     """The module's law parameters: the vehicle file's attitude-mode gains and model, PX4's
-    hover thrust and tilt limit [rad]."""
-    return law_from_tracking(vf.tracking_config(tilt_rad), hover)
+    hover thrust and tilt limit [rad]; the gains are the onboard law's (`[onboard]`)."""
+    return law_from_tracking(vf.onboard_tracking_config(tilt_rad), hover)
