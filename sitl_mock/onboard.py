@@ -126,7 +126,7 @@ class OnboardHost:
                                  f"upload refused: crc 0x{ack.value & 0xFFFFFFFF:08x}")
         offboard, pos_ok = self.offboard_state()
         s = self.view.state
-        out = m.step(now_us * 1e-6, offboard, pos_ok, s.pos_ned, s.vel_ned)
+        out = m.step(now_us * 1e-6, offboard, pos_ok, s.pos_ned, s.vel_ned, s.q_wxyz)
         if out.event == EV_START_REFUSED:
             self.log(mavlink.MAV_SEVERITY_ERROR, f"not flying: the vehicle is "
                      f"{out.start_error_m:.1f} m from the trajectory's start")
