@@ -59,7 +59,8 @@ def python_step(x: np.ndarray) -> list[float]:
 
 def bound_margin(x: np.ndarray) -> float:
     """|n - max_acc| / max_acc of the update's unbounded estimate (the bound's decision)."""
-    v, d = disturbance_step(fm.FLOAT, x[0:2], x[2:4], x[4:6], x[6:8], x[8], x[9], 1e300, True)
+    _, d = disturbance_step(fm.FLOAT, x[0:2], x[2:4], x[4:6], x[6:8], x[8], x[9], 1e300,
+                            True)
     return abs(math.hypot(*d) - x[10]) / x[10]
 
 
