@@ -1,12 +1,15 @@
 """The disturbance observer's update step as generated C (`ecca_disturbance_step`, double and
 float) against the Python step the companion runs (companion.control.observer on floats, the
-one `DisturbanceObserver.update` calls): random inputs (both branches, the magnitude bound) and
-a recorded sequence of an observer that converges on a constant force, fed back through the C
-step by step. Double to 1e-9, float to 1e-4 relative (scale max(|value|, 1))."""
+one `DisturbanceObserver.update` calls): random inputs (both branches, the magnitude bound), a
+recorded sequence of an observer that converges on a constant force, fed back through the C
+step by step, and the inputs the companion's observer had in a replayed flight in wind. Double
+to 1e-9, float to 1e-4 relative (scale max(|value|, 1))."""
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -24,6 +27,7 @@ from companion.control.observer import (
 from gen_c import native
 from tests.support.gen_c import assert_close
 
+ROOT = Path(__file__).resolve().parents[2]
 RTOL_DOUBLE = 1e-9
 RTOL_FLOAT = 1e-4
 
@@ -145,3 +149,36 @@ def test_refuses_a_non_positive_bandwidth_or_bound(lib: native.NativeSetpoint,
     x[index] = 0.0
     with pytest.raises(ValueError):
         lib.disturbance_step(x)
+
+
+def test_c_matches_the_companion_s_observer_in_a_replayed_flight_in_wind(
+        lib: native.NativeSetpoint, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The inputs the companion's `DisturbanceObserver` gave the step in a streamed replay of
+    px4_short in a 3 m/s wind with gusts, recorded, through the C: the same outputs."""
+    import companion.control.estimation as estimation
+    from companion.replay.config import ReplayConfig
+    from companion.replay.runner import replay_file
+
+    calls: list[tuple[np.ndarray, list[float]]] = []
+
+    def record(ops: Any, v_hat: Any, d_hat: Any, vel: Any, a_model: Any, dt: float, w: float,
+               max_acc: float, learn: bool) -> Any:
+        out = disturbance_step(ops, v_hat, d_hat, vel, a_model, dt, w, max_acc, learn)
+        x = np.array([*v_hat, *d_hat, *vel, *a_model, dt, w, max_acc, float(learn)])
+        calls.append((x, [*out[0], *out[1]]))
+        return out
+
+    monkeypatch.setattr(estimation, "disturbance_step", record)
+    res = replay_file(ROOT / "tests" / "data" / "missions" / "px4_short.plan", tmp_path,
+                      ReplayConfig(wind_m_s=3.0, seed=2,
+                                   mock_params=(("SIM_WIND_GUST", 1.0),)))
+    assert res.ok
+    learning = [c for c in calls if c[0][11] > 0.5]
+    assert len(learning) >= 300
+    assert max(math.hypot(y[2], y[3]) for _, y in learning) > 1.0  # it learnt the wind
+    for k, (x, y) in enumerate(calls):
+        assert_close(lib.disturbance_step(x), y, RTOL_DOUBLE, f"double #{k}")
+        xf = f32(x)
+        if x[11] > 0.5 and bound_margin(xf) > 1e-3:
+            assert_close(lib.disturbance_step(xf, precision="float"), python_step(xf),
+                         RTOL_FLOAT, f"float #{k}")
