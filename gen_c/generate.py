@@ -413,6 +413,7 @@ def library_functions(variant: str) -> list[ca.Function]:
         full_function(f"ecca_{variant}_full", bezier, multirotor),
         ackermann_function(f"ecca_{variant}_ackermann", sf.rover),
         tracking_core_function(f"ecca_{variant}_tracking_core"),
+        disturbance_step_function(f"ecca_{variant}_disturbance_step"),
     ]
 
 
@@ -427,8 +428,20 @@ def tracking_core_function(name: str) -> ca.Function:
     return ca.Function(name, [x], [ca.cse(f(x))], ["x"], ["y"])
 
 
+def disturbance_step_function(name: str) -> ca.Function:
+    """The disturbance observer's update step (``companion.control.observer``, the expressions
+    `DisturbanceObserver` runs): one input vector (``DIST_INPUTS``), one output vector
+    (``DIST_OUTPUTS``), common subexpressions shared."""
+    from companion.control.observer import symbolic_disturbance_step
+
+    f = symbolic_disturbance_step(name)
+    x = ca.SX.sym("x", f.size1_in(0))
+    return ca.Function(name, [x], [ca.cse(f(x))], ["x"], ["y"])
+
+
 def _info_header() -> str:
     from companion.control.core import CORE_N_IN, CORE_N_OUT
+    from companion.control.observer import DIST_N_IN, DIST_N_OUT
 
     return (
         "/* ecca_setpoint: ecca_setpoint_gen.h\n"
@@ -439,6 +452,8 @@ def _info_header() -> str:
         + f"#define ECCA_GEN_BEZIER_DEGREE {BEZIER_DEGREE}\n"
         + f"#define ECCA_GEN_CORE_N_IN {CORE_N_IN}\n"
         + f"#define ECCA_GEN_CORE_N_OUT {CORE_N_OUT}\n"
+        + f"#define ECCA_GEN_DIST_N_IN {DIST_N_IN}\n"
+        + f"#define ECCA_GEN_DIST_N_OUT {DIST_N_OUT}\n"
         + "\n#endif /* ECCA_SETPOINT_GEN_H */\n"
     )
 

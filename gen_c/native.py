@@ -313,6 +313,7 @@ class NativeSetpoint:
                                    [P(s["segment"]), real, real, P(s["state"]),
                                     P(s["steering"])]),
                 "tracking_core": ("ecca_tracking_core", [P(real), P(real)]),
+                "disturbance_step": ("ecca_disturbance_step", [P(real), P(real)]),
             }
             for key, (cname, argtypes) in sig.items():
                 fn = getattr(self._lib, cname + sfx)
@@ -467,6 +468,18 @@ class NativeSetpoint:
         xin = (real * 60)(*_vec(x, 60, "x").tolist())
         out = (real * 16)()
         self._call(precision, "tracking_core", xin, out)
+        return np.array(out[:], dtype=np.float64)
+
+    def disturbance_step(self, x: npt.ArrayLike, *,
+                         precision: Precision = "double") -> FloatArray:
+        """``ecca_disturbance_step``: the disturbance observer's update on one input vector `x`
+        (the 12 values of ``companion.control.observer.DIST_INPUTS``); the 4 outputs
+        (``DIST_OUTPUTS``: v_hat, d_hat). ValueError on a refused input or a non-finite
+        result."""
+        real = ctypes.c_double if precision == "double" else ctypes.c_float
+        xin = (real * 12)(*_vec(x, 12, "x").tolist())
+        out = (real * 4)()
+        self._call(precision, "disturbance_step", xin, out)
         return np.array(out[:], dtype=np.float64)
 
     def full_rover(self, ctrl_pts: npt.ArrayLike, duration: float, t: float,

@@ -7,7 +7,7 @@ mock autopilot can fly it behind the same MAVLink protocol. Imports nothing from
     lib = OnboardLibrary(build_onboard_library())   # NativeBuildError without a C compiler
     m = OnboardModule(lib)
     ack = m.message(op, data58)           # OnboardAck or None
-    out = m.step(now_s, offboard, pos_ok, pos_ned, vel_ned)
+    out = m.step(now_s, offboard, pos_ok, pos_ned, vel_ned, q_wxyz)
 """
 
 from __future__ import annotations
@@ -37,7 +37,8 @@ class _Output(ctypes.Structure):
     _fields_ = [("publish_mode", ctypes.c_int), ("publish_setpoint", ctypes.c_int),
                 ("q_d", ctypes.c_float * 4), ("thrust", ctypes.c_float),
                 ("yaw_rate", ctypes.c_float), ("final_action", ctypes.c_int),
-                ("event", ctypes.c_int), ("start_error_m", ctypes.c_double)]
+                ("event", ctypes.c_int), ("start_error_m", ctypes.c_double),
+                ("dist_ne", ctypes.c_float * 2)]
 
 
 @dataclass(frozen=True)
@@ -57,7 +58,9 @@ class _Core(ctypes.Structure):
                 ("peer_comp", ctypes.c_uint8), ("t0", ctypes.c_double),
                 ("t_hold", ctypes.c_double), ("t_last", ctypes.c_double),
                 ("integ", ctypes.c_double * 3), ("progress", ctypes.c_double),
-                ("t_final", ctypes.c_double)]
+                ("t_final", ctypes.c_double), ("v_hat", ctypes.c_double * 2),
+                ("d_hat", ctypes.c_double * 2), ("t_sample", ctypes.c_double),
+                ("have_sample", ctypes.c_int), ("u_last", ctypes.c_double)]
 
 
 @dataclass(frozen=True)
@@ -75,7 +78,8 @@ class OnboardAck:
 class OnboardOutput:
     """One step's requests (see ecca_onboard_core.h): publish offboard_control_mode, publish
     the attitude setpoint q_d (w, x, y, z) / thrust [normalised] / yaw_rate [rad/s], command
-    final_action (-1: none), the event (ECCA_EV_*) and the start error [m]."""
+    final_action (-1: none), the event (ECCA_EV_*), the start error [m] and the disturbance
+    estimate in use (north, east [m/s^2])."""
 
     publish_mode: bool
     publish_setpoint: bool
@@ -85,6 +89,7 @@ class OnboardOutput:
     final_action: int
     event: int
     start_error_m: float
+    dist_ne: tuple[float, float] = (0.0, 0.0)
 
 
 class OnboardLibrary:
@@ -108,6 +113,7 @@ class OnboardLibrary:
         lib.ecca_onboard_step.restype = None
         lib.ecca_onboard_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_int,
                                           ctypes.c_int, ctypes.POINTER(ctypes.c_double),
+                                          ctypes.POINTER(ctypes.c_double), ctypes.c_double,
                                           ctypes.POINTER(ctypes.c_double),
                                           ctypes.POINTER(_Output)]
         self.lib = lib
@@ -161,17 +167,30 @@ class OnboardModule:
         return OnboardAck(ack.command, ack.result, ack.state, ack.value)
 
     def step(self, now_s: float, offboard: bool, pos_ok: bool, pos_ned: Sequence[float],
-             vel_ned: Sequence[float]) -> OnboardOutput:
+             vel_ned: Sequence[float], q_wxyz: Sequence[float] | None = None,
+             sample_s: float | None = None) -> OnboardOutput:
         """One control step at `now_s` [s]: armed in OFFBOARD or not, the estimate valid or
-        not, position [m] and velocity [m/s] NED."""
+        not, position [m] and velocity [m/s] NED sampled at `sample_s` [s] (default: now),
+        the estimated attitude `q_wxyz` (body FRD -> NED; None: unknown, the disturbance
+        observer does not learn)."""
         p = (ctypes.c_double * 3)(*[float(x) for x in pos_ned])
         v = (ctypes.c_double * 3)(*[float(x) for x in vel_ned])
+        q = None if q_wxyz is None else (ctypes.c_double * 4)(*[float(x) for x in q_wxyz])
         o = _Output()
         self._lib.ecca_onboard_step(self._buf, float(now_s), int(bool(offboard)),
-                                    int(bool(pos_ok)), p, v, ctypes.byref(o))
+                                    int(bool(pos_ok)), p, v,
+                                    float(now_s if sample_s is None else sample_s), q,
+                                    ctypes.byref(o))
         return OnboardOutput(bool(o.publish_mode), bool(o.publish_setpoint),
                              (o.q_d[0], o.q_d[1], o.q_d[2], o.q_d[3]), o.thrust, o.yaw_rate,
-                             o.final_action, o.event, o.start_error_m)
+                             o.final_action, o.event, o.start_error_m,
+                             (o.dist_ne[0], o.dist_ne[1]))
+
+    @property
+    def disturbance(self) -> tuple[float, float]:
+        """The disturbance observer's estimate (north, east [m/s^2])."""
+        c = _Core.from_buffer(self._buf)
+        return (float(c.d_hat[0]), float(c.d_hat[1]))
 
 
 def build_onboard_library(*, cache: Path | None = None) -> Path:

@@ -22,8 +22,8 @@ PACKAGE_DIR = Path(__file__).resolve().parent
 MODULE_DIR = PACKAGE_DIR / "px4_module"
 LIB_DIR = PACKAGE_DIR / "ecca_setpoint"
 #: the uORB topics the module reads or writes
-TOPICS = ("debug_array", "offboard_control_mode", "vehicle_attitude_setpoint", "vehicle_command",
-          "vehicle_command_ack", "vehicle_local_position", "vehicle_status")
+TOPICS = ("debug_array", "offboard_control_mode", "vehicle_attitude", "vehicle_attitude_setpoint",
+          "vehicle_command", "vehicle_command_ack", "vehicle_local_position", "vehicle_status")
 _ORB_DEFINE = re.compile(r"ORB_DEFINE\((\w+), struct \w+, (\d+), (\d+)u,")
 
 

@@ -6,8 +6,9 @@ is the mock's counterpart of the PX4 glue, ecca_onboard.c's `task_main`, step fo
 - MAVLink DEBUG_FLOAT_ARRAY becomes uORB debug_array, which holds one message: the module takes
   the newest at its next cycle (those in between are lost, as in PX4), named ``ecca`` only;
 - every 4 ms (250 Hz, on the autopilot's clock: `hrt_absolute_time`, whole microseconds since
-  boot) it steps the core on vehicle_local_position (the mock's estimate, `vehicle.state`) and
-  vehicle_status (armed in OFFBOARD);
+  boot) it steps the core on vehicle_local_position and vehicle_attitude (the mock's estimate,
+  `vehicle.state`: position, velocity, attitude; a fresh sample every cycle) and vehicle_status
+  (armed in OFFBOARD);
 - `publish_mode` is an offboard_control_mode publication: the commander's offboard signal
   (`OffboardInput.control_mode`), so OFFBOARD and arming are accepted as with a setpoint stream;
 - the setpoint (while armed in OFFBOARD) is a vehicle_attitude_setpoint: q_d, thrust,
@@ -126,7 +127,7 @@ class OnboardHost:
                                  f"upload refused: crc 0x{ack.value & 0xFFFFFFFF:08x}")
         offboard, pos_ok = self.offboard_state()
         s = self.view.state
-        out = m.step(now_us * 1e-6, offboard, pos_ok, s.pos_ned, s.vel_ned)
+        out = m.step(now_us * 1e-6, offboard, pos_ok, s.pos_ned, s.vel_ned, s.q_wxyz)
         if out.event == EV_START_REFUSED:
             self.log(mavlink.MAV_SEVERITY_ERROR, f"not flying: the vehicle is "
                      f"{out.start_error_m:.1f} m from the trajectory's start")

@@ -31,6 +31,8 @@ import numpy as np
 import numpy.typing as npt
 
 from companion._frozen import frozen_new
+from companion.control.observer import disturbance_step
+from companion.flatness._formulas import FLOAT
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -428,27 +430,16 @@ class DisturbanceObserver:
         (or below min_thrust_norm) the observer follows the velocity and holds its estimate."""
         c = self.config
         t_last, self._t = self._t, t_s
-        if (not airborne or not u >= c.min_thrust_norm or self._v is None or t_last is None
-                or not all(map(math.isfinite, (*vel_ne, *a_model_ne)))):
-            self._v = vel_ne if all(map(math.isfinite, vel_ne)) else None
+        learn = (airborne and u >= c.min_thrust_norm and self._v is not None
+                 and t_last is not None and all(map(math.isfinite, (*vel_ne, *a_model_ne))))
+        if not learn and not all(map(math.isfinite, vel_ne)):
+            self._v = None
             return self._d
-        dt = t_s - t_last
-        if not 0.0 < dt < 0.5:
-            self._v = vel_ne
-            return self._d
-        w = c.bandwidth_rad_s
-        k1 = min(2.0 * w * dt, 1.0)
-        k2 = w * w * dt
-        dx, dy = self._d
-        px = self._v[0] + (a_model_ne[0] + dx) * dt
-        py = self._v[1] + (a_model_ne[1] + dy) * dt
-        ex, ey = vel_ne[0] - px, vel_ne[1] - py
-        self._v = (px + k1 * ex, py + k1 * ey)
-        dx, dy = dx + k2 * ex, dy + k2 * ey
-        n = math.hypot(dx, dy)
-        if n > c.max_acc:
-            dx, dy = dx * c.max_acc / n, dy * c.max_acc / n
-        self._d = (dx, dy)
+        # the step written once with the generated C's (companion.control.observer)
+        v, self._d = disturbance_step(
+            FLOAT, self._v if self._v is not None else vel_ne, self._d, vel_ne, a_model_ne,
+            t_s - t_last if t_last is not None else 0.0, c.bandwidth_rad_s, c.max_acc, learn)
+        self._v = v
         return self._d
 
 

@@ -28,12 +28,17 @@ extern "C" {
 
 /* 2: adds ecca_steering_setpoint, ecca_ackermann_setpoint and ecca_full_ackermann_setpoint
  * (everything of version 1 unchanged).
- * 3: adds ecca_tracking_core (everything of version 2 unchanged). */
-#define ECCA_SETPOINT_API_VERSION 3
+ * 3: adds ecca_tracking_core (everything of version 2 unchanged).
+ * 4: adds ecca_disturbance_step (everything of version 3 unchanged). */
+#define ECCA_SETPOINT_API_VERSION 4
 
 /** Sizes of ecca_tracking_core's input and output vectors. */
 #define ECCA_CORE_N_IN 60
 #define ECCA_CORE_N_OUT 16
+
+/** Sizes of ecca_disturbance_step's input and output vectors. */
+#define ECCA_DIST_N_IN 12
+#define ECCA_DIST_N_OUT 4
 
 /** Bezier degree of a segment and its number of control points. */
 #define ECCA_BEZIER_DEGREE 7
@@ -166,6 +171,19 @@ int ecca_full_ackermann_setpoint(const ecca_bezier_segment *seg, double t_s, dou
  *  ECCA_ERR_INPUT: a non-finite or |value| > ECCA_INPUT_LIMIT input, mass, g or hover <= 0. */
 int ecca_tracking_core(const double *in, double *out);
 
+/** The companion's disturbance observer's update step (companion.control.observer; one source
+ *  with the observer the companion runs): a Luenberger velocity observer with a horizontal
+ *  disturbance state (both poles at -bandwidth), one velocity sample per call.
+ *  in: ECCA_DIST_N_IN values in the order of companion.control.observer.DIST_INPUTS
+ *  (v_hat[2] d_hat[2] vel[2] a_model[2] dt bandwidth max_acc learn; north, east; m/s, m/s^2,
+ *  s, rad/s); out: ECCA_DIST_N_OUT values (v_hat[2] d_hat[2]). a_model is the model's
+ *  horizontal acceleration over the interval, -(u g / h) z_b,h - (D / m) v_h. Without learn
+ *  (> 0.5), or with dt outside (0, 0.5), v_hat takes vel and d_hat is held; |d_hat| <= max_acc.
+ *  The caller keeps v_hat and d_hat (feed out back as the next in[0..3]).
+ *  ECCA_ERR_INPUT: a non-finite or |value| > ECCA_INPUT_LIMIT input, bandwidth or max_acc
+ *  <= 0. */
+int ecca_disturbance_step(const double *in, double *out);
+
 /* ------------------------------------------------------------------------------- float */
 
 typedef struct {
@@ -240,6 +258,7 @@ int ecca_full_ackermann_setpoint_f(const ecca_bezier_segment_f *seg, float t_s,
                                    ecca_steering_setpoint_f *out);
 
 int ecca_tracking_core_f(const float *in, float *out);
+int ecca_disturbance_step_f(const float *in, float *out);
 
 /** CasADi version the generated code came from, e.g. "3.8.2". */
 const char *ecca_setpoint_casadi_version(void);

@@ -9,5 +9,7 @@
 #define ECCA_GEN_BEZIER_DEGREE 7
 #define ECCA_GEN_CORE_N_IN 60
 #define ECCA_GEN_CORE_N_OUT 16
+#define ECCA_GEN_DIST_N_IN 12
+#define ECCA_GEN_DIST_N_OUT 4
 
 #endif /* ECCA_SETPOINT_GEN_H */

@@ -17,7 +17,8 @@
  *   - armed in OFFBOARD it starts the trajectory's clock and runs the tracking law
  *     (ecca_tracking_core: feedback, integrator, drag feed-forward, limits, flatness) at 250 Hz
  *     on vehicle_local_position, publishing vehicle_attitude_setpoint; the setpoint only while
- *     armed in OFFBOARD;
+ *     armed in OFFBOARD; a disturbance observer (ecca_disturbance_step) on the velocity and
+ *     vehicle_attitude feeds the unmodelled horizontal force (wind) forward;
  *   - leaving OFFBOARD (the pilot, a failsafe) stops it for good (STOPPED);
  *   - past the last segment it holds the end point for the uploaded hold time, then commands
  *     the final action (hold, land, return) through vehicle_command;
@@ -44,6 +45,7 @@
 #endif
 #include <uORB/topics/debug_array.h>
 #include <uORB/topics/offboard_control_mode.h>
+#include <uORB/topics/vehicle_attitude.h>
 #include <uORB/topics/vehicle_attitude_setpoint.h>
 #include <uORB/topics/vehicle_command.h>
 #include <uORB/topics/vehicle_command_ack.h>
@@ -88,6 +90,8 @@ static int layouts_match(void) {
        ECCA_LAYOUT_debug_array_HASH},
       {ORB_ID(offboard_control_mode), sizeof(struct offboard_control_mode_s),
        ECCA_LAYOUT_offboard_control_mode_SIZE, ECCA_LAYOUT_offboard_control_mode_HASH},
+      {ORB_ID(vehicle_attitude), sizeof(struct vehicle_attitude_s),
+       ECCA_LAYOUT_vehicle_attitude_SIZE, ECCA_LAYOUT_vehicle_attitude_HASH},
       {ORB_ID(vehicle_attitude_setpoint), sizeof(struct vehicle_attitude_setpoint_s),
        ECCA_LAYOUT_vehicle_attitude_setpoint_SIZE, ECCA_LAYOUT_vehicle_attitude_setpoint_HASH},
       {ORB_ID(vehicle_command), sizeof(struct vehicle_command_s),
@@ -177,11 +181,13 @@ static int task_main(int argc, char *argv[]) {
   int sub_dbg = orb_subscribe(ORB_ID(debug_array));
   int sub_lp = orb_subscribe(ORB_ID(vehicle_local_position));
   int sub_st = orb_subscribe(ORB_ID(vehicle_status));
+  int sub_att = orb_subscribe(ORB_ID(vehicle_attitude));
   orb_advert_t pub_ocm = 0, pub_sp = 0;
   struct vehicle_local_position_s lp;
   struct vehicle_status_s st;
+  struct vehicle_attitude_s att;
   hrt_abstime t_status = 0;
-  bool have_lp = false, have_st = false;
+  bool have_lp = false, have_st = false, have_att = false;
   (void)argc;
   (void)argv;
 #ifdef ECCA_DYN
@@ -189,13 +195,14 @@ static int task_main(int argc, char *argv[]) {
 #endif
   memset(&lp, 0, sizeof(lp));
   memset(&st, 0, sizeof(st));
+  memset(&att, 0, sizeof(att));
   g_running = 1;
   while (!g_should_exit) {
     bool updated = false;
     hrt_abstime now;
     ecca_onboard_output out;
     ecca_onboard_ack ack;
-    double pos[3], vel[3];
+    double pos[3], vel[3], q[4];
     uint64_t c0, ns;
     int offboard, pos_ok;
 #ifdef ECCA_DYN
@@ -226,6 +233,9 @@ static int task_main(int argc, char *argv[]) {
     if (orb_check(sub_lp, &updated) == 0 && updated) {
       have_lp = orb_copy(ORB_ID(vehicle_local_position), sub_lp, &lp) == 0;
     }
+    if (orb_check(sub_att, &updated) == 0 && updated) {
+      have_att = orb_copy(ORB_ID(vehicle_attitude), sub_att, &att) == 0;
+    }
     offboard = have_st && st.nav_state == VEHICLE_STATUS_NAVIGATION_STATE_OFFBOARD &&
                st.arming_state == VEHICLE_STATUS_ARMING_STATE_ARMED;
     pos_ok = have_lp && lp.xy_valid && lp.z_valid && lp.v_xy_valid && lp.v_z_valid;
@@ -235,8 +245,13 @@ static int task_main(int argc, char *argv[]) {
     vel[0] = lp.vx;
     vel[1] = lp.vy;
     vel[2] = lp.vz;
+    q[0] = att.q[0];
+    q[1] = att.q[1];
+    q[2] = att.q[2];
+    q[3] = att.q[3];
     c0 = cpu_ns();
-    ecca_onboard_step(&g_core, (double)now * 1e-6, offboard, pos_ok, pos, vel, &out);
+    ecca_onboard_step(&g_core, (double)now * 1e-6, offboard, pos_ok, pos, vel,
+                      (double)lp.timestamp_sample * 1e-6, have_att ? q : 0, &out);
     ns = cpu_ns() - c0;
     if (out.publish_setpoint) {
       g_cycles++;
@@ -288,6 +303,7 @@ static int task_main(int argc, char *argv[]) {
   orb_unsubscribe(sub_dbg);
   orb_unsubscribe(sub_lp);
   orb_unsubscribe(sub_st);
+  orb_unsubscribe(sub_att);
 #ifdef ECCA_DYN
   px4_lockstep_unregister_component(lockstep);
 #endif

@@ -224,6 +224,58 @@ static void reference_at(const ecca_onboard *m, double t, ecca_flat_state *s) {
   }
 }
 
+/* Fuse the velocity sample `vel` taken at `sample_s` into the disturbance observer (once per
+ * sample), with the attitude `q` (NULL: unknown) and the thrust the last step commanded. */
+static void observe(ecca_onboard *m, double sample_s, const double vel[3], const double *q) {
+  double in[ECCA_DIST_N_IN], out[ECCA_DIST_N_OUT];
+  const float *b = m->begin;
+  double dt = 0.0, ax = 0.0, ay = 0.0, n2;
+  int i, n = 0, learn;
+  if (m->have_sample && !(sample_s > m->t_sample)) {
+    return; /* the same sample again (the step runs faster than the estimate) */
+  }
+  if (!(isfinite(vel[0]) && isfinite(vel[1]) && isfinite(sample_s))) {
+    m->have_sample = 0;
+    return;
+  }
+  n2 = q != 0 ? q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3] : 0.0;
+  learn = m->have_sample && n2 > 0.9 && n2 < 1.1 && m->u_last >= ECCA_DIST_MIN_THRUST;
+  if (learn) {
+    /* body z axis (third column of C_eb) in NED, horizontal part; thrust along -z_b */
+    double zx = 2.0 * (q[1] * q[3] + q[0] * q[2]);
+    double zy = 2.0 * (q[2] * q[3] - q[0] * q[1]);
+    double f = m->u_last * (double)b[ECCA_B_G] / (double)b[ECCA_B_HOVER];
+    double dm = (double)b[ECCA_B_DRAG] / (double)b[ECCA_B_MASS];
+    dt = sample_s - m->t_sample;
+    ax = -f * zx - dm * vel[0];
+    ay = -f * zy - dm * vel[1];
+    learn = isfinite(ax) && isfinite(ay) && isfinite(dt);
+    if (!learn) {
+      dt = ax = ay = 0.0;
+    }
+  }
+  for (i = 0; i < 2; ++i) in[n++] = m->have_sample ? m->v_hat[i] : vel[i];
+  for (i = 0; i < 2; ++i) in[n++] = m->d_hat[i];
+  for (i = 0; i < 2; ++i) in[n++] = vel[i];
+  in[n++] = ax;
+  in[n++] = ay;
+  in[n++] = dt;
+  in[n++] = ECCA_DIST_BANDWIDTH_RAD_S;
+  in[n++] = ECCA_DIST_MAX_ACC;
+  in[n++] = learn ? 1.0 : 0.0;
+  if (n == ECCA_DIST_N_IN && ecca_disturbance_step(in, out) == ECCA_OK) {
+    m->v_hat[0] = out[0];
+    m->v_hat[1] = out[1];
+    m->d_hat[0] = out[2];
+    m->d_hat[1] = out[3];
+  } else {
+    m->v_hat[0] = vel[0]; /* refused (e.g. |vel| absurd): follow the sample, hold d_hat */
+    m->v_hat[1] = vel[1];
+  }
+  m->t_sample = sample_s;
+  m->have_sample = 1;
+}
+
 /* One step of the law (attitude mode: no feedback jerk); 0 if no finite setpoint. */
 static int control(ecca_onboard *m, double t, double dt, const double pos[3],
                    const double vel[3], ecca_onboard_output *o) {
@@ -249,8 +301,8 @@ static int control(ecca_onboard *m, double t, double dt, const double pos[3],
   for (i = 0; i < 3; ++i) in[n++] = b[ECCA_B_KD + i];
   for (i = 0; i < 3; ++i) in[n++] = b[ECCA_B_KI + i];
   for (i = 0; i < 3; ++i) in[n++] = b[ECCA_B_IMAX + i];
-  in[n++] = 0.0; /* disturbance north, east: not estimated onboard */
-  in[n++] = 0.0;
+  in[n++] = m->d_hat[0]; /* disturbance north, east (the observer's) */
+  in[n++] = m->d_hat[1];
   in[n++] = r.yaw_rad;
   in[n++] = r.yaw_rate_rad_s;
   in[n++] = r.yaw_acc_rad_s2;
@@ -282,7 +334,8 @@ static int control(ecca_onboard *m, double t, double dt, const double pos[3],
 }
 
 void ecca_onboard_step(ecca_onboard *m, double now_s, int offboard, int pos_ok,
-                       const double pos[3], const double vel[3], ecca_onboard_output *o) {
+                       const double pos[3], const double vel[3], double sample_s,
+                       const double q_wxyz[4], ecca_onboard_output *o) {
   memset(o, 0, sizeof(*o));
   o->final_action = -1;
   if (m->state == ECCA_STATE_LOADED && offboard) {
@@ -305,6 +358,9 @@ void ecca_onboard_step(ecca_onboard *m, double now_s, int offboard, int pos_ok,
     m->t0 = now_s;
     m->t_last = now_s;
     m->integ[0] = m->integ[1] = m->integ[2] = 0.0;
+    m->v_hat[0] = m->v_hat[1] = m->d_hat[0] = m->d_hat[1] = 0.0;
+    m->have_sample = 0;
+    m->u_last = 0.0;
     o->event = ECCA_EV_FLYING;
   } else if ((flying(m) || m->state == ECCA_STATE_DONE) && !offboard) {
     if (m->state != ECCA_STATE_DONE) { /* the pilot or a failsafe: stopped for good */
@@ -320,7 +376,11 @@ void ecca_onboard_step(ecca_onboard *m, double now_s, int offboard, int pos_ok,
     double dt = now_s - m->t_last;
     double total = m->t_start_seg[m->n_expected];
     m->t_last = now_s;
+    observe(m, sample_s, vel, q_wxyz);
     o->publish_setpoint = control(m, t, dt > 0.1 ? 0.1 : (dt < 0.0 ? 0.0 : dt), pos, vel, o);
+    m->u_last = o->publish_setpoint ? (double)o->thrust : 0.0;
+    o->dist_ne[0] = (float)m->d_hat[0];
+    o->dist_ne[1] = (float)m->d_hat[1];
     m->progress = total > 0.0 ? (t > total ? 1.0 : t / total) : 1.0;
     if (m->state == ECCA_STATE_FLYING && t >= total) {
       m->state = ECCA_STATE_HOLDING;

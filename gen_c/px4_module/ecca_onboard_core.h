@@ -41,6 +41,7 @@ typedef struct {
   int final_action;     /**< -1, or ECCA_FINAL_* to command now (once) */
   int event;            /**< ECCA_EV_* */
   double start_error_m; /**< distance from the start point when the start was refused */
+  float dist_ne[2];     /**< the disturbance estimate in use, north, east [m/s^2] */
 } ecca_onboard_output;
 
 typedef struct {
@@ -67,7 +68,21 @@ typedef struct {
   double integ[3];
   double progress;
   double t_final; /* when the final action was last commanded */
+  /* the disturbance observer (ecca_disturbance_step): velocity and disturbance estimate
+   * north, east; the time of the last velocity sample fused; the last commanded thrust */
+  double v_hat[2];
+  double d_hat[2];
+  double t_sample;
+  int have_sample;
+  double u_last;
 } ecca_onboard;
+
+/* The disturbance observer's tuning (companion.control.estimation.DisturbanceConfig's
+ * defaults): bandwidth [rad/s], bound of the estimate [m/s^2], no update below this commanded
+ * thrust [normalised]. */
+#define ECCA_DIST_BANDWIDTH_RAD_S 1.5
+#define ECCA_DIST_MAX_ACC 8.0
+#define ECCA_DIST_MIN_THRUST 0.05
 
 /** A fresh module: ECCA_STATE_READY, no trajectory, no peer. */
 void ecca_onboard_init(ecca_onboard *m);
@@ -83,9 +98,17 @@ void ecca_onboard_status(const ecca_onboard *m, ecca_onboard_ack *ack);
 int ecca_onboard_start_report(const ecca_onboard *m, ecca_onboard_ack *ack);
 
 /** One control step at `now_s` [s, any monotonic clock]: `offboard` = armed in OFFBOARD,
- *  `pos_ok` = position and velocity valid, `pos` / `vel` the estimate [m, m/s NED]. */
+ *  `pos_ok` = position and velocity valid, `pos` / `vel` the estimate [m, m/s NED] sampled at
+ *  `sample_s` [s, the same clock; a sample is fused into the disturbance observer once, when
+ *  it is newer than the last], `q_wxyz` the estimated attitude (body FRD -> NED; NULL or not
+ *  a unit quaternion: the observer does not learn). While flying, the disturbance observer
+ *  (ecca_disturbance_step) runs on the horizontal velocity with the model's acceleration
+ *  -(u g / h) z_b,h - (D / m) v_h (u: the thrust commanded by the previous step) and its
+ *  estimate is the tracking core's disturbance feed-forward; it starts from zero with each
+ *  flight, like the integrator. */
 void ecca_onboard_step(ecca_onboard *m, double now_s, int offboard, int pos_ok,
-                       const double pos[3], const double vel[3], ecca_onboard_output *out);
+                       const double pos[3], const double vel[3], double sample_s,
+                       const double q_wxyz[4], ecca_onboard_output *out);
 
 /** sizeof(ecca_onboard), for callers that allocate it (ctypes). */
 unsigned long ecca_onboard_size(void);

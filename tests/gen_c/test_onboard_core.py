@@ -306,3 +306,53 @@ def test_a_vehicle_far_from_the_start_is_not_flown(lib: N.OnboardLibrary) -> Non
     assert upload_direct(m2, up).verified
     out = m2.step(0.0, True, False, start, np.zeros(3))
     assert out.event == 5 and not out.publish_setpoint
+
+
+def _fly_in_a_steady_force(lib: N.OnboardLibrary, d_ne: tuple[float, float],
+                           with_attitude: bool) -> tuple[N.OnboardModule, list[float],
+                                                         list[tuple[float, float]]]:
+    """A point mass flown by the module for 12 s at 250 Hz in a constant horizontal force per
+    mass `d_ne` [m/s^2] (drag and thrust as the law models them: a = g e3 - (u g / h) z_b -
+    (D / m) v + d), its attitude the previous step's q_d (an ideal attitude loop one step
+    behind); the module sees the attitude when `with_attitude`. Returns the module, the
+    horizontal position error and the module's disturbance estimate at each step."""
+    m = N.OnboardModule(lib)
+    p0 = np.array([0.0, 0.0, -5.0])
+    traj = PiecewiseBezier([Bezier(np.tile(p0, (8, 1)), 12.0)],
+                           yaw=PiecewiseBezier([Bezier(np.zeros((8, 1)), 12.0)]))
+    assert upload_direct(m, encode(traj)).verified
+    g, h, kd = LAW.g, LAW.hover, LAW.drag / LAW.mass
+    pos, vel = p0.copy(), np.zeros(3)
+    q, u = np.array([1.0, 0.0, 0.0, 0.0]), h
+    dt = 0.004
+    err, est = [], []
+    for k in range(3000):
+        out = m.step(k * dt, True, True, pos, vel, q if with_attitude else None)
+        assert out.publish_setpoint
+        qw, qx, qy, qz = q
+        z_b = np.array([2 * (qx * qz + qw * qy), 2 * (qy * qz - qw * qx),
+                        1 - 2 * (qx * qx + qy * qy)])
+        acc = np.array([0.0, 0.0, g]) - (u * g / h) * z_b - kd * vel + np.array([*d_ne, 0.0])
+        vel = vel + acc * dt
+        pos = pos + vel * dt
+        q, u = np.array(out.q_d, dtype=np.float64), out.thrust
+        err.append(float(math.hypot(*(pos - p0)[:2])))
+        est.append(out.dist_ne)
+    return m, err, est
+
+
+def test_the_module_s_disturbance_observer_learns_a_steady_force_and_cancels_it(
+        lib: N.OnboardLibrary) -> None:
+    """In a steady 1.2 m/s^2 force (wind on the drag) the module's estimate converges on the
+    force (north, east: the attitude's body z axis and the thrust enter with the right signs)
+    and the vehicle strays less than with the integrator alone (no attitude: no learning)."""
+    d = (1.0, -0.7)
+    m, err, est = _fly_in_a_steady_force(lib, d, with_attitude=True)
+    _, err0, est0 = _fly_in_a_steady_force(lib, d, with_attitude=False)
+    assert all(e == (0.0, 0.0) for e in est0)
+    assert est[-1] == pytest.approx(d, abs=0.02)
+    assert m.disturbance == pytest.approx(d, abs=0.02)
+    assert max(est[k][0] for k in range(len(est))) < 1.6  # no wild overshoot
+    assert max(err) < 0.6 * max(err0)
+    # the integrator, wound up in the first seconds, unwinds slowly in both
+    assert float(np.mean(err[-500:])) < 0.3 * float(np.mean(err0[-500:]))
