@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import dataclasses
 import json
 import math
 import re
@@ -65,6 +66,10 @@ FIGURE8 = B.figure8_reference  # the original (patched_figure replaces the modul
 LINK = {"latency_s": 0.02, "loss": 0.05}
 #: extra hover before OFFBOARD [s] (`--hover-s`: separates the hover's length from the link)
 HOVER = {"s": 0.0}
+#: `--law`: LawParams fields the onboard cells override
+LAW_OVERRIDE: dict[str, Any] = {}
+#: `--ctl`: the streamed cells' controller overrides
+CTL: list[str] = []
 #: arm at this time since PX4's boot [s] (`--arm-at`; 0: at once): PX4's estimate errs the same
 #: way at the same time since boot (SIH's sensor noise), so cells compared at equal boot times
 ARM_AT = {"s": 0.0}
@@ -133,8 +138,9 @@ async def _onboard_flight(url: str, target: int, module: Path, px4: Px4Sitl, spe
         breaks, cps = hermite_segments(ref, duration)
         hover = (await v.read_params(["MPC_THR_HOVER"]))["MPC_THR_HOVER"]
         cfg = v.link.config
-        up = P.encode_upload(breaks, cps, None, law_params(VehicleFile(), hover,
-                                                           math.radians(TILT_DEG)),
+        law = law_params(VehicleFile(), hover, math.radians(TILT_DEG))
+        law = dataclasses.replace(law, **LAW_OVERRIDE)
+        up = P.encode_upload(breaks, cps, None, law,
                              sysid=cfg.sysid, compid=cfg.compid, final_action="hold",
                              hold_s=1.0, start_tolerance_m=3.0)
         t_up = time.monotonic()
@@ -153,16 +159,17 @@ async def _onboard_flight(url: str, target: int, module: Path, px4: Px4Sitl, spe
         await v.set_mode(FlightMode.OFFBOARD)
         t0_boot = math.nan
         state: Any = None
-        end = time.monotonic() + duration + 30.0
-        async for _, a in module_states(v):
-            if a.start:
-                t0_boot = a.value / 1000.0
-            elif a.state in (P.STATE_DONE, P.STATE_STOPPED, P.STATE_ERROR):
-                state = a.state
-                break
-            if time.monotonic() > end:
-                state = a.state
-                break
+        try:
+            async with asyncio.timeout(duration + 60.0):  # a frozen simulation sends nothing
+                async for _, a in module_states(v):
+                    state = a.state
+                    if a.start:
+                        t0_boot = a.value / 1000.0
+                    elif a.state in (P.STATE_DONE, P.STATE_STOPPED, P.STATE_ERROR):
+                        break
+        except TimeoutError as exc:
+            raise RuntimeError(f"no end of the flight within {duration + 60:.0f} s "
+                               f"(last state {state})") from exc
         status = px4.command("dyn", str(module), "status").stdout
     data = H.read_flight_tlog(tlog, target)
     fl = H.Flight(tlog, 0.0, duration, ref, np.zeros(3),
@@ -224,7 +231,7 @@ def degraded_launch() -> Iterator[None]:
 def streamed_cell(mode: str, speed: float, scale: float, out: Path, degraded: bool
                   ) -> dict[str, Any]:
     with patched_figure(scale), (degraded_launch() if degraded else contextlib.nullcontext()):
-        return B._api_cell_retry("px4", mode, speed, out, 0, [], None, {})
+        return B._api_cell_retry("px4", mode, speed, out, 0, list(CTL), None, {})
 
 
 def square_cell(module: Path, onboard: bool, out: Path) -> dict[str, Any]:
@@ -269,7 +276,22 @@ def main(argv: list[str] | None = None) -> int:
                     help="onboard cells: hover this much longer before OFFBOARD [s]")
     ap.add_argument("--arm-at", type=float, default=0.0,
                     help="onboard cells: arm at this time since PX4's boot [s]")
+    ap.add_argument("--law", nargs="*", default=[], metavar="FIELD=VALUE",
+                    help="onboard cells: override LawParams fields (kp/kd/ki/i_max scale the "
+                         "onboard law's horizontal gains by VALUE; others are set)")
+    ap.add_argument("--ctl", nargs="*", default=[], metavar="FIELD=VALUE",
+                    help="streamed cells: TrackingConfig / TrackingGains overrides "
+                         "(bench_tracking's --ctl)")
     args = ap.parse_args(argv)
+    CTL[:] = args.ctl
+    base = law_params(VehicleFile(), 0.5, math.radians(TILT_DEG))
+    for item in args.law:
+        k, v = item.split("=")
+        if k in ("kp", "kd", "ki", "i_max"):
+            g = getattr(base, k)
+            LAW_OVERRIDE[k] = (g[0] * float(v), g[1] * float(v), g[2])
+        else:
+            LAW_OVERRIDE[k] = float(v)
     LINK.update(latency_s=args.latency, loss=args.loss)
     HOVER["s"] = args.hover_s
     ARM_AT["s"] = args.arm_at
