@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from companion.control import TrackingConfig
+from companion.control.estimation import DisturbanceConfig
 from companion.onboard.protocol import LawParams
 from companion.planning.config import VehicleFile
 from companion.planning.schedule import Schedule
@@ -115,10 +116,13 @@ def concatenate(first: Segments, second: Segments) -> Segments:
 
 
 def law_from_tracking(cfg: TrackingConfig, hover: float) -> LawParams:
-    """The module's law parameters: the attitude-mode tracking configuration's gains, model
-    and limits, and the vehicle's hover thrust (PX4's MPC_THR_HOVER) [normalised]."""
+    """The module's law parameters: the attitude-mode tracking configuration's gains, model,
+    limits and disturbance observer (its bandwidth; 0 without `estimate_disturbance`), and the
+    vehicle's hover thrust (PX4's MPC_THR_HOVER) [normalised]."""
     g = cfg.gains
     p = cfg.params
+    dist = ((cfg.disturbance_config or DisturbanceConfig()).bandwidth_rad_s
+            if cfg.estimate_disturbance else 0.0)
 
     def three(a: object) -> tuple[float, float, float]:
         x = np.asarray(a, dtype=np.float64)
@@ -127,7 +131,7 @@ def law_from_tracking(cfg: TrackingConfig, hover: float) -> LawParams:
     return LawParams(three(g.kp()), three(g.kd()), three(g.ki()), three(g.i_max()), hover,
                      p.drag if cfg.drag_feedforward else 0.0, p.mass, p.g, cfg.thrust_min,
                      cfg.thrust_max, cfg.max_tilt_rad, cfg.drag_velocity == "estimate",
-                     cfg.attitude_lead_s)
+                     cfg.attitude_lead_s, dist)
 
 
 def law_params(vf: VehicleFile, hover: float, tilt_rad: float) -> LawParams:

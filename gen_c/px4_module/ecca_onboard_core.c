@@ -99,7 +99,8 @@ static int begin_valid(const float *d) {
          d[ECCA_B_HOVER] > 0.0f && d[ECCA_B_HOVER] < 1.0f && d[ECCA_B_MASS] > 0.0f &&
          d[ECCA_B_G] > 0.0f && d[ECCA_B_TILT_MAX] > 0.0f && d[ECCA_B_TILT_MAX] < 1.5f &&
          d[ECCA_B_THRUST_MAX] > d[ECCA_B_THRUST_MIN] && d[ECCA_B_START_TOL_M] > 0.0f &&
-         d[ECCA_B_LEAD_S] >= 0.0f && d[ECCA_B_LEAD_S] <= 1.0f;
+         d[ECCA_B_LEAD_S] >= 0.0f && d[ECCA_B_LEAD_S] <= 1.0f && d[ECCA_B_DIST_BW] >= 0.0f &&
+         d[ECCA_B_DIST_BW] <= 20.0f;
 }
 
 static int segment_valid(const float *d) {
@@ -239,7 +240,8 @@ static void observe(ecca_onboard *m, double sample_s, const double vel[3], const
     return;
   }
   n2 = q != 0 ? q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3] : 0.0;
-  learn = m->have_sample && n2 > 0.9 && n2 < 1.1 && m->u_last >= ECCA_DIST_MIN_THRUST;
+  learn = m->have_sample && n2 > 0.9 && n2 < 1.1 && m->u_last >= ECCA_DIST_MIN_THRUST &&
+          b[ECCA_B_DIST_BW] > 0.0f; /* 0: no disturbance estimated (d_hat stays 0) */
   if (learn) {
     /* body z axis (third column of C_eb) in NED, horizontal part; thrust along -z_b */
     double zx = 2.0 * (q[1] * q[3] + q[0] * q[2]);
@@ -260,7 +262,7 @@ static void observe(ecca_onboard *m, double sample_s, const double vel[3], const
   in[n++] = ax;
   in[n++] = ay;
   in[n++] = dt;
-  in[n++] = ECCA_DIST_BANDWIDTH_RAD_S;
+  in[n++] = learn ? (double)b[ECCA_B_DIST_BW] : 1.0; /* (not used without learning) */
   in[n++] = ECCA_DIST_MAX_ACC;
   in[n++] = learn ? 1.0 : 0.0;
   if (n == ECCA_DIST_N_IN && ecca_disturbance_step(in, out) == ECCA_OK) {

@@ -77,10 +77,9 @@ typedef struct {
   double u_last;
 } ecca_onboard;
 
-/* The disturbance observer's tuning (companion.control.estimation.DisturbanceConfig's
- * defaults): bandwidth [rad/s], bound of the estimate [m/s^2], no update below this commanded
- * thrust [normalised]. */
-#define ECCA_DIST_BANDWIDTH_RAD_S 1.5
+/* The disturbance observer's tuning besides its bandwidth (ECCA_B_DIST_BW, uploaded):
+ * companion.control.estimation.DisturbanceConfig's defaults: bound of the estimate [m/s^2],
+ * no update below this commanded thrust [normalised]. */
 #define ECCA_DIST_MAX_ACC 8.0
 #define ECCA_DIST_MIN_THRUST 0.05
 

@@ -5,6 +5,7 @@ state machine; and the module's setpoint against the Python law on the same inpu
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import struct
@@ -52,11 +53,11 @@ def trajectory(n: int, seed: int = 0) -> PiecewiseBezier:
     return PiecewiseBezier(segs, yaw=PiecewiseBezier(yaws))
 
 
-def encode(traj: PiecewiseBezier, **kw: object) -> P.Upload:
+def encode(traj: PiecewiseBezier, law: P.LawParams = LAW, **kw: object) -> P.Upload:
     m = len(traj.breaks) - 1
     return P.encode_upload(traj.breaks, [traj.control_points[i] for i in range(m)],
                            [traj.yaw.control_points[i] for i in range(m)],  # type: ignore[union-attr]
-                           LAW, sysid=255, compid=190, **kw)  # type: ignore[arg-type]
+                           law, sysid=255, compid=190, **kw)  # type: ignore[arg-type]
 
 
 def ack_of(a: N.OnboardAck) -> P.Ack:
@@ -308,19 +309,21 @@ def test_a_vehicle_far_from_the_start_is_not_flown(lib: N.OnboardLibrary) -> Non
     assert out.event == 5 and not out.publish_setpoint
 
 
-def _fly_in_a_steady_force(lib: N.OnboardLibrary, d_ne: tuple[float, float],
-                           with_attitude: bool) -> tuple[N.OnboardModule, list[float],
-                                                         list[tuple[float, float]]]:
+def _fly_in_a_steady_force(
+    lib: N.OnboardLibrary, d_ne: tuple[float, float], with_attitude: bool, bandwidth: float = 1.5
+) -> tuple[N.OnboardModule, list[float], list[tuple[float, float]]]:
     """A point mass flown by the module for 12 s at 250 Hz in a constant horizontal force per
     mass `d_ne` [m/s^2] (drag and thrust as the law models them: a = g e3 - (u g / h) z_b -
     (D / m) v + d), its attitude the previous step's q_d (an ideal attitude loop one step
-    behind); the module sees the attitude when `with_attitude`. Returns the module, the
+    behind); the module sees the attitude when `with_attitude`; its observer's bandwidth is
+    `bandwidth` [rad/s] (the upload's, 0: none). Returns the module, the
     horizontal position error and the module's disturbance estimate at each step."""
     m = N.OnboardModule(lib)
     p0 = np.array([0.0, 0.0, -5.0])
     traj = PiecewiseBezier([Bezier(np.tile(p0, (8, 1)), 12.0)],
                            yaw=PiecewiseBezier([Bezier(np.zeros((8, 1)), 12.0)]))
-    assert upload_direct(m, encode(traj)).verified
+    law = dataclasses.replace(LAW, dist_bandwidth_rad_s=bandwidth)
+    assert upload_direct(m, encode(traj, law)).verified
     g, h, kd = LAW.g, LAW.hover, LAW.drag / LAW.mass
     pos, vel = p0.copy(), np.zeros(3)
     q, u = np.array([1.0, 0.0, 0.0, 0.0]), h
@@ -356,3 +359,7 @@ def test_the_module_s_disturbance_observer_learns_a_steady_force_and_cancels_it(
     assert max(err) < 0.6 * max(err0)
     # the integrator, wound up in the first seconds, unwinds slowly in both
     assert float(np.mean(err[-500:])) < 0.3 * float(np.mean(err0[-500:]))
+    # an upload with the observer's bandwidth 0 estimates nothing, attitude or not
+    _, err_off, est_off = _fly_in_a_steady_force(lib, d, with_attitude=True, bandwidth=0.0)
+    assert all(e == (0.0, 0.0) for e in est_off)
+    assert err_off == pytest.approx(err0, abs=1e-9)
