@@ -23,6 +23,7 @@ Example `vehicle.toml` (every key optional; defaults are PX4's SIH quadrotor)::
 
     [onboard]                               # the onboard module's law (fly/serve --onboard):
     ki_xy = 18.0                            # [tracking]'s gains with these over them
+    disturbance_bandwidth_rad_s = 0.0       # its wind observer (0: none; 1.5 for wind)
 
     [px4]                                   # PX4 parameters the mission planner uses: these
     MPC_XY_CRUISE = 8.0                     # win over the values read from the vehicle at
@@ -38,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.control import AttitudeGains, TrackingConfig, TrackingGains
+from companion.control.estimation import DisturbanceConfig
 from companion.flatness import MultirotorParams
 from companion.planning.schedule import VehicleLimits
 from companion.planning.vehicle_params import check_overrides
@@ -49,23 +51,39 @@ _LIMIT_KEYS = {
 _GAIN_KEYS = {f.name for f in fields(TrackingGains)}
 _ATT_KEYS = {"k_roll", "k_pitch", "k_yaw"}
 _SECTIONS = {"vehicle": _VEHICLE_KEYS, "limits": _LIMIT_KEYS, "tracking": _GAIN_KEYS | _ATT_KEYS,
-             "onboard": _GAIN_KEYS,
+             "onboard": _GAIN_KEYS | {"disturbance_bandwidth_rad_s"},
              "px4": set()}  # [px4]: checked by check_overrides (PX4 parameter names)
 
-#: The onboard law's gains that differ from the streamed law's (`[onboard]` overrides them).
-#: The module reads PX4's estimate with no link in the loop, and its horizontal integrator can
-#: be faster. PX4's velocity estimate disagrees with the rate of its position estimate by
-#: 0.1-0.4 m/s for seconds in the SIH, and the position and velocity terms then settle on a
-#: position offset that only the integrator removes. On real PX4, figure-8 at three start times,
-#: ki_xy 18 against 3 gave 0.081-0.092 m against 0.086-0.126 m at 6 m/s and 0.095-0.189 m
-#: against 0.108-0.44 m at 8 m/s (scale 2); BENCHMARKS.md, "Onboard module", session 25.
-ONBOARD_GAINS: dict[str, float] = {"ki_xy": 18.0}
+#: The onboard law's settings that differ from the streamed law's (`[onboard]` overrides them;
+#: its other keys are TrackingGains'). Measured on real PX4 (SIH), figure-8 at 6 m/s and at
+#: 8 m/s (scale 2), at several start times (BENCHMARKS.md, "Onboard module", session 25):
+#: - `ki_xy` 18, not 3. The module reads PX4's estimate with no link in its loop, and its
+#:   horizontal integrator can be faster. PX4's velocity estimate disagrees with the rate of its
+#:   position estimate by 0.1-0.4 m/s for seconds in the SIH; the position and velocity terms
+#:   then settle on a position offset that only the integrator removes. 0.081-0.092 m against
+#:   0.086-0.126 m at 6 m/s, 0.095-0.189 m against 0.108-0.44 m at 8 m/s.
+#: - `disturbance_bandwidth_rad_s` 0: no disturbance observer. The module's observer models the
+#:   thrust with the uploaded hover thrust and drag (the streamed law learns both online), and
+#:   at speed it chases the model's error: 0.127-0.129 m with it against 0.081 m without at
+#:   6 m/s, 0.19-0.235 m against 0.095-0.11 m at 8 m/s. In the mock's steady wind it helps
+#:   (median error 0.024 m against 0.069 m): set it to 1.5 (the streamed law's) for wind.
+ONBOARD_DEFAULTS: dict[str, float] = {"ki_xy": 18.0, "disturbance_bandwidth_rad_s": 0.0}
+_ONBOARD_KEYS = _GAIN_KEYS | {"disturbance_bandwidth_rad_s"}
 
 
-def onboard_gains(gains: TrackingGains, overrides: dict[str, float] | None = None
-                  ) -> TrackingGains:
-    """The onboard law's gains: `gains` with ONBOARD_GAINS, then `overrides`, over them."""
-    return replace(gains, **{**ONBOARD_GAINS, **(overrides or {})})
+def onboard_config(cfg: TrackingConfig, overrides: dict[str, float] | None = None
+                   ) -> TrackingConfig:
+    """The onboard law's configuration: `cfg` with ONBOARD_DEFAULTS, then `overrides` (keys of
+    TrackingGains, and `disturbance_bandwidth_rad_s` [rad/s], 0: no observer), over it."""
+    o = {**ONBOARD_DEFAULTS, **(overrides or {})}
+    unknown = set(o) - _ONBOARD_KEYS
+    if unknown:
+        raise ValueError(f"onboard settings: unknown {sorted(unknown)}")
+    bw = o.pop("disturbance_bandwidth_rad_s")
+    dist = (replace(cfg.disturbance_config or DisturbanceConfig(), bandwidth_rad_s=bw)
+            if bw > 0.0 else cfg.disturbance_config)
+    return replace(cfg, gains=replace(cfg.gains, **o), estimate_disturbance=bw > 0.0,
+                   disturbance_config=dist)
 
 
 @dataclass(frozen=True)
@@ -84,7 +102,7 @@ class VehicleFile:
     px4_overrides: dict[str, float] = field(default_factory=dict)
     """``[px4]``: PX4 parameter values that win over those read from the vehicle."""
     onboard_overrides: dict[str, float] = field(default_factory=dict)
-    """``[onboard]``: the onboard law's gains over ``gains`` and ONBOARD_GAINS."""
+    """``[onboard]``: the onboard law's settings over ONBOARD_DEFAULTS (`onboard_config`)."""
 
     def tracking_config(self, max_tilt_rad: float) -> TrackingConfig:
         """The controller configuration for attitude/rates mode (tilt limit [rad])."""
@@ -92,9 +110,8 @@ class VehicleFile:
                               attitude_gains=self.attitude_gains, max_tilt_rad=max_tilt_rad)
 
     def onboard_tracking_config(self, max_tilt_rad: float) -> TrackingConfig:
-        """`tracking_config` with the onboard law's gains (`onboard_gains`)."""
-        cfg = self.tracking_config(max_tilt_rad)
-        return replace(cfg, gains=onboard_gains(self.gains, self.onboard_overrides))
+        """`tracking_config` as the onboard law has it (`onboard_config`)."""
+        return onboard_config(self.tracking_config(max_tilt_rad), self.onboard_overrides)
 
 
 def _number(table: dict[str, Any], key: str, where: str, default: float) -> float:
@@ -166,7 +183,7 @@ def load_vehicle_file(path: str | Path) -> VehicleFile:
         raise ValueError(f"{where}: gains must be >= 0 (attitude gains > 0)")
     where = f"{p} [onboard]"
     onb = data.get("onboard", {})
-    onboard = {k: _number(onb, k, where, 0.0) for k in _GAIN_KEYS if k in onb}
+    onboard = {k: _number(onb, k, where, 0.0) for k in _ONBOARD_KEYS if k in onb}
     if any(v < 0 for v in onboard.values()):
         raise ValueError(f"{where}: gains must be >= 0")
     px4 = check_overrides(data.get("px4", {}), f"{p} [px4]")

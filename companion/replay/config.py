@@ -44,7 +44,8 @@ class ReplayConfig:
     `onboard`: the onboard module inside the mock flies the plan (`companion.replay.onboard`,
     as `fly --onboard` on PX4): the companion uploads it and streams no setpoint; a quad in
     attitude mode only, PX4's own landing after the plan (its final descent ends
-    HANDOVER_HEIGHT_M up)."""
+    HANDOVER_HEIGHT_M up). `onboard_law`: the onboard law's settings over its defaults
+    (`[onboard]` of a vehicle file: TrackingGains keys, `disturbance_bandwidth_rad_s`)."""
 
     vehicle: Literal["quad", "rover"] = "quad"
     mode: Mode = "attitude"
@@ -60,6 +61,7 @@ class ReplayConfig:
     wind_from_deg: float = 135.0
     latency_s: float = 0.0
     jitter_s: float = 0.0
+    onboard_law: tuple[tuple[str, float], ...] = ()
     loss_pct: float = 0.0
     start_offset_ne_m: tuple[float, float] = (0.0, 0.0)
     onboard: bool = False

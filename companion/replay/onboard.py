@@ -14,7 +14,6 @@ the trajectory's start on the autopilot's clock, which is the flight log's clock
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable
 from typing import Any
@@ -49,7 +48,7 @@ from companion.onboard.protocol import (
     decode_ack,
     encode_upload,
 )
-from companion.planning.config import onboard_gains
+from companion.planning.config import onboard_config
 from companion.planning.onboard_segments import (
     HOLD_S,
     START_TOLERANCE_M,
@@ -183,7 +182,7 @@ class OnboardFlight:
             return
         limits = SetpointLimits.of_px4(sched.px4)
         tracking = vehicle_limited(TrackingConfig(params=self.config.params), limits)
-        tracking = dataclasses.replace(tracking, gains=onboard_gains(tracking.gains))
+        tracking = onboard_config(tracking, dict(self.config.onboard_law))
         cfg = self.link.config
         self.upload = encode_upload(breaks, cps, ycps, law_from_tracking(tracking, self.hover),
                                     sysid=cfg.sysid, compid=cfg.compid, final_action=self._final,

@@ -13,7 +13,7 @@ from companion.control import AttitudeGains, TrackingGains
 from companion.mission import load_mission, mission_to_flight_plan
 from companion.mission.px4_params import Px4PlanningParams
 from companion.planning.chunks import ROVER_SPEED_SHARE
-from companion.planning.config import ONBOARD_GAINS, load_vehicle_file
+from companion.planning.config import ONBOARD_DEFAULTS, load_vehicle_file
 from companion.planning.onboard_segments import law_params
 from companion.planning.schedule import VehicleLimits, build_schedule
 
@@ -67,16 +67,21 @@ def test_an_empty_file_gives_the_defaults(tmp_path: Path) -> None:
 
 def test_the_onboard_law_takes_tracking_s_gains_with_onboard_s_over_them(tmp_path: Path) -> None:
     """[onboard] overrides [tracking] for the module's law only; by default only ki_xy differs
-    (ONBOARD_GAINS), and what the module is uploaded is those gains."""
+    and the disturbance observer's bandwidth (ONBOARD_DEFAULTS), and what the module is
+    uploaded is those."""
     vf = load_vehicle_file(_write(tmp_path, "[tracking]\nkp_xy = 12.0\nki_xy = 2.0\n"
                                             "[onboard]\nkd_xy = 6.0\n"))
     law = law_params(vf, 0.5, math.radians(40.0))
     assert vf.tracking_config(0.7).gains.ki_xy == 2.0  # the streamed law keeps its own
     assert law.kp == (12.0, 12.0, TrackingGains().kp_z)
     assert law.kd == (6.0, 6.0, TrackingGains().kd_z)
-    assert law.ki == (ONBOARD_GAINS["ki_xy"],) * 2 + (TrackingGains().ki_z,)
-    vf2 = load_vehicle_file(_write(tmp_path, "[onboard]\nki_xy = 4.0\n"))
+    assert law.ki == (ONBOARD_DEFAULTS["ki_xy"],) * 2 + (TrackingGains().ki_z,)
+    assert law.dist_bandwidth_rad_s == ONBOARD_DEFAULTS["disturbance_bandwidth_rad_s"] == 0.0
+    vf2 = load_vehicle_file(_write(tmp_path, "[onboard]\nki_xy = 4.0\n"
+                                             "disturbance_bandwidth_rad_s = 1.5\n"))
     assert law_params(vf2, 0.5, 0.7).ki[:2] == (4.0, 4.0)
+    assert law_params(vf2, 0.5, 0.7).dist_bandwidth_rad_s == 1.5
+    assert vf2.tracking_config(0.7).estimate_disturbance  # the streamed law's own observer
     assert law_params(load_vehicle_file(_write(tmp_path, "")), 0.5, 0.7).kd[:2] == (
         TrackingGains().kd_xy,) * 2
 
@@ -97,6 +102,7 @@ def test_the_onboard_law_takes_tracking_s_gains_with_onboard_s_over_them(tmp_pat
         ("[tracking]\nk_yaw = 0\n", "attitude gains > 0"),
         ("[onboard]\nk_roll = 5\n", "unknown key"),
         ("[onboard]\nki_xy = -1\n", "gains must be >= 0"),
+        ("[onboard]\ndisturbance_bandwidth_rad_s = -1\n", "gains must be >= 0"),
         ("tracking = 3\n", r"\[tracking\] must be a table"),
         ("[px4]\nMPC_XY_CRUSE = 8\n", r"unknown PX4 parameter.*MPC_XY_CRUSE.*known: .*CRUISE"),
         ("[px4]\nMPC_THR_HOVER = 1.2\n", r"\[px4\]: MPC_THR_HOVER must be in \(0, 1\)"),
