@@ -68,6 +68,8 @@ LINK = {"latency_s": 0.02, "loss": 0.05}
 HOVER = {"s": 0.0}
 #: `--law`: LawParams fields the onboard cells override
 LAW_OVERRIDE: dict[str, Any] = {}
+#: `--upload-after-takeoff`: the onboard cells upload from the hover after PX4's takeoff
+AFTER_TAKEOFF = {"on": False}
 #: `--ctl`: the streamed cells' controller overrides
 CTL: list[str] = []
 #: arm at this time since PX4's boot [s] (`--arm-at`; 0: at once): PX4's estimate errs the same
@@ -119,10 +121,12 @@ def hermite_segments(ref: Callable[[float], Reference], duration: float
 
 async def _onboard_flight(url: str, target: int, module: Path, px4: Px4Sitl, speed: float,
                           scale: float, tlog: Path) -> dict[str, Any]:
-    """Upload on the ground, then take off and switch to OFFBOARD 1 s after the takeoff, as
-    the streamed cells start: PX4's estimate errs differently the longer it has flown (a 7 s
-    longer hover before the start: 0.13-0.16 m instead of 0.085 m), so every cell starts its
-    pattern at the same time after the takeoff, whatever the upload took."""
+    """Upload on the ground (or, with `--upload-after-takeoff`, from the hover after the
+    takeoff: the figure then starts where the vehicle is, as the streamed cells' plan does),
+    then take off and switch to OFFBOARD 1 s after the takeoff, as the streamed cells start:
+    PX4's estimate errs differently the longer it has flown (a 7 s longer hover before the
+    start: 0.13-0.16 m instead of 0.085 m), so every cell starts its pattern at about the same
+    time after the takeoff, whatever the upload took."""
     fig = scaled_figure8(scale)
     duration = B.figure8_seconds(speed / scale)
     config = VehicleConfig(tlog_path=str(tlog), connect_timeout_s=20.0, armable_timeout_s=40.0,
@@ -131,23 +135,30 @@ async def _onboard_flight(url: str, target: int, module: Path, px4: Px4Sitl, spe
                                link_config=LinkConfig(target_sysid=target)) as v:
         await v.set_message_interval(H.HIL_STATE_QUATERNION, 50.0)
         await H.fresh_position(v)
-        pos = v.telemetry.position
-        assert pos is not None
-        r0 = fig(0.0, speed).pos_ned  # (its height: 5 m up, where the takeoff ends)
-        ref = H.shifted(lambda t: fig(t, speed), pos.pos_ned[0] - r0[0], pos.pos_ned[1] - r0[1])
-        breaks, cps = hermite_segments(ref, duration)
         hover = (await v.read_params(["MPC_THR_HOVER"]))["MPC_THR_HOVER"]
         cfg = v.link.config
         law = law_params(VehicleFile(), hover, math.radians(TILT_DEG))
         law = dataclasses.replace(law, **LAW_OVERRIDE)
-        up = P.encode_upload(breaks, cps, None, law,
-                             sysid=cfg.sysid, compid=cfg.compid, final_action="hold",
-                             hold_s=1.0, start_tolerance_m=3.0)
-        t_up = time.monotonic()
-        u = await upload(v, up)
-        up_s = time.monotonic() - t_up
-        if not u.verified:
-            raise RuntimeError(f"upload failed: {u.failed}")
+        r0 = fig(0.0, speed).pos_ned  # (its height: 5 m up, where the takeoff ends)
+
+        async def load() -> tuple[Callable[[float], Reference], float, int, int]:
+            """The figure from where the vehicle is (horizontally), uploaded and verified."""
+            pos = v.telemetry.position
+            assert pos is not None
+            shifted = H.shifted(lambda t: fig(t, speed), pos.pos_ned[0] - r0[0],
+                                pos.pos_ned[1] - r0[1])
+            breaks, cps = hermite_segments(shifted, duration)
+            up = P.encode_upload(breaks, cps, None, law,
+                                 sysid=cfg.sysid, compid=cfg.compid, final_action="hold",
+                                 hold_s=1.0, start_tolerance_m=3.0)
+            t_up = time.monotonic()
+            u = await upload(v, up)
+            if not u.verified:
+                raise RuntimeError(f"upload failed: {u.failed}")
+            return shifted, time.monotonic() - t_up, len(cps), u.resent
+
+        if not AFTER_TAKEOFF["on"]:
+            ref, up_s, n_seg, resent = await load()
         while True:  # bounded: PX4's boot clock reaches ARM_AT (seconds)
             p = v.telemetry.position
             if p is None or p.time_boot_s >= ARM_AT["s"]:
@@ -156,6 +167,8 @@ async def _onboard_flight(url: str, target: int, module: Path, px4: Px4Sitl, spe
         await v.arm()
         await v.takeoff(5.0)
         await asyncio.sleep(1.0 + HOVER["s"])  # the streamed cells' settle (not a sync)
+        if AFTER_TAKEOFF["on"]:  # from the hover: no start offset (the upload takes ~0.4 s)
+            ref, up_s, n_seg, resent = await load()
         await v.set_mode(FlightMode.OFFBOARD)
         t0_boot = math.nan
         state: Any = None
@@ -184,8 +197,8 @@ async def _onboard_flight(url: str, target: int, module: Path, px4: Px4Sitl, spe
     trms, tmx = H.rms_max(tr)
     m = re.search(r"step mean (\d+) ns p99 < (\d+) ns", status)
     return {"rms": rms, "max": mx, "truth_rms": trms, "truth_max": tmx, "n": len(est),
-            "state": P.STATE_NAMES.get(state, state), "segments": len(cps),
-            "upload_s": up_s, "resent": u.resent,
+            "state": P.STATE_NAMES.get(state, state), "segments": n_seg,
+            "upload_s": up_s, "resent": resent,
             "step_mean_ns": float(m[1]) if m else math.nan,
             "step_p99_ns": float(m[2]) if m else math.nan}
 
@@ -282,7 +295,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ctl", nargs="*", default=[], metavar="FIELD=VALUE",
                     help="streamed cells: TrackingConfig / TrackingGains overrides "
                          "(bench_tracking's --ctl)")
+    ap.add_argument("--upload-after-takeoff", action="store_true",
+                    help="onboard cells: plan the figure from the hover after PX4's takeoff "
+                         "and upload it then (no start offset), not on the ground")
     args = ap.parse_args(argv)
+    AFTER_TAKEOFF["on"] = args.upload_after_takeoff
     CTL[:] = args.ctl
     base = law_params(VehicleFile(), 0.5, math.radians(TILT_DEG))
     for item in args.law:
