@@ -19,6 +19,7 @@ from companion.onboard.protocol import (
     Upload,
     Uploader,
     decode_ack,
+    request,
 )
 
 from .base import VehicleBase
@@ -67,8 +68,7 @@ async def module_status(v: VehicleBase, timeout_s: float = 3.0,
     try:
         end = time.monotonic() + timeout_s
         while time.monotonic() < end:
-            v.send_float_array(PROTO_NAME, OP_STATUS, [float(cfg.sysid), float(cfg.compid)]
-                               + [0.0] * 56)
+            v.send_float_array(PROTO_NAME, OP_STATUS, request(cfg.sysid, cfg.compid))
             until = min(end, time.monotonic() + interval_s)
             while (left := until - time.monotonic()) > 0:
                 ack = await q.get(left)

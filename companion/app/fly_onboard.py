@@ -29,7 +29,6 @@ from companion.flight.report import FloatArray, SetpointLimits, TrackRecorder, m
 from companion.mavlink import FlightMode, LinkConfig
 from companion.mission.px4_params import Px4PlanningParams
 from companion.onboard.protocol import (
-    MAX_SEGMENTS,
     STATE_DONE,
     STATE_ERROR,
     STATE_NAMES,
@@ -43,7 +42,9 @@ from companion.planning.onboard_segments import (
     START_TOLERANCE_M,
     OnboardError,
     Segments,
+    check_fits,
     law_params,
+    module_final_action,
     schedule_segments,
     trajectory_segments,
 )
@@ -129,13 +130,11 @@ async def fly_onboard(opts: FlyOptions, console: Console) -> int:
         origin = np.asarray(pos.pos_ned, dtype=float) - planned.start_rel
         if inputs.mission is None:
             origin = origin + np.array([0.0, 0.0, -planned.alt_m])
-        breaks, cps, ycps = planned_segments(planned, origin)
-        if len(cps) > MAX_SEGMENTS:
-            raise OnboardError(f"the trajectory has {len(cps)} segments; the module holds "
-                               f"{MAX_SEGMENTS}")
+        breaks, cps, ycps = segs = planned_segments(planned, origin)
+        check_fits(segs)
         hover = (await v.read_params(["MPC_THR_HOVER"]))["MPC_THR_HOVER"]
         limits = SetpointLimits.of_px4(px4.params if px4 is not None else Px4PlanningParams())
-        final = {"land": "land", "rtl": "rtl"}.get(planned.final_action, "hold")
+        final = module_final_action(planned.final_action)
         up: Upload = encode_upload(breaks, cps, ycps, law_params(inputs.vehicle, hover,
                                                                  limits.tilt_max_rad),
                                    sysid=link.sysid, compid=link.compid, final_action=final,

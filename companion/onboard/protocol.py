@@ -99,6 +99,12 @@ def _pad(values: Sequence[float]) -> tuple[float, ...]:
     return tuple(values) + (0.0,) * (N_FLOATS - len(values))
 
 
+def request(sysid: int, compid: int) -> tuple[float, ...]:
+    """The data of a companion's request without a body (OP_STATUS, OP_ABORT): its system and
+    component ids, to which the module then reports."""
+    return _pad([float(sysid), float(compid)])
+
+
 def _elevate(points: FloatArray, count: int) -> FloatArray:
     """Bezier control points (n+1, d) degree-elevated to `count` points (the same curve)."""
     seg = Bezier(points.reshape(points.shape[0], -1), 1.0)  # (the duration plays no part)

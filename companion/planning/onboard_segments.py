@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 
 from companion.control import TrackingConfig
 from companion.control.estimation import DisturbanceConfig
-from companion.onboard.protocol import LawParams
+from companion.onboard.protocol import MAX_SEGMENTS, LawParams
 from companion.planning.config import VehicleFile
 from companion.planning.schedule import Schedule
 from companion.trajectory import Bezier, PiecewiseBezier
@@ -29,6 +29,18 @@ HOLD_S = 1.0
 
 class OnboardError(ValueError):
     """The onboard flight cannot start (exit 2): no module, not ready, refused upload."""
+
+
+def module_final_action(final_action: str) -> str:
+    """The module's final action for a plan's (`land`, `rtl`; anything else: `hold`)."""
+    return final_action if final_action in ("land", "rtl") else "hold"
+
+
+def check_fits(segs: Segments) -> None:
+    """OnboardError unless the module holds `segs` (at most MAX_SEGMENTS segments)."""
+    if len(segs[1]) > MAX_SEGMENTS:
+        raise OnboardError(f"the trajectory has {len(segs[1])} segments; the module holds "
+                           f"{MAX_SEGMENTS}")
 
 
 def trajectory_segments(out: Segments, traj: PiecewiseBezier, yaw: PiecewiseBezier | None,

@@ -33,7 +33,6 @@ from companion.mavlink.commands import (
 )
 from companion.mavlink.px4_mode import FlightMode
 from companion.onboard.protocol import (
-    MAX_SEGMENTS,
     OP_STATUS,
     PROTO_NAME,
     STATE_DONE,
@@ -47,12 +46,16 @@ from companion.onboard.protocol import (
     Uploader,
     decode_ack,
     encode_upload,
+    request,
 )
 from companion.planning.config import onboard_config
 from companion.planning.onboard_segments import (
     HOLD_S,
     START_TOLERANCE_M,
+    OnboardError,
+    check_fits,
     law_from_tracking,
+    module_final_action,
     schedule_segments,
 )
 from companion.planning.schedule import Schedule
@@ -67,7 +70,6 @@ STATUS_INTERVAL_S = 0.5
 #: After the module is done: how long PX4's final action may take to disarm [s].
 END_WAIT_S = 60.0
 _READY_STATES = (STATE_READY, STATE_DONE, STATE_STOPPED, STATE_ERROR, STATE_LOADED)
-_FINAL = {"land": "land", "rtl": "rtl"}
 
 
 class OnboardFlight:
@@ -93,8 +95,7 @@ class OnboardFlight:
         self.states: list[tuple[float, str]] = []  # the module's state changes
         self._t_phase = 0.0
         self._t_status = -math.inf
-        final = schedule.final_action
-        self._final = _FINAL.get(final, "hold")
+        self._final = module_final_action(schedule.final_action)
 
     @property
     def done(self) -> bool:
@@ -175,10 +176,11 @@ class OnboardFlight:
         assert pos is not None
         sched = self.schedule
         self.origin = np.asarray(pos.pos_ned, dtype=np.float64) - sched.reference(0.0).pos_ned
-        breaks, cps, ycps = schedule_segments(sched, self.origin)
-        if len(cps) > MAX_SEGMENTS:
-            self.abort(now, f"the trajectory has {len(cps)} segments; the module holds "
-                      f"{MAX_SEGMENTS}")
+        breaks, cps, ycps = segs = schedule_segments(sched, self.origin)
+        try:
+            check_fits(segs)
+        except OnboardError as exc:
+            self.abort(now, str(exc))
             return
         limits = SetpointLimits.of_px4(sched.px4)
         tracking = vehicle_limited(TrackingConfig(params=self.config.params), limits)
@@ -204,7 +206,7 @@ class OnboardFlight:
             elif now - self._t_status >= STATUS_INTERVAL_S:
                 self._t_status = now
                 cfg = link.config
-                self._send(OP_STATUS, [float(cfg.sysid), float(cfg.compid)] + [0.0] * 56, now)
+                self._send(OP_STATUS, request(cfg.sysid, cfg.compid), now)
         elif self.phase == "upload":
             u = self.uploader
             assert u is not None

@@ -34,7 +34,6 @@ import numpy as np
 
 from companion.mavlink.px4_mode import FlightMode
 from companion.onboard.protocol import (
-    MAX_SEGMENTS,
     OP_STATUS,
     STATE_DONE,
     STATE_ERROR,
@@ -47,7 +46,9 @@ from companion.onboard.protocol import (
 )
 from companion.planning.onboard_segments import (
     Segments,
+    check_fits,
     concatenate,
+    module_final_action,
     schedule_segments,
     trajectory_segments,
     window,
@@ -115,13 +116,11 @@ def onboard_trajectory(service: ServeService, req: UploadOnboard) -> OnboardTraj
     segs = concatenate(first, rest)
     if not segs[1]:
         raise ValueError("nothing of the mission is left to fly")
-    if len(segs[1]) > MAX_SEGMENTS:
-        raise ValueError(f"the trajectory has {len(segs[1])} segments; the module holds "
-                         f"{MAX_SEGMENTS}")
+    check_fits(segs)
     s0 = segs[1][0][0]
     return OnboardTrajectory(segs, t_join, 0.0 if join is None else float(join.duration),
                              (float(s0[0]), float(s0[1]), float(s0[2])),
-                             {"land": "land", "rtl": "rtl"}.get(prog.final_action, "hold"))
+                             module_final_action(prog.final_action))
 
 
 class OnboardServeService(ServeService):

@@ -36,7 +36,7 @@ from rich.console import Console
 from companion.mavlink import FlightMode, LinkConfig, VehicleLink
 from companion.mavlink.codec import MavMessage
 from companion.mission.px4_params import Px4PlanningParams
-from companion.onboard.protocol import N_FLOATS, OP_ABORT, OP_STATUS, PROTO_NAME, Ack
+from companion.onboard.protocol import OP_ABORT, OP_STATUS, PROTO_NAME, Ack, request
 from companion.planning.config import VehicleFile, load_vehicle_file
 from companion.planning.vehicle_params import ResolvedPlanningParams, read_planning_params
 from companion.serve.onboard import OnboardServeService
@@ -316,8 +316,7 @@ class _Session:
     def _module_request(self, op: int) -> None:
         """One message to the onboard module (STATUS: also makes us the peer it reports to)."""
         cfg = self.v.link.config
-        self.v.send_float_array(PROTO_NAME, op, [float(cfg.sysid), float(cfg.compid)]
-                                + [0.0] * (N_FLOATS - 2))
+        self.v.send_float_array(PROTO_NAME, op, request(cfg.sysid, cfg.compid))
 
     async def _follow_module(self) -> None:
         """The onboard module's reports (its status every 0.5 s, its answers), the latest kept

@@ -24,6 +24,7 @@ from pymavlink import mavutil
 import companion.onboard.protocol as P
 from companion.aio import Vehicle, VehicleConfig
 from companion.aio.onboard import _AckQueue, module_status
+from companion.aio.tlog import offboard_setpoints
 from companion.mavlink import LinkConfig
 from gen_c import px4module
 from px4_harness import Px4Sitl
@@ -159,7 +160,7 @@ async def _serve_onboard_flies_the_mission(px4: Px4Sitl, logs: Path) -> None:
     it uploads px4_short.plan, waits for the service's onboard upload, switches to OFFBOARD.
     The module flies the rest of the mission and lands. Oracles: the service's tlog (PX4's
     LOCAL_POSITION_NED: every waypoint after the takeoff within 0.5 m; the companion's
-    setpoints while PX4 said OFFBOARD, bench/tlog_setpoints.py: none), PX4's disarm."""
+    setpoints while PX4 said OFFBOARD, `offboard_setpoints`: none), PX4's disarm."""
     proc = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "companion", "serve", "--onboard", "--connect", px4.url,
         "--target-system", str(px4.target_system), "--log-dir", str(logs), cwd=REPO,
@@ -199,10 +200,9 @@ async def _serve_onboard_flies_the_mission(px4: Px4Sitl, logs: Path) -> None:
     # the mission's waypoints after the takeoff (wp 1, wp 2; the land point is wp 2's)
     wps = [(*local_of(home, m.x * 1e-7, m.y * 1e-7), home.z - m.z) for m in wire[1:3]]
     errs = [min(math.dist(p, w) for p in track) for w in wps]
-    sent = [subprocess.run([sys.executable, str(REPO / "bench" / "tlog_setpoints.py"), str(t)],
-                           capture_output=True, text=True, check=True).stdout for t in tlogs]
-    n_sp = sum(int(o.split()[0]) for o in sent)
-    n_hb = sum(int(o.split("(")[1].split()[0]) for o in sent)
+    counts = [offboard_setpoints(t) for t in tlogs]
+    n_sp = sum(c[0] for c in counts)
+    n_hb = sum(c[1] for c in counts)
     print(f"serve --onboard: {len(track)} positions in OFFBOARD, waypoint errors "
           f"{[round(e, 3) for e in errs]} m, {n_sp} companion setpoints in OFFBOARD "
           f"({n_hb} OFFBOARD heartbeats), {flown_s:.1f} s from the service's start to disarm")
