@@ -75,6 +75,20 @@ CTL: list[str] = []
 #: arm at this time since PX4's boot [s] (`--arm-at`; 0: at once): PX4's estimate errs the same
 #: way at the same time since boot (SIH's sensor noise), so cells compared at equal boot times
 ARM_AT = {"s": 0.0}
+#: `--start-at`: every cell starts its figure at this time since PX4's boot [s] (0: as soon as
+#: it can). PX4 SIH's estimate errs the same way at the same time since boot, so cells that
+#: start together meet the same estimate errors (onboard and streamed paired).
+START_AT = {"s": 0.0}
+
+
+async def wait_boot(v: Vehicle, boot_s: float) -> None:
+    """Wait (bounded by the boot clock) until PX4's clock reaches `boot_s` [s]."""
+    t_end = time.monotonic() + boot_s + 30.0
+    while time.monotonic() < t_end:
+        p = v.telemetry.position
+        if p is not None and p.time_boot_s >= boot_s:
+            return
+        await asyncio.sleep(0.004)
 
 
 def scaled_figure8(scale: float) -> Callable[[float, float], Reference]:
@@ -169,6 +183,8 @@ async def _onboard_flight(url: str, target: int, module: Path, px4: Px4Sitl, spe
         await asyncio.sleep(1.0 + HOVER["s"])  # the streamed cells' settle (not a sync)
         if AFTER_TAKEOFF["on"]:  # from the hover: no start offset (the upload takes ~0.4 s)
             ref, up_s, n_seg, resent = await load()
+        if START_AT["s"] > 0.0:
+            await wait_boot(v, START_AT["s"])
         await v.set_mode(FlightMode.OFFBOARD)
         t0_boot = math.nan
         state: Any = None
@@ -200,7 +216,7 @@ async def _onboard_flight(url: str, target: int, module: Path, px4: Px4Sitl, spe
             "state": P.STATE_NAMES.get(state, state), "segments": n_seg,
             "upload_s": up_s, "resent": resent,
             "step_mean_ns": float(m[1]) if m else math.nan,
-            "step_p99_ns": float(m[2]) if m else math.nan}
+            "step_p99_ns": float(m[2]) if m else math.nan, "start_boot_s": t0_boot}
 
 
 def onboard_cell(module: Path, speed: float, scale: float, out: Path, degraded: bool
@@ -241,9 +257,26 @@ def degraded_launch() -> Iterator[None]:
         H.launch = orig  # type: ignore[assignment]
 
 
+@contextlib.contextmanager
+def start_at_fly_on() -> Iterator[None]:
+    """api_harness.fly_on waiting first for PX4's clock to reach `--start-at` (streamed cells)."""
+    orig = H.fly_on
+
+    async def fly_on(v: Vehicle, *a: Any, **kw: Any) -> Any:
+        await wait_boot(v, START_AT["s"])
+        return await orig(v, *a, **kw)
+
+    H.fly_on = fly_on  # type: ignore[assignment]
+    try:
+        yield
+    finally:
+        H.fly_on = orig  # type: ignore[assignment]
+
+
 def streamed_cell(mode: str, speed: float, scale: float, out: Path, degraded: bool
                   ) -> dict[str, Any]:
-    with patched_figure(scale), (degraded_launch() if degraded else contextlib.nullcontext()):
+    with patched_figure(scale), (degraded_launch() if degraded else contextlib.nullcontext()), \
+            (start_at_fly_on() if START_AT["s"] > 0.0 else contextlib.nullcontext()):
         return B._api_cell_retry("px4", mode, speed, out, 0, list(CTL), None, {})
 
 
@@ -289,6 +322,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="onboard cells: hover this much longer before OFFBOARD [s]")
     ap.add_argument("--arm-at", type=float, default=0.0,
                     help="onboard cells: arm at this time since PX4's boot [s]")
+    ap.add_argument("--start-at", type=float, nargs="+", default=[0.0], metavar="S",
+                    help="every cell starts its figure at S seconds since PX4's boot (several: "
+                         "each cell once per S, onboard and streamed paired; 0: at once)")
     ap.add_argument("--law", nargs="*", default=[], metavar="FIELD=VALUE",
                     help="onboard cells: override LawParams fields (kp/kd/ki/i_max scale the "
                          "onboard law's horizontal gains by VALUE; others are set)")
@@ -326,25 +362,29 @@ def main(argv: list[str] | None = None) -> int:
         for cell in args.cells:
             speed, scale = (float(x) for x in cell.split(":"))
             for link in ([False, True] if args.degraded else [False]):
-                for mode in args.modes:
-                    if link and mode == "position":
-                        continue  # PX4's own control: no companion link in its loop
-                    for k in range(args.repeat):
-                        name = f"{mode}-{speed:g}-x{scale:g}{'-degraded' if link else ''}-{k}"
-                        out = args.out / name
-                        t = time.perf_counter()
-                        try:
-                            res = (onboard_cell(module, speed, scale, out, link)
-                                   if mode == "onboard" else
-                                   streamed_cell(mode, speed, scale, out, link))
-                        except Exception as exc:  # one failed flight is reported, not fatal
-                            res = {"error": f"{type(exc).__name__}: {exc}"}
-                        res.update(mode=mode, speed=speed, scale=scale, degraded=link,
-                                   run=k, wall_s=time.perf_counter() - t)
-                        rows.append(res)
-                        print(json.dumps({k2: v for k2, v in res.items()
-                                          if not isinstance(v, list)}), flush=True)
-                        results.write_text(json.dumps(rows, indent=1, default=str))
+                for start in args.start_at:
+                    START_AT["s"] = start
+                    tag = f"-s{start:g}" if start > 0.0 else ""
+                    for mode in args.modes:
+                        if link and mode == "position":
+                            continue  # PX4's own control: no companion link in its loop
+                        for k in range(args.repeat):
+                            name = (f"{mode}-{speed:g}-x{scale:g}"
+                                    f"{'-degraded' if link else ''}{tag}-{k}")
+                            out = args.out / name
+                            t = time.perf_counter()
+                            try:
+                                res = (onboard_cell(module, speed, scale, out, link)
+                                       if mode == "onboard" else
+                                       streamed_cell(mode, speed, scale, out, link))
+                            except Exception as exc:  # one failed flight is reported
+                                res = {"error": f"{type(exc).__name__}: {exc}"}
+                            res.update(mode=mode, speed=speed, scale=scale, degraded=link,
+                                       run=k, start_at=start, wall_s=time.perf_counter() - t)
+                            rows.append(res)
+                            print(json.dumps({k2: v for k2, v in res.items()
+                                              if not isinstance(v, list)}), flush=True)
+                            results.write_text(json.dumps(rows, indent=1, default=str))
         if args.square:
             for onboard in (False, True):
                 res = square_cell(module, onboard, args.out / f"square-{int(onboard)}")
