@@ -291,7 +291,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="onboard cells: arm at this time since PX4's boot [s]")
     ap.add_argument("--law", nargs="*", default=[], metavar="FIELD=VALUE",
                     help="onboard cells: override LawParams fields (kp/kd/ki/i_max scale the "
-                         "onboard law's horizontal gains by VALUE; others are set)")
+                         "onboard law's horizontal gains by VALUE; others are set, e.g. "
+                         "vel_correction_rad_s=0 to fly without the velocity correction)")
     ap.add_argument("--ctl", nargs="*", default=[], metavar="FIELD=VALUE",
                     help="streamed cells: TrackingConfig / TrackingGains overrides "
                          "(bench_tracking's --ctl)")
