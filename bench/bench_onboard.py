@@ -327,7 +327,8 @@ def main(argv: list[str] | None = None) -> int:
                          "each cell once per S, onboard and streamed paired; 0: at once)")
     ap.add_argument("--law", nargs="*", default=[], metavar="FIELD=VALUE",
                     help="onboard cells: override LawParams fields (kp/kd/ki/i_max scale the "
-                         "onboard law's horizontal gains by VALUE; others are set)")
+                         "onboard law's horizontal gains by VALUE; others are set, e.g. "
+                         "vel_correction_rad_s=0 to fly without the velocity correction)")
     ap.add_argument("--ctl", nargs="*", default=[], metavar="FIELD=VALUE",
                     help="streamed cells: TrackingConfig / TrackingGains overrides "
                          "(bench_tracking's --ctl)")

@@ -25,7 +25,8 @@ ARM_FLAGS = ("-mcpu=cortex-m7", "-mfpu=fpv5-d16", "-mfloat-abi=hard", "-mthumb",
              "-ffunction-sections", "-fdata-sections")
 PUBLIC = ("ecca_bezier_eval", "ecca_multirotor_setpoint", "ecca_rover_setpoint",
           "ecca_full_setpoint", "ecca_full_rover_setpoint", "ecca_ackermann_setpoint",
-          "ecca_full_ackermann_setpoint", "ecca_tracking_core", "ecca_disturbance_step")
+          "ecca_full_ackermann_setpoint", "ecca_tracking_core", "ecca_disturbance_step",
+          "ecca_velocity_correction_step")
 
 
 class CrossBuildError(RuntimeError):

@@ -414,6 +414,7 @@ def library_functions(variant: str) -> list[ca.Function]:
         ackermann_function(f"ecca_{variant}_ackermann", sf.rover),
         tracking_core_function(f"ecca_{variant}_tracking_core"),
         disturbance_step_function(f"ecca_{variant}_disturbance_step"),
+        velocity_correction_step_function(f"ecca_{variant}_velocity_correction_step"),
     ]
 
 
@@ -439,9 +440,22 @@ def disturbance_step_function(name: str) -> ca.Function:
     return ca.Function(name, [x], [ca.cse(f(x))], ["x"], ["y"])
 
 
+def velocity_correction_step_function(name: str) -> ca.Function:
+    """The horizontal velocity correction's update step
+    (``companion.mavlink.velocity_correction``, the expressions `VelocityCorrection` runs): one
+    input vector (``VCORR_INPUTS``), one output vector (``VCORR_OUTPUTS``), common
+    subexpressions shared."""
+    from companion.mavlink.velocity_correction import symbolic_velocity_correction_step
+
+    f = symbolic_velocity_correction_step(name)
+    x = ca.SX.sym("x", f.size1_in(0))
+    return ca.Function(name, [x], [ca.cse(f(x))], ["x"], ["y"])
+
+
 def _info_header() -> str:
     from companion.control.core import CORE_N_IN, CORE_N_OUT
     from companion.control.observer import DIST_N_IN, DIST_N_OUT
+    from companion.mavlink.velocity_correction import VCORR_N_IN, VCORR_N_OUT
 
     return (
         "/* ecca_setpoint: ecca_setpoint_gen.h\n"
@@ -454,6 +468,8 @@ def _info_header() -> str:
         + f"#define ECCA_GEN_CORE_N_OUT {CORE_N_OUT}\n"
         + f"#define ECCA_GEN_DIST_N_IN {DIST_N_IN}\n"
         + f"#define ECCA_GEN_DIST_N_OUT {DIST_N_OUT}\n"
+        + f"#define ECCA_GEN_VCORR_N_IN {VCORR_N_IN}\n"
+        + f"#define ECCA_GEN_VCORR_N_OUT {VCORR_N_OUT}\n"
         + "\n#endif /* ECCA_SETPOINT_GEN_H */\n"
     )
 

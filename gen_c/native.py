@@ -314,6 +314,8 @@ class NativeSetpoint:
                                     P(s["steering"])]),
                 "tracking_core": ("ecca_tracking_core", [P(real), P(real)]),
                 "disturbance_step": ("ecca_disturbance_step", [P(real), P(real)]),
+                "velocity_correction_step": ("ecca_velocity_correction_step",
+                                             [P(real), P(real)]),
             }
             for key, (cname, argtypes) in sig.items():
                 fn = getattr(self._lib, cname + sfx)
@@ -480,6 +482,18 @@ class NativeSetpoint:
         xin = (real * 12)(*_vec(x, 12, "x").tolist())
         out = (real * 4)()
         self._call(precision, "disturbance_step", xin, out)
+        return np.array(out[:], dtype=np.float64)
+
+    def velocity_correction_step(self, x: npt.ArrayLike, *,
+                                 precision: Precision = "double") -> FloatArray:
+        """``ecca_velocity_correction_step``: the velocity correction's update on one input
+        vector `x` (the 15 values of ``companion.mavlink.velocity_correction.VCORR_INPUTS``);
+        the 4 outputs (``VCORR_OUTPUTS``: p_hat, corr). ValueError on a refused input or a
+        non-finite result."""
+        real = ctypes.c_double if precision == "double" else ctypes.c_float
+        xin = (real * 15)(*_vec(x, 15, "x").tolist())
+        out = (real * 4)()
+        self._call(precision, "velocity_correction_step", xin, out)
         return np.array(out[:], dtype=np.float64)
 
     def full_rover(self, ctrl_pts: npt.ArrayLike, duration: float, t: float,

@@ -25,7 +25,7 @@ HEADERS = ("ecca_setpoint.h", "ecca_setpoint_gen.h", "ecca_setpoint_impl.inc", "
            "../px4_module/ecca_onboard_core.h", "../px4_module/ecca_onboard_proto.h")
 N_FLOATS = 58
 MAX_SEGMENTS = 256  # ECCA_MAX_SEGMENTS
-B_COUNT = 29  # ECCA_B_COUNT
+B_COUNT = 30  # ECCA_B_COUNT
 
 
 class _Ack(ctypes.Structure):
@@ -60,7 +60,10 @@ class _Core(ctypes.Structure):
                 ("integ", ctypes.c_double * 3), ("progress", ctypes.c_double),
                 ("t_final", ctypes.c_double), ("v_hat", ctypes.c_double * 2),
                 ("d_hat", ctypes.c_double * 2), ("t_sample", ctypes.c_double),
-                ("have_sample", ctypes.c_int), ("u_last", ctypes.c_double)]
+                ("have_sample", ctypes.c_int), ("u_last", ctypes.c_double),
+                ("vc_w", ctypes.c_double), ("vc_p", ctypes.c_double * 2),
+                ("vc_v", ctypes.c_double * 2), ("vc_c", ctypes.c_double * 2),
+                ("vc_t", ctypes.c_double), ("vc_have", ctypes.c_int)]
 
 
 @dataclass(frozen=True)
@@ -172,7 +175,8 @@ class OnboardModule:
         """One control step at `now_s` [s]: armed in OFFBOARD or not, the estimate valid or
         not, position [m] and velocity [m/s] NED sampled at `sample_s` [s] (default: now),
         the estimated attitude `q_wxyz` (body FRD -> NED; None: unknown, the disturbance
-        observer does not learn)."""
+        observer does not learn). Each new valid sample updates the velocity correction (in
+        every state); the observer and the law get the corrected velocity."""
         p = (ctypes.c_double * 3)(*[float(x) for x in pos_ned])
         v = (ctypes.c_double * 3)(*[float(x) for x in vel_ned])
         q = None if q_wxyz is None else (ctypes.c_double * 4)(*[float(x) for x in q_wxyz])
@@ -191,6 +195,19 @@ class OnboardModule:
         """The disturbance observer's estimate (north, east [m/s^2])."""
         c = _Core.from_buffer(self._buf)
         return (float(c.d_hat[0]), float(c.d_hat[1]))
+
+    @property
+    def velocity_correction(self) -> tuple[float, float]:
+        """The velocity correction (north, east [m/s]): what the module adds to the reported
+        horizontal velocity before its observer and law (0, 0 while off)."""
+        c = _Core.from_buffer(self._buf)
+        return (float(c.vc_c[0]), float(c.vc_c[1]))
+
+    @property
+    def velocity_correction_rad_s(self) -> float:
+        """The velocity correction's frequency in use [rad/s] (the default until an upload's
+        BEGIN is accepted, then that upload's; 0: off)."""
+        return float(_Core.from_buffer(self._buf).vc_w)
 
 
 def build_onboard_library(*, cache: Path | None = None) -> Path:

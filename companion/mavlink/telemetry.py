@@ -11,8 +11,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from companion._frozen import frozen_new
+from companion.flatness._formulas import FLOAT
 
 from .codec import MavMessage
+from .velocity_correction import POSITION_RESET_M as POSITION_RESET_M
+from .velocity_correction import VELOCITY_CORRECTION_MAX_M_S as VELOCITY_CORRECTION_MAX_M_S
+from .velocity_correction import VELOCITY_CORRECTION_RAD_S as VELOCITY_CORRECTION_RAD_S
+from .velocity_correction import velocity_correction_step
 
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
@@ -178,16 +183,6 @@ def _rotate(q: Quat, v: Vec3) -> Vec3:
             vz + w * tz + (x * ty - y * tx))
 
 
-#: Natural frequency [rad/s] of :class:`VelocityCorrection` (both poles there: the correction
-#: follows a changing velocity error with a time constant of ~1 / this).
-VELOCITY_CORRECTION_RAD_S = 4.0
-#: The correction's magnitude is clamped to this [m/s] per axis.
-VELOCITY_CORRECTION_MAX_M_S = 1.0
-#: A position that jumps this far [m] from the filter's prediction is an estimator reset: the
-#: filter restarts from it and keeps its correction.
-POSITION_RESET_M = 1.0
-
-
 class VelocityCorrection:
     """The horizontal velocity error of the autopilot's estimate, seen from its own position: a
     second-order complementary filter. Between samples a filtered position moves with the
@@ -206,9 +201,14 @@ class VelocityCorrection:
     cut EKF2's error against the truth from 0.45 to 0.18 m/s RMS in OFFBOARD and from 0.67 to
     0.22 m/s around the resume; a higher w does a little better on PX4's smooth position but
     lets white position noise through as w^1.5 (docs/theory/estimation.md). The vertical axis
-    is left alone (baro height; the touchdown reads EKF2's vertical speed)."""
+    is left alone (baro height; the touchdown reads EKF2's vertical speed).
+
+    The update is `companion.mavlink.velocity_correction`'s step, which gen_c also emits as C
+    (``ecca_velocity_correction_step``) for the onboard PX4 module; this class keeps the
+    bookkeeping (the sample clock, the same sample again, non-finite samples)."""
 
     def __init__(self, omega_rad_s: float = VELOCITY_CORRECTION_RAD_S) -> None:
+        self.omega_rad_s = omega_rad_s
         self.k1, self.k2 = 2.0 * omega_rad_s, omega_rad_s * omega_rad_s
         self._t: float | None = None  # sample time [s] of the last sample
         self._p = (0.0, 0.0)  # filtered horizontal position [m]
@@ -227,25 +227,15 @@ class VelocityCorrection:
         dt = t_s - t0 if t0 is not None else 0.0
         if t0 is not None and dt == 0.0:  # the same sample again
             return (cx, cy, 0.0)
-        if t0 is None or not 1e-3 < dt < 0.5:  # the first sample, or after a gap: restart
-            self._p = (px, py)
-        else:
-            h = 0.5 * dt
-            v0x, v0y = self._v
-            qx = self._p[0] + (v0x + vel[0]) * h + cx * dt
-            qy = self._p[1] + (v0y + vel[1]) * h + cy * dt
-            rx, ry = px - qx, py - qy
-            if math.hypot(rx, ry) > POSITION_RESET_M:
-                self._p = (px, py)
-            else:
-                a, b = min(1.0, self.k1 * dt), self.k2 * dt
-                lim = VELOCITY_CORRECTION_MAX_M_S
-                self._p = (qx + a * rx, qy + a * ry)
-                cx = min(lim, max(-lim, cx + b * rx))
-                cy = min(lim, max(-lim, cy + b * ry))
-                self.c = (cx, cy)
+        # the step written once with the generated C's (companion.mavlink.velocity_correction);
+        # the first sample (no t0), a gap or an estimator reset restart it
+        v = (vel[0], vel[1])
+        self._p, self.c = velocity_correction_step(
+            FLOAT, self._p, self._v, self.c, (px, py), v, dt, self.omega_rad_s,
+            VELOCITY_CORRECTION_MAX_M_S, POSITION_RESET_M, t0 is not None)
         self._t = t_s
-        self._v = (vel[0], vel[1])
+        self._v = v
+        cx, cy = self.c
         return (cx, cy, 0.0)
 
 

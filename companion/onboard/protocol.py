@@ -22,11 +22,12 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from companion.mavlink.velocity_correction import VELOCITY_CORRECTION_RAD_S
 from companion.trajectory import Bezier
 
 FloatArray = npt.NDArray[np.float64]
 
-PROTO_VERSION = 2
+PROTO_VERSION = 3
 PROTO_NAME = "ecca"
 MAX_SEGMENTS = 256
 N_FLOATS = 58  # DEBUG_FLOAT_ARRAY.data
@@ -47,7 +48,8 @@ B_KP, B_KD, B_KI, B_IMAX = 7, 10, 13, 16
 B_HOVER, B_DRAG, B_MASS, B_G, B_THRUST_MIN, B_THRUST_MAX, B_TILT_MAX, B_DRAG_EST = range(19, 27)
 B_LEAD_S = 27
 B_DIST_BW = 28
-B_COUNT = 29
+B_VCORR_RAD_S = 29
+B_COUNT = 30
 # SEGMENT layout
 S_INDEX, S_DURATION, S_CTRL, S_YAW, S_COUNT = 0, 1, 2, 26, 34
 DEGREE = 7
@@ -64,7 +66,9 @@ class LawParams:
     gains per axis (x, y, z), hover thrust [normalised], drag [N/(m/s)], mass [kg], g [m/s^2],
     thrust bounds [normalised], tilt limit [rad], drag of the estimated velocity or not, the
     feed-forward's lead [s] (`TrackingConfig.attitude_lead_s`), the disturbance observer's
-    bandwidth [rad/s] (0: the module estimates no disturbance)."""
+    bandwidth [rad/s] (0: the module estimates no disturbance), the horizontal velocity
+    correction's frequency [rad/s] (the streamed law's `VelocityCorrection`, generated from the
+    same step; 0: the module's law gets the reported velocity)."""
 
     kp: tuple[float, float, float]
     kd: tuple[float, float, float]
@@ -80,6 +84,7 @@ class LawParams:
     drag_estimate: bool = True
     lead_s: float = 0.15
     dist_bandwidth_rad_s: float = 0.0
+    vel_correction_rad_s: float = VELOCITY_CORRECTION_RAD_S
 
 
 @dataclass(frozen=True)
@@ -130,7 +135,7 @@ def encode_upload(breaks: Sequence[float], control_points: Sequence[FloatArray],
             float(FINAL_ACTIONS[final_action]), hold_s, start_tolerance_m, *law.kp, *law.kd,
             *law.ki, *law.i_max, law.hover, law.drag, law.mass, law.g, law.thrust_min,
             law.thrust_max, law.max_tilt_rad, 1.0 if law.drag_estimate else 0.0, law.lead_s,
-            law.dist_bandwidth_rad_s]
+            law.dist_bandwidth_rad_s, law.vel_correction_rad_s]
     assert len(head) == B_COUNT
     begin = _f32(head)
     crc = zlib.crc32(struct.pack(f"<{B_COUNT}f", *begin))

@@ -24,6 +24,7 @@ Example `vehicle.toml` (every key optional; defaults are PX4's SIH quadrotor)::
     [onboard]                               # the onboard module's law (fly/serve --onboard):
     ki_xy = 18.0                            # [tracking]'s gains with these over them
     disturbance_bandwidth_rad_s = 0.0       # its wind observer (0: none; 1.5 for wind)
+    velocity_correction_rad_s = 4.0         # its velocity correction (0: none)
 
     [px4]                                   # PX4 parameters the mission planner uses: these
     MPC_XY_CRUISE = 8.0                     # win over the values read from the vehicle at
@@ -41,6 +42,7 @@ from typing import Any
 from companion.control import AttitudeGains, TrackingConfig, TrackingGains
 from companion.control.estimation import DisturbanceConfig
 from companion.flatness import MultirotorParams
+from companion.mavlink.velocity_correction import VELOCITY_CORRECTION_RAD_S
 from companion.planning.schedule import VehicleLimits
 from companion.planning.vehicle_params import check_overrides
 
@@ -51,7 +53,7 @@ _LIMIT_KEYS = {
 _GAIN_KEYS = {f.name for f in fields(TrackingGains)}
 _ATT_KEYS = {"k_roll", "k_pitch", "k_yaw"}
 _SECTIONS = {"vehicle": _VEHICLE_KEYS, "limits": _LIMIT_KEYS, "tracking": _GAIN_KEYS | _ATT_KEYS,
-             "onboard": _GAIN_KEYS | {"disturbance_bandwidth_rad_s"},
+             "onboard": _GAIN_KEYS | {"disturbance_bandwidth_rad_s", "velocity_correction_rad_s"},
              "px4": set()}  # [px4]: checked by check_overrides (PX4 parameter names)
 
 #: The onboard law's settings that differ from the streamed law's (`[onboard]` overrides them;
@@ -67,23 +69,35 @@ _SECTIONS = {"vehicle": _VEHICLE_KEYS, "limits": _LIMIT_KEYS, "tracking": _GAIN_
 #:   at speed it chases the model's error: 0.127-0.129 m with it against 0.081 m without at
 #:   6 m/s, 0.19-0.235 m against 0.095-0.11 m at 8 m/s. In the mock's steady wind it helps
 #:   (median error 0.024 m against 0.069 m): set it to 1.5 (the streamed law's) for wind.
-ONBOARD_DEFAULTS: dict[str, float] = {"ki_xy": 18.0, "disturbance_bandwidth_rad_s": 0.0}
-_ONBOARD_KEYS = _GAIN_KEYS | {"disturbance_bandwidth_rad_s"}
+#: - `velocity_correction_rad_s` 4, the streamed law's (`VelocityCorrection`; the module runs
+#:   the same step, generated as C): what the law gets is PX4's horizontal velocity corrected to
+#:   agree with how PX4's position moves (0: PX4's velocity as reported).
+ONBOARD_DEFAULTS: dict[str, float] = {"ki_xy": 18.0, "disturbance_bandwidth_rad_s": 0.0,
+                                      "velocity_correction_rad_s": VELOCITY_CORRECTION_RAD_S}
+_ONBOARD_KEYS = _GAIN_KEYS | {"disturbance_bandwidth_rad_s", "velocity_correction_rad_s"}
 
 
 def onboard_config(cfg: TrackingConfig, overrides: dict[str, float] | None = None
                    ) -> TrackingConfig:
     """The onboard law's configuration: `cfg` with ONBOARD_DEFAULTS, then `overrides` (keys of
-    TrackingGains, and `disturbance_bandwidth_rad_s` [rad/s], 0: no observer), over it."""
+    TrackingGains, and `disturbance_bandwidth_rad_s` [rad/s], 0: no observer), over it (the
+    velocity correction is not the controller's: `onboard_velocity_correction`)."""
     o = {**ONBOARD_DEFAULTS, **(overrides or {})}
     unknown = set(o) - _ONBOARD_KEYS
     if unknown:
         raise ValueError(f"onboard settings: unknown {sorted(unknown)}")
     bw = o.pop("disturbance_bandwidth_rad_s")
+    o.pop("velocity_correction_rad_s")
     dist = (replace(cfg.disturbance_config or DisturbanceConfig(), bandwidth_rad_s=bw)
             if bw > 0.0 else cfg.disturbance_config)
     return replace(cfg, gains=replace(cfg.gains, **o), estimate_disturbance=bw > 0.0,
                    disturbance_config=dist)
+
+
+def onboard_velocity_correction(overrides: dict[str, float] | None = None) -> float:
+    """The onboard module's velocity correction frequency [rad/s] (0: none): ONBOARD_DEFAULTS',
+    or `overrides`' `velocity_correction_rad_s`."""
+    return float({**ONBOARD_DEFAULTS, **(overrides or {})}["velocity_correction_rad_s"])
 
 
 @dataclass(frozen=True)

@@ -13,8 +13,9 @@ from numpy.typing import NDArray
 
 from companion.control import TrackingConfig
 from companion.control.estimation import DisturbanceConfig
+from companion.mavlink.velocity_correction import VELOCITY_CORRECTION_RAD_S
 from companion.onboard.protocol import MAX_SEGMENTS, LawParams
-from companion.planning.config import VehicleFile
+from companion.planning.config import VehicleFile, onboard_velocity_correction
 from companion.planning.schedule import Schedule
 from companion.trajectory import Bezier, PiecewiseBezier
 
@@ -127,10 +128,12 @@ def concatenate(first: Segments, second: Segments) -> Segments:
     return breaks, cps, ycps
 
 
-def law_from_tracking(cfg: TrackingConfig, hover: float) -> LawParams:
+def law_from_tracking(cfg: TrackingConfig, hover: float,
+                      vel_correction_rad_s: float = VELOCITY_CORRECTION_RAD_S) -> LawParams:
     """The module's law parameters: the attitude-mode tracking configuration's gains, model,
-    limits and disturbance observer (its bandwidth; 0 without `estimate_disturbance`), and the
-    vehicle's hover thrust (PX4's MPC_THR_HOVER) [normalised]."""
+    limits and disturbance observer (its bandwidth; 0 without `estimate_disturbance`), the
+    vehicle's hover thrust (PX4's MPC_THR_HOVER) [normalised] and the velocity correction's
+    frequency [rad/s] (0: none; by default the streamed law's)."""
     g = cfg.gains
     p = cfg.params
     dist = ((cfg.disturbance_config or DisturbanceConfig()).bandwidth_rad_s
@@ -143,10 +146,12 @@ def law_from_tracking(cfg: TrackingConfig, hover: float) -> LawParams:
     return LawParams(three(g.kp()), three(g.kd()), three(g.ki()), three(g.i_max()), hover,
                      p.drag if cfg.drag_feedforward else 0.0, p.mass, p.g, cfg.thrust_min,
                      cfg.thrust_max, cfg.max_tilt_rad, cfg.drag_velocity == "estimate",
-                     cfg.attitude_lead_s, dist)
+                     cfg.attitude_lead_s, dist, vel_correction_rad_s)
 
 
 def law_params(vf: VehicleFile, hover: float, tilt_rad: float) -> LawParams:
     """The module's law parameters: the vehicle file's attitude-mode gains and model, PX4's
-    hover thrust and tilt limit [rad]; the gains are the onboard law's (`[onboard]`)."""
-    return law_from_tracking(vf.onboard_tracking_config(tilt_rad), hover)
+    hover thrust and tilt limit [rad]; the gains and the velocity correction are the onboard
+    law's (`[onboard]`)."""
+    return law_from_tracking(vf.onboard_tracking_config(tilt_rad), hover,
+                             onboard_velocity_correction(vf.onboard_overrides))

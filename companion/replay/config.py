@@ -45,7 +45,8 @@ class ReplayConfig:
     as `fly --onboard` on PX4): the companion uploads it and streams no setpoint; a quad in
     attitude mode only, PX4's own landing after the plan (its final descent ends
     HANDOVER_HEIGHT_M up). `onboard_law`: the onboard law's settings over its defaults
-    (`[onboard]` of a vehicle file: TrackingGains keys, `disturbance_bandwidth_rad_s`)."""
+    (`[onboard]` of a vehicle file: TrackingGains keys, `disturbance_bandwidth_rad_s`,
+    `velocity_correction_rad_s`)."""
 
     vehicle: Literal["quad", "rover"] = "quad"
     mode: Mode = "attitude"

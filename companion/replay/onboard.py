@@ -48,7 +48,7 @@ from companion.onboard.protocol import (
     encode_upload,
     request,
 )
-from companion.planning.config import onboard_config
+from companion.planning.config import onboard_config, onboard_velocity_correction
 from companion.planning.onboard_segments import (
     HOLD_S,
     START_TOLERANCE_M,
@@ -185,8 +185,10 @@ class OnboardFlight:
         limits = SetpointLimits.of_px4(sched.px4)
         tracking = vehicle_limited(TrackingConfig(params=self.config.params), limits)
         tracking = onboard_config(tracking, dict(self.config.onboard_law))
+        law = law_from_tracking(tracking, self.hover,
+                                onboard_velocity_correction(dict(self.config.onboard_law)))
         cfg = self.link.config
-        self.upload = encode_upload(breaks, cps, ycps, law_from_tracking(tracking, self.hover),
+        self.upload = encode_upload(breaks, cps, ycps, law,
                                     sysid=cfg.sysid, compid=cfg.compid, final_action=self._final,
                                     hold_s=HOLD_S, start_tolerance_m=START_TOLERANCE_M)
         self.uploader = Uploader(self.upload)

@@ -146,6 +146,24 @@ int ecca_d_disturbance_step_work_bytes(int *sz_arg, int* sz_res, int *sz_iw, int
 #define ecca_d_disturbance_step_SZ_RES 1
 #define ecca_d_disturbance_step_SZ_IW 0
 #define ecca_d_disturbance_step_SZ_W 0
+int ecca_d_velocity_correction_step(const double** arg, double** res, int* iw, double* w, int mem);
+int ecca_d_velocity_correction_step_checkout(void);
+void ecca_d_velocity_correction_step_release(int mem);
+void ecca_d_velocity_correction_step_incref(void);
+void ecca_d_velocity_correction_step_decref(void);
+int ecca_d_velocity_correction_step_n_in(void);
+int ecca_d_velocity_correction_step_n_out(void);
+double ecca_d_velocity_correction_step_default_in(int i);
+const char* ecca_d_velocity_correction_step_name_in(int i);
+const char* ecca_d_velocity_correction_step_name_out(int i);
+const int* ecca_d_velocity_correction_step_sparsity_in(int i);
+const int* ecca_d_velocity_correction_step_sparsity_out(int i);
+int ecca_d_velocity_correction_step_work(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w);
+int ecca_d_velocity_correction_step_work_bytes(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w);
+#define ecca_d_velocity_correction_step_SZ_ARG 1
+#define ecca_d_velocity_correction_step_SZ_RES 1
+#define ecca_d_velocity_correction_step_SZ_IW 0
+#define ecca_d_velocity_correction_step_SZ_W 0
 void ecca_gen_d_casadi_version(int* major, int* minor, int* patch);
 int ecca_gen_d_casadi_int_size(void);
 int ecca_gen_d_casadi_real_size(void);

@@ -47,11 +47,13 @@ extern "C" {
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
+#define casadi_f7 CASADI_PREFIX(f7)
 #define casadi_fabs CASADI_PREFIX(fabs)
 #define casadi_fmax CASADI_PREFIX(fmax)
 #define casadi_fmin CASADI_PREFIX(fmin)
 #define casadi_s0 CASADI_PREFIX(s0)
 #define casadi_s1 CASADI_PREFIX(s1)
+#define casadi_s10 CASADI_PREFIX(s10)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_s4 CASADI_PREFIX(s4)
@@ -115,6 +117,7 @@ static const int casadi_s6[3] = {2, 1, 1};
 static const int casadi_s7[3] = {60, 1, 1};
 static const int casadi_s8[3] = {16, 1, 1};
 static const int casadi_s9[3] = {12, 1, 1};
+static const int casadi_s10[3] = {15, 1, 1};
 
 /* ecca_f_bezier:(ctrl_pts_ned_m[24],yaw_ctrl_pts_rad[8],duration_s,t_s)->(pos_ned_m[3],vel_ned_m_s[3],acc_ned_m_s2[3],jerk_ned_m_s3[3],snap_ned_m_s4[3],yaw_rad,yaw_rate_rad_s,yaw_acc_rad_s2) */
 static int casadi_f0(const float** arg, float** res, int* iw, float* w, int mem) {
@@ -3505,6 +3508,164 @@ CASADI_SYMBOL_EXPORT int ecca_f_disturbance_step_work(int *sz_arg, int* sz_res, 
 }
 
 CASADI_SYMBOL_EXPORT int ecca_f_disturbance_step_work_bytes(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w) {
+  if (sz_arg) *sz_arg = 1*sizeof(const float*);
+  if (sz_res) *sz_res = 1*sizeof(float*);
+  if (sz_iw) *sz_iw = 0*sizeof(int);
+  if (sz_w) *sz_w = 0*sizeof(float);
+  return 0;
+}
+
+/* ecca_f_velocity_correction_step:(x[15])->(y[4]) */
+static int casadi_f7(const float** arg, float** res, int* iw, float* w, int mem) {
+  (void)iw; (void)w; (void)mem;
+  float a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  float a12;
+  a00=5.0000000000000000e-01f;
+  a01=arg[0][14];
+  a01=(a00<a01);
+  a02=1.0000000000000000e-03f;
+  a03=arg[0][10];
+  a02=(a02<a03);
+  a04=(a03<a00);
+  a02=(a02&&a04);
+  a01=(a01&&a02);
+  a02=arg[0][13];
+  a04=arg[0][6];
+  a05=arg[0][0];
+  a06=arg[0][2];
+  a07=arg[0][8];
+  a06=(a06+a07);
+  a00=(a00*a03);
+  a06=(a06*a00);
+  a05=(a05+a06);
+  a06=arg[0][4];
+  a07=(a06*a03);
+  a05=(a05+a07);
+  a07=(a04-a05);
+  a08=casadi_sq(a07);
+  a09=arg[0][7];
+  a10=arg[0][1];
+  a11=arg[0][3];
+  a12=arg[0][9];
+  a11=(a11+a12);
+  a11=(a11*a00);
+  a10=(a10+a11);
+  a11=arg[0][5];
+  a00=(a11*a03);
+  a10=(a10+a00);
+  a00=(a09-a10);
+  a12=casadi_sq(a00);
+  a08=(a08+a12);
+  a08=sqrtf(a08);
+  a02=(a02<a08);
+  a02=(!a02);
+  a01=(a01&&a02);
+  a02=1.f;
+  a08=arg[0][11];
+  a12=(2.f*a08);
+  a12=(a12*a03);
+  a02=casadi_fmin(a02,a12);
+  a12=(a02*a07);
+  a05=(a05+a12);
+  a05=(a01?a05:0);
+  a12=(!a01);
+  a04=(a12?a04:0);
+  a05=(a05+a04);
+  res[0][0]=a05;
+  a02=(a02*a00);
+  a10=(a10+a02);
+  a10=(a01?a10:0);
+  a09=(a12?a09:0);
+  a10=(a10+a09);
+  res[0][1]=a10;
+  a10=arg[0][12];
+  a09=(-a10);
+  a08=casadi_sq(a08);
+  a08=(a08*a03);
+  a07=(a08*a07);
+  a07=(a06+a07);
+  a07=casadi_fmax(a09,a07);
+  a07=casadi_fmin(a10,a07);
+  a07=(a01?a07:0);
+  a06=(a12?a06:0);
+  a07=(a07+a06);
+  res[0][2]=a07;
+  a08=(a08*a00);
+  a08=(a11+a08);
+  a09=casadi_fmax(a09,a08);
+  a10=casadi_fmin(a10,a09);
+  a01=(a01?a10:0);
+  a12=(a12?a11:0);
+  a01=(a01+a12);
+  res[0][3]=a01;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int ecca_f_velocity_correction_step(const float** arg, float** res, int* iw, float* w, int mem){
+  return casadi_f7(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int ecca_f_velocity_correction_step_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void ecca_f_velocity_correction_step_release(int mem) {
+  (void)mem;
+}
+
+CASADI_SYMBOL_EXPORT void ecca_f_velocity_correction_step_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void ecca_f_velocity_correction_step_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT int ecca_f_velocity_correction_step_n_in(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT int ecca_f_velocity_correction_step_n_out(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT float ecca_f_velocity_correction_step_default_in(int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* ecca_f_velocity_correction_step_name_in(int i) {
+  switch (i) {
+    case 0: return "x";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* ecca_f_velocity_correction_step_name_out(int i) {
+  switch (i) {
+    case 0: return "y";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const int* ecca_f_velocity_correction_step_sparsity_in(int i) {
+  switch (i) {
+    case 0: return casadi_s10;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const int* ecca_f_velocity_correction_step_sparsity_out(int i) {
+  switch (i) {
+    case 0: return casadi_s5;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int ecca_f_velocity_correction_step_work(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w) {
+  if (sz_arg) *sz_arg = 1;
+  if (sz_res) *sz_res = 1;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int ecca_f_velocity_correction_step_work_bytes(int *sz_arg, int* sz_res, int *sz_iw, int *sz_w) {
   if (sz_arg) *sz_arg = 1*sizeof(const float*);
   if (sz_res) *sz_res = 1*sizeof(float*);
   if (sz_iw) *sz_iw = 0*sizeof(int);

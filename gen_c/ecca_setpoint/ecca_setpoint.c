@@ -27,6 +27,9 @@
 #if ECCA_GEN_DIST_N_IN != ECCA_DIST_N_IN || ECCA_GEN_DIST_N_OUT != ECCA_DIST_N_OUT
 #error "generated code and ecca_setpoint.h disagree on the disturbance step's sizes: run python -m gen_c"
 #endif
+#if ECCA_GEN_VCORR_N_IN != ECCA_VCORR_N_IN || ECCA_GEN_VCORR_N_OUT != ECCA_VCORR_N_OUT
+#error "generated code and ecca_setpoint.h disagree on the velocity correction's sizes: run python -m gen_c"
+#endif
 
 const char *ecca_setpoint_casadi_version(void) { return ECCA_GEN_CASADI_VERSION; }
 

@@ -29,8 +29,9 @@ extern "C" {
 /* 2: adds ecca_steering_setpoint, ecca_ackermann_setpoint and ecca_full_ackermann_setpoint
  * (everything of version 1 unchanged).
  * 3: adds ecca_tracking_core (everything of version 2 unchanged).
- * 4: adds ecca_disturbance_step (everything of version 3 unchanged). */
-#define ECCA_SETPOINT_API_VERSION 4
+ * 4: adds ecca_disturbance_step (everything of version 3 unchanged).
+ * 5: adds ecca_velocity_correction_step (everything of version 4 unchanged). */
+#define ECCA_SETPOINT_API_VERSION 5
 
 /** Sizes of ecca_tracking_core's input and output vectors. */
 #define ECCA_CORE_N_IN 60
@@ -39,6 +40,10 @@ extern "C" {
 /** Sizes of ecca_disturbance_step's input and output vectors. */
 #define ECCA_DIST_N_IN 12
 #define ECCA_DIST_N_OUT 4
+
+/** Sizes of ecca_velocity_correction_step's input and output vectors. */
+#define ECCA_VCORR_N_IN 15
+#define ECCA_VCORR_N_OUT 4
 
 /** Bezier degree of a segment and its number of control points. */
 #define ECCA_BEZIER_DEGREE 7
@@ -184,6 +189,24 @@ int ecca_tracking_core(const double *in, double *out);
  *  <= 0. */
 int ecca_disturbance_step(const double *in, double *out);
 
+/** The companion's horizontal velocity correction's update step
+ *  (companion.mavlink.velocity_correction; one source with the correction the companion
+ *  applies to the autopilot's velocity): a second-order complementary filter (both poles at
+ *  -omega) that estimates what to add to the reported velocity for one that agrees with how
+ *  the reported position moves; one position sample per call.
+ *  in: ECCA_VCORR_N_IN values in the order of
+ *  companion.mavlink.velocity_correction.VCORR_INPUTS (p_hat[2] vel_prev[2] corr[2] pos[2]
+ *  vel[2] dt omega max_corr reset_m run; north, east; m, m/s, s, rad/s); out:
+ *  ECCA_VCORR_N_OUT values (p_hat[2] corr[2]). The filtered position p_hat moves with the
+ *  mean of the previous and the new reported velocity plus corr over dt; the innovation
+ *  r = pos - that prediction pulls p_hat by min(1, 2 omega dt) r and corr by omega^2 dt r,
+ *  each axis of corr clamped to [-max_corr, max_corr]. Without run (> 0.5), with dt outside
+ *  (1e-3, 0.5) or |r| > reset_m (an estimator reset), p_hat takes pos and corr is held.
+ *  The caller keeps p_hat, corr and the sample's vel (the next vel_prev).
+ *  ECCA_ERR_INPUT: a non-finite or |value| > ECCA_INPUT_LIMIT input, omega, max_corr or
+ *  reset_m <= 0. */
+int ecca_velocity_correction_step(const double *in, double *out);
+
 /* ------------------------------------------------------------------------------- float */
 
 typedef struct {
@@ -259,6 +282,7 @@ int ecca_full_ackermann_setpoint_f(const ecca_bezier_segment_f *seg, float t_s,
 
 int ecca_tracking_core_f(const float *in, float *out);
 int ecca_disturbance_step_f(const float *in, float *out);
+int ecca_velocity_correction_step_f(const float *in, float *out);
 
 /** CasADi version the generated code came from, e.g. "3.8.2". */
 const char *ecca_setpoint_casadi_version(void);

@@ -11,5 +11,7 @@
 #define ECCA_GEN_CORE_N_OUT 16
 #define ECCA_GEN_DIST_N_IN 12
 #define ECCA_GEN_DIST_N_OUT 4
+#define ECCA_GEN_VCORR_N_IN 15
+#define ECCA_GEN_VCORR_N_OUT 4
 
 #endif /* ECCA_SETPOINT_GEN_H */

@@ -320,10 +320,11 @@ static void print_status(void) {
       p99 = (uint64_t)(i + 1) * 1000u;
     }
   }
-  PX4_INFO("state %d, segments %d/%d, crc 0x%08x, progress %.3f, cycles %llu, "
-           "step mean %.0f ns p99 < %llu ns max %u ns",
+  PX4_INFO("state %d, segments %d/%d, crc 0x%08x, progress %.3f, velocity correction "
+           "%.3f %.3f m/s (%.1f rad/s), cycles %llu, step mean %.0f ns p99 < %llu ns max %u ns",
            g_core.state, g_core.n_received, g_core.n_expected, (unsigned)g_core.crc,
-           g_core.progress, (unsigned long long)g_cycles,
+           g_core.progress, g_core.vc_c[0], g_core.vc_c[1], g_core.vc_w,
+           (unsigned long long)g_cycles,
            g_cycles ? (double)g_step_ns_sum / (double)g_cycles : 0.0, (unsigned long long)p99,
            (unsigned)g_step_ns_max);
 }

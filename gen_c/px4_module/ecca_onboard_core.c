@@ -66,6 +66,7 @@ static int32_t progress_value(const ecca_onboard *m) {
 void ecca_onboard_init(ecca_onboard *m) {
   memset(m, 0, sizeof(*m));
   m->state = ECCA_STATE_READY;
+  m->vc_w = ECCA_VCORR_DEFAULT_RAD_S;
 }
 
 unsigned long ecca_onboard_size(void) { return (unsigned long)sizeof(ecca_onboard); }
@@ -100,7 +101,8 @@ static int begin_valid(const float *d) {
          d[ECCA_B_G] > 0.0f && d[ECCA_B_TILT_MAX] > 0.0f && d[ECCA_B_TILT_MAX] < 1.5f &&
          d[ECCA_B_THRUST_MAX] > d[ECCA_B_THRUST_MIN] && d[ECCA_B_START_TOL_M] > 0.0f &&
          d[ECCA_B_LEAD_S] >= 0.0f && d[ECCA_B_LEAD_S] <= 1.0f && d[ECCA_B_DIST_BW] >= 0.0f &&
-         d[ECCA_B_DIST_BW] <= 20.0f;
+         d[ECCA_B_DIST_BW] <= 20.0f && d[ECCA_B_VCORR_RAD_S] >= 0.0f &&
+         d[ECCA_B_VCORR_RAD_S] <= 20.0f;
 }
 
 static int segment_valid(const float *d) {
@@ -142,6 +144,7 @@ int ecca_onboard_message(ecca_onboard *m, int op, const float *d, ecca_onboard_a
       return 1;
     }
     memcpy(m->begin, d, sizeof(m->begin));
+    m->vc_w = (double)d[ECCA_B_VCORR_RAD_S]; /* the companion's, from now on */
     m->n_expected = (int)d[ECCA_B_N_SEGMENTS];
     m->n_received = 0;
     memset(m->have, 0, sizeof(m->have));
@@ -223,6 +226,49 @@ static void reference_at(const ecca_onboard *m, double t, ecca_flat_state *s) {
   if (ecca_bezier_eval(&b, t - m->t_start_seg[k], s) != ECCA_OK) {
     memset(s, 0, sizeof(*s));
   }
+}
+
+/* Fuse the position sample `pos`, `vel` taken at `sample_s` into the velocity correction (once
+ * per sample; the bookkeeping of the companion's VelocityCorrection.update around the same
+ * generated step). Frequency 0: off, no correction. */
+static void correct(ecca_onboard *m, double sample_s, const double pos[3], const double vel[3]) {
+  double in[ECCA_VCORR_N_IN], out[ECCA_VCORR_N_OUT];
+  int i, n = 0;
+  if (!(m->vc_w > 0.0)) {
+    m->vc_c[0] = m->vc_c[1] = 0.0;
+    m->vc_have = 0;
+    return;
+  }
+  if (!(isfinite(sample_s) && isfinite(pos[0]) && isfinite(pos[1]) && isfinite(vel[0]) &&
+        isfinite(vel[1]))) {
+    return; /* a non-finite sample: ignored */
+  }
+  if (m->vc_have && sample_s == m->vc_t) {
+    return; /* the same sample again (the step runs faster than the estimate) */
+  }
+  for (i = 0; i < 2; ++i) in[n++] = m->vc_p[i];
+  for (i = 0; i < 2; ++i) in[n++] = m->vc_v[i];
+  for (i = 0; i < 2; ++i) in[n++] = m->vc_c[i];
+  for (i = 0; i < 2; ++i) in[n++] = pos[i];
+  for (i = 0; i < 2; ++i) in[n++] = vel[i];
+  in[n++] = m->vc_have ? sample_s - m->vc_t : 0.0; /* a gap or a clock jump: a restart */
+  in[n++] = m->vc_w;
+  in[n++] = ECCA_VCORR_MAX_M_S;
+  in[n++] = ECCA_VCORR_RESET_M;
+  in[n++] = m->vc_have ? 1.0 : 0.0; /* the first sample: a restart */
+  if (n == ECCA_VCORR_N_IN && ecca_velocity_correction_step(in, out) == ECCA_OK) {
+    m->vc_p[0] = out[0];
+    m->vc_p[1] = out[1];
+    m->vc_c[0] = out[2];
+    m->vc_c[1] = out[3];
+  } else {
+    m->vc_p[0] = pos[0]; /* refused (e.g. |pos| absurd): restart from the sample, hold */
+    m->vc_p[1] = pos[1];
+  }
+  m->vc_v[0] = vel[0];
+  m->vc_v[1] = vel[1];
+  m->vc_t = sample_s;
+  m->vc_have = 1;
 }
 
 /* Fuse the velocity sample `vel` taken at `sample_s` into the disturbance observer (once per
@@ -338,8 +384,15 @@ static int control(ecca_onboard *m, double t, double dt, const double pos[3],
 void ecca_onboard_step(ecca_onboard *m, double now_s, int offboard, int pos_ok,
                        const double pos[3], const double vel[3], double sample_s,
                        const double q_wxyz[4], ecca_onboard_output *o) {
+  double vel_c[3]; /* the velocity the observer and the law get */
   memset(o, 0, sizeof(*o));
   o->final_action = -1;
+  if (pos_ok) {
+    correct(m, sample_s, pos, vel); /* in every state: converged before OFFBOARD */
+  }
+  vel_c[0] = m->vc_w > 0.0 ? vel[0] + m->vc_c[0] : vel[0];
+  vel_c[1] = m->vc_w > 0.0 ? vel[1] + m->vc_c[1] : vel[1];
+  vel_c[2] = vel[2];
   if (m->state == ECCA_STATE_LOADED && offboard) {
     ecca_flat_state r0;
     double dx, dy, dz, err;
@@ -378,8 +431,8 @@ void ecca_onboard_step(ecca_onboard *m, double now_s, int offboard, int pos_ok,
     double dt = now_s - m->t_last;
     double total = m->t_start_seg[m->n_expected];
     m->t_last = now_s;
-    observe(m, sample_s, vel, q_wxyz);
-    o->publish_setpoint = control(m, t, dt > 0.1 ? 0.1 : (dt < 0.0 ? 0.0 : dt), pos, vel, o);
+    observe(m, sample_s, vel_c, q_wxyz);
+    o->publish_setpoint = control(m, t, dt > 0.1 ? 0.1 : (dt < 0.0 ? 0.0 : dt), pos, vel_c, o);
     m->u_last = o->publish_setpoint ? (double)o->thrust : 0.0;
     o->dist_ne[0] = (float)m->d_hat[0];
     o->dist_ne[1] = (float)m->d_hat[1];

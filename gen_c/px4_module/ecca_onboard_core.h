@@ -75,6 +75,16 @@ typedef struct {
   double t_sample;
   int have_sample;
   double u_last;
+  /* the velocity correction (ecca_velocity_correction_step): its frequency in use [rad/s]
+   * (ECCA_VCORR_DEFAULT_RAD_S until a BEGIN is accepted, then that upload's); the filtered
+   * position, the last sample's reported velocity and the correction north, east; the time of
+   * the last position sample fused */
+  double vc_w;
+  double vc_p[2];
+  double vc_v[2];
+  double vc_c[2];
+  double vc_t;
+  int vc_have;
 } ecca_onboard;
 
 /* The disturbance observer's tuning besides its bandwidth (ECCA_B_DIST_BW, uploaded):
@@ -82,6 +92,13 @@ typedef struct {
  * no update below this commanded thrust [normalised]. */
 #define ECCA_DIST_MAX_ACC 8.0
 #define ECCA_DIST_MIN_THRUST 0.05
+
+/* The velocity correction (companion.mavlink.velocity_correction's constants): its frequency
+ * before an upload brings one (ECCA_B_VCORR_RAD_S) [rad/s], the bound of each axis of the
+ * correction [m/s], the innovation that is an estimator reset [m]. */
+#define ECCA_VCORR_DEFAULT_RAD_S 4.0
+#define ECCA_VCORR_MAX_M_S 1.0
+#define ECCA_VCORR_RESET_M 1.0
 
 /** A fresh module: ECCA_STATE_READY, no trajectory, no peer. */
 void ecca_onboard_init(ecca_onboard *m);
@@ -98,13 +115,18 @@ int ecca_onboard_start_report(const ecca_onboard *m, ecca_onboard_ack *ack);
 
 /** One control step at `now_s` [s, any monotonic clock]: `offboard` = armed in OFFBOARD,
  *  `pos_ok` = position and velocity valid, `pos` / `vel` the estimate [m, m/s NED] sampled at
- *  `sample_s` [s, the same clock; a sample is fused into the disturbance observer once, when
- *  it is newer than the last], `q_wxyz` the estimated attitude (body FRD -> NED; NULL or not
- *  a unit quaternion: the observer does not learn). While flying, the disturbance observer
- *  (ecca_disturbance_step) runs on the horizontal velocity with the model's acceleration
- *  -(u g / h) z_b,h - (D / m) v_h (u: the thrust commanded by the previous step) and its
- *  estimate is the tracking core's disturbance feed-forward; it starts from zero with each
- *  flight, like the integrator. */
+ *  `sample_s` [s, the same clock; a sample is fused into the velocity correction and the
+ *  disturbance observer once], `q_wxyz` the estimated attitude (body FRD -> NED; NULL or not
+ *  a unit quaternion: the observer does not learn). In every state, each new valid sample
+ *  updates the horizontal velocity correction (ecca_velocity_correction_step, the companion's:
+ *  what to add to `vel` for a velocity that agrees with how `pos` moves) at the frequency
+ *  ECCA_VCORR_DEFAULT_RAD_S, or the last accepted upload's (ECCA_B_VCORR_RAD_S; 0: off, no
+ *  correction); it carries on across flights, so it has converged before OFFBOARD. The
+ *  corrected velocity is what the observer and the law get. While flying, the disturbance
+ *  observer (ecca_disturbance_step) runs on the horizontal velocity with the model's
+ *  acceleration -(u g / h) z_b,h - (D / m) v_h (u: the thrust commanded by the previous step)
+ *  and its estimate is the tracking core's disturbance feed-forward; it starts from zero with
+ *  each flight, like the integrator. */
 void ecca_onboard_step(ecca_onboard *m, double now_s, int offboard, int pos_ok,
                        const double pos[3], const double vel[3], double sample_s,
                        const double q_wxyz[4], ecca_onboard_output *out);

@@ -19,7 +19,7 @@
 #ifndef ECCA_ONBOARD_PROTO_H
 #define ECCA_ONBOARD_PROTO_H
 
-#define ECCA_PROTO_VERSION 2
+#define ECCA_PROTO_VERSION 3
 #define ECCA_PROTO_NAME "ecca"
 #define ECCA_MAX_SEGMENTS 256
 
@@ -74,7 +74,8 @@
 #define ECCA_B_DRAG_EST 26    /* 1: drag of the estimated velocity, 0: of the reference's */
 #define ECCA_B_LEAD_S 27      /* the feed-forward's lead (attitude_lead_s) [s] */
 #define ECCA_B_DIST_BW 28     /* disturbance observer's bandwidth [rad/s] (0: none estimated) */
-#define ECCA_B_COUNT 29       /* values of ECCA_OP_BEGIN covered by the CRC */
+#define ECCA_B_VCORR_RAD_S 29 /* velocity correction's frequency [rad/s] (0: none) */
+#define ECCA_B_COUNT 30       /* values of ECCA_OP_BEGIN covered by the CRC */
 
 /* ECCA_OP_SEGMENT data layout */
 #define ECCA_S_INDEX 0

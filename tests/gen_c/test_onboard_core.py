@@ -20,6 +20,7 @@ from hypothesis import strategies as st
 import companion.flatness._formulas as fm
 import companion.onboard.protocol as P
 from companion.control.core import CORE_OUTPUTS, tracking_core
+from companion.mavlink.telemetry import VelocityCorrection
 from companion.trajectory import Bezier, PiecewiseBezier
 from gen_c import onboard_native as N
 
@@ -199,6 +200,15 @@ def test_invalid_parts_are_refused(lib: N.OnboardLibrary) -> None:
     begin[P.B_HOVER] = 1.5
     a = m.message(P.OP_BEGIN, begin)
     assert a is not None and a.result == 2 and a.state == P.STATE_READY
+    # an older companion's upload (protocol 2: no velocity correction), a correction's
+    # frequency out of range: refused, and the module's correction keeps its default
+    for index, value in ((P.B_VERSION, 2.0), (P.B_VCORR_RAD_S, -1.0),
+                         (P.B_VCORR_RAD_S, 25.0)):
+        begin = list(up.begin)
+        begin[index] = value
+        a = m.message(P.OP_BEGIN, begin)
+        assert a is not None and a.result == 2 and a.state == P.STATE_READY, (index, value)
+    assert m.velocity_correction_rad_s == P.LawParams.vel_correction_rad_s == 4.0
     a = m.message(P.OP_SEGMENT, up.segments[0])  # no upload under way
     assert a is not None and a.result == 2
     m.message(P.OP_BEGIN, up.begin)
@@ -241,8 +251,12 @@ def test_the_flight_follows_the_protocol_s_states_and_the_python_law(
     up = encode(traj, final_action="land", hold_s=1.5)
     assert upload_direct(m, up).verified
     start = np.array(traj.evaluate(0.0))
+    # the companion's velocity correction on the same samples: the law gets the velocity
+    # it corrects (the module's runs the same step, generated)
+    vc = VelocityCorrection(LAW.vel_correction_rad_s)
     # loaded, not in OFFBOARD: offboard_control_mode (commander may switch), no setpoint
     out = m.step(10.0, False, True, start, np.zeros(3))
+    vc.update(10.0, tuple(start), (0.0, 0.0, 0.0))
     assert out.publish_mode and not out.publish_setpoint and out.final_action == -1
     # armed in OFFBOARD: the clock starts, setpoints flow, the law is Python's
     out = m.step(10.0, True, True, start, np.zeros(3))
@@ -254,7 +268,9 @@ def test_the_flight_follows_the_protocol_s_states_and_the_python_law(
         pos = np.array(traj.evaluate(t - 10.0)) + rng.normal(0, 0.3, 3)
         vel = rng.normal(0, 1.0, 3)
         out = m.step(t, True, True, pos, vel)
-        ref = _py_setpoint(up, traj, t - 10.0, pos, vel, integ, 0.004)
+        c = vc.update(t, tuple(pos), tuple(vel))
+        assert m.velocity_correction == pytest.approx(c[:2], rel=1e-9, abs=1e-12)
+        ref = _py_setpoint(up, traj, t - 10.0, pos, vel + np.asarray(c), integ, 0.004)
         integ = ref[OUT["integ"]:OUT["integ"] + 3]
         assert out.publish_setpoint
         np.testing.assert_allclose(out.q_d, ref[0:4], atol=2e-6)
@@ -363,3 +379,65 @@ def test_the_module_s_disturbance_observer_learns_a_steady_force_and_cancels_it(
     _, err_off, est_off = _fly_in_a_steady_force(lib, d, with_attitude=True, bandwidth=0.0)
     assert all(e == (0.0, 0.0) for e in est_off)
     assert err_off == pytest.approx(err0, abs=1e-9)
+
+
+@pytest.mark.parametrize("bandwidth", [4.0, 0.0])
+def test_the_module_corrects_a_biased_velocity_before_and_during_the_flight(
+        lib: N.OnboardLibrary, bandwidth: float) -> None:
+    """PX4's estimate at 50 Hz, the module stepping at 250 Hz (each sample seen five times):
+    a vehicle circling at 1 m/s whose reported velocity is 0.4 m/s off (north +0.4, east -0.4)
+    while its position moves with the true velocity. Before any upload the module's correction
+    (the default 4 rad/s) converges to minus the bias within 2 s (both poles at -4: the error
+    decays as (1 + w t) e^-wt, 0.3 % at 2 s); an upload carries it on at the upload's
+    frequency, or with 0 switches it off; flying, the law gets the reported velocity plus the
+    correction (with 0: the reported velocity itself), the Python law on it to 2e-6."""
+    bias = np.array([0.4, -0.4, 0.0])
+    p0 = np.array([0.0, 0.0, -5.0])
+    m = N.OnboardModule(lib)
+
+    def sample(t: float) -> tuple[float, np.ndarray, np.ndarray]:
+        ts = math.floor(t * 50.0 + 1e-9) / 50.0  # the latest estimate
+        a = 1.0 * ts  # 1 m/s on a circle of 1 m around p0
+        pos = p0 + np.array([math.cos(a) - 1.0, math.sin(a), 0.0])
+        vel = np.array([-math.sin(a), math.cos(a), 0.0]) + bias
+        return ts, pos, vel
+
+    k = 0
+    while k * 0.004 < 3.0:  # READY: no trajectory
+        t = k * 0.004
+        ts, pos, vel = sample(t)
+        out = m.step(t, False, True, pos, vel, sample_s=ts)
+        assert not out.publish_mode
+        if t >= 2.0:
+            assert m.velocity_correction == pytest.approx(-bias[:2], abs=0.01), t
+        k += 1
+    assert m.velocity_correction_rad_s == 4.0
+    c_before = m.velocity_correction
+    traj = PiecewiseBezier([Bezier(np.tile(p0, (8, 1)), 5.0)],
+                           yaw=PiecewiseBezier([Bezier(np.zeros((8, 1)), 5.0)]))
+    up = encode(traj, dataclasses.replace(LAW, vel_correction_rad_s=bandwidth),
+                start_tolerance_m=3.0)
+    assert upload_direct(m, up).verified
+    assert m.velocity_correction_rad_s == bandwidth
+    assert m.velocity_correction == c_before  # no sample since: unchanged
+    t0 = k * 0.004
+    integ = [0.0, 0.0, 0.0]
+    for j in range(500):  # LOADED one step, then flying 2 s
+        t = t0 + j * 0.004
+        ts, pos, vel = sample(t)
+        out = m.step(t, j > 0, True, pos, vel, sample_s=ts)
+        c = np.array([*m.velocity_correction, 0.0])
+        if bandwidth > 0.0:
+            assert c[:2] == pytest.approx(-bias[:2], abs=0.01)
+        else:
+            assert c.tolist() == [0.0, 0.0, 0.0]
+        if j == 0:
+            assert out.publish_mode and not out.publish_setpoint
+            continue
+        ref = _py_setpoint(up, traj, t - (t0 + 0.004), pos, vel + c, integ,
+                           0.0 if j == 1 else 0.004)
+        integ = ref[OUT["integ"]:OUT["integ"] + 3]
+        assert out.publish_setpoint
+        np.testing.assert_allclose(out.q_d, ref[0:4], atol=2e-6)
+        assert out.thrust == pytest.approx(ref[OUT["thrust"]], abs=2e-6)
+    assert ack_of(m.status()).state == P.STATE_FLYING

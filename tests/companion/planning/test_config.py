@@ -3,6 +3,7 @@ schedule."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 
 from companion.control import AttitudeGains, TrackingGains
+from companion.mavlink.velocity_correction import VELOCITY_CORRECTION_RAD_S
 from companion.mission import load_mission, mission_to_flight_plan
 from companion.mission.px4_params import Px4PlanningParams
 from companion.planning.chunks import ROVER_SPEED_SHARE
@@ -81,6 +83,13 @@ def test_the_onboard_law_takes_tracking_s_gains_with_onboard_s_over_them(tmp_pat
                                              "disturbance_bandwidth_rad_s = 1.5\n"))
     assert law_params(vf2, 0.5, 0.7).ki[:2] == (4.0, 4.0)
     assert law_params(vf2, 0.5, 0.7).dist_bandwidth_rad_s == 1.5
+    # the velocity correction: the streamed law's frequency by default, [onboard]'s over it
+    assert law.vel_correction_rad_s == ONBOARD_DEFAULTS["velocity_correction_rad_s"] == 4.0
+    assert law.vel_correction_rad_s == VELOCITY_CORRECTION_RAD_S
+    vf3 = load_vehicle_file(_write(tmp_path, "[onboard]\nvelocity_correction_rad_s = 0\n"))
+    assert law_params(vf3, 0.5, 0.7).vel_correction_rad_s == 0.0
+    plain = law_params(load_vehicle_file(_write(tmp_path, "")), 0.5, 0.7)
+    assert law_params(vf3, 0.5, 0.7) == dataclasses.replace(plain, vel_correction_rad_s=0.0)
     assert vf2.tracking_config(0.7).estimate_disturbance  # the streamed law's own observer
     assert law_params(load_vehicle_file(_write(tmp_path, "")), 0.5, 0.7).kd[:2] == (
         TrackingGains().kd_xy,) * 2
