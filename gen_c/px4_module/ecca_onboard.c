@@ -206,9 +206,23 @@ static int task_main(int argc, char *argv[]) {
     uint64_t c0, ns;
     int offboard, pos_ok;
 #ifdef ECCA_DYN
-    px4_lockstep_progress(lockstep); /* this step is done: the simulation may go on */
-#endif
+    {
+      /* This step is done: the simulation may go on. The next step's time is taken before
+       * saying so. Our progress can be the one the simulator waits for, and it may then
+       * advance the clock before px4_usleep reads it (the woken simulator thread preempting
+       * this one). A sleep of a whole period from there would wait for a time that never
+       * comes, since the simulator in turn waits for our next progress: PX4 froze that way
+       * (SIH and this thread both waiting, once in about 50 bench flights). */
+      hrt_abstime t_next = hrt_absolute_time() + ECCA_PERIOD_US, t_now;
+      px4_lockstep_progress(lockstep);
+      t_now = hrt_absolute_time();
+      if (t_now < t_next) {
+        px4_usleep((useconds_t)(t_next - t_now));
+      }
+    }
+#else
     px4_usleep(ECCA_PERIOD_US);
+#endif
     now = hrt_absolute_time();
     if (orb_check(sub_dbg, &updated) == 0 && updated) {
       struct debug_array_s m;
@@ -320,10 +334,12 @@ static void print_status(void) {
       p99 = (uint64_t)(i + 1) * 1000u;
     }
   }
-  PX4_INFO("state %d, segments %d/%d, crc 0x%08x, progress %.3f, velocity correction "
-           "%.3f %.3f m/s (%.1f rad/s), cycles %llu, step mean %.0f ns p99 < %llu ns max %u ns",
-           g_core.state, g_core.n_received, g_core.n_expected, (unsigned)g_core.crc,
-           g_core.progress, g_core.vc_c[0], g_core.vc_c[1], g_core.vc_w,
+  /* three lines: PX4's shell output cuts a line at about 128 characters */
+  PX4_INFO("state %d, segments %d/%d, crc 0x%08x, progress %.3f", g_core.state,
+           g_core.n_received, g_core.n_expected, (unsigned)g_core.crc, g_core.progress);
+  PX4_INFO("velocity correction %.3f %.3f m/s (%.1f rad/s)", g_core.vc_c[0], g_core.vc_c[1],
+           g_core.vc_w);
+  PX4_INFO("cycles %llu, step mean %.0f ns p99 < %llu ns max %u ns",
            (unsigned long long)g_cycles,
            g_cycles ? (double)g_step_ns_sum / (double)g_cycles : 0.0, (unsigned long long)p99,
            (unsigned)g_step_ns_max);

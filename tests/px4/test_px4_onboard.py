@@ -11,6 +11,7 @@ import asyncio
 import json
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -115,6 +116,11 @@ def test_onboard_module_refuses_a_foreign_layout_and_a_bad_upload_and_finishes_w
         fly.wait(timeout=10)
         _, progress = _wait_state(px4, good, {P.STATE_DONE}, 60.0)
         assert progress == 1.0
+        # its own timing of the law's steps, as `status` prints it (the bench reads it there)
+        st = px4.command("dyn", str(good), "status").stdout
+        m = re.search(r"cycles (\d+), step mean (\d+) ns p99 < (\d+) ns", st)
+        assert m is not None and int(m[1]) > 1000 and 0 < int(m[2]) <= int(m[3]), st
+        assert re.search(r"velocity correction \S+ \S+ m/s \(4\.0 rad/s\)", st), st
         end = time.monotonic() + 40.0
         while "Disarmed by landing" not in px4.console_text() and time.monotonic() < end:
             time.sleep(0.5)  # PX4's AUTO.LAND, commanded by the module (bounded)
