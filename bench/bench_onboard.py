@@ -4,7 +4,8 @@ One fresh PX4 v1.16 SITL per flight, real time. Every cell flies the figure-8 of
 bench_tracking.py (two laps; lap 2 judged, horizontal error against the reference at the
 plan's clock, PX4's estimate and the simulator's truth):
 
-- `onboard`: the trajectory (the figure-8 as degree-7 Hermite segments of 0.25 s) uploaded to
+- `onboard`: the trajectory (the figure-8 as degree-7 Hermite segments of 0.25 s, bent for the
+  tilt limit as `fly --onboard` bends its plans: `bend_for_tilt`; `--no-bend`) uploaded to
   the module (gen_c/px4_module) after the takeoff; OFFBOARD; the module flies it. Its clock is
   the autopilot's (the module's start report).
 - `attitude`: the companion streams attitude setpoints at 100 Hz (bench_tracking's API cell).
@@ -54,7 +55,7 @@ from companion.control import Reference  # noqa: E402
 from companion.mavlink import FlightMode, LinkConfig  # noqa: E402
 from companion.onboard import protocol as P  # noqa: E402, N812
 from companion.planning.config import VehicleFile  # noqa: E402
-from companion.planning.onboard_segments import law_params  # noqa: E402
+from companion.planning.onboard_segments import bend_for_tilt, law_params  # noqa: E402
 from companion.trajectory.bezier import hermite  # noqa: E402
 from gen_c import px4module  # noqa: E402
 from px4_harness import Px4Sitl, find_px4_sitl, flight_lock  # noqa: E402
@@ -79,6 +80,9 @@ ARM_AT = {"s": 0.0}
 #: it can). PX4 SIH's estimate errs the same way at the same time since boot, so cells that
 #: start together meet the same estimate errors (onboard and streamed paired).
 START_AT = {"s": 0.0}
+#: `--no-bend`: the onboard cells upload the figure as it is, not bent ahead of time for the
+#: tilt limit (`bend_for_tilt`, what fly --onboard uploads)
+BEND = {"on": True}
 
 
 async def wait_boot(v: Vehicle, boot_s: float) -> None:
@@ -162,6 +166,8 @@ async def _onboard_flight(url: str, target: int, module: Path, px4: Px4Sitl, spe
             shifted = H.shifted(lambda t: fig(t, speed), pos.pos_ned[0] - r0[0],
                                 pos.pos_ned[1] - r0[1])
             breaks, cps = hermite_segments(shifted, duration)
+            if BEND["on"]:  # as fly --onboard uploads: bent ahead of time for the tilt limit
+                breaks, cps, _ = bend_for_tilt((breaks, cps, [np.zeros(8) for _ in cps]), law)
             up = P.encode_upload(breaks, cps, None, law,
                                  sysid=cfg.sysid, compid=cfg.compid, final_action="hold",
                                  hold_s=1.0, start_tolerance_m=3.0)
@@ -325,6 +331,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--start-at", type=float, nargs="+", default=[0.0], metavar="S",
                     help="every cell starts its figure at S seconds since PX4's boot (several: "
                          "each cell once per S, onboard and streamed paired; 0: at once)")
+    ap.add_argument("--no-bend", action="store_true",
+                    help="onboard cells: upload the figure as it is (default: bent ahead of "
+                         "time for the tilt limit, as fly --onboard uploads)")
     ap.add_argument("--law", nargs="*", default=[], metavar="FIELD=VALUE",
                     help="onboard cells: override LawParams fields (kp/kd/ki/i_max scale the "
                          "onboard law's horizontal gains by VALUE; others are set, e.g. "
@@ -337,6 +346,7 @@ def main(argv: list[str] | None = None) -> int:
                          "and upload it then (no start offset), not on the ground")
     args = ap.parse_args(argv)
     AFTER_TAKEOFF["on"] = args.upload_after_takeoff
+    BEND["on"] = not args.no_bend
     CTL[:] = args.ctl
     base = law_params(VehicleFile(), 0.5, math.radians(TILT_DEG))
     for item in args.law:

@@ -42,6 +42,7 @@ from companion.planning.onboard_segments import (
     START_TOLERANCE_M,
     OnboardError,
     Segments,
+    bend_for_tilt,
     check_fits,
     law_params,
     module_final_action,
@@ -130,13 +131,15 @@ async def fly_onboard(opts: FlyOptions, console: Console) -> int:
         origin = np.asarray(pos.pos_ned, dtype=float) - planned.start_rel
         if inputs.mission is None:
             origin = origin + np.array([0.0, 0.0, -planned.alt_m])
-        breaks, cps, ycps = segs = planned_segments(planned, origin)
-        check_fits(segs)
         hover = (await v.read_params(["MPC_THR_HOVER"]))["MPC_THR_HOVER"]
         limits = SetpointLimits.of_px4(px4.params if px4 is not None else Px4PlanningParams())
+        law = law_params(inputs.vehicle, hover, limits.tilt_max_rad)
+        # bent ahead of time where it asks for more tilt than the limit (the module cannot)
+        breaks, cps, ycps = segs = await asyncio.to_thread(  # ~0.3 s of QPs per minute
+            bend_for_tilt, planned_segments(planned, origin), law)
+        check_fits(segs)
         final = module_final_action(planned.final_action)
-        up: Upload = encode_upload(breaks, cps, ycps, law_params(inputs.vehicle, hover,
-                                                                 limits.tilt_max_rad),
+        up: Upload = encode_upload(breaks, cps, ycps, law,
                                    sysid=link.sysid, compid=link.compid, final_action=final,
                                    hold_s=HOLD_S, start_tolerance_m=START_TOLERANCE_M)
         t_up = time.monotonic()

@@ -222,6 +222,16 @@ class ShapedReference:
                          ref.jerk_ned + d[3], ref.snap_ned + d[4], ref.yaw, ref.yaw_rate,
                          ref.yaw_acc)
 
+    def correction_poly(self, i: int) -> tuple[list[float], list[float]] | None:
+        """The correction on knot interval i (reference times [i h, (i+1) h], h = knot_s) as
+        polynomials in u = t/h - i [m] (north, east; coefficients lowest power first), from the
+        coefficients solved so far; None where it is zero."""
+        poly = self._interval_poly(i)
+        if not poly:
+            return None
+        px, py = poly[0]
+        return px[::-1], py[::-1]
+
     def _interval_poly(self, i: int) -> list[tuple[list[float], list[float]]]:
         """delta on knot interval i as polynomials in u = t/h - i (x and y; the value and its
         u-derivatives 1..4, coefficients highest power first); [] where it is zero."""

@@ -6,13 +6,15 @@ replay's onboard flight (companion.replay.onboard)."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.control import TrackingConfig
+from companion.control import Reference, TrackingConfig
 from companion.control.estimation import DisturbanceConfig
+from companion.control.shaping import ShapedReference, ShapingConfig
 from companion.mavlink.velocity_correction import VELOCITY_CORRECTION_RAD_S
 from companion.onboard.protocol import MAX_SEGMENTS, LawParams
 from companion.planning.config import VehicleFile, onboard_velocity_correction
@@ -155,3 +157,101 @@ def law_params(vf: VehicleFile, hover: float, tilt_rad: float) -> LawParams:
     law's (`[onboard]`)."""
     return law_from_tracking(vf.onboard_tracking_config(tilt_rad), hover,
                              onboard_velocity_correction(vf.onboard_overrides))
+
+
+def _reference(segs: Segments) -> tuple[list[Bezier], FloatArray]:
+    """`segs`' position segments as Beziers, and their breaks [s]."""
+    breaks, cps, _ = segs
+    return ([Bezier(cp, b - a) for cp, a, b in zip(cps, breaks[:-1], breaks[1:], strict=True)],
+            np.asarray(breaks, dtype=np.float64))
+
+
+def segments_reference(segs: Segments, t_s: float) -> Reference:
+    """The position and its derivatives of `segs` at time `t_s` [s] (clamped to its span)."""
+    beziers, bk = _reference(segs)
+    return _evaluate(beziers, bk, t_s)
+
+
+def _evaluate(beziers: list[Bezier], bk: FloatArray, t_s: float) -> Reference:
+    i = int(np.clip(np.searchsorted(bk, t_s, side="right") - 1, 0, len(beziers) - 1))
+    seg = beziers[i]
+    u = min(max(t_s - float(bk[i]), 0.0), seg.duration)
+    d = [seg.evaluate(u, k) for k in range(5)]
+    return Reference(d[0], d[1], d[2], d[3], d[4])
+
+
+def _poly_bezier(coef: list[float], u0: float, u1: float, degree: int) -> FloatArray:
+    """Control points (degree + 1,) of the polynomial `coef` (in u, lowest power first) over
+    u in [u0, u1], degree-elevated to `degree`."""
+    q = np.polynomial.Polynomial(coef)(np.polynomial.Polynomial([u0, u1 - u0])).coef
+    n = len(coef) - 1
+    a = np.zeros(n + 1)
+    a[: len(q)] = q
+    b = np.array([sum(math.comb(k, j) / math.comb(n, j) * a[j] for j in range(k + 1))
+                  for k in range(n + 1)])
+    bz = Bezier(b[:, None], 1.0)
+    while bz.degree < degree:
+        bz = bz.elevate()
+    return bz.control_points[:, 0]
+
+
+def bend_for_tilt(segs: Segments, law: LawParams, config: ShapingConfig | None = None
+                  ) -> Segments:
+    """`segs` bent ahead of time for the law's tilt limit, as the streamed law bends its
+    reference online (`companion.control.shaping.ShapedReference`, with the law's drag per
+    mass and no disturbance): the module flies what it is given, and a reference past its tilt
+    limit leaves it at the limit, falling behind, then catching up. The bend is the same
+    quintic B-spline correction, added exactly: segments where it is non-zero are split at its
+    knots and get its polynomial as Bezier control points (north, east). Segments it leaves
+    alone come back unchanged; so does the whole trajectory where no bend is needed, or where
+    the bent one would not fit the module (more than MAX_SEGMENTS segments)."""
+    _, cps, ycps = segs
+    if not cps:
+        return segs
+    beziers, bk = _reference(segs)
+    cfg = config or ShapingConfig()
+    shaped = ShapedReference(lambda t: _evaluate(beziers, bk, t), cfg,
+                             max_tilt_rad=law.max_tilt_rad, g=law.g)
+    shaped.drag_per_kg = law.drag / law.mass
+    h = cfg.knot_s
+    n_int = math.ceil(float(bk[-1]) / h)
+    corr: dict[int, tuple[list[float], list[float]]] = {}
+    for i in range(n_int + 1):  # the solves a flight makes, knot interval by knot interval;
+        shaped.advance((i + 0.5) * h)  # interval i's knots are final once it is reached
+        c = shaped.correction_poly(i)
+        if c is not None:
+            corr[i] = c
+    if not corr:
+        return segs
+    out: Segments = ([0.0], [], [])
+    for i, (seg, ycp) in enumerate(zip(beziers, ycps, strict=True)):
+        a, b = float(bk[i]), float(bk[i + 1])
+        ks = range(math.floor(a / h), math.ceil(b / h))
+        if not any(k in corr for k in ks):
+            out[1].append(cps[i])
+            out[2].append(ycp)
+            out[0].append(out[0][-1] + (b - a))
+            continue
+        cuts = [a, *(k * h for k in ks if a + MIN_SEGMENT_S < k * h < b - MIN_SEGMENT_S), b]
+        yaw = Bezier(np.asarray(ycp, dtype=np.float64)[:, None], b - a)
+        for lo, hi in itertools.pairwise(cuts):
+            pos_piece, yaw_piece = seg, yaw
+            if hi < b:
+                pos_piece, yaw_piece = pos_piece.split(hi - a)[0], yaw_piece.split(hi - a)[0]
+            if lo > a:
+                pos_piece = pos_piece.split(lo - a)[1]
+                yaw_piece = yaw_piece.split(lo - a)[1]
+            k = math.floor(0.5 * (lo + hi) / h)
+            c = corr.get(k)
+            pts = np.array(pos_piece.control_points)
+            if c is not None:
+                deg = max(pos_piece.degree, len(c[0]) - 1)
+                while pos_piece.degree < deg:
+                    pos_piece = pos_piece.elevate()
+                pts = np.array(pos_piece.control_points)
+                for axis in (0, 1):
+                    pts[:, axis] += _poly_bezier(c[axis], lo / h - k, hi / h - k, deg)
+            out[1].append(pts)
+            out[2].append(np.array(yaw_piece.control_points)[:, 0])
+            out[0].append(out[0][-1] + (hi - lo))
+    return out if len(out[1]) <= MAX_SEGMENTS else segs

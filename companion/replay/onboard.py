@@ -53,6 +53,7 @@ from companion.planning.onboard_segments import (
     HOLD_S,
     START_TOLERANCE_M,
     OnboardError,
+    bend_for_tilt,
     check_fits,
     law_from_tracking,
     module_final_action,
@@ -176,17 +177,18 @@ class OnboardFlight:
         assert pos is not None
         sched = self.schedule
         self.origin = np.asarray(pos.pos_ned, dtype=np.float64) - sched.reference(0.0).pos_ned
-        breaks, cps, ycps = segs = schedule_segments(sched, self.origin)
-        try:
-            check_fits(segs)
-        except OnboardError as exc:
-            self.abort(now, str(exc))
-            return
         limits = SetpointLimits.of_px4(sched.px4)
         tracking = vehicle_limited(TrackingConfig(params=self.config.params), limits)
         tracking = onboard_config(tracking, dict(self.config.onboard_law))
         law = law_from_tracking(tracking, self.hover,
                                 onboard_velocity_correction(dict(self.config.onboard_law)))
+        # bent ahead of time where it asks for more tilt than the limit (the module cannot)
+        breaks, cps, ycps = segs = bend_for_tilt(schedule_segments(sched, self.origin), law)
+        try:
+            check_fits(segs)
+        except OnboardError as exc:
+            self.abort(now, str(exc))
+            return
         cfg = self.link.config
         self.upload = encode_upload(breaks, cps, ycps, law,
                                     sysid=cfg.sysid, compid=cfg.compid, final_action=self._final,

@@ -332,7 +332,12 @@ class _Session:
         from companion.aio.onboard import upload
         from companion.flight.report import SetpointLimits
         from companion.onboard.protocol import encode_upload
-        from companion.planning.onboard_segments import HOLD_S, START_TOLERANCE_M, law_params
+        from companion.planning.onboard_segments import (
+            HOLD_S,
+            START_TOLERANCE_M,
+            bend_for_tilt,
+            law_params,
+        )
         from companion.serve.onboard import OnboardTrajectory
 
         svc = self.service
@@ -348,7 +353,9 @@ class _Session:
                 hover = (await self.v.read_params(["MPC_THR_HOVER"]))["MPC_THR_HOVER"]
                 tilt = SetpointLimits.of_px4(px4 or Px4PlanningParams()).tilt_max_rad
                 cfg = self.v.link.config
-                up = encode_upload(*result.segments, law_params(self.vehicle_file, hover, tilt),
+                law = law_params(self.vehicle_file, hover, tilt)
+                segs = await asyncio.to_thread(bend_for_tilt, result.segments, law)  # ~0.3 s
+                up = encode_upload(*segs, law,
                                    sysid=cfg.sysid, compid=cfg.compid,
                                    final_action=result.final_action, hold_s=HOLD_S,
                                    start_tolerance_m=START_TOLERANCE_M)
