@@ -179,11 +179,8 @@ async def _onboard_flight(url: str, target: int, module: Path, px4: Px4Sitl, spe
 
         if not AFTER_TAKEOFF["on"]:
             ref, up_s, n_seg, resent = await load()
-        while True:  # bounded: PX4's boot clock reaches ARM_AT (seconds)
-            p = v.telemetry.position
-            if p is None or p.time_boot_s >= ARM_AT["s"]:
-                break
-            await asyncio.sleep(0.05)
+        if ARM_AT["s"] > 0.0:
+            await wait_boot(v, ARM_AT["s"])
         await v.arm()
         await v.takeoff(5.0)
         await asyncio.sleep(1.0 + HOVER["s"])  # the streamed cells' settle (not a sync)

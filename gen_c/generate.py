@@ -418,15 +418,19 @@ def library_functions(variant: str) -> list[ca.Function]:
     ]
 
 
+def _shared(f: ca.Function) -> ca.Function:
+    """`f` (one input vector, one output vector) with its common subexpressions shared."""
+    x = ca.SX.sym("x", f.size1_in(0))
+    return ca.Function(f.name(), [x], [ca.cse(f(x))], ["x"], ["y"])
+
+
 def tracking_core_function(name: str) -> ca.Function:
     """The tracking law's core (``companion.control.core``, the expressions the companion
     flies): one input vector (``CORE_INPUTS``), one output vector (``CORE_OUTPUTS``), common
     subexpressions shared."""
     from companion.control.core import symbolic_core
 
-    f = symbolic_core(name)
-    x = ca.SX.sym("x", f.size1_in(0))
-    return ca.Function(name, [x], [ca.cse(f(x))], ["x"], ["y"])
+    return _shared(symbolic_core(name))
 
 
 def disturbance_step_function(name: str) -> ca.Function:
@@ -435,9 +439,7 @@ def disturbance_step_function(name: str) -> ca.Function:
     (``DIST_OUTPUTS``), common subexpressions shared."""
     from companion.control.observer import symbolic_disturbance_step
 
-    f = symbolic_disturbance_step(name)
-    x = ca.SX.sym("x", f.size1_in(0))
-    return ca.Function(name, [x], [ca.cse(f(x))], ["x"], ["y"])
+    return _shared(symbolic_disturbance_step(name))
 
 
 def velocity_correction_step_function(name: str) -> ca.Function:
@@ -447,9 +449,7 @@ def velocity_correction_step_function(name: str) -> ca.Function:
     subexpressions shared."""
     from companion.mavlink.velocity_correction import symbolic_velocity_correction_step
 
-    f = symbolic_velocity_correction_step(name)
-    x = ca.SX.sym("x", f.size1_in(0))
-    return ca.Function(name, [x], [ca.cse(f(x))], ["x"], ["y"])
+    return _shared(symbolic_velocity_correction_step(name))
 
 
 def _info_header() -> str:

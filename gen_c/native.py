@@ -466,10 +466,15 @@ class NativeSetpoint:
         """``ecca_tracking_core``: the tracking law's core on one input vector `x` (the 60
         values of ``companion.control.core.CORE_INPUTS``); the 16 outputs (``CORE_OUTPUTS``).
         ValueError on a refused input or a non-finite result."""
+        return self._vector_call("tracking_core", x, 60, 16, precision)
+
+    def _vector_call(self, key: str, x: npt.ArrayLike, n_in: int, n_out: int,
+                     precision: Precision) -> FloatArray:
+        """A generated function of one input vector (`n_in` values) and one output vector."""
         real = ctypes.c_double if precision == "double" else ctypes.c_float
-        xin = (real * 60)(*_vec(x, 60, "x").tolist())
-        out = (real * 16)()
-        self._call(precision, "tracking_core", xin, out)
+        xin = (real * n_in)(*_vec(x, n_in, "x").tolist())
+        out = (real * n_out)()
+        self._call(precision, key, xin, out)
         return np.array(out[:], dtype=np.float64)
 
     def disturbance_step(self, x: npt.ArrayLike, *,
@@ -478,11 +483,7 @@ class NativeSetpoint:
         (the 12 values of ``companion.control.observer.DIST_INPUTS``); the 4 outputs
         (``DIST_OUTPUTS``: v_hat, d_hat). ValueError on a refused input or a non-finite
         result."""
-        real = ctypes.c_double if precision == "double" else ctypes.c_float
-        xin = (real * 12)(*_vec(x, 12, "x").tolist())
-        out = (real * 4)()
-        self._call(precision, "disturbance_step", xin, out)
-        return np.array(out[:], dtype=np.float64)
+        return self._vector_call("disturbance_step", x, 12, 4, precision)
 
     def velocity_correction_step(self, x: npt.ArrayLike, *,
                                  precision: Precision = "double") -> FloatArray:
@@ -490,11 +491,7 @@ class NativeSetpoint:
         vector `x` (the 15 values of ``companion.mavlink.velocity_correction.VCORR_INPUTS``);
         the 4 outputs (``VCORR_OUTPUTS``: p_hat, corr). ValueError on a refused input or a
         non-finite result."""
-        real = ctypes.c_double if precision == "double" else ctypes.c_float
-        xin = (real * 15)(*_vec(x, 15, "x").tolist())
-        out = (real * 4)()
-        self._call(precision, "velocity_correction_step", xin, out)
-        return np.array(out[:], dtype=np.float64)
+        return self._vector_call("velocity_correction_step", x, 15, 4, precision)
 
     def full_rover(self, ctrl_pts: npt.ArrayLike, duration: float, t: float,
                    wheel_base_m: float | None = None, *, precision: Precision = "double",

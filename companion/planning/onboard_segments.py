@@ -20,6 +20,7 @@ from companion.onboard.protocol import MAX_SEGMENTS, LawParams
 from companion.planning.config import VehicleFile, onboard_velocity_correction
 from companion.planning.schedule import Schedule
 from companion.trajectory import Bezier, PiecewiseBezier
+from companion.trajectory.bezier import monomial_matrix
 
 FloatArray = NDArray[np.float64]
 Segments = tuple[list[float], list[FloatArray], list[FloatArray]]
@@ -187,9 +188,7 @@ def _poly_bezier(coef: list[float], u0: float, u1: float, degree: int) -> FloatA
     n = len(coef) - 1
     a = np.zeros(n + 1)
     a[: len(q)] = q
-    b = np.array([sum(math.comb(k, j) / math.comb(n, j) * a[j] for j in range(k + 1))
-                  for k in range(n + 1)])
-    bz = Bezier(b[:, None], 1.0)
+    bz = Bezier(np.linalg.solve(monomial_matrix(n), a)[:, None], 1.0)
     while bz.degree < degree:
         bz = bz.elevate()
     return bz.control_points[:, 0]

@@ -32,11 +32,6 @@ RTOL_DOUBLE = 1e-9
 RTOL_FLOAT = 1e-4
 
 
-@pytest.fixture(scope="module")
-def lib(tmp_path_factory: pytest.TempPathFactory) -> native.NativeSetpoint:
-    return native.NativeSetpoint(native.build_library(cache=tmp_path_factory.mktemp("dist")))
-
-
 def f32(x: np.ndarray) -> np.ndarray:
     return x.astype(np.float32).astype(np.float64)
 

@@ -15,7 +15,6 @@ from __future__ import annotations
 import ctypes
 import math
 from collections.abc import Callable, Iterator
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -26,12 +25,6 @@ OK, ERR_INPUT = 0, -2
 LIMIT = 1e12
 PRECS = ("double", "float")
 NONFINITE = (math.nan, math.inf, -math.inf)
-
-
-@pytest.fixture(scope="module")
-def lib(tmp_path_factory: pytest.TempPathFactory) -> native.NativeSetpoint:
-    cache: Path = tmp_path_factory.mktemp("gen_c_val_cache")
-    return native.NativeSetpoint(native.build_library(cache=cache))
 
 
 def _struct(lib: native.NativeSetpoint, prec: str, kind: str) -> Any:

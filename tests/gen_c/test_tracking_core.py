@@ -26,11 +26,6 @@ RTOL_DOUBLE = 1e-9
 RTOL_FLOAT = 1e-4
 
 
-@pytest.fixture(scope="module")
-def lib(tmp_path_factory: pytest.TempPathFactory) -> native.NativeSetpoint:
-    return native.NativeSetpoint(native.build_library(cache=tmp_path_factory.mktemp("core")))
-
-
 def golden() -> np.ndarray:
     doc = json.loads(VECTORS.read_text(encoding="utf-8"))
     assert [tuple(x) for x in doc["inputs_layout"]] == list(CORE_INPUTS), (
