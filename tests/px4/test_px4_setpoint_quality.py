@@ -1,17 +1,24 @@
-"""`companion fly` on real PX4 SITL: no thrust chatter on the final 10 m descent, commanded tilt
-within PX4's MPC_TILTMAX_AIR, judged from the flight's tlog (tests/support/setpoint_checks.py)
-against PX4's own LOCAL_POSITION_NED and landed state. Before the fix, the same square in attitude
-mode made 95 thrust jumps over 0.1 (up to 0.5) between setpoints 10-20 ms apart."""
+"""`python -m companion fly FILE --connect` on real PX4 SITL, judged from the flight's tlog:
+- every mission position passed within 0.5 m, then landed and disarmed, by PX4's own
+  GLOBAL_POSITION_INT and HEARTBEAT (read back with pymavlink; the mission's own coordinates);
+- no thrust chatter on the final 10 m descent, commanded tilt within PX4's MPC_TILTMAX_AIR
+  (tests/support/setpoint_checks.py) against PX4's own LOCAL_POSITION_NED and landed state.
+  Before the fix, the same square in attitude mode made 95 thrust jumps over 0.1 (up to 0.5)
+  between setpoints 10-20 ms apart."""
 
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
+from pymavlink import mavutil
 
+from companion.mission import geodetic_to_ned, load_mission
 from px4_harness import Px4Sitl
 from tests.support.setpoint_checks import read_setpoints
 
@@ -23,7 +30,7 @@ MISSION = REPO / "tests" / "data" / "missions" / "square_8ms.plan"
 # attitude mode only: the mode that chattered (rates mode on the same square: largest step 0.047
 # before, 0.044 after; BENCHMARKS.md "Setpoint quality"), to keep the real-time px4 set short
 @pytest.mark.parametrize("mode", ["attitude"])
-def test_px4_fly_has_no_thrust_chatter_and_keeps_the_tilt_limit(
+def test_px4_fly_passes_every_waypoint_without_thrust_chatter_within_the_tilt_limit(
         px4: Px4Sitl, tmp_path: Path, mode: str) -> None:
     tlog = tmp_path / "flight.tlog"
     cmd = [sys.executable, "-m", "companion", "fly", str(MISSION), "--connect", px4.url,
@@ -31,6 +38,7 @@ def test_px4_fly_has_no_thrust_chatter_and_keeps_the_tilt_limit(
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=240, cwd=tmp_path)
     print(proc.stdout[-3000:], proc.stderr[-3000:])
     assert proc.returncode == 0
+    check_mission_positions(tlog, px4.target_system)
     s = read_setpoints(str(tlog))
     steps = s.thrust_steps()
     top = max(range(len(s.height_m)), key=s.height_m.__getitem__)
@@ -44,3 +52,42 @@ def test_px4_fly_has_no_thrust_chatter_and_keeps_the_tilt_limit(
     report = json.loads(Path(f"{tlog}.report.json").read_text())
     print(report.get("setpoint_quality"))
     assert report["result"] == "ok"
+
+
+def check_mission_positions(tlog: Path, sysid: int) -> None:
+    """Every position item of MISSION passed within 0.5 m (LAND: horizontally) by PX4's own
+    GLOBAL_POSITION_INT in the tlog; the vehicle armed, then landed and disarmed."""
+    mission = load_mission(MISSION)
+    home = mission.home
+    targets = [it for it in mission.items if it.command in (16, 21)]
+    assert targets
+    conn = mavutil.mavlink_connection(str(tlog))
+    pos: list[tuple[float, float, float]] = []
+    armed: list[bool] = []
+    try:
+        for _ in range(2_000_000):
+            m = conn.recv_match(type=["GLOBAL_POSITION_INT", "HEARTBEAT"])
+            if m is None:
+                break
+            if m.get_srcSystem() != sysid or m.get_srcComponent() != 1:
+                continue
+            if m.get_type() == "HEARTBEAT":
+                armed.append(bool(m.base_mode & 128))
+            else:
+                pos.append((m.lat * 1e-7, m.lon * 1e-7, m.relative_alt * 1e-3))
+    finally:
+        conn.close()
+    assert len(pos) > 100 and armed
+    flown = np.array([geodetic_to_ned(la, lo, home.alt_amsl_m + alt, home) for la, lo, alt in pos])
+    for it in targets:
+        goal = geodetic_to_ned(it.lat_deg, it.lon_deg, home.alt_amsl_m + it.alt_rel_home_m(home),
+                               home)
+        if it.command == 21:  # LAND: judged horizontally; it ends on the ground
+            d = float(np.min(np.hypot(*(flown[:, :2] - goal[:2]).T)))
+        else:
+            d = float(np.min(np.linalg.norm(flown - goal, axis=1)))
+        print(f"item {it.index}: closest {d:.2f} m")
+        assert d < 0.5, (it.index, d)
+    assert any(armed) and not armed[-1]  # flown, then landed and disarmed
+    assert abs(pos[-1][2]) < 0.5
+    assert math.isfinite(pos[-1][0])
