@@ -348,7 +348,7 @@ def _require_steerable(traj: PiecewiseBezier, lim: RoverLimits, chunk: FlightChu
     k_max = lim.max_curvature_1_m
     if k_max is None:
         return
-    rep = check(traj, lim)["curvature"]
+    rep = check(traj, lim, only=("curvature",))["curvature"]
     if not rep.exceeded:
         return
     items = ", ".join(str(i) for i in chunk.item_indices if i is not None)

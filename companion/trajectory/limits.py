@@ -10,6 +10,7 @@ Rover quantities follow the unicycle relations: speed ``V = |v|``, yaw rate
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
@@ -30,6 +31,9 @@ __all__ = ["LimitReport", "Limits", "RoverLimits", "check"]
 
 #: Samples per segment used by :func:`check` before local refinement around the worst sample.
 SAMPLES_PER_SEGMENT = 48
+
+#: The rover quantities :func:`rover_extrema` gives exactly (critical points).
+_ROVER_EXACT = frozenset(("speed", "yaw_rate", "lat_acc"))
 
 
 def _positive(name: str, value: float | None, *, optional: bool) -> float | None:
@@ -614,7 +618,8 @@ def segment_worst(
 
 
 def check(
-    traj: PiecewiseBezier, limits: Limits | RoverLimits, params: Any = None
+    traj: PiecewiseBezier, limits: Limits | RoverLimits, params: Any = None,
+    only: Collection[str] | None = None,
 ) -> dict[str, LimitReport]:
     """Check every active limit of ``limits`` on ``traj``.
 
@@ -627,14 +632,18 @@ def check(
     yaw channel (yaw 0 when it has none). Rover yaw rate and lateral acceleration are not
     evaluated below ``ROVER_MIN_SPEED_M_S`` (singular at rest); rover maxima also include
     :func:`rover_extrema` (critical points), which sees peaks narrower than the grid.
+    ``only``: check just these of the active limits (each report is the same as in a full
+    check; a rover's critical points are computed only when one of theirs is asked for).
     """
     validate_limits(traj, limits, params)
-    table = _limit_table(limits, geometric=True)
+    table = [row for row in _limit_table(limits, geometric=True)
+             if only is None or row[0] in only]
     names = [n for n, _, _ in table]
     t, seg = _sample_times(traj, SAMPLES_PER_SEGMENT)
     vals = _metrics(_sample(traj, t, names), names, params)
     hull_order = {"speed": 1, "acc": 2, "jerk": 3}
-    exact = rover_extrema(traj) if isinstance(limits, RoverLimits) else None
+    exact = (rover_extrema(traj) if isinstance(limits, RoverLimits)
+             and not _ROVER_EXACT.isdisjoint(names) else None)
     reports: dict[str, LimitReport] = {}
     for name, limit, kind in table:
         v = vals[name]

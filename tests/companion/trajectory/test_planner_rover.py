@@ -159,3 +159,31 @@ def test_power_matrix_evaluation_matches_numpy_polyval() -> None:
         want = np.polynomial.polynomial.polyval(x, coef)
         assert np.allclose(polyval01(x, coef), want, rtol=1e-12,
                            atol=1e-12 * float(np.sum(np.abs(coef))))
+
+
+def test_a_check_of_some_limits_equals_the_full_check_and_skips_the_critical_points(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """`check(..., only=names)` gives, for each name, the full check's report bit for bit; the
+    rover's critical points (~0.4 s for a long plan) are computed only when speed, yaw rate or
+    lateral acceleration is asked for (curvature alone, as the steering check asks, does not)."""
+    import companion.trajectory.limits as limits_mod
+
+    lim = RoverLimits(max_speed_m_s=2.0, max_yaw_rate_rad_s=0.8, max_lat_acc_m_s2=1.0,
+                      max_curvature_1_m=0.5)
+    traj = plan(rover_set(3), limits=LIM, yaw="velocity")
+    full = check(traj, lim)
+    calls: list[int] = []
+
+    def counted(t: PiecewiseBezier) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        calls.append(1)
+        return rover_extrema(t)
+
+    monkeypatch.setattr(limits_mod, "rover_extrema", counted)
+    assert set(full) == {"speed", "yaw_rate", "lat_acc", "curvature"}
+    for names in (("curvature",), ("yaw_rate",), ("speed", "curvature"), ("lat_acc",)):
+        calls.clear()
+        part = check(traj, lim, only=names)
+        assert set(part) == set(names)
+        for n in names:
+            assert part[n] == full[n], n
+        assert len(calls) == (0 if names == ("curvature",) else 1), names
