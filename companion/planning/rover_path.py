@@ -31,7 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.trajectory import PiecewiseBezier, RoverLimits, hermite
+from companion.trajectory import PiecewiseBezier, RoverLimits
+from companion.trajectory.bezier import hermite_batch
 
 FloatArray = NDArray[np.float64]
 
@@ -334,11 +335,8 @@ def rover_arc_trajectory(pts: FloatArray, caps: FloatArray, acceptance_m: Sequen
     rate_d = ak * kk + vk**2 * ks
     rate_dd = np.gradient(rate_d, tk)
     h = np.diff(tk)
-    segs = [hermite(np.vstack([xk[i], vel[i], accel[i], jerk[i]]),
-                    np.vstack([xk[i + 1], vel[i + 1], accel[i + 1], jerk[i + 1]]), float(h[i]))
-            for i in range(n)]
-    yaw = [hermite(np.array([[hk[i]], [rate[i]], [rate_d[i]], [rate_dd[i]]]),
-                   np.array([[hk[i + 1]], [rate[i + 1]], [rate_d[i + 1]], [rate_dd[i + 1]]]),
-                   float(h[i]))
-           for i in range(n)]
-    return PiecewiseBezier(segs, yaw=PiecewiseBezier(yaw))
+    # knot k's position, velocity, acceleration and jerk (k, 4, 2); heading and its rates
+    d_xy = np.stack([xk, vel, accel, jerk], axis=1)
+    d_yaw = np.stack([hk, rate, rate_d, rate_dd], axis=1)[:, :, None]
+    yaw = hermite_batch(d_yaw[:-1], d_yaw[1:], h)
+    return hermite_batch(d_xy[:-1], d_xy[1:], h).with_yaw(yaw)

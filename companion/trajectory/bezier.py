@@ -24,6 +24,7 @@ __all__ = [
     "PiecewiseBezier",
     "ScalarEvaluator",
     "hermite",
+    "hermite_batch",
     "horner_fn",
     "monomial_matrix",
 ]
@@ -230,6 +231,40 @@ def hermite(start_derivs: ArrayLike, end_derivs: ArrayLike, duration: float) -> 
             acc = acc - (-1.0) ** i * comb(j, i) * pts[n - i]
         pts[n - j] = (-1.0) ** j * acc
     return Bezier(pts, h)
+
+
+def hermite_batch(start_derivs: ArrayLike, end_derivs: ArrayLike,
+                  durations: ArrayLike) -> PiecewiseBezier:
+    """:func:`hermite` for M segments at once, joined as a :class:`PiecewiseBezier`:
+    ``start_derivs`` (M, k0, d), ``end_derivs`` (M, k1, d), ``durations`` (M,) [s]. Each
+    segment's control points are bit for bit those of ``hermite`` (the same floating-point
+    operations in the same order, on whole arrays instead of one segment at a time)."""
+    s0 = np.asarray(start_derivs, dtype=np.float64)
+    s1 = np.asarray(end_derivs, dtype=np.float64)
+    if s0.ndim != 3 or s1.ndim != 3 or s0.shape[0] != s1.shape[0] or s0.shape[2] != s1.shape[2]:
+        raise ValueError(f"hermite_batch: derivative shapes {s0.shape} and {s1.shape} do not "
+                         "match (M, k0, d) and (M, k1, d)")
+    if not (np.all(np.isfinite(s0)) and np.all(np.isfinite(s1))):
+        raise ValueError("hermite_batch: derivatives must be finite")
+    hs = [_as_duration(float(x)) for x in np.asarray(durations, dtype=np.float64).reshape(-1)]
+    if len(hs) != s0.shape[0]:
+        raise ValueError(f"hermite_batch: {s0.shape[0]} segments but {len(hs)} durations")
+    k0, k1 = s0.shape[1], s1.shape[1]
+    n = k0 + k1 - 1
+    pts = np.zeros((s0.shape[0], n + 1, s0.shape[2]))
+    for j in range(k0):
+        hj = np.array([h**j for h in hs])[:, None]  # Python's float power, as in `hermite`
+        acc = s0[:, j] * hj * factorial(n - j) / factorial(n)
+        for i in range(j):
+            acc = acc - (-1.0) ** (j - i) * comb(j, i) * pts[:, i]
+        pts[:, j] = acc
+    for j in range(k1):
+        hj = np.array([h**j for h in hs])[:, None]
+        acc = s1[:, j] * hj * factorial(n - j) / factorial(n)
+        for i in range(j):
+            acc = acc - (-1.0) ** i * comb(j, i) * pts[:, n - i]
+        pts[:, n - j] = (-1.0) ** j * acc
+    return PiecewiseBezier.from_control_points(pts, np.array(hs))
 
 
 class PiecewiseBezier:

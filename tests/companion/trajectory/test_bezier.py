@@ -284,3 +284,35 @@ def test_evaluate_orders_matches_power_basis_oracle_and_evaluate() -> None:
                           polys[k][dim](tc[i] - traj.breaks[k]) for dim in range(3)]
                          for i, k in enumerate(seg)])
         np.testing.assert_allclose(vals, want, rtol=1e-9, atol=1e-9 * max(1.0, np.abs(want).max()))
+
+
+@pytest.mark.parametrize(("k0", "k1", "d"), [(1, 1, 1), (2, 2, 3), (4, 4, 2), (4, 4, 1),
+                                             (3, 5, 2), (5, 2, 3)])
+def test_hermite_batch_is_hermite_bit_for_bit_and_meets_the_boundary_derivatives(
+        k0: int, k1: int, d: int) -> None:
+    """Each segment of `hermite_batch` has exactly `hermite`'s control points (the rover's
+    path planner switched to the batch: its plans must not move), and meets the boundary
+    derivatives it was given (by the Bezier's own evaluation)."""
+    from companion.trajectory.bezier import hermite_batch
+
+    rng = np.random.default_rng(k0 * 100 + k1 * 10 + d)
+    m = 40
+    s0 = rng.normal(scale=10.0, size=(m, k0, d))
+    s1 = rng.normal(scale=10.0, size=(m, k1, d))
+    h = np.exp(rng.uniform(np.log(1e-3), np.log(50.0), m))
+    batch = hermite_batch(s0, s1, h)
+    assert batch.num_segments == m and batch.degree == k0 + k1 - 1
+    for i in range(m):
+        one = hermite(s0[i], s1[i], float(h[i]))
+        assert np.array_equal(batch.control_points[i], one.control_points), i
+        assert batch.durations[i] == one.duration
+    seg = batch.segments[7]
+    for j in range(k0):
+        np.testing.assert_allclose(seg.evaluate(0.0, j), s0[7, j], rtol=1e-6, atol=1e-6)
+    for j in range(k1):
+        np.testing.assert_allclose(seg.evaluate(seg.duration, j), s1[7, j], rtol=1e-6,
+                                   atol=1e-6)
+    with pytest.raises(ValueError, match="positive"):
+        hermite_batch(s0[:2], s1[:2], [1.0, 0.0])
+    with pytest.raises(ValueError, match="finite"):
+        hermite_batch(np.full((1, k0, d), np.nan), s1[:1], [1.0])
