@@ -26,6 +26,11 @@ a fresh process with the tree first on `sys.path` and as its working directory.
   mission, and two flown without a tlog as a campaign flies them) in each tree; sha256 of
   flight.tlog and of report.json without its wall-clock fields. Equal digests: the trees fly
   bit-identical flights.
+- `plan TREE...`: the replay's planning phase alone (`prepare_mission`: the mock's parameters
+  read, the mission planned) for each file of `--files` (default: the bundled rover missions
+  as a rover, three quad missions), in a fresh process per tree and round: CPU seconds per
+  file, medians, ratios against the first tree, and a digest of each schedule (its reference
+  at 400 times: equal digests, the same plans).
 - `instructions TREE...`: instructions of one lockstep loop under valgrind (callgrind), with
   and without a tlog: a measure the machine's load does not move (slow: ~1 min per run).
 - `campaign TREE...`: a campaign of `--runs` runs per mode on a local Dask cluster of
@@ -41,6 +46,7 @@ Usage:
   python bench/bench_replay_speed.py fingerprint /tmp/base .
   python bench/bench_replay_speed.py campaign /tmp/base . [--runs 20] [--rounds 2]
   python bench/bench_replay_speed.py instructions /tmp/base .
+  python bench/bench_replay_speed.py plan git:HEAD . [--rounds 3] [--files F...]
 """
 
 from __future__ import annotations
@@ -111,6 +117,69 @@ def _check_tree(tree: Path) -> None:
     for pkg in PKGS:
         if not (tree / pkg / "__init__.py").exists():
             raise SystemExit(f"{tree} is not a source tree of this project (no {pkg}/)")
+
+
+# ----------------------------------------------------------------------------- plan
+
+PLAN_FILES = (*sorted((ROOT / "examples" / "missions").glob("rover_*.plan")),
+              ROOT / "examples" / "missions" / "square.plan",
+              ROOT / "examples" / "missions" / "survey.plan", DEFAULT_FILE)
+
+_PLAN_CODE = """
+import hashlib, json, sys, time
+import numpy as np
+from companion.replay.runner import ReplayConfig, prepare_mission
+out = {}
+for f in sys.argv[1:]:
+    cfg = ReplayConfig(vehicle="rover" if "rover_" in f else "quad")
+    t0 = time.process_time()
+    prep = prepare_mission(f, cfg)
+    cpu = time.process_time() - t0
+    sch = prep.schedule
+    h = hashlib.sha256()
+    for k in range(400):
+        r = sch.reference(sch.duration_s * k / 399)
+        h.update(np.asarray(r.pos_ned, dtype=np.float64).tobytes())
+        h.update(np.asarray(r.vel_ned, dtype=np.float64).tobytes())
+        h.update(np.float64(r.yaw).tobytes())
+    out[f] = {"cpu_s": cpu, "duration_s": sch.duration_s, "digest": h.hexdigest()[:16]}
+print(json.dumps(out))
+"""
+
+
+def plan_once(tree: Path, files: list[Path]) -> dict[str, dict[str, Any]]:
+    """CPU time and schedule digest of `prepare_mission` for each file, in a fresh process of
+    `tree` (its imports and the first file's warm-up inside the process, before the timing of
+    that file: every file pays what a replay pays)."""
+    proc = subprocess.run([sys.executable, "-c", _PLAN_CODE, *map(str, files)], cwd=tree,
+                          env=_env(tree, "cached"), capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        raise SystemExit(f"planning in {tree} failed:\n{proc.stderr[-3000:]}")
+    return dict(json.loads(proc.stdout.strip().splitlines()[-1]))
+
+
+def cmd_plan(args: argparse.Namespace) -> str:
+    trees = [resolve_tree(t) for t in args.trees]
+    for tree in trees:
+        _check_tree(tree)
+    files = [Path(f).resolve() for f in (args.files or PLAN_FILES)]
+    runs: list[list[dict[str, dict[str, Any]]]] = [[] for _ in trees]
+    for _ in range(args.rounds):
+        for i, tree in enumerate(trees):  # trees take turns: drift hits them alike
+            runs[i].append(plan_once(tree, files))
+    lines = [f"Planning (`prepare_mission`), CPU s per file, median of {args.rounds} rounds "
+             f"(load {os.getloadavg()[0]:.1f}):", "",
+             "| file | " + " | ".join(f"{a} [s]" for a in args.trees)
+             + " | " + " | ".join(f"{a} / {args.trees[0]}" for a in args.trees[1:])
+             + " | same plans |",
+             "| --- |" + " ---: |" * (2 * len(trees) - 1) + " --- |"]
+    for f in files:
+        med = [statistics.median(r[str(f)]["cpu_s"] for r in rs) for rs in runs]
+        digests = {r[str(f)]["digest"] for rs in runs for r in rs}
+        lines.append(f"| {f.name} | " + " | ".join(f"{m:.3f}" for m in med) + " | "
+                     + " | ".join(f"{m / med[0]:.2f}" for m in med[1:])
+                     + f" | {'yes' if len(digests) == 1 else 'NO'} |")
+    return "\n".join(lines)
 
 
 # ----------------------------------------------------------------------------- ab
@@ -608,6 +677,10 @@ def main() -> None:
     c.add_argument("--workers", type=int, default=2)
     c.add_argument("--rounds", type=int, default=1)
     c.add_argument("--modes", default="attitude,position,rates")
+    pl = sub.add_parser("plan")
+    pl.add_argument("trees", nargs="+")
+    pl.add_argument("--files", nargs="+", default=None)
+    pl.add_argument("--rounds", type=int, default=3)
     n = sub.add_parser("instructions")
     n.add_argument("trees", nargs="+")
     n.add_argument("--file", type=Path, default=DEFAULT_FILE)
@@ -615,7 +688,7 @@ def main() -> None:
     args = ap.parse_args()
     text = {"ab": cmd_ab, "profile": cmd_profile, "fingerprint": cmd_fingerprint,
             "campaign": cmd_campaign, "instructions": cmd_instructions,
-            "parts": cmd_parts}[args.cmd](args)
+            "parts": cmd_parts, "plan": cmd_plan}[args.cmd](args)
     print()
     print(text)
 
