@@ -25,7 +25,7 @@ HEADERS = ("ecca_setpoint.h", "ecca_setpoint_gen.h", "ecca_setpoint_impl.inc", "
            "../px4_module/ecca_onboard_core.h", "../px4_module/ecca_onboard_proto.h")
 N_FLOATS = 58
 MAX_SEGMENTS = 256  # ECCA_MAX_SEGMENTS
-B_COUNT = 30  # ECCA_B_COUNT
+B_COUNT = 31  # ECCA_B_COUNT
 
 
 class _Ack(ctypes.Structure):

@@ -81,8 +81,9 @@ async def module_status(v: VehicleBase, timeout_s: float = 3.0,
 
 async def upload(v: VehicleBase, up: Upload, *, timeout_s: float = 60.0,
                  part_timeout_s: float = 0.3, retries: int = 10) -> Uploader:
-    """Upload `up` part by part (each acknowledged; resent when not) and verify its CRC with
-    the module. Returns the finished `Uploader` (`verified`, or `failed` with the reason)."""
+    """Upload `up` part by part (each acknowledged; resent when not, after a timeout adapted
+    to the measured round trip and at most `part_timeout_s`: see `Uploader`) and verify its CRC
+    with the module. Returns the finished `Uploader` (`verified`, or `failed` with the reason)."""
     u = Uploader(up, timeout_s=part_timeout_s, retries=retries)
     q = _AckQueue(v)
     await asyncio.sleep(0)
@@ -96,7 +97,8 @@ async def upload(v: VehicleBase, up: Upload, *, timeout_s: float = 60.0,
             msg = u.poll(now)
             if msg is not None:
                 v.send_float_array(PROTO_NAME, msg[0], msg[1])
-            ack = await q.get(part_timeout_s / 3)
+            # until the next (re)send is due, in steps of at most part_timeout_s / 3
+            ack = await q.get(min(max(u.wait_s(time.monotonic()), 0.001), part_timeout_s / 3))
             if ack is not None:
                 u.on_ack(ack, time.monotonic())
         return u

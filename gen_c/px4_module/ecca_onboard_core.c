@@ -102,7 +102,15 @@ static int begin_valid(const float *d) {
          d[ECCA_B_THRUST_MAX] > d[ECCA_B_THRUST_MIN] && d[ECCA_B_START_TOL_M] > 0.0f &&
          d[ECCA_B_LEAD_S] >= 0.0f && d[ECCA_B_LEAD_S] <= 1.0f && d[ECCA_B_DIST_BW] >= 0.0f &&
          d[ECCA_B_DIST_BW] <= 20.0f && d[ECCA_B_VCORR_RAD_S] >= 0.0f &&
-         d[ECCA_B_VCORR_RAD_S] <= 20.0f;
+         d[ECCA_B_VCORR_RAD_S] <= 20.0f && d[ECCA_B_UPLOAD_ID] >= 0.0f &&
+         d[ECCA_B_UPLOAD_ID] < 16777216.0f;
+}
+
+/* Segment k as held equals the SEGMENT message d (its index already checked). */
+static int segment_held(const ecca_onboard *m, int k, const float *d) {
+  return m->have[k] && m->seg[k].duration == d[ECCA_S_DURATION] &&
+         memcmp(m->seg[k].ctrl, d + ECCA_S_CTRL, sizeof(m->seg[k].ctrl)) == 0 &&
+         memcmp(m->seg[k].yaw, d + ECCA_S_YAW, sizeof(m->seg[k].yaw)) == 0;
 }
 
 static int segment_valid(const float *d) {
@@ -134,8 +142,12 @@ int ecca_onboard_message(ecca_onboard *m, int op, const float *d, ecca_onboard_a
       op_ack(m, ack, ECCA_OP_BEGIN, 1 /* TEMPORARILY_REJECTED */, 0);
       return 1;
     }
-    if (m->state == ECCA_STATE_RECEIVING && memcmp(m->begin, d, sizeof(m->begin)) == 0) {
-      op_ack(m, ack, ECCA_OP_BEGIN, 0, 0); /* a repeated BEGIN (delayed, duplicated): no reset */
+    if ((m->state == ECCA_STATE_RECEIVING || m->state == ECCA_STATE_LOADED) &&
+        memcmp(m->begin, d, sizeof(m->begin)) == 0) {
+      /* a repeated BEGIN (delayed, duplicated, or the same upload again: ECCA_B_UPLOAD_ID
+       * names its segments): no reset. A late copy arriving after COMMIT reset a loaded
+       * trajectory whose CRC the companion had already been given. */
+      op_ack(m, ack, ECCA_OP_BEGIN, 0, 0);
       return 1;
     }
     if (!begin_valid(d)) {
@@ -153,6 +165,11 @@ int ecca_onboard_message(ecca_onboard *m, int op, const float *d, ecca_onboard_a
     return 1;
   case ECCA_OP_SEGMENT: {
     int k = (int)d[ECCA_S_INDEX];
+    if (m->state == ECCA_STATE_LOADED && k >= 0 && k < m->n_expected &&
+        (float)k == d[ECCA_S_INDEX] && segment_held(m, k, d)) {
+      op_ack(m, ack, ECCA_OP_SEGMENT, 0, k); /* what is held already (the same upload again) */
+      return 1;
+    }
     if (m->state != ECCA_STATE_RECEIVING || k < 0 || k >= m->n_expected ||
         (float)k != d[ECCA_S_INDEX] || !segment_valid(d)) {
       op_ack(m, ack, ECCA_OP_SEGMENT, 2, k < 0 ? 0 : k);

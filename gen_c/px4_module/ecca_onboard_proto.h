@@ -19,7 +19,7 @@
 #ifndef ECCA_ONBOARD_PROTO_H
 #define ECCA_ONBOARD_PROTO_H
 
-#define ECCA_PROTO_VERSION 3
+#define ECCA_PROTO_VERSION 4
 #define ECCA_PROTO_NAME "ecca"
 #define ECCA_MAX_SEGMENTS 256
 
@@ -75,7 +75,8 @@
 #define ECCA_B_LEAD_S 27      /* the feed-forward's lead (attitude_lead_s) [s] */
 #define ECCA_B_DIST_BW 28     /* disturbance observer's bandwidth [rad/s] (0: none estimated) */
 #define ECCA_B_VCORR_RAD_S 29 /* velocity correction's frequency [rad/s] (0: none) */
-#define ECCA_B_COUNT 30       /* values of ECCA_OP_BEGIN covered by the CRC */
+#define ECCA_B_UPLOAD_ID 30   /* the segments' CRC-32, low 24 bits: names the upload's content */
+#define ECCA_B_COUNT 31       /* values of ECCA_OP_BEGIN covered by the CRC */
 
 /* ECCA_OP_SEGMENT data layout */
 #define ECCA_S_INDEX 0
