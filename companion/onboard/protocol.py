@@ -223,12 +223,12 @@ class Uploader:
     resent: int = 0
     srtt_s: float | None = None  # smoothed round trip [s] (None: not measured yet)
     rttvar_s: float = 0.0  # its mean deviation [s]
-    # parts: -1 BEGIN, 0..n-1 the segments, n COMMIT; in flight: part -> [last send, sends,
-    # first send]
+    # parts: -1 BEGIN, 0..n-1 the segments, n COMMIT; in flight: part -> (last send [s],
+    # sends, first send [s])
     _stage: int = -1  # -1 BEGIN, 0 the segments, 1 COMMIT
     _next: int = 0  # the next segment never sent
     _acked: int = 0  # segments acknowledged
-    _flight: dict[int, list[float]] = field(default_factory=dict)
+    _flight: dict[int, tuple[float, int, float]] = field(default_factory=dict)
     _last_send: float = -math.inf
 
     @property
@@ -245,7 +245,7 @@ class Uploader:
     def _due(self, part: int) -> float:
         """When part `part` (in flight) is sent again [s]."""
         last, tries, _first = self._flight[part]
-        return last + min(self.rto_s() * 2.0 ** max(tries - 1, 0), self.timeout_s)
+        return last + min(math.ldexp(self.rto_s(), max(tries - 1, 0)), self.timeout_s)
 
     def _n(self) -> int:
         return len(self.upload.segments)
@@ -285,17 +285,17 @@ class Uploader:
             part = min(late, key=self._due)  # the longest overdue first
             _last, tries, first = self._flight[part]
             if tries >= self.retries and now - first >= self.retries * self.timeout_s:
-                self.failed = (f"no acknowledgement of part {part + 1} after {int(tries)} "
-                               f"sends in {now - first:.1f} s")
+                self.failed = (f"no acknowledgement of part {part + 1} after {tries} sends "
+                               f"in {now - first:.1f} s")
                 return None
-            self._flight[part] = [now, tries + 1, first]
+            self._flight[part] = (now, tries + 1, first)
             self.resent += 1
         else:
             fresh = self._fresh()
             if fresh is None:
                 return None
             part = fresh
-            self._flight[part] = [now, 1, now]
+            self._flight[part] = (now, 1, now)
             if self._stage == 0:
                 self._next += 1
         self.sent += 1
