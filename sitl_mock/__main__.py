@@ -71,6 +71,18 @@ ESTIMATOR_PRESETS: dict[str, dict[str, float]] = {
     "ideal": {},
     "ekf2": {"SIM_EST_XY_STD": 0.16, "SIM_EST_VXY_STD": 0.22, "SIM_EST_XY_TAU": 1.7},
 }
+#: The rover's (`serve --vehicle rover --estimator ...`). ekf2: PX4 main's EKF2 on SIH's
+#: Ackermann rover (airframe 10045), LOCAL_POSITION_NED / ATTITUDE minus HIL_STATE_QUATERNION,
+#: bench/rover_estimate_error.py (MEASUREMENT PENDING).
+ROVER_ESTIMATOR_PRESETS: dict[str, dict[str, float]] = {
+    "ideal": {},
+    "ekf2": {"SIM_EST_XY_STD": 0.16, "SIM_EST_VXY_STD": 0.22, "SIM_EST_XY_TAU": 1.7},
+}
+
+
+def estimator_preset(name: str, vehicle: str) -> dict[str, float]:
+    """The SIM_EST_* values of `serve --estimator NAME` for `vehicle` ("quad" or "rover")."""
+    return (ROVER_ESTIMATOR_PRESETS if vehicle == "rover" else ESTIMATOR_PRESETS)[name]
 
 
 def _signing_key(path: str) -> bytes:
@@ -109,7 +121,9 @@ def build_parser() -> argparse.ArgumentParser:
         choices=sorted(ESTIMATOR_PRESETS),
         default="ideal",
         help="ideal: the controller and telemetry see the true state; ekf2: horizontal "
-        "position/velocity errors as measured on PX4 v1.16 SITL (SIH + EKF2), --param wins",
+        "position/velocity errors as measured on PX4 v1.16 SITL (SIH + EKF2; the rover: "
+        "position, velocity and heading errors as measured on PX4 main's SIH rover), "
+        "--param wins",
     )
     s.add_argument(
         "--signing-key",
@@ -143,7 +157,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 async def _serve(args: argparse.Namespace) -> int:
     try:
-        params = ParamStore({**ESTIMATOR_PRESETS[args.estimator], **dict(args.param)})
+        params = ParamStore({**estimator_preset(args.estimator, args.vehicle),
+                             **dict(args.param)})
         faults = LinkFaults(
             loss_pct=args.loss,
             latency_s=args.latency,
