@@ -527,15 +527,17 @@ def note_estimator(out: Path) -> str:
     if meas.exists():
         m = json.loads(meas.read_text())
         d, s = m.get("driving", {}), m.get("standing", {})
-        text += (f" PX4 main's estimate error (bench/rover_estimate_error.py, {m['flights']} "
-                 f"flights; per flight mean removed): driving, position std N/E "
-                 f"{d.get('pos_std_ne_m')} m, velocity {d.get('vel_std_ne_m_s')} m/s, heading "
-                 f"{d.get('yaw_std_deg')} deg ({d.get('yaw_std_straight_deg')} deg at yaw "
-                 f"rates < 0.3 rad/s); standing, position {s.get('pos_std_ne_m')} m, velocity "
-                 f"{s.get('vel_std_ne_m_s')} m/s, heading {s.get('yaw_std_deg')} deg; time "
-                 f"constants (second-order Gauss-Markov fit to the autocorrelation) position "
-                 f"{m.get('pos_tau_s')} s, velocity {m.get('vel_tau_s')} s, heading "
-                 f"{m.get('yaw_tau_s')} s.")
+        md = m.get("by_flight", {}).get("mission", {})
+        text += (f" The preset's measurement (bench/rover_estimate_error.py over PX4 flights "
+                 f"flown before this run, {m['flights']} traces; per flight mean removed): "
+                 f"driving, position std N/E {d.get('pos_std_ne_m')} m, velocity "
+                 f"{d.get('vel_std_ne_m_s')} m/s, heading {d.get('yaw_std_deg')} deg (rover_square "
+                 f"alone {md.get('driving', {}).get('yaw_std_deg')} deg, tau "
+                 f"{md.get('yaw_tau_s')} s); standing, position {s.get('pos_std_ne_m')} m, "
+                 f"velocity {s.get('vel_std_ne_m_s')} m/s, heading {s.get('yaw_std_deg')} deg; "
+                 f"time constants (the model's autocorrelation fitted) position "
+                 f"{m.get('pos_tau_s')} s, velocity {m.get('vel_tau_s')} s; offsets per PX4 start "
+                 f"{m.get('pos_mean_m')} m (not modelled).")
     return text
 
 

@@ -3,9 +3,12 @@ rover, or the mock rover's SIM_EST_* model, from the traces bench_rover_fidelity
 
 Error = estimate - truth: LOCAL_POSITION_NED (x, y, vx, vy) and ATTITUDE (yaw) minus
 HIL_STATE_QUATERNION (the simulator's state; position projected about PX4 SITL's home), the truth
-interpolated at each estimate sample on the autopilot's own clock (time_boot_ms against
-HIL_STATE_QUATERNION's time_usec, both PX4's time since boot: receive times would add the link's
-jitter, which at 2.6 rad/s in a turn is degrees). Per flight the mean error is removed (each
+interpolated at each estimate sample on the receive clock: PX4 main sends HIL_STATE_QUATERNION
+with time_usec 0, so the truth has only its receive times; each estimate sample is placed at its
+time_boot_ms mapped onto the receive clock by the lower envelope of receive - boot time per 5 s
+block (the link's delay left out, the autopilot clock's drift followed). The truth's own receive
+jitter remains: at 2.6 rad/s in a turn 10 ms are 1.5 deg, hence the heading figure at low yaw
+rates. Per flight the mean error is removed (each
 PX4 start has its own EKF origin; the means and the RMS with them are reported too); then per
 axis (north, east):
 - standing (true speed < 0.05 m/s) and driving (> 0.3 m/s): std of the position error [m], of
@@ -15,8 +18,10 @@ axis (north, east):
   20 Hz, lags 0-6 s, averaged over flights and axes) fitted by the second-order Gauss-Markov
   process the mock uses, (1 + t / tau) exp(-t / tau); and its value at 1 s and 5 s.
 
-`--fly-standing S` first records S seconds of a standing PX4 rover (fresh PX4, under the flight
-lock) next to the other traces, the long quiet stretch the autocorrelation wants.
+The same per kind of flight (offboard: the speed step, stop and full-steering turn; mission:
+rover_square; standing) under "by_flight". `--fly-standing S` first records S seconds of a
+standing PX4 rover (fresh PX4, under the flight lock) next to the other traces, the long quiet
+stretch the autocorrelation wants.
 Usage: `python bench/rover_estimate_error.py [--out DIR] [--kind px4] [--fly-standing 90]`
 (DIR: bench_rover_fidelity.py's --out; reads DIR/KIND-*/{offboard,mission,standing}-trace.json).
 """
@@ -48,18 +53,31 @@ GRID_S = 0.05
 MAX_LAG_S = 6.0
 
 
+def to_receive_clock(boot_s: FloatArray, recv_s: FloatArray, block_s: float = 5.0
+                     ) -> FloatArray:
+    """Autopilot time stamps [s] on the receive clock: plus the least receive - boot offset of
+    their `block_s` block, interpolated between blocks."""
+    off = recv_s - boot_s
+    blk = np.floor((boot_s - boot_s[0]) / block_s).astype(np.int64)
+    mids, mins = [], []
+    for b in np.unique(blk):
+        sel = blk == b
+        k = int(np.argmin(off[sel]))
+        mids.append(float(boot_s[sel][k]))
+        mins.append(float(off[sel][k]))
+    return boot_s + np.interp(boot_s, np.array(mids), np.array(mins))
+
+
 def flight_errors(rec: dict[str, Any]) -> dict[str, FloatArray]:
-    """Errors of one flight's trace at the estimate samples: t (autopilot time [s]), pos (N, 2),
+    """Errors of one flight's trace at the estimate samples: t (receive clock [s]), pos (N, 2),
     vel (N, 2), speed (true), and at the ATTITUDE samples t_att, yaw (wrapped), yaw_rate (true)."""
     lp = np.asarray(rec["lpos"], dtype=float)
     tr = np.asarray(rec["truth"], dtype=float)
     at = np.asarray(rec["att"], dtype=float)
-    if lp.shape[1] < 6 or tr.shape[1] < 8 or at.shape[1] < 4:
+    if lp.shape[1] < 6 or at.shape[1] < 4:
         raise ValueError("trace without autopilot time stamps (recorded before they were)")
-    tt = tr[:, 7]
-    order = np.argsort(tt, kind="stable")
-    tr, tt = tr[order], tt[order]
-    t = lp[:, 5]
+    tt = tr[:, 0]
+    t = to_receive_clock(lp[:, 5], lp[:, 0])
     inside = (t >= tt[0]) & (t <= tt[-1])
     lp, t = lp[inside], t[inside]
 
@@ -69,7 +87,7 @@ def flight_errors(rec: dict[str, Any]) -> dict[str, FloatArray]:
     pos = lp[:, 1:3] - np.column_stack([at_t(1, t), at_t(2, t)])
     vel = lp[:, 3:5] - np.column_stack([at_t(3, t), at_t(4, t)])
     speed = np.hypot(at_t(3, t), at_t(4, t))
-    ta = at[:, 3]
+    ta = to_receive_clock(at[:, 3], at[:, 0])
     ins = (ta >= tt[0]) & (ta <= tt[-1])
     at, ta = at[ins], ta[ins]
     yaw_true = np.interp(ta, tt, np.unwrap(tr[:, 5]))
@@ -170,13 +188,15 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.fly_standing > 0.0:
         fly_standing(args.out / f"{args.kind}-standing", args.fly_standing)
-    flights = []
+    flights: dict[str, list[dict[str, FloatArray]]] = {}
     for trace in sorted(args.out.glob(f"{args.kind}-*/*-trace.json")):
-        flights.append(flight_errors(json.loads(trace.read_text())))
-        print(f"  {trace.relative_to(args.out)}: {len(flights[-1]['t'])} samples")
+        fl = flight_errors(json.loads(trace.read_text()))
+        flights.setdefault(trace.name.removesuffix("-trace.json"), []).append(fl)
+        print(f"  {trace.relative_to(args.out)}: {len(fl['t'])} samples")
     if not flights:
         ap.error(f"no {args.kind} traces in {args.out}")
-    res = summarise(flights)
+    res = summarise([f for group in flights.values() for f in group])
+    res["by_flight"] = {name: summarise(group) for name, group in flights.items()}
     (args.out / f"estimate-error-{args.kind}.json").write_text(json.dumps(res, indent=1))
     print(json.dumps(res, indent=1))
     return 0

@@ -308,7 +308,7 @@ PARAMS.update(
             0.0, False, "std of the slowly varying heading estimate error [deg] (0 = off)"
         ),
         "SIM_EST_YAW_TAU": ParamSpec(
-            1.7, False, "time constant of the heading estimate error [s]"
+            2.1, False, "time constant of the heading estimate error [s]"
         ),
     }
 )

@@ -66,3 +66,18 @@ def test_mission_metrics_of_the_square_driven_with_an_offset() -> None:
         assert c == pytest.approx(o * math.sqrt(2.0), abs=0.02)
     assert m["closest_m"][3] == pytest.approx(math.hypot(o, 1.0), abs=0.01)  # not the start
     assert m["xtrack_rms_m"] == pytest.approx(o, abs=0.01)
+
+
+def test_write_subsection_keeps_the_section_and_replaces_only_itself(tmp_path: Path) -> None:
+    """A `### sub` block goes at the end of its `## title` section, then replaces itself; the
+    section's own text and the next section stay as they were."""
+    from benchmarks_md import write_subsection
+
+    md = tmp_path / "B.md"
+    md.write_text("# B\n\n## A\n\nold table\n\n## Next\n\nkeep\n")
+    write_subsection("A", "Sub", "### Sub\n\nfirst\n", md)
+    assert md.read_text() == "# B\n\n## A\n\nold table\n\n### Sub\n\nfirst\n\n## Next\n\nkeep\n"
+    write_subsection("A", "Sub", "### Sub\n\nsecond\n", md)
+    assert md.read_text() == "# B\n\n## A\n\nold table\n\n### Sub\n\nsecond\n\n## Next\n\nkeep\n"
+    with pytest.raises(ValueError):
+        write_subsection("Missing", "Sub", "### Sub\n", md)
