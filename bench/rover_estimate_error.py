@@ -56,7 +56,8 @@ MAX_LAG_S = 6.0
 def to_receive_clock(boot_s: FloatArray, recv_s: FloatArray, block_s: float = 5.0
                      ) -> FloatArray:
     """Autopilot time stamps [s] on the receive clock: plus the least receive - boot offset of
-    their `block_s` block, interpolated between blocks."""
+    their `block_s` block, interpolated between blocks (linearly extrapolated past the first and
+    the last: the autopilot's clock drifts, PX4 SITL's ~1 % against the wall)."""
     off = recv_s - boot_s
     blk = np.floor((boot_s - boot_s[0]) / block_s).astype(np.int64)
     mids, mins = [], []
@@ -65,7 +66,13 @@ def to_receive_clock(boot_s: FloatArray, recv_s: FloatArray, block_s: float = 5.
         k = int(np.argmin(off[sel]))
         mids.append(float(boot_s[sel][k]))
         mins.append(float(off[sel][k]))
-    return boot_s + np.interp(boot_s, np.array(mids), np.array(mins))
+    x, y = np.array(mids), np.array(mins)
+    off_at = np.interp(boot_s, x, y)
+    if len(x) > 1:
+        lo, hi = boot_s < x[0], boot_s > x[-1]
+        off_at[lo] = y[0] + (boot_s[lo] - x[0]) * (y[1] - y[0]) / (x[1] - x[0])
+        off_at[hi] = y[-1] + (boot_s[hi] - x[-1]) * (y[-1] - y[-2]) / (x[-1] - x[-2])
+    return boot_s + off_at
 
 
 def flight_errors(rec: dict[str, Any]) -> dict[str, FloatArray]:
