@@ -8,9 +8,9 @@ Metrics come from the .tlog (receive times in Unix seconds), from the autopilot'
 - estimate: LOCAL_POSITION_NED, placed at its sample time (time_boot_ms mapped to the local
   clock by `clock_map`: the lower envelope of receive - boot time, without the link latency,
   following the autopilot clock's drift);
-- truth: HIL_STATE_QUATERNION (PX4 SITL streams the simulator's state on request; the mock has
-  no estimator, its estimate is the truth), projected to PX4's local frame through
-  HOME_POSITION (geodetic + local position of home).
+- truth: HIL_STATE_QUATERNION (PX4 SITL streams the simulator's state on request; so does the
+  mock, its true state, since its rover got an estimate model), projected to PX4's local frame
+  through HOME_POSITION (geodetic + local position of home).
 """
 
 from __future__ import annotations
@@ -203,7 +203,7 @@ async def airborne(ep: Endpoint, *, tlog: Path, alt_m: float = 5.0, truth_hz: fl
                            stale_telemetry_s=1.0)
     async with Vehicle.connect(ep.url, config=config,
                                link_config=LinkConfig(target_sysid=ep.target_system)) as v:
-        with contextlib.suppress(CommandError):  # the mock has no separate ground truth
+        with contextlib.suppress(CommandError):  # older mocks had no separate ground truth
             await v.set_message_interval(HIL_STATE_QUATERNION, truth_hz)
         if telemetry_hz is not None:
             for msg_id in (LOCAL_POSITION_NED, ATTITUDE_QUATERNION):

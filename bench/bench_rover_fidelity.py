@@ -3,9 +3,11 @@
 Ackermann rover (airframe 10045 `sihsim_rover_ackermann`), in one run, measured the same way from
 each autopilot's own telemetry (pymavlink, no companion code in the loop).
 
-Measured on the vehicle's true motion: PX4's simulator state (HIL_STATE_QUATERNION, which PX4
-SITL streams on request) and the mock's own telemetry (its estimate is the truth). PX4's EKF2
-estimate is recorded too (results.json): standing still it reads up to 0.4 m/s, which would turn
+Measured on the vehicle's true motion: HIL_STATE_QUATERNION, which PX4 SITL streams on request
+(its simulator's state) and so does the mock (its truth; `--mock-estimator ekf2` gives the mock
+rover EKF2-like estimate errors it then steers by, `serve --estimator ekf2`). Each autopilot's
+estimate is recorded too (the traces: LOCAL_POSITION_NED, ATTITUDE; bench/rover_estimate_error.py
+reads its error against the truth): PX4's standing still reads up to 0.4 m/s, which would turn
 "stopped" into a matter of the estimator.
 
 Flights (each on a fresh autopilot; real PX4 only while holding /tmp/ecca-px4-flights.lock):
@@ -32,7 +34,8 @@ Flights (each on a fresh autopilot; real PX4 only while holding /tmp/ecca-px4-fl
 
 Table: mock / PX4 - 1 per row, median over --repeat flights, the goal |ratio - 1| <= 25 %.
 Both in real time. Run (the script takes the PX4 flight lock itself; do not wrap it in flock):
-`.venv/bin/python bench/bench_rover_fidelity.py [--target mock px4] [--repeat 1] [--write]`
+`.venv/bin/python bench/bench_rover_fidelity.py [--target mock px4] [--repeat 1]
+[--mock-estimator ideal|ekf2] [--write]`
 """
 
 from __future__ import annotations
@@ -95,10 +98,13 @@ class Endpoint:
 
 
 
+MOCK_ESTIMATOR = "ideal"  # `sitl_mock serve --estimator` of the mock flights (main sets it)
+
+
 @contextlib.contextmanager
 def launch(kind: str, folder: Path) -> Iterator[Endpoint]:
-    """A fresh autopilot in real time: the mock rover or PX4 main's SIH Ackermann rover (the
-    latter under the flight lock)."""
+    """A fresh autopilot in real time: the mock rover (`serve --estimator MOCK_ESTIMATOR`) or
+    PX4 main's SIH Ackermann rover (under the flight lock)."""
     folder.mkdir(parents=True, exist_ok=True)
     if kind == "px4":
         loc, why = find_px4_sitl("main")
@@ -120,7 +126,8 @@ def launch(kind: str, folder: Path) -> Iterator[Endpoint]:
     with open(folder / "mock-stderr.log", "w") as err:
         proc = subprocess.Popen(
             [sys.executable, "-m", "sitl_mock", "serve", "--vehicle", "rover", "--bind",
-             "127.0.0.1:0", "--remote", f"127.0.0.1:{port}", "--no-gcs", "--speed", "1"],
+             "127.0.0.1:0", "--remote", f"127.0.0.1:{port}", "--no-gcs", "--speed", "1",
+             "--estimator", MOCK_ESTIMATOR],
             stdout=subprocess.PIPE, stderr=err, text=True, cwd=REPO)
         try:
             assert proc.stdout is not None
@@ -146,9 +153,11 @@ def launch(kind: str, folder: Path) -> Iterator[Endpoint]:
 class Record:
     """What the autopilot sent, by receive time [s since the flight's start]."""
 
-    lpos: list[tuple[float, ...]] = field(default_factory=list)  # t, x, y, vx, vy (estimate)
-    att: list[tuple[float, ...]] = field(default_factory=list)  # t, yaw, yawspeed (estimate)
-    # the true motion: t, north, east [m about HOME], v north, v east [m/s], yaw, yaw rate
+    # the estimate: t, x, y, vx, vy, time since boot [s] (time_boot_ms)
+    lpos: list[tuple[float, ...]] = field(default_factory=list)
+    att: list[tuple[float, ...]] = field(default_factory=list)  # t, yaw, yawspeed, boot [s]
+    # the true motion (HIL_STATE_QUATERNION): t, north, east [m about HOME], v north, v east
+    # [m/s], yaw, yaw rate, its time_usec [s]
     truth: list[tuple[float, ...]] = field(default_factory=list)
     reached: list[tuple[float, int]] = field(default_factory=list)
     acks: list[tuple[float, int, int]] = field(default_factory=list)  # t, command, result
@@ -174,7 +183,7 @@ class Link:
         self.mode_main = -1
         self.mode_sub = -1
         self.armed = False
-        self.hil = False  # PX4 streams HIL_STATE_QUATERNION (the truth); the mock does not
+        self.hil = False  # the autopilot streams HIL_STATE_QUATERNION (its truth)
         self._asked_hil = -math.inf
 
     def now(self) -> float:
@@ -208,12 +217,9 @@ class Link:
         k = m.get_type()
         r = self.rec
         if k == "LOCAL_POSITION_NED":
-            r.lpos.append((t, m.x, m.y, m.vx, m.vy))
-            if self.ep.kind == "mock" and r.att:  # the mock's estimate is its truth
-                r.truth.append((t, m.x, m.y, m.vx, m.vy, r.att[-1][1], r.att[-1][2]))
-                self.speed = math.hypot(m.vx, m.vy)
+            r.lpos.append((t, m.x, m.y, m.vx, m.vy, m.time_boot_ms * 1e-3))
         elif k == "ATTITUDE":
-            r.att.append((t, m.yaw, m.yawspeed))
+            r.att.append((t, m.yaw, m.yawspeed, m.time_boot_ms * 1e-3))
             self.yaw = m.yaw
         elif k == "HIL_STATE_QUATERNION":
             self.hil = True
@@ -221,7 +227,7 @@ class Link:
             yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
             ne = _ne(np.array([m.lat * 1e-7]), np.array([m.lon * 1e-7]), *HOME)[0]
             r.truth.append((t, float(ne[0]), float(ne[1]), m.vx * 0.01, m.vy * 0.01, yaw,
-                            m.yawspeed))
+                            m.yawspeed, m.time_usec * 1e-6))
             self.speed = math.hypot(m.vx, m.vy) * 0.01
         elif k == "MISSION_ITEM_REACHED":
             r.reached.append((t, m.seq))
@@ -236,20 +242,19 @@ class Link:
             r.texts.append((t, m.text))
 
     def wait_heartbeat(self, timeout_s: float = 30.0) -> None:
-        """The autopilot's first HEARTBEAT; then PX4 is asked for its ground truth (50 Hz)."""
+        """The autopilot's first HEARTBEAT; then it is asked for its ground truth (50 Hz)."""
         end = self.now() + timeout_s
         while not self.rec.heartbeats:
             if self.now() > end:
                 raise RuntimeError(f"{self.ep.kind}: no HEARTBEAT in {timeout_s:g} s")
             self.pump(0.1)
-        if self.ep.kind == "px4":
-            for _ in range(50):
-                self.command(511, 115.0, 20000.0)  # SET_MESSAGE_INTERVAL HIL_STATE_QUATERNION
-                self.pump(0.5)
-                if self.hil:
-                    break
-            if not self.hil:
-                raise RuntimeError("px4: no HIL_STATE_QUATERNION (ground truth) stream")
+        for _ in range(50):
+            self.command(511, 115.0, 20000.0)  # SET_MESSAGE_INTERVAL HIL_STATE_QUATERNION
+            self.pump(0.5)
+            if self.hil:
+                break
+        if not self.hil:
+            raise RuntimeError(f"{self.ep.kind}: no HIL_STATE_QUATERNION (ground truth) stream")
 
     def command(self, cmd: int, *params: float) -> None:
         p = [*params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0][:7]
@@ -485,13 +490,57 @@ def mission_metrics(rec: Record, plan: Path) -> dict[str, Any]:
 
 NOTE = ("The mock rover (`sitl_mock serve --vehicle rover`, defaults) against PX4 main "
         "(02e73e3b6f48, SIH rover, airframe 10045), the same MAVLink inputs in one run, judged on "
-        "the true motion (PX4: HIL_STATE_QUATERNION; the mock: its telemetry, which is its "
-        "truth). Goal: |mock / PX4 - 1| <= 25 %.")
+        "the true motion (HIL_STATE_QUATERNION; the mock's ideal estimate is its truth). Goal: "
+        "|mock / PX4 - 1| <= 25 %.")
 AFTER = ("PX4 steers by EKF2's estimate, which on SIH wanders 0.15-0.25 m per axis (std) and "
          "1-3 deg in heading (median; PX4's ULogs) off the truth; the mock rover steers by its "
          "truth: the decimetre path figures (closest approaches, cross-track) carry "
          "EKF2's error on PX4's side; see docs/guides/mock.md, \"The rover measured against real "
          "PX4 main\".")
+SUB_EKF2 = "The mock with EKF2-like estimate errors (`--mock-estimator ekf2`)"
+
+
+def run_stamp() -> str:
+    """'YYYY-MM-DD HH:MM UTC, git <short sha>' (+ ' with uncommitted changes' when dirty)."""
+    def git(*a: str) -> str:
+        return subprocess.run(["git", *a], cwd=REPO, capture_output=True, text=True,
+                              check=False).stdout.strip()
+
+    dirty = git("status", "--porcelain", "--untracked-files=no")
+    stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    sha = git("rev-parse", "--short", "HEAD")
+    return f"{stamp}, git {sha}" + (" with uncommitted changes" if dirty else "")
+
+
+def note_estimator(out: Path) -> str:
+    """What the subsection's run changed, the preset's values and (if `out` holds
+    rover_estimate_error.py's result for PX4) what they were measured from."""
+    from sitl_mock.__main__ import ROVER_ESTIMATOR_PRESETS
+
+    pre = ROVER_ESTIMATOR_PRESETS["ekf2"]
+    vals = ", ".join(f"{k} {v:g}" for k, v in pre.items())
+    text = ("The mock rover as above but with `serve --estimator ekf2` (" + vals + "): it "
+            "steers by an estimate with EKF2-like Gauss-Markov errors (horizontal position, "
+            "velocity, heading) and both autopilots are judged on their truth "
+            "(HIL_STATE_QUATERNION, which the mock now streams on request too).")
+    meas = out / "estimate-error-px4.json"
+    if meas.exists():
+        m = json.loads(meas.read_text())
+        d, s = m.get("driving", {}), m.get("standing", {})
+        md = m.get("by_flight", {}).get("mission", {})
+        text += (f" The preset's measurement (bench/rover_estimate_error.py over PX4 flights "
+                 f"flown before this run, {m['flights']} traces; per flight mean removed): "
+                 f"driving, position std N/E {d.get('pos_std_ne_m')} m, velocity "
+                 f"{d.get('vel_std_ne_m_s')} m/s, heading {d.get('yaw_std_deg')} deg (rover_square "
+                 f"alone {md.get('driving', {}).get('yaw_std_deg')} deg, tau "
+                 f"{md.get('yaw_tau_s')} s); standing, position {s.get('pos_std_ne_m')} m, "
+                 f"velocity {s.get('vel_std_ne_m_s')} m/s, heading {s.get('yaw_std_deg')} deg; "
+                 f"time constants (the model's autocorrelation fitted) position "
+                 f"{m.get('pos_tau_s')} s, velocity {m.get('vel_tau_s')} s; offsets per PX4 start "
+                 f"{m.get('pos_mean_m')} m (not modelled).")
+    return text
+
+
 ROWS: tuple[tuple[str, str, str], ...] = (
     ("dead_s", "speed step 0 -> 2 m/s: command to 0.1 m/s", "s"),
     ("rise_s", "speed step: rise time 10-90 %", "s"),
@@ -571,7 +620,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--write", action="store_true", help="write the table to BENCHMARKS.md")
     ap.add_argument("--reuse", action="store_true",
                     help="fly nothing: recompute the table from the traces in --out")
+    ap.add_argument("--mock-estimator", choices=("ideal", "ekf2"), default="ideal",
+                    help="`sitl_mock serve --estimator` of the mock flights (ekf2: the estimate "
+                         "errors measured on PX4 main's rover; --write then writes a subsection)")
     args = ap.parse_args(argv)
+    global MOCK_ESTIMATOR
+    MOCK_ESTIMATOR = args.mock_estimator
     t0 = time.perf_counter()
     results = {k: fly(k, args.out, args.repeat, args.timeout, args.reuse) for k in args.target}
     (args.out / "results.json").write_text(json.dumps(results, indent=1))
@@ -588,6 +642,13 @@ def main(argv: list[str] | None = None) -> int:
         cmd = " ".join(["python bench/bench_rover_fidelity.py", *words, "--write"])
         how = ("recomputed with --reuse from the traces of that run" if args.reuse
                else f"{time.perf_counter() - t0:.0f} s wall")
+        if args.mock_estimator != "ideal":
+            from benchmarks_md import write_subsection
+
+            write_subsection(SECTION, SUB_EKF2, f"### {SUB_EKF2}\n\n`{cmd}` ({args.repeat} "
+                             f"flight(s) per target, medians; {how}; {run_stamp()}). "
+                             f"{note_estimator(args.out)}\n\n{text}\n")
+            return 0
         write_section(SECTION, f"## {SECTION}\n\n`{cmd}` ({args.repeat} flight(s) per target, "
                       f"medians; {how}). {NOTE}\n\n{text}\n\n{AFTER}\n")
     return 0

@@ -300,6 +300,19 @@ PARAMS.update(
     }
 )
 
+# Appended by the rover model: a heading estimate error like EKF2's on SIH (mock-only names, the
+# style of SIM_EST_XY_*; the rover also reads those: estimate_error.py).
+PARAMS.update(
+    {
+        "SIM_EST_YAW_STD": ParamSpec(
+            0.0, False, "std of the slowly varying heading estimate error [deg] (0 = off)"
+        ),
+        "SIM_EST_YAW_TAU": ParamSpec(
+            2.1, False, "time constant of the heading estimate error [s]"
+        ),
+    }
+)
+
 #: The mock's old rover names -> the PX4 parameter each one is (one value: setting either sets
 #: both; the old names keep working for clients and scripts that address them).
 ALIASES: dict[str, str] = {
@@ -485,6 +498,8 @@ _MOCK_RANGES: dict[str, tuple[float, float]] = {
     "SIM_EST_XY_STD": (0.0, 10.0),
     "SIM_EST_VXY_STD": (0.0, 10.0),
     "SIM_EST_XY_TAU": (0.05, 600.0),
+    "SIM_EST_YAW_STD": (0.0, 180.0),
+    "SIM_EST_YAW_TAU": (0.05, 600.0),
     "SIM_GYRO_SIH": (0.0, 10.0),
 }
 

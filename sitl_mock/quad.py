@@ -155,6 +155,25 @@ class Quadrotor(QuadControl):
         return st
 
     @property
+    def true_state(self) -> VehicleState:
+        """Snapshot of the true motion (`state` without the estimator error and noise)."""
+        u = self._u
+        return make_state(
+            self._t,
+            (self._px, self._py, self._pz),
+            (self._vx, self._vy, self._vz),
+            (self._ax, self._ay, self._az),
+            (self._qw, self._qx, self._qy, self._qz),
+            (self._wx, self._wy, self._wz),
+            self._on_ground,
+            self._landed,
+            0.25 * (u[0] + u[1] + u[2] + u[3]),
+            self._battery,
+            self._local_pos_valid,
+            self._home,
+        )
+
+    @property
     def true_pos_ned(self) -> Vec3:
         """True position [m NED], without the estimator error and noise that `state` carries."""
         return (self._px, self._py, self._pz)

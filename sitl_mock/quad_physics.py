@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 
+from sitl_mock.estimate_error import advance_gauss_markov
 from sitl_mock.flight_control import G
 from sitl_mock.quad_state import QuadState
 
@@ -48,16 +49,9 @@ class QuadPhysics(QuadState):
         ~0.16 m, velocity ~0.2 m/s per axis, both slowly varying, ~1.7 s): per axis, white noise
         through two first-order lags of time constant SIM_EST_XY_TAU (a second-order
         Gauss-Markov process) scaled to the stationary std SIM_EST_XY_STD (position) and
-        SIM_EST_VXY_STD (velocity), independent of each other as measured."""
+        SIM_EST_VXY_STD (velocity), independent of each other as measured (estimate_error.py)."""
         std_p, std_v, tau = self._est_cfg
-        a = math.exp(-dt / tau)
-        k = math.sqrt(2.0) * math.sqrt(1.0 - a * a)  # var(lagged) = var(driving) / 2
-        e = self._est
-        gauss = self._rng.gauss
-        for i, std in ((0, std_p), (2, std_p), (4, std_v), (6, std_v)):
-            s = a * e[i] + k * std * gauss(0.0, 1.0)
-            e[i] = s
-            e[i + 1] = a * e[i + 1] + (1.0 - a) * s
+        advance_gauss_markov(self._est, (std_p, std_p, std_v, std_v), tau, dt, self._rng.gauss)
 
     def _refresh(self) -> None:
         if self._noise[0] > 0.0 or self._noise[1] > 0.0:

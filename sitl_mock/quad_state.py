@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import random
 
+from sitl_mock.estimate_error import horizontal_config
 from sitl_mock.flight_control import (
     AngularVelocityFilter,
     McGains,
@@ -259,7 +260,6 @@ class QuadState:
         self._imu_cut = (p["IMU_GYRO_CUTOFF"], p["IMU_DGYRO_CUTOFF"])
         self._gust_std = max(p["SIM_WIND_GUST"], 0.0)
         self._gust_tau = p["SIM_WIND_GUST_T"]
-        self._est_cfg = (max(p["SIM_EST_XY_STD"], 0.0), max(p["SIM_EST_VXY_STD"], 0.0),
-                         max(p["SIM_EST_XY_TAU"], 0.05))
+        self._est_cfg = horizontal_config(p)
         self._bat_drain = max(p["SIM_BAT_DRAIN"], 1.0)
         self._bat_min = min(max(p["SIM_BAT_MIN_PCT"] / 100.0, 0.0), 1.0)

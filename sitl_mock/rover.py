@@ -20,6 +20,13 @@ normalised output with a first-order lag SIH_T_TAU [s].
   it widens (understeer). Below V_ROLLING only the damping acts. The rover cannot turn on the
   spot: the yaw rate needs speed.
 - Position: exact arcs with the step's mean speed and yaw rate; flat ground (z = 0).
+- Estimate (EKF2's error on SIH, estimate_error.py; off by default): north / east position and
+  velocity errors (SIM_EST_XY_STD [m], SIM_EST_VXY_STD [m/s], SIM_EST_XY_TAU [s], as the
+  quadrotor's) and a heading error (SIM_EST_YAW_STD [deg], SIM_EST_YAW_TAU [s]), advanced every
+  physics step. The control loops and the navigator steer by the estimate (position, heading,
+  forward speed = the velocity estimate along the estimated heading; the yaw rate is the true
+  one: no gyro model) and `state` / `attitude` (the telemetry) report it; `true_state` is the
+  truth (HIL_STATE_QUATERNION on request).
 
 Control (`sitl_mock.rover_control`, PX4's stages; runs every physics step):
 - RoverPositionTarget (AUTO modes, from the navigator): pure pursuit along start -> goal, braking
@@ -35,7 +42,9 @@ Control (`sitl_mock.rover_control`, PX4's stages; runs every physics step):
 from __future__ import annotations
 
 import math
+import random
 
+from sitl_mock.estimate_error import advance_gauss_markov, horizontal_config, yaw_config
 from sitl_mock.flight_control import quat_from_yaw, wrap_pi
 from sitl_mock.params import ROVER_AIRFRAME, ParamStore
 from sitl_mock.rover_control import AckermannController, RoverParams, position_control
@@ -104,6 +113,14 @@ class Rover:
         self._last_pos_target: PositionTarget | None = None
         self._p_version = -1
         self._p = RoverParams.read(params)
+        # estimate errors (SIM_EST_*): (driving state, error) for north, east position and
+        # velocity, and for the heading; each group from its own random stream
+        self._est: list[float] = [0.0] * 8
+        self._est_yaw: list[float] = [0.0] * 2
+        self._est_rng = random.Random(seed)
+        self._est_yaw_rng = random.Random(seed * 7919 + 104729)
+        self._est_injected = False
+        self._read_estimator()
 
     # ------------------------------------------------------------------ interface
     def set_wind(self, vel_ned: Vec3) -> None:
@@ -121,7 +138,20 @@ class Rover:
     def reset_integrators(self) -> None:
         """Restart the control loops from the measured state (PX4 resets its rover controllers
         on every mode change)."""
-        self._ctl.reset(self._v, self._yaw, self._r)
+        _x, _y, yaw, v = self._measured()
+        self._ctl.reset(v, yaw, self._r)
+
+    def set_estimate_error(self, pos_ne: tuple[float, float] = (0.0, 0.0),
+                           vel_ne: tuple[float, float] = (0.0, 0.0), yaw: float = 0.0) -> None:
+        """Tests: the estimate error now (estimate = truth + error): north, east position [m],
+        velocity [m/s], heading [rad]. It evolves as SIM_EST_* say from here; while they are 0
+        it stays as set."""
+        e, h = self._est, self._est_yaw
+        e[0], e[1], e[2], e[3] = pos_ne[0], pos_ne[0], pos_ne[1], pos_ne[1]
+        e[4], e[5], e[6], e[7] = vel_ne[0], vel_ne[0], vel_ne[1], vel_ne[1]
+        h[0] = h[1] = yaw
+        self._est_injected = True
+        self._read_estimator()
 
     def set_state(self, north_m: float, east_m: float, yaw: float, speed: float = 0.0) -> None:
         """Place the rover (tests, replays): position [m], heading [rad], forward speed [m/s]."""
@@ -146,8 +176,9 @@ class Rover:
 
     @property
     def attitude(self) -> tuple[Quat, Vec3]:
-        """= (`state.q_wxyz`, `state.omega_frd`): level, heading yaw; yaw rate only."""
-        return quat_from_yaw(self._yaw), (0.0, 0.0, self._r)
+        """= (`state.q_wxyz`, `state.omega_frd`): level, the estimated heading; yaw rate only."""
+        yaw = wrap_pi(self._yaw + self._est_yaw[1]) if self._est_on else self._yaw
+        return quat_from_yaw(yaw), (0.0, 0.0, self._r)
 
     @property
     def steering(self) -> float:
@@ -175,14 +206,50 @@ class Rover:
 
     @property
     def state(self) -> VehicleState:
-        """Snapshot (z = 0, level attitude, on the ground; landed while disarmed)."""
+        """Snapshot as the estimator sees the rover (z = 0, level attitude, on the ground;
+        landed while disarmed): the truth plus the estimate errors (module docstring)."""
+        return self._snapshot(*self._estimate())
+
+    @property
+    def true_state(self) -> VehicleState:
+        """Snapshot of the true motion (= `state` while the estimate is ideal)."""
         c, s = math.cos(self._yaw), math.sin(self._yaw)
+        return self._snapshot(self._x, self._y, self._yaw, self._v * c, self._v * s)
+
+    @property
+    def true_pos_ned(self) -> Vec3:
+        """True position [m NED], without the estimate error that `state` carries."""
+        return (self._x, self._y, 0.0)
+
+    @property
+    def true_vel_ned(self) -> Vec3:
+        """True velocity [m/s NED]."""
+        return (self._v * math.cos(self._yaw), self._v * math.sin(self._yaw), 0.0)
+
+    def _estimate(self) -> tuple[float, float, float, float, float]:
+        """(north, east [m], heading [rad], velocity north, east [m/s]): the estimate."""
+        c, s = math.cos(self._yaw), math.sin(self._yaw)
+        if not self._est_on:
+            return self._x, self._y, self._yaw, self._v * c, self._v * s
+        e = self._est
+        return (self._x + e[1], self._y + e[3], wrap_pi(self._yaw + self._est_yaw[1]),
+                self._v * c + e[5], self._v * s + e[7])
+
+    def _measured(self) -> tuple[float, float, float, float]:
+        """(north, east [m], heading [rad], forward speed [m/s]) as the control loops read them:
+        the estimate, its velocity along its heading (PX4: the body-x velocity)."""
+        if not self._est_on:
+            return self._x, self._y, self._yaw, self._v
+        x, y, yaw, vn, ve = self._estimate()
+        return x, y, yaw, vn * math.cos(yaw) + ve * math.sin(yaw)
+
+    def _snapshot(self, x: float, y: float, yaw: float, vn: float, ve: float) -> VehicleState:
         return VehicleState(
             t_s=self._t,
-            pos_ned=(self._x, self._y, 0.0),
-            vel_ned=(self._v * c, self._v * s, 0.0),
+            pos_ned=(x, y, 0.0),
+            vel_ned=(vn, ve, 0.0),
             acc_ned=self._acc,
-            q_wxyz=quat_from_yaw(self._yaw),
+            q_wxyz=quat_from_yaw(yaw),
             omega_frd=(0.0, 0.0, self._r),
             on_ground=True,
             landed=not self._armed,
@@ -249,21 +316,22 @@ class Rover:
     def _control(self, dt: float, target: Target, armed: bool) -> tuple[float, float]:
         """(throttle, steering) actuator commands -1..1 for this step."""
         ctl = self._ctl
+        x, y, yaw, v = self._measured()
         if not armed or isinstance(target, IdleTarget):
             ctl.actuators.stop()
-            ctl.reset(self._v, self._yaw, self._r)
+            ctl.reset(v, yaw, self._r)
             self._last_pos_target = None
             return 0.0, 0.0
         goal = self._goal(target)
         if isinstance(goal, RoverPositionTarget):
-            speed, bearing = position_control(goal, (self._x, self._y), self._yaw, self._p)
+            speed, bearing = position_control(goal, (x, y), yaw, self._p)
             gx, gy = goal.position_ne
         elif goal is None:  # stop, heading as it is
-            speed, bearing, gx, gy = 0.0, self._yaw, _NAN, _NAN
+            speed, bearing, gx, gy = 0.0, yaw, _NAN, _NAN
         else:
             speed, bearing = goal
             gx = gy = _NAN
-        out = ctl.drive(speed, bearing, self._v, self._yaw, self._r, dt, self._p)
+        out = ctl.drive(speed, bearing, v, yaw, self._r, dt, self._p)
         adj = ctl.speed.adjusted.value  # the speed setpoint after PX4's acceleration slew
         self._last_pos_target = PositionTarget(
             (gx, gy, _NAN), (adj * math.cos(bearing), adj * math.sin(bearing), _NAN),
@@ -288,11 +356,28 @@ class Rover:
         if p.version != self._p_version:
             self._p = RoverParams.read(p)
             self._p_version = p.version
+            self._read_estimator()
+        if self._est_xy_on:
+            std_p, std_v, tau = self._est_xy
+            advance_gauss_markov(self._est, (std_p, std_p, std_v, std_v), tau, dt,
+                                 self._est_rng.gauss)
+        if self._est_yaw_on:
+            std_yaw, tau_yaw = self._est_yaw_cfg
+            advance_gauss_markov(self._est_yaw, (std_yaw,), tau_yaw, dt, self._est_yaw_rng.gauss)
         self._t += dt
         self._armed = armed
         if armed:
             drain = max(p["SIM_BAT_DRAIN"], 1.0)
             self._battery = max(p["SIM_BAT_MIN_PCT"] / 100.0, self._battery - dt / drain)
+
+    def _read_estimator(self) -> None:
+        """The SIM_EST_* parameters; the estimate is the truth unless one is on or an error was
+        set (`set_estimate_error`)."""
+        self._est_xy = horizontal_config(self._params)
+        self._est_yaw_cfg = yaw_config(self._params)
+        self._est_xy_on = self._est_xy[0] > 0.0 or self._est_xy[1] > 0.0
+        self._est_yaw_on = self._est_yaw_cfg[0] > 0.0
+        self._est_on = self._est_xy_on or self._est_yaw_on or self._est_injected
 
     def _integrate(self, dt: float, thr_cmd: float, steer_cmd: float) -> None:
         p = self._params

@@ -123,6 +123,12 @@ class Vehicle(Protocol):
         ...
 
     @property
+    def true_state(self) -> VehicleState:
+        """The true motion as a snapshot (`state` carries the estimator's errors, when modelled;
+        the autopilot reports this one as HIL_STATE_QUATERNION, as PX4 SITL its simulator's)."""
+        ...
+
+    @property
     def landed(self) -> bool:
         """`state.landed` without building a snapshot (the commander reads it at 200 Hz)."""
         ...

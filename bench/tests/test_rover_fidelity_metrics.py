@@ -66,3 +66,43 @@ def test_mission_metrics_of_the_square_driven_with_an_offset() -> None:
         assert c == pytest.approx(o * math.sqrt(2.0), abs=0.02)
     assert m["closest_m"][3] == pytest.approx(math.hypot(o, 1.0), abs=0.01)  # not the start
     assert m["xtrack_rms_m"] == pytest.approx(o, abs=0.01)
+
+
+def test_write_subsection_keeps_the_section_and_replaces_only_itself(tmp_path: Path) -> None:
+    """A `### sub` block goes at the end of its `## title` section, then replaces itself; the
+    section's own text and the next section stay as they were."""
+    from benchmarks_md import write_subsection
+
+    md = tmp_path / "B.md"
+    md.write_text("# B\n\n## A\n\nold table\n\n## Next\n\nkeep\n")
+    write_subsection("A", "Sub", "### Sub\n\nfirst\n", md)
+    assert md.read_text() == "# B\n\n## A\n\nold table\n\n### Sub\n\nfirst\n\n## Next\n\nkeep\n"
+    write_subsection("A", "Sub", "### Sub\n\nsecond\n", md)
+    assert md.read_text() == "# B\n\n## A\n\nold table\n\n### Sub\n\nsecond\n\n## Next\n\nkeep\n"
+    with pytest.raises(ValueError):
+        write_subsection("Missing", "Sub", "### Sub\n", md)
+
+
+def test_estimate_error_of_a_known_offset_and_the_fitted_time_constant() -> None:
+    """A trace whose estimate is the truth moved by (0.3, -0.2) m and 2 deg, stamped on a clock
+    1 % slow and received 10-30 ms late (the truth 10 ms late, the link's least delay): the
+    errors come back as those offsets (the receive-clock mapping, drift and ends included, adds
+    < 1 cm at 2 m/s, < 3 cm at worst); the Gauss-Markov fit returns the time constant of an exact
+    model autocorrelation."""
+    import rover_estimate_error as E  # noqa: N812
+
+    rng = np.random.default_rng(1)
+    rec: dict[str, list[tuple[float, ...]]] = {"lpos": [], "att": [], "truth": []}
+    for k in range(1500):
+        t = 0.02 * k
+        rec["truth"].append((t + 0.01, 2.0 * t, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0))
+        boot = t * 0.99  # the autopilot's clock
+        late = 0.01 + 0.02 * float(rng.random())
+        rec["lpos"].append((t + late, 2.0 * t + 0.3, -0.2, 2.0, 0.0, boot))
+        rec["att"].append((t + late, math.radians(2.0), 0.0, boot))
+    f = E.flight_errors(rec)
+    assert np.abs(f["pos"] - [0.3, -0.2]).max() < 0.01 + 2.0 * 0.01
+    assert float(np.median(np.abs(f["pos"][:, 0] - 0.3))) < 0.01
+    assert np.degrees(f["yaw"]) == pytest.approx(2.0, abs=1e-6)
+    lags = np.arange(int(E.MAX_LAG_S / E.GRID_S) + 1) * E.GRID_S
+    assert E.fit_tau((1.0 + lags / 1.7) * np.exp(-lags / 1.7)) == pytest.approx(1.7, rel=1e-3)

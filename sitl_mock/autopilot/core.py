@@ -53,6 +53,7 @@ COMMANDER_PERIOD_S = 0.005
 _OFFBOARD = Mode.OFFBOARD
 _AUTO_MISSION = Mode.AUTO_MISSION
 _PING = telemetry.MSG_ID_PING
+_HIL = telemetry.MSG_ID_HIL_STATE_QUATERNION
 _VEHICLE_BUILDERS = telemetry.VEHICLE_BUILDERS
 _STATUS_BUILDERS = telemetry.STATUS_BUILDERS
 _QUIETABLE = telemetry.QUIETABLE
@@ -361,6 +362,8 @@ class Autopilot:
                 return fn(vehicle)
             if msg_id == _PING:
                 return self._ping(vehicle)
+            if msg_id == _HIL:
+                return telemetry.build_hil_state_quaternion(vehicle, self.vehicle.true_state)
             if full is None:
                 full = self.status(vehicle)
             return _STATUS_BUILDERS[msg_id](full)
@@ -391,6 +394,9 @@ class Autopilot:
             return fn(self.vehicle_status())
         if msg_id == _PING:
             return self._ping(self.vehicle_status())
+        if msg_id == _HIL:
+            return telemetry.build_hil_state_quaternion(self.vehicle_status(),
+                                                        self.vehicle.true_state)
         return _STATUS_BUILDERS[msg_id](self.status())
 
     def vehicle_status(self) -> VehicleStatus:

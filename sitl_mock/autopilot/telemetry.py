@@ -19,6 +19,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sitl_mock.autopilot.status import StatusSnapshot, VehicleStatus
 from sitl_mock.mavwire import codec
+from sitl_mock.vehicle_state import VehicleState
 
 Msg = Any  # a pymavlink MAVLink_message, or a (MessageCodec, fields) pair
 
@@ -72,6 +73,7 @@ _C_BATTERY_STATUS = codec(mavlink.MAVLink_battery_status_message)
 _C_EXTENDED_SYS_STATE = codec(mavlink.MAVLink_extended_sys_state_message)
 _C_GLOBAL_POSITION_INT = codec(mavlink.MAVLink_global_position_int_message)
 _C_GPS_RAW_INT = codec(mavlink.MAVLink_gps_raw_int_message)
+_C_HIL_STATE_QUATERNION = codec(mavlink.MAVLink_hil_state_quaternion_message)
 _C_LOCAL_POSITION_NED = codec(mavlink.MAVLink_local_position_ned_message)
 _C_ODOMETRY = codec(mavlink.MAVLink_odometry_message)
 _C_PING = codec(mavlink.MAVLink_ping_message)
@@ -460,6 +462,37 @@ def build_gps_raw_int(st: VehicleStatus) -> Msg:
     )
 
 
+def build_hil_state_quaternion(st: VehicleStatus, truth: VehicleState) -> Msg:
+    """HIL_STATE_QUATERNION from the vehicle's true motion (`Vehicle.true_state`), as PX4 SITL
+    streams its simulator's state on request: attitude q_wxyz, true body rates [rad/s FRD],
+    geodetic position (lat, lon degE7, alt AMSL mm), velocity NED [cm/s], specific force NED
+    (acceleration less gravity) [mG]."""
+    lat, lon, alt = truth.lat_lon_alt
+    vx, vy, vz = truth.vel_ned
+    ax, ay, az = truth.acc_ned
+    speed = min(round(math.sqrt(vx * vx + vy * vy + vz * vz) * 100.0), UINT16_MAX)
+    mg = 1000.0 / 9.80665
+    return (
+        _C_HIL_STATE_QUATERNION,
+        (
+            st.time_usec,
+            list(truth.q_wxyz),
+            *truth.omega_frd,
+            round(lat * 1e7),
+            round(lon * 1e7),
+            round(alt * 1000.0),
+            _clamp_i16(vx * 100.0),
+            _clamp_i16(vy * 100.0),
+            _clamp_i16(vz * 100.0),
+            speed,
+            speed,
+            _clamp_i16(ax * mg),
+            _clamp_i16(ay * mg),
+            _clamp_i16((az - 9.80665) * mg),
+        ),
+    )
+
+
 # Builders of the high-rate streams read only the vehicle's side of the status; PING is
 # streamed too, but its sequence number is the autopilot's (`ping_message`).
 VEHICLE_BUILDERS: dict[int, Callable[[VehicleStatus], Msg | None]] = {
@@ -548,8 +581,11 @@ QUIETABLE: dict[int, Callable[[VehicleStatus], bool | None]] = {
 }
 
 MSG_ID_PING = mavlink.MAVLINK_MSG_ID_PING
+#: the vehicle's truth (`build_hil_state_quaternion`), streamed only on request, as PX4 SITL does
+MSG_ID_HIL_STATE_QUATERNION = mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION
 # Messages that SET_MESSAGE_INTERVAL can stream and REQUEST_MESSAGE (512) can produce once.
-STREAMABLE = frozenset(VEHICLE_BUILDERS) | frozenset(STATUS_BUILDERS) | {MSG_ID_PING}
+STREAMABLE = (frozenset(VEHICLE_BUILDERS) | frozenset(STATUS_BUILDERS)
+              | {MSG_ID_PING, MSG_ID_HIL_STATE_QUATERNION})
 
 
 class StreamScheduler:

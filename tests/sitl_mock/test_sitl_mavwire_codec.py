@@ -283,7 +283,7 @@ def test_every_datagram_the_mock_sends_is_what_pymavlink_would_pack() -> None:
         ],
         4.0: [
             mavlink.MAVLink_command_long_message(1, 1, 512, 0, i, 0, 0, 0, 0, 0, 0)
-            for i in (148, 242, 245, 24, 74)
+            for i in (148, 242, 245, 24, 74, 115)
         ],
         4.1: [mavlink.MAVLink_timesync_message(0, 77), mavlink.MAVLink_ping_message(9, 3, 0, 0)],
     }

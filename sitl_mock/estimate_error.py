@@ -1,0 +1,49 @@
+"""Estimator error like EKF2's on SIH: slowly varying Gauss-Markov errors, shared by the vehicles.
+
+PX4 steers by EKF2's estimate, which on SIH's simulated GPS wanders off the truth by decimetres
+(position), decimetres per second (velocity) and degrees (the rover's heading), each varying over
+seconds. The mock models each error channel as white noise through two first-order lags of one
+time constant (a second-order Gauss-Markov process), scaled to a stationary standard deviation;
+channels are independent of each other (as measured on PX4 SITL). The quadrotor
+(quad_physics.py) and the rover (rover.py) advance their channels with `advance_gauss_markov`
+from their own random stream, and add the errors to what their controllers and the telemetry
+see; their truth stays available (`true_state`, HIL_STATE_QUATERNION on request).
+
+Parameters (mock-only names, sitl_mock/params.py): SIM_EST_XY_STD [m], SIM_EST_VXY_STD [m/s],
+SIM_EST_XY_TAU [s] (horizontal position / velocity, per axis); SIM_EST_YAW_STD [deg],
+SIM_EST_YAW_TAU [s] (heading; the rover only). All 0 by default: the estimate is the truth.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+
+
+def advance_gauss_markov(state: list[float], stds: Sequence[float], tau_s: float, dt_s: float,
+                         gauss: Callable[[float, float], float]) -> None:
+    """Advance second-order Gauss-Markov channels by `dt_s` [s] in place (exact discretisation).
+
+    `state` holds one (driving state, error) pair per channel: [d0, e0, d1, e1, ...]; channel j
+    has the stationary error std `stds[j]` (the driving state's is sqrt(2) times larger: a
+    first-order lag halves the variance of what it filters) and both lags the time constant
+    `tau_s` [s]. `gauss(mu, sigma)` draws one normal sample per channel, in channel order."""
+    a = math.exp(-dt_s / tau_s)
+    k = math.sqrt(2.0) * math.sqrt(1.0 - a * a)  # var(lagged) = var(driving) / 2
+    for j, std in enumerate(stds):
+        i = 2 * j
+        s = a * state[i] + k * std * gauss(0.0, 1.0)
+        state[i] = s
+        state[i + 1] = a * state[i + 1] + (1.0 - a) * s
+
+
+def horizontal_config(p: Mapping[str, float]) -> tuple[float, float, float]:
+    """(position std [m], velocity std [m/s], time constant [s]) of the horizontal errors, as
+    SIM_EST_XY_STD, SIM_EST_VXY_STD, SIM_EST_XY_TAU give them (stds >= 0, tau >= 0.05 s)."""
+    return (max(p["SIM_EST_XY_STD"], 0.0), max(p["SIM_EST_VXY_STD"], 0.0),
+            max(p["SIM_EST_XY_TAU"], 0.05))
+
+
+def yaw_config(p: Mapping[str, float]) -> tuple[float, float]:
+    """(heading std [rad], time constant [s]) from SIM_EST_YAW_STD [deg], SIM_EST_YAW_TAU [s]."""
+    return math.radians(max(p["SIM_EST_YAW_STD"], 0.0)), max(p["SIM_EST_YAW_TAU"], 0.05)
