@@ -137,31 +137,22 @@ class Quadrotor(QuadControl):
         if self._state_cache is not None:
             return self._state_cache
         pos = (self._px + self._npos[0], self._py + self._npos[1], self._pz + self._npos[2])
-        u = self._u
-        self._state_cache = st = make_state(  # positional: the VehicleState field order
-            self._t,
-            pos,
-            (self._vx + self._nvel[0], self._vy + self._nvel[1], self._vz + self._nvel[2]),
-            (self._ax, self._ay, self._az),
-            (self._qw, self._qx, self._qy, self._qz),
-            (self._wx, self._wy, self._wz),
-            self._on_ground,
-            self._landed,
-            0.25 * (u[0] + u[1] + u[2] + u[3]),
-            self._battery,
-            self._local_pos_valid,
-            self._home,
-        )
+        vel = (self._vx + self._nvel[0], self._vy + self._nvel[1], self._vz + self._nvel[2])
+        self._state_cache = st = self._snapshot(pos, vel)
         return st
 
     @property
     def true_state(self) -> VehicleState:
         """Snapshot of the true motion (`state` without the estimator error and noise)."""
+        return self._snapshot((self._px, self._py, self._pz), (self._vx, self._vy, self._vz))
+
+    def _snapshot(self, pos: Vec3, vel: Vec3) -> VehicleState:
+        """The state with position `pos` [m NED] and velocity `vel` [m/s NED], the rest as is."""
         u = self._u
-        return make_state(
+        return make_state(  # positional: the VehicleState field order
             self._t,
-            (self._px, self._py, self._pz),
-            (self._vx, self._vy, self._vz),
+            pos,
+            vel,
             (self._ax, self._ay, self._az),
             (self._qw, self._qx, self._qy, self._qz),
             (self._wx, self._wy, self._wz),
