@@ -215,11 +215,14 @@ async def _onboard_flight(url: str, target: int, module: Path, px4: Px4Sitl, spe
     rms, mx = H.rms_max(est)
     trms, tmx = H.rms_max(tr)
     m = re.search(r"step mean (\d+) ns p99 < (\d+) ns", status)
+    age = re.search(r"sample age mean (\d+) us max (\d+) us", status)
     return {"rms": rms, "max": mx, "truth_rms": trms, "truth_max": tmx, "n": len(est),
             "state": P.STATE_NAMES.get(state, state), "segments": n_seg,
             "upload_s": up_s, "resent": resent,
             "step_mean_ns": float(m[1]) if m else math.nan,
-            "step_p99_ns": float(m[2]) if m else math.nan, "start_boot_s": t0_boot}
+            "step_p99_ns": float(m[2]) if m else math.nan, "start_boot_s": t0_boot,
+            "age_mean_us": float(age[1]) if age else math.nan,
+            "age_max_us": float(age[2]) if age else math.nan}
 
 
 def onboard_cell(module: Path, speed: float, scale: float, out: Path, degraded: bool

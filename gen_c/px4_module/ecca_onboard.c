@@ -78,6 +78,9 @@ static uint64_t g_cycles;
 static uint64_t g_step_ns_sum;
 static uint32_t g_step_ns_max;
 static uint32_t g_step_ns_hist[64]; /* 1 us bins, the last one open */
+/* the age of the position sample the law ran on (step time - timestamp_sample), for `status` */
+static uint64_t g_age_us_sum;
+static uint64_t g_age_us_max;
 
 static int layouts_match(void) {
   struct {
@@ -272,6 +275,10 @@ static int task_main(int argc, char *argv[]) {
       g_step_ns_sum += ns;
       if (ns > g_step_ns_max) g_step_ns_max = (uint32_t)ns;
       g_step_ns_hist[ns / 1000u < 63u ? ns / 1000u : 63u]++;
+      if (now >= lp.timestamp_sample) {
+        g_age_us_sum += now - lp.timestamp_sample;
+        if (now - lp.timestamp_sample > g_age_us_max) g_age_us_max = now - lp.timestamp_sample;
+      }
     }
     if (out.event == ECCA_EV_START_REFUSED) {
       PX4_ERR("not flying: the vehicle is %.1f m from the trajectory's start", out.start_error_m);
@@ -334,7 +341,7 @@ static void print_status(void) {
       p99 = (uint64_t)(i + 1) * 1000u;
     }
   }
-  /* three lines: PX4's shell output cuts a line at about 128 characters */
+  /* four lines: PX4's shell output cuts a line at about 128 characters */
   PX4_INFO("state %d, segments %d/%d, crc 0x%08x, progress %.3f", g_core.state,
            g_core.n_received, g_core.n_expected, (unsigned)g_core.crc, g_core.progress);
   PX4_INFO("velocity correction %.3f %.3f m/s (%.1f rad/s)", g_core.vc_c[0], g_core.vc_c[1],
@@ -343,6 +350,9 @@ static void print_status(void) {
            (unsigned long long)g_cycles,
            g_cycles ? (double)g_step_ns_sum / (double)g_cycles : 0.0, (unsigned long long)p99,
            (unsigned)g_step_ns_max);
+  PX4_INFO("position sample age mean %.0f us max %llu us",
+           g_cycles ? (double)g_age_us_sum / (double)g_cycles : 0.0,
+           (unsigned long long)g_age_us_max);
 }
 
 __EXPORT int ecca_onboard_main(int argc, char *argv[]);

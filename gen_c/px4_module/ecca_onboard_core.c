@@ -341,15 +341,23 @@ static void observe(ecca_onboard *m, double sample_s, const double vel[3], const
   m->have_sample = 1;
 }
 
-/* One step of the law (attitude mode: no feedback jerk); 0 if no finite setpoint. */
-static int control(ecca_onboard *m, double t, double dt, const double pos[3],
+/* One step of the law (attitude mode: no feedback jerk) at `t` on the trajectory's clock, from
+ * the estimate `pos`, `vel` sampled at `ts` on that clock: the errors are taken against the
+ * reference at `ts` (a sample ECCA_SAMPLE_AGE_MAX_S old or older counts as that old), the
+ * feed-forward is the reference lead_s after `t`. 0 if no finite setpoint. */
+static int control(ecca_onboard *m, double t, double ts, double dt, const double pos[3],
                    const double vel[3], ecca_onboard_output *o) {
   ecca_flat_state r, a;
   double in[ECCA_CORE_N_IN], out[ECCA_CORE_N_OUT];
   const float *b = m->begin;
   double tilt = (double)b[ECCA_B_TILT_MAX];
   int i, n = 0;
-  reference_at(m, t, &r);
+  if (!(ts <= t)) { /* not finite, or a clock that ran backwards */
+    ts = t;
+  } else if (ts < t - ECCA_SAMPLE_AGE_MAX_S) {
+    ts = t - ECCA_SAMPLE_AGE_MAX_S;
+  }
+  reference_at(m, ts > 0.0 ? ts : 0.0, &r);
   /* the feed-forward of the reference lead_s ahead: it offsets PX4's attitude loop's lag */
   reference_at(m, t + (double)b[ECCA_B_LEAD_S], &a);
   for (i = 0; i < 3; ++i) in[n++] = r.pos_ned_m[i];
@@ -449,7 +457,8 @@ void ecca_onboard_step(ecca_onboard *m, double now_s, int offboard, int pos_ok,
     double total = m->t_start_seg[m->n_expected];
     m->t_last = now_s;
     observe(m, sample_s, vel_c, q_wxyz);
-    o->publish_setpoint = control(m, t, dt > 0.1 ? 0.1 : (dt < 0.0 ? 0.0 : dt), pos, vel_c, o);
+    o->publish_setpoint = control(m, t, sample_s - m->t0, dt > 0.1 ? 0.1 : (dt < 0.0 ? 0.0 : dt),
+                                  pos, vel_c, o);
     m->u_last = o->publish_setpoint ? (double)o->thrust : 0.0;
     o->dist_ne[0] = (float)m->d_hat[0];
     o->dist_ne[1] = (float)m->d_hat[1];

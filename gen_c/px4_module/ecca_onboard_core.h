@@ -100,6 +100,12 @@ typedef struct {
 #define ECCA_VCORR_MAX_M_S 1.0
 #define ECCA_VCORR_RESET_M 1.0
 
+/* The law compares a position sample with the reference at the sample's time: the module steps
+ * at its own rate (PX4: every 4 ms) on the latest vehicle_local_position, 4-8 ms old on the SIH
+ * (mean ~5 ms), and comparing it with the reference at the step's time made the vehicle fly
+ * that much ahead of the trajectory. A sample older than this [s] counts as this old. */
+#define ECCA_SAMPLE_AGE_MAX_S 0.1
+
 /** A fresh module: ECCA_STATE_READY, no trajectory, no peer. */
 void ecca_onboard_init(ecca_onboard *m);
 
@@ -116,7 +122,8 @@ int ecca_onboard_start_report(const ecca_onboard *m, ecca_onboard_ack *ack);
 /** One control step at `now_s` [s, any monotonic clock]: `offboard` = armed in OFFBOARD,
  *  `pos_ok` = position and velocity valid, `pos` / `vel` the estimate [m, m/s NED] sampled at
  *  `sample_s` [s, the same clock; a sample is fused into the velocity correction and the
- *  disturbance observer once], `q_wxyz` the estimated attitude (body FRD -> NED; NULL or not
+ *  disturbance observer once; the law takes its errors against the reference at that time],
+ *  `q_wxyz` the estimated attitude (body FRD -> NED; NULL or not
  *  a unit quaternion: the observer does not learn). In every state, each new valid sample
  *  updates the horizontal velocity correction (ecca_velocity_correction_step, the companion's:
  *  what to add to `vel` for a velocity that agrees with how `pos` moves) at the frequency
