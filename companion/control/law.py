@@ -74,9 +74,11 @@ from companion.control.so3 import (
     quat_normalize,
     quat_normalize_f,
     quat_to_dcm,
+    quat_to_dcm_f,
+    rotate_f,
     so3_rate_command,
-    so3_rate_command_dcm,
-    tilt_guard,
+    so3_rate_command_f,
+    tilt_guard_f,
     yaw_of_dcm,
     yaw_quat,
 )
@@ -145,7 +147,7 @@ class TrackingController:
         self._acc_hist: deque[tuple[float, float, float, float]] = deque(maxlen=256)
         self._last_yaw = 0.0
         self._last_diag: TrackingDiagnostics | None = None
-        self._diag_pending: tuple[FloatArray | None, FloatArray | None] | None = None
+        self._diag_pending: tuple[Sequence[float] | None, Sequence[float] | None] | None = None
 
     # -- state --------------------------------------------------------------------------------
     @property
@@ -217,10 +219,10 @@ class TrackingController:
                 drag=D,
                 extrapolation_s=tau,
                 saturated=sat,
-                attitude_err_frd=np.zeros(3) if e_R is None else e_R,
+                attitude_err_frd=np.zeros(3) if e_R is None else np.array(e_R),
                 fallback=False,
                 reason=reason,
-                rate_err_frd=np.zeros(3) if e_omega is None else e_omega,
+                rate_err_frd=np.zeros(3) if e_omega is None else np.array(e_omega),
             )
         return self._last_diag
 
@@ -258,25 +260,30 @@ class TrackingController:
         if out is None:
             return self._fallback_rates(now, est)
         q_des_t, thrust, omega_ff_t, sat = out
-        omega_ff = np.array(omega_ff_t)
-        R = quat_to_dcm(np.array(self._q_now))
-        Rd = quat_to_dcm(np.array(q_des_t))
+        # the SO(3) loop on floats (the numpy versions' bits, see so3's "the loop in floats")
+        R = quat_to_dcm_f(self._q_now)
+        Rd = quat_to_dcm_f(q_des_t)
         gains = self._link_gains()
-        omega, e_R = so3_rate_command_dcm(R, Rd, omega_ff, gains)
+        omega_t, e_R, Rt_Rd = so3_rate_command_f(R, Rd, omega_ff_t, gains)
         # the flown tilt within the limit too, not only the setpoint's (the loop closes over
         # the link and lags); its rates bounded as the loop's
-        omega = tilt_guard(R, omega, self._tilt_rad, est.omega_frd)
+        w_now = est.omega_frd.tolist()
+        w0, w1, w2 = tilt_guard_f(R, omega_t, self._tilt_rad, w_now)
         lim = gains.max_rate_rp
-        omega[:2] = np.minimum(np.maximum(omega[:2], -lim), lim)
-        e_omega = est.omega_frd - (R.T @ Rd) @ omega_ff
-        # Thrust along the actual body z (Lee): project the desired thrust direction.
-        proj = float(Rd[:, 2] @ R[:, 2])
+        w0, w1 = min(max(w0, -lim), lim), min(max(w1, -lim), lim)
+        f0, f1, f2 = rotate_f(Rt_Rd, omega_ff_t)
+        e_omega = (w_now[0] - f0, w_now[1] - f1, w_now[2] - f2)
+        # Thrust along the actual body z (Lee): project the desired thrust direction
+        # (Rd[:, 2] . R[:, 2], the same products in the same order as (R^T Rd)[2][2]).
+        proj = Rt_Rd[2][2]
         thrust = min(max(thrust * max(proj, 0.5), self.config.thrust_min), self.config.thrust_max)
         self._publish_diag(e_R, e_omega)
-        if not (all_finite(omega) and math.isfinite(thrust)):
+        isfinite = math.isfinite
+        if not (isfinite(w0) and isfinite(w1) and isfinite(w2) and isfinite(thrust)):
             return self._fallback_rates(now, est, "non-finite rate command")
         self._record_thrust(now, thrust)
-        self._rate_hist.append((now, float(omega[0]), float(omega[1]), float(omega[2])))
+        self._rate_hist.append((now, w0, w1, w2))
+        omega = np.array([w0, w1, w2])
         return RateCommand(omega, thrust, saturated=sat)
 
     # -- internals ----------------------------------------------------------------------------
@@ -623,7 +630,9 @@ class TrackingController:
         return (-f * zx - dm * vel[0] + dx, -f * zy - dm * vel[1] + dy,
                 g0 - f * zz - dm * vel[2])
 
-    def _publish_diag(self, e_R: FloatArray | None, e_omega: FloatArray | None = None) -> None:
+    def _publish_diag(
+        self, e_R: Sequence[float] | None, e_omega: Sequence[float] | None = None
+    ) -> None:
         """Diagnostics of this update (from `_diag`), built lazily by `last`."""
         self._diag_pending = (e_R, e_omega)
 

@@ -4,16 +4,19 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from fractions import Fraction
 
 import numpy as np
 import numpy.typing as npt
 
 from companion.control.gains import AttitudeGains
-from companion.geometry import dcm_to_quat
+from companion.geometry import dcm_to_quat, dcm_to_quat_f
 
 FloatArray = npt.NDArray[np.float64]
-
-
+Vec3f = tuple[float, float, float]
+#: a 3x3 matrix as its rows of floats
+Mat3f = tuple[Vec3f, Vec3f, Vec3f]
 
 def all_finite(*arrays: FloatArray) -> bool:
     isfinite = math.isfinite
@@ -66,17 +69,23 @@ def body_z_down(q: FloatArray) -> float:
 
 def quat_to_dcm(q_wxyz: FloatArray) -> FloatArray:
     """DCM C_eb (3, 3) of a quaternion (w, x, y, z) (normalised first; zero -> identity)."""
-    w, x, y, z = (float(c) for c in q_wxyz)
+    return np.array(quat_to_dcm_f([float(c) for c in q_wxyz]))
+
+
+_EYE3: Mat3f = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
+
+def quat_to_dcm_f(q_wxyz: Sequence[float]) -> Mat3f:
+    """`quat_to_dcm` on floats: the rows of C_eb (the same operations, the same bits)."""
+    w, x, y, z = q_wxyz
     n = math.sqrt(w * w + x * x + y * y + z * z)
     if not (math.isfinite(n) and n > 0.0):
-        return np.eye(3)
+        return _EYE3
     w, x, y, z = w / n, x / n, y / n, z / n
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
+    return (
+        (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+        (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+        (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
     )
 
 
@@ -207,24 +216,32 @@ def tilt_guard(R: FloatArray, omega_frd: FloatArray, max_tilt_rad: float,
     down axis in the body (d cos(tilt)/dt = w . (e3 x g)). The rates-mode attitude loop closes
     over the link: a tilt-limited attitude setpoint alone let the vehicle overshoot it (mock,
     figure-8 at 6 m/s against 45 deg: 48-49 deg flown; real PX4: 48.4 deg)."""
-    g0, g1 = float(R[2, 0]), float(R[2, 1])  # R^T e3: the third row of R
+    omega_t = (float(omega_frd[0]), float(omega_frd[1]), float(omega_frd[2]))
+    out = tilt_guard_f(R.tolist(), omega_t, max_tilt_rad,
+                       None if omega_now_frd is None else omega_now_frd.tolist(), gain, lead_s)
+    return omega_frd if out is omega_t else np.array(out)
+
+
+def tilt_guard_f(R: Sequence[Sequence[float]], omega_frd: Vec3f, max_tilt_rad: float,
+                 omega_now_frd: Sequence[float] | None = None, gain: float = TILT_GUARD_GAIN,
+                 lead_s: float = TILT_GUARD_LEAD_S) -> Vec3f:
+    """`tilt_guard` on floats (`R` as rows); returns `omega_frd` itself when it is not limited."""
+    g0, g1, g2 = R[2]  # R^T e3: the third row of R
     s = math.hypot(g0, g1)
     if s < 1e-9:
         return omega_frd
-    tilt = math.atan2(s, float(R[2, 2]))
+    tilt = math.atan2(s, g2)
     n0, n1 = g1 / s, -g0 / s
     if omega_now_frd is not None:
-        now = float(omega_now_frd[0]) * n0 + float(omega_now_frd[1]) * n1
+        now = omega_now_frd[0] * n0 + omega_now_frd[1] * n1
         if math.isfinite(now):
             tilt += lead_s * now
-    rate = float(omega_frd[0]) * n0 + float(omega_frd[1]) * n1
+    w0, w1, w2 = omega_frd
+    rate = w0 * n0 + w1 * n1
     allowed = gain * (max_tilt_rad - tilt)
     if rate <= allowed:
         return omega_frd
-    out = np.array(omega_frd, dtype=np.float64)
-    out[0] -= (rate - allowed) * n0
-    out[1] -= (rate - allowed) * n1
-    return out
+    return (w0 - (rate - allowed) * n0, w1 - (rate - allowed) * n1, w2)
 
 
 def tilt_priority_error(R: FloatArray, Rd: FloatArray, yaw_weight: float) -> FloatArray:
@@ -262,3 +279,189 @@ def _axis_angle_dcm(axis: FloatArray, s_ang: float, c_ang: float) -> FloatArray:
     K = np.array([[0.0, -kz, ky], [kz, 0.0, -kx], [-ky, kx, 0.0]])
     out: FloatArray = np.eye(3) + s_ang * K + (1.0 - c_ang) * (K @ K)
     return out
+
+
+# ----------------------------------------------------------------------------- the loop in floats
+# The rates-mode controller runs the SO(3) loop above every setpoint, on 3x3 matrices where
+# numpy's cost per call is most of the time. The versions below take rows of floats and give
+# the numpy versions' bits: numpy hands 3x3 products and dots of 3 to OpenBLAS, whose x86-64
+# kernels (Haswell and later: fused multiply-add) round each sum as a chain of FMAs; `_fma`
+# does one FMA exactly, `_dot3` and `rotate_f` chain them in OpenBLAS's orders. Under a BLAS
+# that rounds otherwise, the two paths differ in the last bits
+# (tests/companion/control/test_so3_fast_paths.py checks which this numpy does).
+
+_SPLIT = 134217729.0  # 2**27 + 1: Veltkamp's split of a double into two 26-bit halves
+_TINY = 1e-280  # below, Dekker's partial products may underflow: exact rational arithmetic
+
+
+def _fma(a: float, b: float, c: float) -> float:
+    """a * b + c rounded once (an FMA), for finite a, b, c with |a|, |b| < 1e150."""
+    p = a * b
+    if -_TINY < p < _TINY:
+        if a == 0.0 or b == 0.0:
+            return p + c
+        return float(Fraction(a) * Fraction(b) + Fraction(c))
+    t = _SPLIT * a
+    ah = t - (t - a)
+    t = _SPLIT * b
+    bh = t - (t - b)
+    return _fma_split(p, ah, a - ah, bh, b - bh, c)
+
+
+def _fma_split(p: float, ah: float, al: float, bh: float, bl: float, c: float) -> float:
+    """`_fma` of a, b, c given p = a * b rounded (not tiny) and the operands' Veltkamp halves
+    (a = ah + al, b = bh + bl): a * b = p + e exactly (Dekker), then p + e + c correctly
+    rounded (`math.fsum`; p + c when e = 0)."""
+    e = ((ah * bh - p) + ah * bl + al * bh) + al * bl
+    return p + c if e == 0.0 else math.fsum((p, e, c))
+
+
+def _dot3(a0: float, a1: float, a2: float, b0: float, b1: float, b2: float) -> float:
+    """a . b as OpenBLAS rounds a 3x3 product's entry and a dot of 3 (`@`, `np.linalg.norm`):
+    fma(a2, b2, fma(a1, b1, fma(a0, b0, +0)))."""
+    return _fma(a2, b2, _fma(a1, b1, a0 * b0 + 0.0))
+
+
+def _halves(v: Vec3f) -> tuple[float, float, float, float]:
+    """Veltkamp's halves (hi, lo) of v[1] and of v[2], as `_fma` splits them."""
+    t = _SPLIT * v[1]
+    h1 = t - (t - v[1])
+    t = _SPLIT * v[2]
+    h2 = t - (t - v[2])
+    return (h1, v[1] - h1, h2, v[2] - h2)
+
+
+def _cols(M: Mat3f) -> Mat3f:
+    """The columns of M (its transpose's rows)."""
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = M
+    return ((m00, m10, m20), (m01, m11, m21), (m02, m12, m22))
+
+
+def _mul(rows: Mat3f, cols: Mat3f) -> Mat3f:
+    """The product of the matrix with rows `rows` and the one with columns `cols`: `_dot3` of
+    each row and column (numpy's bits), its operands split once (each is in three products; the
+    hot path of the rates-mode setpoint)."""
+    cs = [(b, _halves(b)) for b in cols]
+    out: list[Vec3f] = []
+    for a in rows:
+        a0, a1, a2 = a
+        ah1, al1, ah2, al2 = _halves(a)
+        entries = []
+        for (b0, b1, b2), (bh1, bl1, bh2, bl2) in cs:
+            r = a0 * b0 + 0.0
+            p = a1 * b1
+            r = _fma(a1, b1, r) if -_TINY < p < _TINY else _fma_split(p, ah1, al1, bh1, bl1, r)
+            p = a2 * b2
+            r = _fma(a2, b2, r) if -_TINY < p < _TINY else _fma_split(p, ah2, al2, bh2, bl2, r)
+            entries.append(r)
+        out.append((entries[0], entries[1], entries[2]))
+    return (out[0], out[1], out[2])
+
+
+def rotate_f(M: Mat3f, v: Sequence[float]) -> Vec3f:
+    """M @ v with numpy's bits (OpenBLAS's dgemv order for 3 columns: fma(m2, v2, fma(m0, v0,
+    m1 v1))); a non-finite `v` goes through numpy itself."""
+    v0, v1, v2 = v
+    if not (math.isfinite(v0) and math.isfinite(v1) and math.isfinite(v2)):
+        x, y, z = (np.array(M) @ np.array([v0, v1, v2])).tolist()
+        return (x, y, z)
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = M
+    return (
+        _fma(m02, v2, _fma(m00, v0, m01 * v1 + 0.0)),
+        _fma(m12, v2, _fma(m10, v0, m11 * v1 + 0.0)),
+        _fma(m22, v2, _fma(m20, v0, m21 * v1 + 0.0)),
+    )
+
+
+def so3_rate_command_f(
+    R: Mat3f, Rd: Mat3f, omega_ff_frd: Sequence[float], gains: AttitudeGains
+) -> tuple[Vec3f, Vec3f, Mat3f]:
+    """`so3_rate_command_dcm` on floats, the same bits: R, Rd rotation matrices (C_eb, rows),
+    omega_ff_frd [rad/s]. Returns (omega_cmd_frd [rad/s], e_R, R^T Rd)."""
+    Rc, Rdc = _cols(R), _cols(Rd)
+    X = _mul(Rc, Rdc)  # R^T Rd; its transpose is Rd^T R, entry for entry the same products
+    (x00, x01, x02), (x10, x11, x12), (x20, x21, x22) = X
+    e_R = (0.5 * (x12 - x21), 0.5 * (x20 - x02), 0.5 * (x01 - x10))
+    k2 = gains.k_yaw
+    err = e_R
+    if gains.tilt_priority:
+        err = _tilt_priority_error_cols(Rc, Rd, Rdc, x22, gains.yaw_weight)
+        k2 = gains.k_yaw / gains.yaw_weight
+    elif gains.large_angle:
+        d = max(0.5 * math.sqrt(max(1.0 + (x00 + x11 + x22), 0.0)), 0.05)
+        err = (e_R[0] / d, e_R[1] / d, e_R[2] / d)
+    ff = tuple(omega_ff_frd)
+    if not all(map(math.isfinite, ff)):
+        ff = (0.0, 0.0, 0.0)
+    f0, f1, f2 = rotate_f(X, ff)
+    rp, ry = gains.max_rate_rp, gains.max_rate_yaw
+    omega = (
+        min(max(f0 - gains.k_roll * err[0], -rp), rp),
+        min(max(f1 - gains.k_pitch * err[1], -rp), rp),
+        min(max(f2 - k2 * err[2], -ry), ry),
+    )
+    return omega, e_R, X
+
+
+def tilt_priority_error_f(R: Mat3f, Rd: Mat3f, yaw_weight: float) -> Vec3f:
+    """`tilt_priority_error` on floats (R, Rd as rows), the same bits."""
+    Rc, Rdc = _cols(R), _cols(Rd)
+    return _tilt_priority_error_cols(Rc, Rd, Rdc, _dot3(*Rc[2], *Rdc[2]), yaw_weight)
+
+
+def _tilt_priority_error_cols(
+    Rc: Mat3f, Rd: Mat3f, Rdc: Mat3f, c_ang: float, yaw_weight: float
+) -> Vec3f:
+    """`tilt_priority_error_f` given R's columns `Rc`, Rd with its columns `Rdc`, and c_ang, the
+    thrust axes' dot (`_dot3` of the last columns: (R^T Rd)[2][2])."""
+    ez0, ez1, ez2 = Rc[2]
+    ed0, ed1, ed2 = Rdc[2]
+    axis = (ez1 * ed2 - ez2 * ed1, ez2 * ed0 - ez0 * ed2, ez0 * ed1 - ez1 * ed0)  # np.cross
+    s_ang = math.sqrt(_dot3(*axis, *axis))
+    if c_ang < -1.0 + 1e-9 and s_ang < 1e-5:
+        R_red = Rd  # thrust axes opposite (see tilt_priority_error)
+    else:
+        R_red = _mul(_axis_angle_dcm_f(axis, s_ang, c_ang), Rc)
+    R_red_c = _cols(R_red)
+    psi = math.atan2(_dot3(*R_red_c[1], *Rdc[0]), _dot3(*R_red_c[0], *Rdc[0]))
+    cw, sw = math.cos(yaw_weight * psi), math.sin(yaw_weight * psi)
+    # R_red @ [[cw, -sw, 0], [sw, cw, 0], [0, 0, 1]]: `_mul` with its zero terms dropped (a
+    # chain from +0 never holds -0, so adding a zero product leaves it as it is)
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R_red
+    nsw = -sw
+    Rd_w_c = (
+        (_fma(r01, sw, r00 * cw + 0.0), _fma(r11, sw, r10 * cw + 0.0),
+         _fma(r21, sw, r20 * cw + 0.0)),
+        (_fma(r01, cw, r00 * nsw + 0.0), _fma(r11, cw, r10 * nsw + 0.0),
+         _fma(r21, cw, r20 * nsw + 0.0)),
+        (r02 + 0.0, r12 + 0.0, r22 + 0.0),
+    )
+    q = dcm_to_quat_f(_mul(Rc, Rd_w_c))
+    if q is None:  # not for rotation matrices
+        return (math.nan, math.nan, math.nan)
+    w, x, y, z = q
+    sign = 1.0 if w >= 0.0 else -1.0
+    return (-2.0 * x * sign, -2.0 * y * sign, -2.0 * z * sign)
+
+
+def _axis_angle_dcm_f(axis: Vec3f, s_ang: float, c_ang: float) -> Mat3f:
+    """`_axis_angle_dcm` on floats, the same bits."""
+    if s_ang < 1e-12:
+        return _EYE3
+    kx, ky, kz = axis[0] / s_ang, axis[1] / s_ang, axis[2] / s_ang
+    K = ((0.0, -kz, ky), (kz, 0.0, -kx), (-ky, kx, 0.0))
+    # K @ K: `_mul` with its zero terms dropped (see `_tilt_priority_error_cols`)
+    kxy, kxz, kyz = kx * ky + 0.0, kx * kz + 0.0, ky * kz + 0.0
+    KK = (
+        (_fma(ky, -ky, -kz * kz + 0.0), kxy, kxz),
+        (kxy, _fma(-kx, kx, kz * -kz + 0.0), kyz),
+        (kxz, kyz, _fma(kx, -kx, -ky * ky + 0.0)),
+    )
+    oc = 1.0 - c_ang
+
+    def row(i: int) -> Vec3f:
+        e, k, kk = _EYE3[i], K[i], KK[i]
+        return ((e[0] + s_ang * k[0]) + oc * kk[0], (e[1] + s_ang * k[1]) + oc * kk[1],
+                (e[2] + s_ang * k[2]) + oc * kk[2])
+
+    return (row(0), row(1), row(2))
