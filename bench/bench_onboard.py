@@ -52,6 +52,7 @@ from udp_degrade import DegradedLink  # noqa: E402
 from companion.aio import Vehicle, VehicleConfig  # noqa: E402
 from companion.aio.onboard import module_states, upload  # noqa: E402
 from companion.control import Reference  # noqa: E402
+from companion.control.shaping import ShapingConfig  # noqa: E402
 from companion.mavlink import FlightMode, LinkConfig  # noqa: E402
 from companion.onboard import protocol as P  # noqa: E402, N812
 from companion.planning.config import VehicleFile  # noqa: E402
@@ -82,7 +83,7 @@ ARM_AT = {"s": 0.0}
 START_AT = {"s": 0.0}
 #: `--no-bend`: the onboard cells upload the figure as it is, not bent ahead of time for the
 #: tilt limit (`bend_for_tilt`, what fly --onboard uploads)
-BEND = {"on": True}
+BEND: dict[str, Any] = {"on": True, "margin_deg": None}
 
 
 async def wait_boot(v: Vehicle, boot_s: float) -> None:
@@ -167,7 +168,10 @@ async def _onboard_flight(url: str, target: int, module: Path, px4: Px4Sitl, spe
                                 pos.pos_ned[1] - r0[1])
             breaks, cps = hermite_segments(shifted, duration)
             if BEND["on"]:  # as fly --onboard uploads: bent ahead of time for the tilt limit
-                breaks, cps, _ = bend_for_tilt((breaks, cps, [np.zeros(8) for _ in cps]), law)
+                cfg_b = (None if BEND["margin_deg"] is None else
+                         ShapingConfig(margin_rad=math.radians(BEND["margin_deg"])))
+                breaks, cps, _ = bend_for_tilt((breaks, cps, [np.zeros(8) for _ in cps]), law,
+                                               cfg_b)
             up = P.encode_upload(breaks, cps, None, law,
                                  sysid=cfg.sysid, compid=cfg.compid, final_action="hold",
                                  hold_s=1.0, start_tolerance_m=3.0)
@@ -334,6 +338,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-bend", action="store_true",
                     help="onboard cells: upload the figure as it is (default: bent ahead of "
                          "time for the tilt limit, as fly --onboard uploads)")
+    ap.add_argument("--bend-margin-deg", type=float, default=None,
+                    help="onboard cells: the bend's tilt margin left to the feedback [deg] "
+                         "(default: ShapingConfig's, as fly --onboard)")
     ap.add_argument("--law", nargs="*", default=[], metavar="FIELD=VALUE",
                     help="onboard cells: override LawParams fields (kp/kd/ki/i_max scale the "
                          "onboard law's horizontal gains by VALUE; others are set, e.g. "
@@ -347,6 +354,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     AFTER_TAKEOFF["on"] = args.upload_after_takeoff
     BEND["on"] = not args.no_bend
+    BEND["margin_deg"] = args.bend_margin_deg
     CTL[:] = args.ctl
     base = law_params(VehicleFile(), 0.5, math.radians(TILT_DEG))
     for item in args.law:
