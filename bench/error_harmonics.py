@@ -27,7 +27,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pymavlink import mavutil
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -44,10 +43,9 @@ def _flight_dir(root: Path, r: dict[str, Any]) -> Path:
     return root / f"{r['mode']}-{r['speed']:g}-x{r['scale']:g}-s{r['start_at']:g}-{r['run']}"
 
 
-def lap2_error(tlog: Path, t0_boot: float, speed: float, scale: float) -> np.ndarray:
+def lap2_error(data: H.TlogData, t0_boot: float, speed: float, scale: float) -> np.ndarray:
     """(N_PHASE, 2) horizontal error [m] north, east over lap 2, on the figure's phase grid,
     its lap mean removed."""
-    data = H.read_flight_tlog(tlog, PX4_SYSID)
     fig = scaled_figure8(scale)
     tb = data.lpos_boot - t0_boot
     keep = (tb >= 0.0) & (tb <= B.figure8_seconds(speed / scale))
@@ -71,21 +69,13 @@ def reference_on_grid(speed: float, scale: float) -> np.ndarray:
     return np.array([fig(x, speed).pos_ned[:2] for x in np.interp(grid, phase, ts)])
 
 
-def at_tilt_limit(tlog: Path) -> float:
+def at_tilt_limit(data: H.TlogData) -> float:
     """Share of ATTITUDE_TARGET samples tilted more than 5 deg that are within 0.1 deg of the
     flight's largest tilt (the law's limit when it binds)."""
-    conn = mavutil.mavlink_connection(str(tlog))
     tilts = []
-    try:
-        for _ in range(10_000_000):
-            m = conn.recv_match(type="ATTITUDE_TARGET")
-            if m is None:
-                break
-            if m.get_srcSystem() == PX4_SYSID:
-                _, x, y, _ = m.q
-                tilts.append(math.degrees(math.acos(min(1.0, max(-1.0, 1 - 2 * (x * x + y * y))))))
-    finally:
-        conn.close()
+    for m in data.extra["ATTITUDE_TARGET"]:
+        _, x, y, _ = m.q
+        tilts.append(math.degrees(math.acos(min(1.0, max(-1.0, 1 - 2 * (x * x + y * y))))))
     a = np.array([v for v in tilts if v > 5.0])
     return float(np.mean(a >= a.max() - 0.1)) if len(a) else math.nan
 
@@ -96,11 +86,11 @@ def analyse(root: Path, speed: float, scale: float) -> dict[str, Any]:
             and r["scale"] == scale]
     curves, flights = [], []
     for r in rows:
-        tlog = _flight_dir(root, r) / "flight.tlog"
-        c = lap2_error(tlog, r["start_boot_s"], speed, scale)
-        curves.append(c)
+        data = H.read_flight_tlog(_flight_dir(root, r) / "flight.tlog", PX4_SYSID,
+                                  keep=("ATTITUDE_TARGET",))
+        curves.append(lap2_error(data, r["start_boot_s"], speed, scale))
         flights.append({"start_at": r["start_at"], "rms": r["rms"],
-                        "at_limit": at_tilt_limit(tlog), "age_ms": r.get("age_mean_us", math.nan)
+                        "at_limit": at_tilt_limit(data), "age_ms": r.get("age_mean_us", math.nan)
                         / 1000.0})
     a = np.array(curves)
     common = a.mean(axis=0)

@@ -18,6 +18,7 @@ Vec3f = tuple[float, float, float]
 #: a 3x3 matrix as its rows of floats
 Mat3f = tuple[Vec3f, Vec3f, Vec3f]
 
+
 def all_finite(*arrays: FloatArray) -> bool:
     isfinite = math.isfinite
     return all(all(map(isfinite, a.tolist())) for a in arrays)

@@ -276,8 +276,9 @@ static int task_main(int argc, char *argv[]) {
       if (ns > g_step_ns_max) g_step_ns_max = (uint32_t)ns;
       g_step_ns_hist[ns / 1000u < 63u ? ns / 1000u : 63u]++;
       if (now >= lp.timestamp_sample) {
-        g_age_us_sum += now - lp.timestamp_sample;
-        if (now - lp.timestamp_sample > g_age_us_max) g_age_us_max = now - lp.timestamp_sample;
+        uint64_t age = now - lp.timestamp_sample;
+        g_age_us_sum += age;
+        if (age > g_age_us_max) g_age_us_max = age;
       }
     }
     if (out.event == ECCA_EV_START_REFUSED) {

@@ -20,6 +20,8 @@ from scipy.spatial.transform import Rotation
 
 from companion.control import AttitudeGains
 from companion.control.so3 import (
+    TILT_GUARD_GAIN,
+    TILT_GUARD_LEAD_S,
     _axis_angle_dcm,
     _axis_angle_dcm_f,
     _dot3,
@@ -69,6 +71,42 @@ def _same(fast: object, general: np.ndarray) -> None:
         assert f.tobytes() == general.tobytes(), (f, general)
     else:
         np.testing.assert_allclose(f, general, rtol=0.0, atol=1e-13)
+
+
+def _quat_to_dcm_array(q: np.ndarray) -> np.ndarray:
+    """so3.quat_to_dcm before it wrapped the float version (b14b8dd): the oracle."""
+    w, x, y, z = (float(c) for c in q)
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if not (math.isfinite(n) and n > 0.0):
+        return np.eye(3)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def _tilt_guard_array(R: np.ndarray, omega: np.ndarray, lim: float,
+                      now_frd: np.ndarray | None) -> np.ndarray:
+    """so3.tilt_guard before it wrapped the float version (b14b8dd), default gain and lead:
+    the oracle."""
+    g0, g1 = float(R[2, 0]), float(R[2, 1])
+    s = math.hypot(g0, g1)
+    if s < 1e-9:
+        return omega
+    tilt = math.atan2(s, float(R[2, 2]))
+    n0, n1 = g1 / s, -g0 / s
+    if now_frd is not None:
+        now = float(now_frd[0]) * n0 + float(now_frd[1]) * n1
+        if math.isfinite(now):
+            tilt += TILT_GUARD_LEAD_S * now
+    rate = float(omega[0]) * n0 + float(omega[1]) * n1
+    allowed = TILT_GUARD_GAIN * (lim - tilt)
+    if rate <= allowed:
+        return omega
+    out = np.array(omega, dtype=np.float64)
+    out[0] -= (rate - allowed) * n0
+    out[1] -= (rate - allowed) * n1
+    return out
 
 
 def _rows(m: np.ndarray) -> tuple[tuple[float, float, float], ...]:
@@ -143,7 +181,7 @@ PAIRS = _pairs()
 def test_rate_command_matches_the_numpy_loop(gains: AttitudeGains) -> None:
     rng = np.random.default_rng(6)
     for q, qd in PAIRS:
-        R, Rd = quat_to_dcm(q), quat_to_dcm(qd)
+        R, Rd = _quat_to_dcm_array(q), _quat_to_dcm_array(qd)
         Rf, Rdf = quat_to_dcm_f(q.tolist()), quat_to_dcm_f(qd.tolist())
         assert np.array(Rf).tobytes() == R.tobytes()
         ff = rng.normal(size=3) * 3.0
@@ -188,6 +226,7 @@ def test_non_finite_feed_forward_as_before(bad: float) -> None:
 def test_bad_quaternions_give_the_identity_as_before(q: list[float]) -> None:
     assert quat_to_dcm_f(q) == ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
     assert quat_to_dcm(np.array(q)).tolist() == np.eye(3).tolist()
+    assert _quat_to_dcm_array(np.array(q)).tolist() == np.eye(3).tolist()
 
 
 def test_tilt_guard_on_floats_is_the_array_version() -> None:
@@ -198,7 +237,9 @@ def test_tilt_guard_on_floats_is_the_array_version() -> None:
         now = rng.normal(size=3) * 2.0
         for omega_now in (None, now, np.array([math.nan, 0.0, 0.0])):
             lim = float(rng.uniform(0.2, 1.2))
-            general = tilt_guard(R, omega, lim, omega_now)
+            general = _tilt_guard_array(R, omega, lim, omega_now)
+            assert np.array(tilt_guard(R, omega, lim, omega_now)).tobytes() == np.asarray(
+                general, dtype=np.float64).tobytes()  # the array wrapper too
             w = (float(omega[0]), float(omega[1]), float(omega[2]))
             fast = tilt_guard_f(_rows(R), w, lim, None if omega_now is None else omega_now.tolist())
             assert np.array(fast).tobytes() == np.asarray(general, dtype=np.float64).tobytes()
