@@ -45,6 +45,7 @@ from companion.mission import (
     geodetic_to_ned,
     load_mission,
     mission_to_flight_plan,
+    rehome_mission,
 )
 from companion.mission.px4_params import Px4PlanningParams
 from companion.planning.config import VehicleFile, load_vehicle_file
@@ -281,11 +282,14 @@ def plan_flight(opts: FlyOptions, inputs: FlyInputs, rover: bool,
                          (PATTERN_ACCEPTANCE_M,) * len(wps), "land", trajectory=traj)
 
 
-async def _home_offset_m(v: Any, mission: Mission,
-                         timeout_s: float) -> tuple[float, FloatArray | None]:
-    """Horizontal distance [m] from the vehicle to the mission's planned home (waits for a
-    GLOBAL_POSITION_INT; ValueError without one), and the shift local NED -> mission frame
-    (add it to a local position) [m], None without a local position."""
+async def rehome_at_vehicle(v: Any, mission: Mission, timeout_s: float
+                            ) -> tuple[float, Mission, FloatArray | None]:
+    """Where the vehicle stands against the mission's planned home (waits for a
+    GLOBAL_POSITION_INT; ValueError without one): the horizontal distance [m] between them, the
+    mission re-homed at the vehicle's latitude/longitude (`rehome_mission`: planned from there,
+    its waypoints stay at their own coordinates, as PX4's AUTO.MISSION flies them), and the shift
+    local NED -> that mission's frame (add it to a local position) [m], None without a local
+    position."""
     loop = asyncio.get_running_loop()
     deadline = loop.time() + timeout_s
     while v.telemetry.global_position is None and loop.time() < deadline:
@@ -295,9 +299,12 @@ async def _home_offset_m(v: Any, mission: Mission,
         raise ValueError(f"no global position from the vehicle within {timeout_s:g} s: cannot "
                          "check the mission's planned home (GPS?)")
     off = geodetic_to_ned(g.lat_deg, g.lon_deg, g.alt_amsl_m, mission.home)
+    here = rehome_mission(mission, g.lat_deg, g.lon_deg)
     local = v.telemetry.position
-    shift = None if local is None else np.asarray(off, float) - np.asarray(local.pos_ned, float)
-    return math.hypot(off[0], off[1]), shift
+    shift = None if local is None else (
+        np.asarray(geodetic_to_ned(g.lat_deg, g.lon_deg, g.alt_amsl_m, here.home), float)
+        - np.asarray(local.pos_ned, float))
+    return math.hypot(off[0], off[1]), here, shift
 
 
 def mission_figures(report: FlightReport, planned: PlannedFlight, recorder: TrackRecorder,
@@ -459,19 +466,21 @@ async def fly(opts: FlyOptions, console: Console) -> int:
             refused = await v.stream_position_fast()
             if refused is not None:
                 console.print(f"[yellow]{escape(refused)}[/yellow]")
+        if mission is not None:
+            # planned from where the vehicle stands to the file's own coordinates
+            horiz, here, fence_shift = await rehome_at_vehicle(v, mission, HOME_WAIT_S)
+            if horiz > MAX_HOME_OFFSET_M:
+                raise ValueError(
+                    f"{opts.target}: planned home is {horiz:.0f} m from the vehicle "
+                    f"(limit {MAX_HOME_OFFSET_M:g} m); move the vehicle there or "
+                    "edit plannedHomePosition")
+            inputs = dataclasses.replace(inputs, mission=here)
         planned = await asyncio.to_thread(
             plan_flight, opts, inputs, rover, None if px4 is None else px4.params, fly_takeoff,
             TOUCHDOWN_FROM_M if touchdown else HANDOVER_HEIGHT_M)
         if opts.wind is not None and not rover:
             wind_check(console, opts.wind, planned, inputs.vehicle,
                        None if px4 is None else px4.params)
-        if mission is not None:
-            horiz, fence_shift = await _home_offset_m(v, mission, HOME_WAIT_S)
-            if horiz > MAX_HOME_OFFSET_M:
-                raise ValueError(
-                    f"{opts.target}: planned home is {horiz:.0f} m from the vehicle "
-                    f"(limit {MAX_HOME_OFFSET_M:g} m); move the vehicle there or "
-                    "edit plannedHomePosition")
         source: TrackingSource | None = None
         started: float | None = None
         ended: float | None = None

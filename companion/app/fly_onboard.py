@@ -56,11 +56,11 @@ from .fly import (
     MAX_HOME_OFFSET_M,
     FlyOptions,
     PlannedFlight,
-    _home_offset_m,
     check_inputs,
     mission_figures,
     plan_flight,
     print_planning_params,
+    rehome_at_vehicle,
     summary_table,
     write_report,
 )
@@ -115,14 +115,16 @@ async def fly_onboard(opts: FlyOptions, console: Console) -> int:
             px4 = await read_planning_params(v.fetch_params, inputs.vehicle.px4_overrides,
                                              vehicle="quad")
             print_planning_params(console, px4)
-        planned = await asyncio.to_thread(plan_flight, opts, inputs, False,
-                                          None if px4 is None else px4.params, True,
-                                          HANDOVER_HEIGHT_M)
         if inputs.mission is not None:
-            horiz, _ = await _home_offset_m(v, inputs.mission, HOME_WAIT_S)
+            # planned from where the vehicle stands to the file's own coordinates
+            horiz, here, _ = await rehome_at_vehicle(v, inputs.mission, HOME_WAIT_S)
             if horiz > MAX_HOME_OFFSET_M:
                 raise OnboardError(f"{opts.target}: planned home is {horiz:.0f} m from the "
                                    f"vehicle (limit {MAX_HOME_OFFSET_M:g} m)")
+            inputs = dataclasses.replace(inputs, mission=here)
+        planned = await asyncio.to_thread(plan_flight, opts, inputs, False,
+                                          None if px4 is None else px4.params, True,
+                                          HANDOVER_HEIGHT_M)
         pos = v.telemetry.position
         if pos is None:
             raise OnboardError("no position telemetry")

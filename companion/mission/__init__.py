@@ -22,6 +22,7 @@ from companion.mission.convert import (
     mission_from_wire,
     mission_to_wpl,
     mission_upload_items,
+    rehome_mission,
 )
 from companion.mission.errors import MissionError
 from companion.mission.flightplan import (
@@ -78,5 +79,6 @@ __all__ = [
     "ned_to_geodetic",
     "parse_plan",
     "parse_wpl",
+    "rehome_mission",
     "split_flight_plan",
 ]

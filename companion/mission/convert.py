@@ -13,6 +13,7 @@ mavlink layer never imports the mission model). Every problem raises :class:`Mis
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from collections.abc import Sequence
@@ -48,6 +49,7 @@ __all__ = [
     "mission_from_wire",
     "mission_to_wpl",
     "mission_upload_items",
+    "rehome_mission",
 ]
 
 FRAME_GLOBAL_RELATIVE_ALT = 3
@@ -91,6 +93,30 @@ def loads_mission(
     raise MissionError(
         src, 'not a mission file: expected a QGroundControl .plan (JSON) or "QGC WPL 110" text'
     )
+
+
+def rehome_mission(mission: Mission, lat_deg: float, lon_deg: float) -> Mission:
+    """`mission` with its home moved to latitude/longitude [deg] (its altitude kept): every item,
+    fence vertex and rally point keeps its own latitude/longitude, so a flight planned about
+    the new home starts there and still goes to the file's positions. `fly` re-homes a mission
+    where the vehicle stands (PX4's AUTO.MISSION flies the items' coordinates wherever it took
+    off; planned about the file's home and placed where the vehicle stood, every waypoint moved
+    with the vehicle's distance from that home)."""
+    home = GeoPoint(float(lat_deg), float(lon_deg), mission.home.alt_amsl_m)
+    fence = mission.geofence
+    polygons = tuple(dataclasses.replace(p, vertices_ne_m=tuple(ne_of(la, lo, home)
+                                                                for la, lo in p.vertices_deg))
+                     for p in fence.polygons)
+    circles = tuple(dataclasses.replace(c, center_ne_m=ne_of(c.center_lat_deg, c.center_lon_deg,
+                                                             home))
+                    for c in fence.circles)
+    rally = tuple(dataclasses.replace(r, pos_ned_m=(*ne_of(r.lat_deg, r.lon_deg, home),
+                                                    r.pos_ned_m[2]))
+                  for r in mission.rally)
+    return dataclasses.replace(mission, home=home,
+                               geofence=dataclasses.replace(fence, polygons=polygons,
+                                                            circles=circles),
+                               rally=rally)
 
 
 # ----------------------------------------------------------------------------- model -> wire

@@ -46,6 +46,8 @@ from companion.mission import (
     MissionError,
     load_mission,
     mission_to_flight_plan,
+    ned_to_geodetic,
+    rehome_mission,
 )
 from companion.mission.px4_params import planning_param_names
 from companion.planning.fence_check import require_plan_inside
@@ -137,6 +139,12 @@ def prepare_mission(
     src = Path(path)
     mission = load_mission(src)
     home = (mission.home.lat_deg, mission.home.lon_deg, mission.home.alt_amsl_m)
+    if config.start_offset_ne_m != (0.0, 0.0):
+        # the vehicle boots that far from the planned home: planned from there to the file's
+        # own coordinates, as `fly` plans from where the vehicle stands
+        n, e = config.start_offset_ne_m
+        lat, lon, _ = ned_to_geodetic(np.array([n, e, 0.0]), mission.home)
+        mission = rehome_mission(mission, float(lat), float(lon))
     read = read_mock_params(config, home, planning_param_names(config.vehicle))
     px4 = resolve_planning_params(read.values, wrong_type=read.wrong_type, where="the mock",
                                   vehicle=config.vehicle)
@@ -155,14 +163,11 @@ def prepare_mission(
 
 
 def fence_shift(config: ReplayConfig, origin: FloatArray) -> FloatArray:
-    """Local mock NED -> mission frame: the mock's local origin is where it booted, the
-    mission's home moved by `config.start_offset_ne_m`, so the geofence is checked where the
-    vehicle really was (the companion itself flies relative to where it stood: `origin`)."""
-    n, e = config.start_offset_ne_m
-    if (n, e) == (0.0, 0.0):
-        return -np.asarray(origin, dtype=np.float64)
-    return np.array([n, e, 0.0])
-
+    """Local mock NED -> mission frame: the mission is planned about where the vehicle booted
+    (its planned home moved by `config.start_offset_ne_m`: `prepare_mission`), which the
+    companion placed at `origin` in the mock's local frame."""
+    del config  # the frame is the same with or without a start offset
+    return -np.asarray(origin, dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -265,11 +270,10 @@ def _finish(run: ReplayRun, config: ReplayConfig, setpoint_failure: str | None) 
     report = dataclasses.replace(report, result=missed_result(report))
     report = dataclasses.replace(report, ok=report_ok(report))
     if config.start_offset_ne_m != (0.0, 0.0):
-        # the companion flew relative to where it stood; the mission's geodetic waypoints sit
-        # at -offset in the vehicle's frame, this is how far the flight passed from them
-        n, e = config.start_offset_ne_m
+        # started away from the planned home: how far the flight passed from the file's own
+        # (geodetic) waypoints, which the plan, made about where the vehicle booted, keeps
         pos = np.asarray(log.pos, dtype=np.float64).reshape(-1, 3)
-        wps = schedule.waypoints_ned + flight.origin - np.array([n, e, 0.0])
+        wps = schedule.waypoints_ned + flight.origin
         report = dataclasses.replace(report, max_waypoint_miss_geo_m=(
             float(np.max(closest_approach(pos, wps))) if len(wps) else 0.0))
     return ReplayRun(flight, log, report)

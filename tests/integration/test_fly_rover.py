@@ -3,7 +3,9 @@ structure) over loopback UDP, judged from its own .tlog as an outsider would: th
 from the file's latitude/longitude (independent geodesy), the rover's LOCAL_POSITION_NED, the
 messages the companion sent and the HEARTBEAT's mode. A rover that cannot make progress (its
 throttle gives almost nothing) is switched to Hold and the flight is reported failed, naming
-the waypoints it missed. Both flights run at the same time (~35 s)."""
+the waypoints it missed. A rover started 2.5 m from the planned home drives to the file's own
+waypoints (as PX4's AUTO.MISSION would), not to ones moved with it. The three flights run at
+the same time (~35 s)."""
 
 from __future__ import annotations
 
@@ -75,9 +77,11 @@ def _read(tlog: Path, code: int, output: str) -> Drive:
                  not armed, report, arm_modes)
 
 
-async def _drive(tmp_path: Path, name: str, *params: str) -> Drive:
+async def _drive(tmp_path: Path, name: str, *params: str, home: str | None = None) -> Drive:
     tlog = tmp_path / f"{name}.tlog"
     extra = [a for p in params for a in ("--param", p)]
+    if home is not None:
+        extra += ["--home", home]
     async with run_mock("--vehicle", "rover", *extra) as mock:
         code, out = await run_companion(
             "fly", str(MISSION), "--connect", f"udpin://127.0.0.1:{mock.client_port}",
@@ -95,10 +99,17 @@ def _waypoints_ne() -> np.ndarray:
 
 async def test_fly_drives_a_rover_through_its_corners_and_a_stuck_one_is_held(
         tmp_path: Path) -> None:
-    ok, stuck = await asyncio.gather(
+    plan = json.loads(MISSION.read_text())
+    lat0, lon0, alt0 = plan["mission"]["plannedHomePosition"]
+    # booted (and so its local origin) 2 m north and 1.5 m west of the planned home
+    away_ne = np.array([2.0, -1.5])
+    lat1 = lat0 + float(np.degrees(away_ne[0] / 6_371_000.0))
+    lon1 = lon0 + float(np.degrees(away_ne[1] / (6_371_000.0 * np.cos(np.radians(lat0)))))
+    ok, stuck, away = await asyncio.gather(
         _drive(tmp_path, "ok"),
         # a throttle that gives ~3 % of the speed PX4 expects: the rover barely moves
-        _drive(tmp_path, "stuck", "RO_MAX_THR_SPEED=100"))
+        _drive(tmp_path, "stuck", "RO_MAX_THR_SPEED=100"),
+        _drive(tmp_path, "away", home=f"{lat1!r},{lon1!r},{alt0!r}"))
     wps = _waypoints_ne()
     # the rover drove on velocity setpoints only, within its speed limit, through every
     # waypoint within NAV_ACC_RAD, and ended in Hold, disarmed
@@ -120,3 +131,10 @@ async def test_fly_drives_a_rover_through_its_corners_and_a_stuck_one_is_held(
     assert min(far) > NAV_ACC_RAD
     assert stuck.last_mode == HOLD and stuck.disarmed_at_end
     assert str(stuck.report["result"]).startswith("missed 2 waypoint(s)")
+    # started away from the planned home: the file's waypoints sit at wps - away_ne in its
+    # local frame, and it drove through them (moved with it, they would be 2.5 m off)
+    assert away.code == 0, away.output[-3000:]
+    geo = [float(np.min(np.linalg.norm(away.pos_offboard - (w - away_ne), axis=1)))
+           for w in wps]
+    print("started away: closest approach to each waypoint [m]:", [round(c, 2) for c in geo])
+    assert max(geo) <= NAV_ACC_RAD, geo

@@ -1,8 +1,10 @@
 """`replay` and the geofence: a plan whose trajectory crosses an exclusion zone is refused with
 exit 2 naming the leg's mission items (nothing flown, no output folder); a fenced plan that stays
-inside flies "ok" with per-leg figures; a flight that breaches the fence (the vehicle started 6 m
-east of the planned home, so the whole flight is shifted over a zone the plan clears by 3 m) is a
-failed result with exit 1, the breach confirmed from the tlog's own GLOBAL_POSITION_INT."""
+inside flies "ok" with per-leg figures; a flight that breaches the fence (blown east of its leg by
+a 9 m/s crosswind, more than the tilt limit holds, over a zone the plan clears by 1 m) is a
+failed result with exit 1, the breach confirmed from the tlog's own GLOBAL_POSITION_INT; a
+vehicle started 6 m east of the planned home still flies the file's own legs (planned from where
+it stands), clear of a zone 3 m east of them."""
 
 from __future__ import annotations
 
@@ -22,6 +24,8 @@ R_EARTH = 6_371_000.0
 POINTS = [(60.0, 0.0), (60.0, 40.0)]
 # 3..9 m east of the north-bound leg item 1 -> item 2, between north 20 and 40
 SIDE_BOX = box(20.0, 40.0, 3.0, 9.0)
+# the same, from 1 m east of the leg
+NEAR_BOX = box(20.0, 40.0, 1.0, 9.0)
 
 
 def _flown_ne(tlog: Path) -> np.ndarray:
@@ -84,13 +88,15 @@ def test_fenced_plan_inside_flies_ok_with_per_leg_figures(tmp_path: Path) -> Non
 
 def test_flight_breaching_the_fence_fails_with_exit_1(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    plan = write_plan(tmp_path / "shifted.plan", POINTS, land=False,
-                      polygons=[(False, SIDE_BOX)])
+    plan = write_plan(tmp_path / "blown.plan", POINTS, land=False,
+                      polygons=[(False, NEAR_BOX)])
     out = tmp_path / "out"
-    code = cli_main(["replay", str(plan), "--out", str(out), "--start-offset", "0,6"])
+    # 9 m/s from the west: holding against it takes 42.5 deg of the 45 deg limit, so the
+    # north-bound leg is flown 1.3-1.7 m east of its line (the plan itself clears the box)
+    code = cli_main(["replay", str(plan), "--out", str(out), "--wind", "9", "--wind-from", "270"])
     text = " ".join(capsys.readouterr().out.split())
     assert code == 1
-    report = json.loads((out / "shifted" / "report.json").read_text())
+    report = json.loads((out / "blown" / "report.json").read_text())
     assert report["ok"] is False
     assert report["result"].startswith(
         "geofence breach: the leg from item 1 to item 2 crosses exclusion polygon 0"), report
@@ -100,9 +106,26 @@ def test_flight_breaching_the_fence_fails_with_exit_1(
     assert b["length_m"] == pytest.approx(20.0, abs=2.0)  # box north 20..40
     assert "geofence breach" in text
     # the tlog says the vehicle really was inside the box
-    ne = _flown_ne(out / "shifted" / "flight.tlog")
-    inside = ((ne[:, 0] > 20.0) & (ne[:, 0] < 40.0) & (ne[:, 1] > 3.0) & (ne[:, 1] < 9.0))
+    ne = _flown_ne(out / "blown" / "flight.tlog")
+    inside = ((ne[:, 0] > 20.0) & (ne[:, 0] < 40.0) & (ne[:, 1] > 1.0) & (ne[:, 1] < 9.0))
     assert inside.sum() > 10
+
+
+def test_a_vehicle_started_away_from_the_planned_home_flies_the_files_own_legs(
+        tmp_path: Path) -> None:
+    plan = write_plan(tmp_path / "shifted.plan", POINTS, land=False,
+                      polygons=[(False, SIDE_BOX)])
+    out = tmp_path / "out"
+    assert cli_main(["replay", str(plan), "--out", str(out), "--start-offset", "0,6"]) == 0
+    report = json.loads((out / "shifted" / "report.json").read_text())
+    assert report["result"] == "ok" and report["geofence_breaches"] == []
+    # the file's own waypoints (geodetic), not ones moved 6 m east with the vehicle
+    assert report["max_waypoint_miss_geo_m"] < 0.5
+    ne = _flown_ne(out / "shifted" / "flight.tlog")
+    assert np.hypot(ne[0, 0], ne[0, 1] - 6.0) < 0.5  # it started 6 m east of the planned home
+    leg = ne[(ne[:, 0] > 5.0) & (ne[:, 0] < 55.0) & (np.abs(ne[:, 1]) < 3.0)]
+    assert len(leg) > 50  # the north-bound leg, on the file's line east = 0
+    assert float(np.max(np.abs(leg[:, 1]))) < 0.5
 
 
 def test_campaign_refuses_a_fence_crossing_plan_before_any_run(

@@ -93,3 +93,38 @@ def test_transfer_error_is_a_vehicle_error_and_a_mission_error() -> None:
     assert type(back) is MissionTransferError and str(back) == str(err)
     assert (back.operation, back.result, back.mav_result) == ("upload", MissionResult.TIMEOUT,
                                                               None)
+
+
+@pytest.mark.parametrize("north_east", [(4.0, -3.0), (0.0, 250.0)])
+def test_rehomed_mission_equals_the_file_loaded_about_that_home(
+        north_east: tuple[float, float]) -> None:
+    """`rehome_mission` against the parser's own home override (`load_mission(home=...)`, which
+    projects fence and rally points while reading the file): the same fence, rally points and
+    flight plan, every position item at its own coordinates."""
+    import numpy as np
+
+    from companion.mission import GeoPoint, mission_to_flight_plan, ned_to_geodetic, rehome_mission
+
+    path = DATA / "geofence.plan"
+    m = load_mission(path)
+    lat, lon, _ = ned_to_geodetic(np.array([*north_east, 0.0]), m.home)
+    moved = rehome_mission(m, float(lat), float(lon))
+    ref = load_mission(path, home=GeoPoint(float(lat), float(lon), m.home.alt_amsl_m))
+    assert moved.home == ref.home and moved.items == ref.items
+    for got, want in zip(moved.geofence.polygons, ref.geofence.polygons, strict=True):
+        assert got.vertices_deg == want.vertices_deg
+        np.testing.assert_allclose(got.vertices_ne_m, want.vertices_ne_m, atol=1e-9)
+    for gc, wc in zip(moved.geofence.circles, ref.geofence.circles, strict=True):
+        np.testing.assert_allclose(gc.center_ne_m, wc.center_ne_m, atol=1e-9)
+    assert len(moved.rally) == len(ref.rally) == 2
+    for gr, wr in zip(moved.rally, ref.rally, strict=True):
+        np.testing.assert_allclose(gr.pos_ned_m, wr.pos_ned_m, atol=1e-9)
+    got_pts = mission_to_flight_plan(moved).points_ned_m()
+    np.testing.assert_allclose(got_pts, mission_to_flight_plan(ref).points_ned_m(), atol=1e-9)
+    # the climb starts at the new home, then every point of the file keeps its place (moved by
+    # minus the new home's offset), the takeoff item's own coordinates first (the file's home)
+    old_pts = mission_to_flight_plan(m).points_ned_m()
+    np.testing.assert_allclose(got_pts[:2, :2], 0.0, atol=1e-12)
+    # (PX4's projection about another centre: a centimetre over 250 m)
+    np.testing.assert_allclose(got_pts[2:, :2], old_pts[1:, :2] - np.array(north_east),
+                               atol=0.02)
