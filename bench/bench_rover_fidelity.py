@@ -32,9 +32,13 @@ Flights (each on a fresh autopilot; real PX4 only while holding /tmp/ecca-px4-fl
   previous one's: the start at home is not the last waypoint's) and cross-track RMS from the
   square's legs (positions about the plan's home) while driving (> 0.3 m/s).
 
-Table: mock / PX4 - 1 per row, median over --repeat flights, the goal |ratio - 1| <= 25 %.
+Table: mock / PX4 - 1 per row, median over --repeat flights (each side's range beside it), the
+goal |ratio - 1| <= 25 %. The path rows (closest approaches, cross-track) carry each side's
+estimate error, one realisation per flight: `--stagger S` arms repeat i i x S s later after
+boot (PX4 SIH's noise repeats at the same time since boot) and the mock's repeat i runs
+`serve --seed i`, so the repeats sample different realisations.
 Both in real time. Run (the script takes the PX4 flight lock itself; do not wrap it in flock):
-`.venv/bin/python bench/bench_rover_fidelity.py [--target mock px4] [--repeat 1]
+`.venv/bin/python bench/bench_rover_fidelity.py [--target mock px4] [--repeat 1] [--stagger S]
 [--mock-estimator ideal|ekf2] [--write]`
 """
 
@@ -99,12 +103,17 @@ class Endpoint:
 
 
 MOCK_ESTIMATOR = "ideal"  # `sitl_mock serve --estimator` of the mock flights (main sets it)
+#: [s] repeat i of a target waits i x STAGGER_S after the autopilot's first HEARTBEAT before it
+#: arms (main sets it): PX4 SIH's noise, and so EKF2's error, repeats at the same time since
+#: boot (two starts armed alike erred alike within 0.01 m), so the repeats of a run sample
+#: different stretches of it; the mock's repeat i runs `serve --seed i` for the same reason
+STAGGER_S = 0.0
 
 
 @contextlib.contextmanager
-def launch(kind: str, folder: Path) -> Iterator[Endpoint]:
-    """A fresh autopilot in real time: the mock rover (`serve --estimator MOCK_ESTIMATOR`) or
-    PX4 main's SIH Ackermann rover (under the flight lock)."""
+def launch(kind: str, folder: Path, seed: int = 0) -> Iterator[Endpoint]:
+    """A fresh autopilot in real time: the mock rover (`serve --estimator MOCK_ESTIMATOR
+    --seed SEED`) or PX4 main's SIH Ackermann rover (under the flight lock)."""
     folder.mkdir(parents=True, exist_ok=True)
     if kind == "px4":
         loc, why = find_px4_sitl("main")
@@ -127,7 +136,7 @@ def launch(kind: str, folder: Path) -> Iterator[Endpoint]:
         proc = subprocess.Popen(
             [sys.executable, "-m", "sitl_mock", "serve", "--vehicle", "rover", "--bind",
              "127.0.0.1:0", "--remote", f"127.0.0.1:{port}", "--no-gcs", "--speed", "1",
-             "--estimator", MOCK_ESTIMATOR],
+             "--estimator", MOCK_ESTIMATOR, "--seed", str(seed)],
             stdout=subprocess.PIPE, stderr=err, text=True, cwd=REPO)
         try:
             assert proc.stdout is not None
@@ -312,13 +321,14 @@ class Link:
 # ----------------------------------------------------------------------------- flights
 
 
-def offboard_flight(ep: Endpoint) -> Record:
-    """Speed step, stop and full-steering turn in OFFBOARD (see the module docstring)."""
+def offboard_flight(ep: Endpoint, hold_s: float = 0.0) -> Record:
+    """Speed step, stop and full-steering turn in OFFBOARD (see the module docstring), armed
+    `hold_s` later than the first repeat (see STAGGER_S)."""
     link = Link(ep)
     try:
         link.wait_heartbeat()
         link.setpoint = lambda: (0.0, 0.0)
-        link.pump(2.0)
+        link.pump(2.0 + hold_s)
         link.rec.marks["arm"] = link.arm()
         link.pump(2.0)  # the setpoint stream is the proof of life OFFBOARD needs
         link.set_mode(6)
@@ -365,13 +375,14 @@ def plan_items(plan: Path) -> tuple[list[Any], tuple[float, float], list[tuple[f
     return items, (float(home[0]), float(home[1])), wps
 
 
-def mission_flight(ep: Endpoint, plan: Path, timeout_s: float) -> Record:
-    """The plan under AUTO.MISSION until the last waypoint is reached and the rover stands."""
+def mission_flight(ep: Endpoint, plan: Path, timeout_s: float, hold_s: float = 0.0) -> Record:
+    """The plan under AUTO.MISSION until the last waypoint is reached and the rover stands;
+    armed `hold_s` later than the first repeat (see STAGGER_S)."""
     items, _home, _wps = plan_items(plan)
     link = Link(ep)
     try:
         link.wait_heartbeat()
-        link.pump(1.0)
+        link.pump(1.0 + hold_s)
         link.upload(items)
         link.rec.marks["arm"] = link.arm()
         link.set_mode(4, 4)
@@ -576,9 +587,9 @@ def fly(kind: str, out: Path, repeat: int, timeout_s: float, reuse: bool = False
                 if reuse:
                     rec = Record(**json.loads(trace.read_text()))
                 else:
-                    with launch(kind, folder / name) as ep:
-                        rec = (offboard_flight(ep) if name == "offboard"
-                               else mission_flight(ep, PLAN, timeout_s))
+                    with launch(kind, folder / name, seed=i) as ep:
+                        rec = (offboard_flight(ep, i * STAGGER_S) if name == "offboard"
+                               else mission_flight(ep, PLAN, timeout_s, i * STAGGER_S))
                     trace.write_text(json.dumps(rec.__dict__))
                 if name == "offboard":
                     res.update(step_metrics(rec))
@@ -598,15 +609,25 @@ def median(runs: list[dict[str, Any]], key: str) -> float:
     return float(np.median(vals)) if vals else math.nan
 
 
+def spread(runs: list[dict[str, Any]], key: str) -> str:
+    """` (min-max)` of a row over the repeats ('' for fewer than two)."""
+    vals = [float(r[key]) for r in runs if key in r and isinstance(r[key], (int, float))]
+    return f" ({min(vals):.3g}-{max(vals):.3g})" if len(vals) > 1 else ""
+
+
 def table(results: dict[str, list[dict[str, Any]]]) -> str:
+    """The fidelity table: per row the median over each target's repeats (their range in
+    brackets) and mock / PX4 - 1 of the medians against BOUND."""
     lines = ["| row | mock | real PX4 main | mock / PX4 - 1 | within 25 % |",
              "|---|---|---|---|---|"]
+    mock, px4 = results.get("mock", []), results.get("px4", [])
     for key, label, unit in ROWS:
-        m, p = median(results.get("mock", []), key), median(results.get("px4", []), key)
+        m, p = median(mock, key), median(px4, key)
         r = m / p - 1.0 if math.isfinite(m) and math.isfinite(p) and p != 0 else math.nan
         ok = "yes" if abs(r) <= BOUND else ("no" if math.isfinite(r) else "-")
         u = f" {unit}" if unit else ""
-        lines.append(f"| {label} | {m:.3g}{u} | {p:.3g}{u} | {r:+.0%} | {ok} |")
+        lines.append(f"| {label} | {m:.3g}{u}{spread(mock, key)} | {p:.3g}{u}{spread(px4, key)} "
+                     f"| {r:+.0%} | {ok} |")
     return "\n".join(lines)
 
 
@@ -620,12 +641,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--write", action="store_true", help="write the table to BENCHMARKS.md")
     ap.add_argument("--reuse", action="store_true",
                     help="fly nothing: recompute the table from the traces in --out")
+    ap.add_argument("--stagger", type=float, default=0.0,
+                    help="repeat i arms i x STAGGER s later after boot, and the mock's runs "
+                         "`serve --seed i` (independent estimate-error realisations)")
     ap.add_argument("--mock-estimator", choices=("ideal", "ekf2"), default="ideal",
                     help="`sitl_mock serve --estimator` of the mock flights (ekf2: the estimate "
                          "errors measured on PX4 main's rover; --write then writes a subsection)")
     args = ap.parse_args(argv)
-    global MOCK_ESTIMATOR
+    global MOCK_ESTIMATOR, STAGGER_S
     MOCK_ESTIMATOR = args.mock_estimator
+    STAGGER_S = args.stagger
     t0 = time.perf_counter()
     results = {k: fly(k, args.out, args.repeat, args.timeout, args.reuse) for k in args.target}
     (args.out / "results.json").write_text(json.dumps(results, indent=1))
