@@ -3,7 +3,10 @@ and its split into stop-to-stop chunks for ``companion.trajectory.plan``.
 
 Semantics follow PX4's mission mode (multicopter, default parameters) where they matter:
 - Takeoff: vertical climb at home to ``max(item altitude, MIS_TAKEOFF_ALT)``
-  (``takeoff_alt_default``), then to the takeoff item's latitude/longitude (if given). A
+  (``takeoff_alt_default``), then to the takeoff item's latitude/longitude if it is given and
+  further from home than NAV_ACC_RAD (``acceptance_default``: within it the climb's top has
+  reached the item; a vehicle re-homed where it stands, a GPS fix from the planned home, does
+  not turn back to it). A
   mission that starts with another position item gets the same implicit takeoff to that item's
   altitude.
 - Waypoint (16): param1 hold [s] (stop there), param2 acceptance radius [m] (0 -> NAV_ACC_RAD,
@@ -27,9 +30,10 @@ Semantics follow PX4's mission mode (multicopter, default parameters) where they
   companion cannot fly (in OFFBOARD PX4 disarms after touchdown). A mission that just ends
   hovers at its last waypoint (``final_action="loiter"``).
 - VTOL_TAKEOFF (84) / VTOL_LAND (85): flown as TAKEOFF / LAND, as by PX4 on a multicopter.
-- The takeoff climb's top counts as the takeoff item only where the item is (a TAKEOFF with no
-  other latitude/longitude); an implicit takeoff, or the climb before a TAKEOFF item's own
-  position, is a point the plan adds (``item_index`` None), as is the touchdown point.
+- The takeoff climb's top counts as the takeoff item where the item is (a TAKEOFF with no
+  other latitude/longitude, or one within NAV_ACC_RAD of home); an implicit takeoff, or the
+  climb before a TAKEOFF item's own position, is a point the plan adds (``item_index`` None), as
+  is the touchdown point.
 - Rover: altitudes are ignored (down = 0), no takeoff climb or descent.
 """
 
@@ -460,7 +464,8 @@ def mission_to_flight_plan(
         if not airborne:
             # PX4: the first position item starts with a takeoff at the current position
             if cmd == CMD_TAKEOFF:
-                moves = ne is not None and math.hypot(ne[0] - cur[0], ne[1] - cur[1]) > _MERGE_TOL_M
+                moves = ne is not None and math.hypot(ne[0] - cur[0], ne[1] - cur[1]) > max(
+                    _MERGE_TOL_M, acceptance_default)
                 takeoff(alt_rel, it, at_item=not moves)
                 if moves:
                     assert ne is not None

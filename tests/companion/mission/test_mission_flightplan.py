@@ -181,6 +181,25 @@ def test_takeoff_away_from_home_climbs_first() -> None:
     check_chunks(fp)
 
 
+@pytest.mark.parametrize(("north_m", "hop"), [(1.5, False), (1.99, False), (2.01, True),
+                                              (3.0, True)])
+def test_takeoff_within_nav_acc_rad_of_home_is_reached_at_the_climbs_top(
+        north_m: float, hop: bool) -> None:
+    """A TAKEOFF item a GPS fix from home (a mission re-homed where the vehicle stands): within
+    NAV_ACC_RAD (2 m) the climb's top is the item, beyond it the plan flies to the item."""
+    doc = json.loads((EXAMPLES / "square.plan").read_text())
+    lat = HOME.lat_deg + math.degrees(north_m / 6_371_000.0)
+    doc["mission"]["items"][0]["params"][4:6] = [lat, HOME.lon_deg]
+    fp = mission_to_flight_plan(parse_plan(json.dumps(doc)), acceptance_default=2.0)
+    np.testing.assert_allclose(fp.waypoints[0].pos_ned_m, [0.0, 0.0, -10.0])
+    if hop:
+        assert fp.waypoints[0].item_index is None and fp.waypoints[1].item_index == 1
+        assert fp.waypoints[1].pos_ned_m[0] == pytest.approx(north_m, abs=1e-3)
+    else:  # the climb's top is item 1; the next point is the square's first corner
+        assert fp.waypoints[0].item_index == 1 and fp.waypoints[1].item_index == 2
+    check_chunks(fp)
+
+
 def test_ten_waypoints_example_geometry() -> None:
     path = EXAMPLES / "ten_waypoints.plan"
     raw = _raw_items(path)
