@@ -364,7 +364,7 @@ def cmd_profile(args: argparse.Namespace) -> str:
 
     from companion.flight.summary import summarize
     from companion.replay.flight import fly_schedule
-    from companion.replay.runner import ReplayConfig, fence_shift, prepare_mission
+    from companion.replay.runner import ReplayConfig, prepare_mission
 
     cfg = ReplayConfig(mode=args.mode)
     t0 = time.perf_counter()
@@ -375,8 +375,7 @@ def cmd_profile(args: argparse.Namespace) -> str:
     t_loop = time.perf_counter() - t0
     t0 = time.perf_counter()
     summarize(log, prep.schedule, prep.mission, flight.origin, flight_plan=prep.flight_plan,
-              fence_shift_ned=fence_shift(cfg, flight.origin), leg_bounds_s=prep.leg_bounds_s,
-              bound_s=prep.bound_s)
+              leg_bounds_s=prep.leg_bounds_s, bound_s=prep.bound_s)
     t_sum = time.perf_counter() - t0
     sim = flight.lk.now
     prof = cProfile.Profile()

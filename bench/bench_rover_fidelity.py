@@ -604,14 +604,18 @@ def fly(kind: str, out: Path, repeat: int, timeout_s: float, reuse: bool = False
     return runs
 
 
+def _values(runs: list[dict[str, Any]], key: str) -> list[float]:
+    return [float(r[key]) for r in runs if key in r and isinstance(r[key], (int, float))]
+
+
 def median(runs: list[dict[str, Any]], key: str) -> float:
-    vals = [float(r[key]) for r in runs if key in r and isinstance(r[key], (int, float))]
+    vals = _values(runs, key)
     return float(np.median(vals)) if vals else math.nan
 
 
 def spread(runs: list[dict[str, Any]], key: str) -> str:
     """` (min-max)` of a row over the repeats ('' for fewer than two)."""
-    vals = [float(r[key]) for r in runs if key in r and isinstance(r[key], (int, float))]
+    vals = _values(runs, key)
     return f" ({min(vals):.3g}-{max(vals):.3g})" if len(vals) > 1 else ""
 
 

@@ -301,9 +301,9 @@ async def rehome_at_vehicle(v: Any, mission: Mission, timeout_s: float
     off = geodetic_to_ned(g.lat_deg, g.lon_deg, g.alt_amsl_m, mission.home)
     here = rehome_mission(mission, g.lat_deg, g.lon_deg)
     local = v.telemetry.position
-    shift = None if local is None else (
-        np.asarray(geodetic_to_ned(g.lat_deg, g.lon_deg, g.alt_amsl_m, here.home), float)
-        - np.asarray(local.pos_ned, float))
+    # the vehicle stands at the re-homed mission's home, off[2] below it (the altitude kept)
+    shift = None if local is None else (np.array([0.0, 0.0, float(off[2])])
+                                        - np.asarray(local.pos_ned, float))
     return math.hypot(off[0], off[1]), here, shift
 
 

@@ -162,14 +162,6 @@ def prepare_mission(
                            bound)
 
 
-def fence_shift(config: ReplayConfig, origin: FloatArray) -> FloatArray:
-    """Local mock NED -> mission frame: the mission is planned about where the vehicle booted
-    (its planned home moved by `config.start_offset_ne_m`: `prepare_mission`), which the
-    companion placed at `origin` in the mock's local frame."""
-    del config  # the frame is the same with or without a start offset
-    return -np.asarray(origin, dtype=np.float64)
-
-
 @dataclass(frozen=True)
 class ReplayRun:
     """One flight of a prepared mission: the flight (streamed, or onboard: the module flies),
@@ -239,7 +231,6 @@ def _flown_report(prep: PreparedMission, config: ReplayConfig, flight: Flight | 
     wall = time.perf_counter() - wall0
     flown = summarize(log, prep.schedule, prep.mission, flight.origin,
                       flight_plan=prep.flight_plan,
-                      fence_shift_ned=fence_shift(config, flight.origin),
                       leg_bounds_s=prep.leg_bounds_s, bound_s=prep.bound_s)
     sim_s = flight.lk.now
     return dataclasses.replace(
@@ -307,8 +298,7 @@ def replay_file(
             res, px4_log = fly_px4_mission(config, mission, home, schedule.duration_s)
             px4 = summarize(px4_log, schedule, mission, flight.origin,
                             flight_plan=prep.flight_plan,
-                            fence_shift_ned=fence_shift(config, flight.origin),
-                            kind="px4_mission")
+                                  kind="px4_mission")
             px4 = dataclasses.replace(px4, result=res)
             px4 = dataclasses.replace(px4, result=breach_result(px4))
             px4 = dataclasses.replace(px4, result=missed_result(px4))
@@ -366,7 +356,6 @@ __all__ = [
     "ReplayResult",
     "ReplayRun",
     "breach_result",
-    "fence_shift",
     "fly_px4_mission",
     "fly_schedule",
     "missed_result",
