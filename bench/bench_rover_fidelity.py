@@ -165,6 +165,9 @@ class Record:
     # the estimate: t, x, y, vx, vy, time since boot [s] (time_boot_ms)
     lpos: list[tuple[float, ...]] = field(default_factory=list)
     att: list[tuple[float, ...]] = field(default_factory=list)  # t, yaw, yawspeed, boot [s]
+    # the estimate in latitude/longitude (GLOBAL_POSITION_INT): t, north, east [m about HOME],
+    # time since boot [s]; unlike LOCAL_POSITION_NED it does not depend on the EKF's origin
+    gpos: list[tuple[float, ...]] = field(default_factory=list)
     # the true motion (HIL_STATE_QUATERNION): t, north, east [m about HOME], v north, v east
     # [m/s], yaw, yaw rate, its time_usec [s]
     truth: list[tuple[float, ...]] = field(default_factory=list)
@@ -230,6 +233,9 @@ class Link:
         elif k == "ATTITUDE":
             r.att.append((t, m.yaw, m.yawspeed, m.time_boot_ms * 1e-3))
             self.yaw = m.yaw
+        elif k == "GLOBAL_POSITION_INT":
+            ne = _ne(np.array([m.lat * 1e-7]), np.array([m.lon * 1e-7]), *HOME)[0]
+            r.gpos.append((t, float(ne[0]), float(ne[1]), m.time_boot_ms * 1e-3))
         elif k == "HIL_STATE_QUATERNION":
             self.hil = True
             w, x, y, z = m.attitude_quaternion
@@ -259,6 +265,7 @@ class Link:
             self.pump(0.1)
         for _ in range(50):
             self.command(511, 115.0, 20000.0)  # SET_MESSAGE_INTERVAL HIL_STATE_QUATERNION
+            self.command(511, 33.0, 20000.0)  # GLOBAL_POSITION_INT at 50 Hz too
             self.pump(0.5)
             if self.hil:
                 break
@@ -532,7 +539,8 @@ def note_estimator(out: Path) -> str:
     vals = ", ".join(f"{k} {v:g}" for k, v in pre.items())
     text = ("The mock rover as above but with `serve --estimator ekf2` (" + vals + "): it "
             "steers by an estimate with EKF2-like Gauss-Markov errors (horizontal position, "
-            "velocity, heading) and both autopilots are judged on their truth "
+            "velocity, heading), a heading bias per start and a position lead along the motion, "
+            "and both autopilots are judged on their truth "
             "(HIL_STATE_QUATERNION, which the mock now streams on request too).")
     meas = out / "estimate-error-px4.json"
     if meas.exists():
@@ -547,8 +555,18 @@ def note_estimator(out: Path) -> str:
                  f"{md.get('yaw_tau_s')} s); standing, position {s.get('pos_std_ne_m')} m, "
                  f"velocity {s.get('vel_std_ne_m_s')} m/s, heading {s.get('yaw_std_deg')} deg; "
                  f"time constants (the model's autocorrelation fitted) position "
-                 f"{m.get('pos_tau_s')} s, velocity {m.get('vel_tau_s')} s; offsets per PX4 start "
-                 f"{m.get('pos_mean_m')} m (not modelled).")
+                 f"{m.get('pos_tau_s')} s, velocity {m.get('vel_tau_s')} s.")
+        lh = m.get("lead_and_heading", {})
+        if lh:
+            legs = lh.get("legs", {})
+            text += (f" From GLOBAL_POSITION_INT (geodetic, free of the EKF's origin): the "
+                     f"estimate leads the truth by {lh['lead_s']} s of travel (by speed "
+                     f"{lh['lead_s_by_speed']}), {lh['residual']['pos_std_ne_m']} m (N / E std) "
+                     f"left after it, tau {lh['residual']['tau_s']} s; rover_square's legs: "
+                     f"heading error per flight {legs.get('heading_mean_by_flight_deg')} deg "
+                     f"(RMS {legs.get('heading_rms_of_flight_means_deg')}), the estimate "
+                     f"{legs.get('offset_rms_m')} m RMS beside the leg, "
+                     f"{legs.get('offset_gain_k_m')} m x tan(heading error).")
     return text
 
 

@@ -22,6 +22,14 @@ The same per kind of flight (offboard: the speed step, stop and full-steering tu
 rover_square; standing) under "by_flight". `--fly-standing S` first records S seconds of a
 standing PX4 rover (fresh PX4, under the flight lock) next to the other traces, the long quiet
 stretch the autocorrelation wants.
+Lead and heading (traces with GLOBAL_POSITION_INT, "gpos": the estimate in latitude/longitude,
+free of the EKF's origin): the position error along the true velocity, least squares against the
+true speed over samples above LEAD_MIN_M_S, is a lead in seconds of travel ("lead_s", and per
+speed band); the error left after lead x velocity, per axis while driving, and its time constant
+("residual"); on rover_square's four legs (mission traces, 5 m after a corner to 3 m before the
+next) each leg's mean heading error, its RMS over flights' means (a heading off for a whole start)
+and about them, and the estimate's mean offset from the leg, with the gain k of offset =
+-k tan(heading error) (pure pursuit's look-ahead: "legs").
 Usage: `python bench/rover_estimate_error.py [--out DIR] [--kind px4] [--fly-standing 90]`
 (DIR: bench_rover_fidelity.py's --out; reads DIR/KIND-*/{offboard,mission,standing}-trace.json).
 """
@@ -51,6 +59,7 @@ DRIVING_M_S = 0.3
 STRAIGHT_RAD_S = 0.3
 GRID_S = 0.05
 MAX_LAG_S = 6.0
+LEAD_MIN_M_S = 0.5
 
 
 def to_receive_clock(boot_s: FloatArray, recv_s: FloatArray, block_s: float = 5.0
@@ -173,6 +182,107 @@ def summarise(flights: list[dict[str, FloatArray]]) -> dict[str, Any]:
     return out
 
 
+def _gpos_and_truth(rec: dict[str, Any]
+                    ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+    """(t on the receive clock, the GLOBAL_POSITION_INT rows within the truth's span, the truth's
+    north, east, v north, v east at those times); None for a trace without them."""
+    g = np.asarray(rec.get("gpos", []), dtype=float)
+    if len(g) < 50:
+        return None
+    tr = np.asarray(rec["truth"], dtype=float)
+    t = to_receive_clock(g[:, 3], g[:, 0])
+    ok = (t >= tr[0, 0]) & (t <= tr[-1, 0])
+    t, g = t[ok], g[ok]
+    return t, g, np.column_stack([np.interp(t, tr[:, 0], tr[:, c]) for c in (1, 2, 3, 4)])
+
+
+def lead_and_heading(traces: dict[str, list[dict[str, Any]]]) -> dict[str, Any]:
+    """The lead, the residual and the legs' heading of the module docstring, from the raw traces
+    by kind of flight ({"offboard": [...], "mission": [...]}); {} without GLOBAL_POSITION_INT."""
+    along, speed, res, rhos = [], [], [], []
+    pairs = [x for x in (_gpos_and_truth(r) for group in traces.values() for r in group) if x]
+    for _t, g, tru in pairs:
+        err = g[:, 1:3] - tru[:, :2]
+        v = np.hypot(tru[:, 2], tru[:, 3])
+        u = tru[:, 2:4] / np.maximum(v, 1e-9)[:, None]
+        moving = v > LEAD_MIN_M_S
+        along.append(np.sum(err * u, axis=1)[moving])
+        speed.append(v[moving])
+    if not along:
+        return {}
+    a, v = np.concatenate(along), np.concatenate(speed)
+    lead = float(np.dot(a, v) / np.dot(v, v))
+    bands = {}
+    for lo, hi in ((0.5, 1.5), (1.5, 2.5), (2.5, 3.5)):
+        sel = (v >= lo) & (v < hi)
+        if sel.sum() > 20:
+            bands[f"{lo:g}-{hi:g} m/s"] = round(float(a[sel].mean() / v[sel].mean()), 3)
+    for t, g, tru in pairs:
+        r = g[:, 1:3] - tru[:, :2] - lead * tru[:, 2:4]
+        drive = np.hypot(tru[:, 2], tru[:, 3]) > DRIVING_M_S
+        res.append(r[drive] - r[drive].mean(axis=0))
+        rhos += [acf(t, r[:, j] - r[:, j].mean()) for j in (0, 1)]
+    rr = np.vstack(res)
+    out: dict[str, Any] = {
+        "lead_s": round(lead, 3), "lead_s_by_speed": bands,
+        "residual": {"pos_std_ne_m": [round(float(c), 3) for c in rr.std(axis=0)],
+                     "pos_std_by_flight_m": [round(float(np.mean(x.std(axis=0))), 3)
+                                             for x in res],
+                     "tau_s": round(fit_tau(np.nanmean(np.array(rhos), axis=0)), 2)}}
+    legs = mission_legs(traces.get("mission", []))
+    if legs:
+        out["legs"] = legs
+    return out
+
+
+def mission_legs(recs: list[dict[str, Any]]) -> dict[str, Any]:
+    """rover_square's legs in the mission traces: heading error and the estimate's offset."""
+    _items, home, wps = fid.plan_items(fid.PLAN)
+    shift = fid._ne(np.array([home[0]]), np.array([home[1]]), *fid.HOME)[0]
+    corners = np.vstack([[0.0, 0.0], fid._ne(np.array([w[0] for w in wps]),
+                                             np.array([w[1] for w in wps]), *home)])
+    heading, offset, by_flight = [], [], []
+    for rec in recs:
+        g = np.asarray(rec.get("gpos", []), dtype=float)
+        at = np.asarray(rec["att"], dtype=float)
+        if len(g) < 50:
+            continue
+        tr = np.asarray(rec["truth"], dtype=float)
+        tr = tr[tr[:, 0] >= rec["marks"]["arm"]]
+        tg = to_receive_clock(g[:, 3], g[:, 0])
+        ta = to_receive_clock(at[:, 3], at[:, 0])
+        est = np.column_stack([np.interp(tr[:, 0], tg, g[:, c]) for c in (1, 2)]) - shift
+        p = tr[:, 1:3] - shift
+        yaw_est = np.interp(tr[:, 0], ta, np.unwrap(at[:, 1]))
+        mine = []
+        for k in range(len(corners) - 1):
+            a, b = corners[k], corners[k + 1]
+            length = float(np.hypot(*(b - a)))
+            u = (b - a) / length
+            n = np.array([-u[1], u[0]])
+            s_tr, c_tr = (p - a) @ u, (p - a) @ n
+            sel = (s_tr > 5.0) & (s_tr < length - 3.0) & (np.abs(c_tr) < 2.0)
+            if sel.sum() < 20:
+                continue
+            e = np.angle(np.exp(1j * (yaw_est[sel] - tr[sel, 5])))
+            heading.append(float(np.mean(e)))
+            offset.append(float(np.mean((est[sel] - a) @ n)))
+            mine.append(heading[-1])
+        if mine:
+            by_flight.append(float(np.mean(mine)))
+    if not heading:
+        return {}
+    h, o = np.array(heading), np.array(offset)
+    tan = np.tan(h)
+    return {"legs": len(h),
+            "heading_mean_by_flight_deg": [round(math.degrees(x), 2) for x in by_flight],
+            "heading_rms_of_flight_means_deg": round(math.degrees(
+                float(np.sqrt(np.mean(np.square(by_flight))))), 2),
+            "heading_rms_deg": round(math.degrees(float(np.sqrt(np.mean(h * h)))), 2),
+            "offset_rms_m": round(float(np.sqrt(np.mean(o * o))), 3),
+            "offset_gain_k_m": round(float(-np.dot(o, tan) / np.dot(tan, tan)), 2)}
+
+
 def fly_standing(folder: Path, seconds: float) -> Path:
     """A fresh PX4 rover standing (disarmed, in Hold) for `seconds`; its trace."""
     trace = folder / "standing-trace.json"
@@ -196,14 +306,18 @@ def main(argv: list[str] | None = None) -> int:
     if args.fly_standing > 0.0:
         fly_standing(args.out / f"{args.kind}-standing", args.fly_standing)
     flights: dict[str, list[dict[str, FloatArray]]] = {}
+    raw: dict[str, list[dict[str, Any]]] = {}
     for trace in sorted(args.out.glob(f"{args.kind}-*/*-trace.json")):
-        fl = flight_errors(json.loads(trace.read_text()))
+        rec = json.loads(trace.read_text())
+        fl = flight_errors(rec)
         flights.setdefault(trace.name.removesuffix("-trace.json"), []).append(fl)
+        raw.setdefault(trace.name.removesuffix("-trace.json"), []).append(rec)
         print(f"  {trace.relative_to(args.out)}: {len(fl['t'])} samples")
     if not flights:
         ap.error(f"no {args.kind} traces in {args.out}")
     res = summarise([f for group in flights.values() for f in group])
     res["by_flight"] = {name: summarise(group) for name, group in flights.items()}
+    res["lead_and_heading"] = lead_and_heading(raw)
     (args.out / f"estimate-error-{args.kind}.json").write_text(json.dumps(res, indent=1))
     print(json.dumps(res, indent=1))
     return 0

@@ -9,9 +9,17 @@ channels are independent of each other (as measured on PX4 SITL). The quadrotor
 from their own random stream, and add the errors to what their controllers and the telemetry
 see; their truth stays available (`true_state`, HIL_STATE_QUATERNION on request).
 
+Besides the random part EKF2's position estimate on SIH leads the truth along the motion by
+~0.1 s of travel (measured on PX4 main's rover: 0.09-0.11 s at 0.5-3 m/s, the same at every speed;
+EKF2 fuses SIH's GPS, which has no delay, as if it were EKF2_GPS_DELAY old). The rover models it
+as the true velocity times SIM_EST_LEAD_S added to the position estimate. Its heading estimate
+also carries an offset for a whole PX4 start (1-4 deg; the Gauss-Markov error's own mean over a
+flight is ~1 deg): one draw per vehicle, std SIM_EST_YAW_BIAS [deg].
+
 Parameters (mock-only names, sitl_mock/params.py): SIM_EST_XY_STD [m], SIM_EST_VXY_STD [m/s],
 SIM_EST_XY_TAU [s] (horizontal position / velocity, per axis); SIM_EST_YAW_STD [deg],
-SIM_EST_YAW_TAU [s] (heading; the rover only). All 0 by default: the estimate is the truth.
+SIM_EST_YAW_TAU [s], SIM_EST_YAW_BIAS [deg], SIM_EST_LEAD_S [s] (the rover only). All 0 by
+default: the estimate is the truth.
 """
 
 from __future__ import annotations
@@ -42,6 +50,16 @@ def horizontal_config(p: Mapping[str, float]) -> tuple[float, float, float]:
     SIM_EST_XY_STD, SIM_EST_VXY_STD, SIM_EST_XY_TAU give them (stds >= 0, tau >= 0.05 s)."""
     return (max(p["SIM_EST_XY_STD"], 0.0), max(p["SIM_EST_VXY_STD"], 0.0),
             max(p["SIM_EST_XY_TAU"], 0.05))
+
+
+def lead_config(p: Mapping[str, float]) -> float:
+    """How far the position estimate leads the truth [s of travel], SIM_EST_LEAD_S (>= 0)."""
+    return max(p["SIM_EST_LEAD_S"], 0.0)
+
+
+def yaw_bias_config(p: Mapping[str, float]) -> float:
+    """Std [rad] of the per-start heading bias, from SIM_EST_YAW_BIAS [deg] (>= 0)."""
+    return math.radians(max(p["SIM_EST_YAW_BIAS"], 0.0))
 
 
 def yaw_config(p: Mapping[str, float]) -> tuple[float, float]:

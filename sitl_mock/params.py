@@ -310,6 +310,13 @@ PARAMS.update(
         "SIM_EST_YAW_TAU": ParamSpec(
             2.1, False, "time constant of the heading estimate error [s]"
         ),
+        "SIM_EST_YAW_BIAS": ParamSpec(
+            0.0, False, "std of the heading estimate's bias for a whole start [deg] (0 = off)"
+        ),
+        "SIM_EST_LEAD_S": ParamSpec(
+            0.0, False, "the position estimate leads the truth by this much travel [s] "
+            "(EKF2 on SIH's GPS: ~0.1 s)"
+        ),
     }
 )
 
@@ -500,6 +507,8 @@ _MOCK_RANGES: dict[str, tuple[float, float]] = {
     "SIM_EST_XY_TAU": (0.05, 600.0),
     "SIM_EST_YAW_STD": (0.0, 180.0),
     "SIM_EST_YAW_TAU": (0.05, 600.0),
+    "SIM_EST_LEAD_S": (0.0, 2.0),
+    "SIM_EST_YAW_BIAS": (0.0, 180.0),
     "SIM_GYRO_SIH": (0.0, 10.0),
 }
 

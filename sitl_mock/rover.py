@@ -23,8 +23,10 @@ normalised output with a first-order lag SIH_T_TAU [s].
 - Estimate (EKF2's error on SIH, estimate_error.py; off by default): north / east position and
   velocity errors (SIM_EST_XY_STD [m], SIM_EST_VXY_STD [m/s], SIM_EST_XY_TAU [s], as the
   quadrotor's) and a heading error (SIM_EST_YAW_STD [deg], SIM_EST_YAW_TAU [s]), advanced every
-  physics step. The control loops and the navigator steer by the estimate (position, heading,
-  forward speed = the velocity estimate along the estimated heading; the yaw rate is the true
+  physics step; the position estimate also leads the truth by SIM_EST_LEAD_S of travel (EKF2's
+  on SIH: ~0.1 s), and the heading carries a bias drawn once per start (std SIM_EST_YAW_BIAS
+  [deg]). The control loops and the navigator steer by the estimate (position, heading, forward
+  speed = the velocity estimate along the estimated heading; the yaw rate is the true
   one: no gyro model) and `state` / `attitude` (the telemetry) report it; `true_state` is the
   truth (HIL_STATE_QUATERNION on request).
 
@@ -44,7 +46,13 @@ from __future__ import annotations
 import math
 import random
 
-from sitl_mock.estimate_error import advance_gauss_markov, horizontal_config, yaw_config
+from sitl_mock.estimate_error import (
+    advance_gauss_markov,
+    horizontal_config,
+    lead_config,
+    yaw_bias_config,
+    yaw_config,
+)
 from sitl_mock.flight_control import quat_from_yaw, wrap_pi
 from sitl_mock.params import ROVER_AIRFRAME, ParamStore
 from sitl_mock.rover_control import AckermannController, RoverParams, position_control
@@ -119,6 +127,8 @@ class Rover:
         self._est_yaw: list[float] = [0.0] * 2
         self._est_rng = random.Random(seed)
         self._est_yaw_rng = random.Random(seed * 7919 + 104729)
+        # this start's heading bias, in units of SIM_EST_YAW_BIAS (one draw per vehicle)
+        self._est_yaw_z = random.Random(seed * 104729 + 7919).gauss(0.0, 1.0)
         self._est_injected = False
         self._read_estimator()
 
@@ -177,7 +187,9 @@ class Rover:
     @property
     def attitude(self) -> tuple[Quat, Vec3]:
         """= (`state.q_wxyz`, `state.omega_frd`): level, the estimated heading; yaw rate only."""
-        yaw = wrap_pi(self._yaw + self._est_yaw[1]) if self._est_on else self._yaw
+        if not self._est_on:
+            return quat_from_yaw(self._yaw), (0.0, 0.0, self._r)
+        yaw = wrap_pi(self._yaw + self._est_yaw[1] + self._est_yaw_bias)
         return quat_from_yaw(yaw), (0.0, 0.0, self._r)
 
     @property
@@ -231,8 +243,9 @@ class Rover:
         c, s = math.cos(self._yaw), math.sin(self._yaw)
         if not self._est_on:
             return self._x, self._y, self._yaw, self._v * c, self._v * s
-        e = self._est
-        return (self._x + e[1], self._y + e[3], wrap_pi(self._yaw + self._est_yaw[1]),
+        e, lead = self._est, self._est_lead * self._v
+        return (self._x + e[1] + lead * c, self._y + e[3] + lead * s,
+                wrap_pi(self._yaw + self._est_yaw[1] + self._est_yaw_bias),
                 self._v * c + e[5], self._v * s + e[7])
 
     def _measured(self) -> tuple[float, float, float, float]:
@@ -377,7 +390,10 @@ class Rover:
         self._est_yaw_cfg = yaw_config(self._params)
         self._est_xy_on = self._est_xy[0] > 0.0 or self._est_xy[1] > 0.0
         self._est_yaw_on = self._est_yaw_cfg[0] > 0.0
-        self._est_on = self._est_xy_on or self._est_yaw_on or self._est_injected
+        self._est_lead = lead_config(self._params)
+        self._est_yaw_bias = yaw_bias_config(self._params) * self._est_yaw_z
+        self._est_on = (self._est_xy_on or self._est_yaw_on or self._est_lead > 0.0
+                        or self._est_yaw_bias != 0.0 or self._est_injected)
 
     def _integrate(self, dt: float, thr_cmd: float, steer_cmd: float) -> None:
         p = self._params
