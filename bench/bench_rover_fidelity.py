@@ -590,12 +590,12 @@ ROWS: tuple[tuple[str, str, str], ...] = (
 )
 
 
-def fly(kind: str, out: Path, repeat: int, timeout_s: float, reuse: bool = False
-        ) -> list[dict[str, Any]]:
+def fly(kind: str, out: Path, repeat: int, timeout_s: float, reuse: bool = False,
+        first: int = 0) -> list[dict[str, Any]]:
     """`repeat` offboard and mission flights on `kind`; their metrics (and traces on disk).
     `reuse`: no flights, the metrics of the traces a previous run left in `out`."""
     runs = []
-    for i in range(repeat):
+    for i in range(first, first + repeat):
         res: dict[str, Any] = {}
         folder = out / f"{kind}-{i}"
         for name in ("offboard", "mission"):
@@ -666,6 +666,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--stagger", type=float, default=0.0,
                     help="repeat i arms i x STAGGER s later after boot, and the mock's runs "
                          "`serve --seed i` (independent estimate-error realisations)")
+    ap.add_argument("--first", type=int, default=0,
+                    help="number the repeats from FIRST (folders, seeds and stagger): more "
+                         "independent samples in a second run")
     ap.add_argument("--mock-estimator", choices=("ideal", "ekf2"), default="ideal",
                     help="`sitl_mock serve --estimator` of the mock flights (ekf2: the estimate "
                          "errors measured on PX4 main's rover; --write then writes a subsection)")
@@ -674,7 +677,8 @@ def main(argv: list[str] | None = None) -> int:
     MOCK_ESTIMATOR = args.mock_estimator
     STAGGER_S = args.stagger
     t0 = time.perf_counter()
-    results = {k: fly(k, args.out, args.repeat, args.timeout, args.reuse) for k in args.target}
+    results = {k: fly(k, args.out, args.repeat, args.timeout, args.reuse, args.first)
+               for k in args.target}
     (args.out / "results.json").write_text(json.dumps(results, indent=1))
     text = table(results)
     print(text)
