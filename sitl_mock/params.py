@@ -311,10 +311,11 @@ PARAMS.update(
             2.1, False, "time constant of the heading estimate error [s]"
         ),
         "SIM_EST_YAW_BIAS": ParamSpec(
-            0.0, False, "std of the heading estimate's bias for a whole start [deg] (0 = off)"
+            0.0, False, "rover: std of the heading estimate's bias for a whole start [deg] "
+            "(0 = off)"
         ),
         "SIM_EST_LEAD_S": ParamSpec(
-            0.0, False, "the position estimate leads the truth by this much travel [s] "
+            0.0, False, "rover: the position estimate leads the truth by this much travel [s] "
             "(EKF2 on SIH's GPS: ~0.1 s)"
         ),
     }
