@@ -21,7 +21,12 @@ from pathlib import Path
 import numpy as np
 from pymavlink import mavutil
 
-EARTH_RADIUS_M = 6371000.0
+BENCH = Path(__file__).resolve().parent
+if str(BENCH) not in sys.path:
+    sys.path.insert(0, str(BENCH))
+
+from bench_rover_fidelity import _ne  # noqa: E402  (equirectangular north, east about a point)
+
 BANDS = ((1.0, 3.0), (3.0, 5.0), (5.0, 7.0), (7.0, 9.0))
 
 
@@ -42,18 +47,12 @@ def lead(path: Path, sysid: int | None = None) -> dict[str, float]:
     if len(est) < 50 or len(tru) < 50:
         return {"lead_s": math.nan, "samples": 0.0}
     e, h = np.array(est), np.array(tru)
-    lat0, lon0 = h[0, 1], h[0, 2]
-
-    def ne(lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
-        return np.column_stack([np.radians(lat - lat0) * EARTH_RADIUS_M,
-                                np.radians(lon - lon0) * EARTH_RADIUS_M * math.cos(
-                                    math.radians(lat0))])
-
+    lat0, lon0 = float(h[0, 1]), float(h[0, 2])
     ok = (h[:, 0] > e[0, 0]) & (h[:, 0] < e[-1, 0])
     h = h[ok]
-    ge = ne(e[:, 1], e[:, 2])
+    ge = _ne(e[:, 1], e[:, 2], lat0, lon0)
     at = np.column_stack([np.interp(h[:, 0], e[:, 0], ge[:, j]) for j in (0, 1)])
-    err = at - ne(h[:, 1], h[:, 2])
+    err = at - _ne(h[:, 1], h[:, 2], lat0, lon0)
     v = np.hypot(h[:, 3], h[:, 4])
     u = h[:, 3:5] / np.maximum(v, 1e-9)[:, None]
     along = np.sum(err * u, axis=1)

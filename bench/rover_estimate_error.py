@@ -310,8 +310,9 @@ def main(argv: list[str] | None = None) -> int:
     for trace in sorted(args.out.glob(f"{args.kind}-*/*-trace.json")):
         rec = json.loads(trace.read_text())
         fl = flight_errors(rec)
-        flights.setdefault(trace.name.removesuffix("-trace.json"), []).append(fl)
-        raw.setdefault(trace.name.removesuffix("-trace.json"), []).append(rec)
+        kind = trace.name.removesuffix("-trace.json")
+        flights.setdefault(kind, []).append(fl)
+        raw.setdefault(kind, []).append(rec)
         print(f"  {trace.relative_to(args.out)}: {len(fl['t'])} samples")
     if not flights:
         ap.error(f"no {args.kind} traces in {args.out}")

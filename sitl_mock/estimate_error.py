@@ -10,11 +10,11 @@ from their own random stream, and add the errors to what their controllers and t
 see; their truth stays available (`true_state`, HIL_STATE_QUATERNION on request).
 
 Besides the random part EKF2's position estimate on SIH leads the truth along the motion by
-~0.1 s of travel (measured on PX4 main's rover: 0.09-0.11 s at 0.5-3 m/s, the same at every speed;
-EKF2 fuses SIH's GPS, which has no delay, as if it were EKF2_GPS_DELAY old). The rover models it
-as the true velocity times SIM_EST_LEAD_S added to the position estimate. Its heading estimate
-also carries an offset for a whole PX4 start (1-4 deg; the Gauss-Markov error's own mean over a
-flight is ~1 deg): one draw per vehicle, std SIM_EST_YAW_BIAS [deg].
+~0.1 s of travel (measured on PX4 main's rover: 0.10-0.13 s in every speed band from 0.5 to
+3.5 m/s; most likely EKF2 taking SIH's GPS, which has no delay, for EKF2_GPS_DELAY old). The rover
+models it as the true velocity times SIM_EST_LEAD_S added to the position estimate. Its heading
+estimate also carries an offset for a whole PX4 start (-4.9 to +3.1 deg over six flights, RMS
+3.0 deg): one draw per vehicle, std SIM_EST_YAW_BIAS [deg].
 
 Parameters (mock-only names, sitl_mock/params.py): SIM_EST_XY_STD [m], SIM_EST_VXY_STD [m/s],
 SIM_EST_XY_TAU [s] (horizontal position / velocity, per axis); SIM_EST_YAW_STD [deg],

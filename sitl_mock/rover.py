@@ -187,10 +187,7 @@ class Rover:
     @property
     def attitude(self) -> tuple[Quat, Vec3]:
         """= (`state.q_wxyz`, `state.omega_frd`): level, the estimated heading; yaw rate only."""
-        if not self._est_on:
-            return quat_from_yaw(self._yaw), (0.0, 0.0, self._r)
-        yaw = wrap_pi(self._yaw + self._est_yaw[1] + self._est_yaw_bias)
-        return quat_from_yaw(yaw), (0.0, 0.0, self._r)
+        return quat_from_yaw(self._yaw_estimate()), (0.0, 0.0, self._r)
 
     @property
     def steering(self) -> float:
@@ -244,9 +241,14 @@ class Rover:
         if not self._est_on:
             return self._x, self._y, self._yaw, self._v * c, self._v * s
         e, lead = self._est, self._est_lead * self._v
-        return (self._x + e[1] + lead * c, self._y + e[3] + lead * s,
-                wrap_pi(self._yaw + self._est_yaw[1] + self._est_yaw_bias),
+        return (self._x + e[1] + lead * c, self._y + e[3] + lead * s, self._yaw_estimate(),
                 self._v * c + e[5], self._v * s + e[7])
+
+    def _yaw_estimate(self) -> float:
+        """The heading estimate [rad]: the truth plus its error and this start's bias."""
+        if not self._est_on:
+            return self._yaw
+        return wrap_pi(self._yaw + self._est_yaw[1] + self._est_yaw_bias)
 
     def _measured(self) -> tuple[float, float, float, float]:
         """(north, east [m], heading [rad], forward speed [m/s]) as the control loops read them:

@@ -297,8 +297,7 @@ def replay_file(
         if config.compare_px4_mission:
             res, px4_log = fly_px4_mission(config, mission, home, schedule.duration_s)
             px4 = summarize(px4_log, schedule, mission, flight.origin,
-                            flight_plan=prep.flight_plan,
-                                  kind="px4_mission")
+                            flight_plan=prep.flight_plan, kind="px4_mission")
             px4 = dataclasses.replace(px4, result=res)
             px4 = dataclasses.replace(px4, result=breach_result(px4))
             px4 = dataclasses.replace(px4, result=missed_result(px4))
