@@ -41,6 +41,7 @@ from companion.flight.governor import (
     feasible_rate,
     warped,
 )
+from companion.flight.lean import lean_of_reference, lean_residual, tilt_ne_of_q, tilt_of_q
 from companion.flight.report import FlightEstimates, SetpointLimits, SetpointQuality
 from companion.mavlink.setpoints import (
     AttitudeSetpoint,
@@ -213,12 +214,6 @@ class Touchdown:
         6 |dv| / ramp^2 within `jerk_m_s3`."""
         dv = abs(self.descent_m_s - self.v0_m_s)
         return max(1.5 * dv / self.accel_m_s2, math.sqrt(6.0 * dv / self.jerk_m_s3))
-
-
-def tilt_of_q(q_wxyz: tuple[float, float, float, float]) -> float:
-    """Angle between the body z axis of attitude `q_wxyz` (FRD -> NED) and vertical [rad]."""
-    _w, x, y, _z = q_wxyz
-    return math.acos(max(-1.0, min(1.0, 1.0 - 2.0 * (x * x + y * y))))
 
 
 def vehicle_limited(config: TrackingConfig, limits: SetpointLimits) -> TrackingConfig:
@@ -473,6 +468,14 @@ class TrackingSource:
         # there fought its slowing (campaign, rates mode in 5 m/s of wind: 0.17 -> 0.26 m)
         sh.enabled = sh.rate >= 1.0 and math.hypot(*sh.disturbance_ne) <= FEASIBLE_MIN_DIST
         sh.advance(t_s)
+
+    def _plan_lean(self, ref: Reference) -> tuple[float, float]:
+        """`lean_of_reference` with the controller's drag: what `quality` subtracts from the
+        commanded lean, so that its oscillation measure sees the feedback, not the plan."""
+        ctl = self.controller
+        assert ctl is not None
+        p = ctl.config.params
+        return lean_of_reference(ref, ctl.drag / p.mass, p.g)
 
     def _touched_down(self, t_s: float, now: float, est: StateEstimate,
                       ref: Reference) -> bool:
@@ -784,7 +787,7 @@ class TrackingSource:
             self._last_thrust = float(thrust)
             q = (float(qw), float(qx), float(qy), float(qz))
             quality.add(now, self._last_thrust, tilt_of_q(q), (0.0, 0.0, float(rate_ff)),
-                        airborne)
+                        airborne, lean_residual(tilt_ne_of_q(q), self._plan_lean(ahead)))
             return AttitudeSetpoint(q, float(thrust), _opt(float(rate_ff)))
         self.controller.link_rtt_s = telemetry.link_rtt_s
         r = self.controller.rates(now, est, ref)
@@ -792,5 +795,6 @@ class TrackingSource:
         self._last_thrust = float(r.thrust_norm)
         rates = (float(w[0]), float(w[1]), float(w[2]))
         q_des = _level_q(est.q_wxyz) if r.fallback else self.controller.last_q_des
-        quality.add(now, self._last_thrust, tilt_of_q(q_des), rates, airborne)
+        quality.add(now, self._last_thrust, tilt_of_q(q_des), rates, airborne,
+                    lean_residual(tilt_ne_of_q(q_des), self._plan_lean(ref)))
         return RatesSetpoint(rates, float(r.thrust_norm))

@@ -6,8 +6,11 @@ from inside the setpoint source): shared by the replay and the real-PX4 tests.""
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import Any
 
+import numpy as np
 from pymavlink import mavutil
 
 #: MAV_LANDED_STATE_IN_AIR
@@ -51,13 +54,12 @@ class SetpointSeries:
         return tuple(max((abs(r[k]) for r in rows), default=0.0) for k in range(3))  # type: ignore[return-value]
 
 
-def read_setpoints(path: str) -> SetpointSeries:
-    """The SET_ATTITUDE_TARGET frames of the tlog at `path` with the vehicle state then."""
+def _frames(path: str) -> Iterator[tuple[Any, str, float | None]]:
+    """Every frame of the tlog at `path` with its type and the vehicle's height [m] above its
+    first LOCAL_POSITION_NED sample then (None before it)."""
     conn = mavutil.mavlink_connection(path, dialect="common")
-    out = SetpointSeries()
     z0: float | None = None
-    height = 0.0
-    in_air = False
+    height: float | None = None
     try:
         while True:
             msg = conn.recv_match(blocking=False)
@@ -68,25 +70,60 @@ def read_setpoints(path: str) -> SetpointSeries:
                 if z0 is None:
                     z0 = float(msg.z)
                 height = z0 - float(msg.z)
-            elif kind == "EXTENDED_SYS_STATE":
-                in_air = int(msg.landed_state) == _IN_AIR
-            elif kind == "SET_ATTITUDE_TARGET":
-                mask = int(msg.type_mask)
-                _w, x, y, _z = (float(c) for c in msg.q)
-                tilt = None
-                if not mask & 128:
-                    c33 = 1.0 - 2.0 * (x * x + y * y)  # z_b . e3 of the commanded attitude
-                    tilt = math.degrees(math.acos(max(-1.0, min(1.0, c33))))
-                rates = None
-                if not mask & 3:
-                    rates = (float(msg.body_roll_rate), float(msg.body_pitch_rate),
-                             float(msg.body_yaw_rate))
-                out.t_s.append(float(msg._timestamp))
-                out.thrust.append(float(msg.thrust))
-                out.tilt_deg.append(tilt)
-                out.body_rates.append(rates)
-                out.in_air.append(in_air)
-                out.height_m.append(height)
+            yield msg, kind, height
     finally:
         conn.close()
+
+
+def read_setpoints(path: str) -> SetpointSeries:
+    """The SET_ATTITUDE_TARGET frames of the tlog at `path` with the vehicle state then."""
+    out = SetpointSeries()
+    in_air = False
+    for msg, kind, height in _frames(path):
+        if kind == "EXTENDED_SYS_STATE":
+            in_air = int(msg.landed_state) == _IN_AIR
+        elif kind == "SET_ATTITUDE_TARGET":
+            mask = int(msg.type_mask)
+            _w, x, y, _z = (float(c) for c in msg.q)
+            tilt = None
+            if not mask & 128:
+                c33 = 1.0 - 2.0 * (x * x + y * y)  # z_b . e3 of the commanded attitude
+                tilt = math.degrees(math.acos(max(-1.0, min(1.0, c33))))
+            rates = None
+            if not mask & 3:
+                rates = (float(msg.body_roll_rate), float(msg.body_pitch_rate),
+                         float(msg.body_yaw_rate))
+            out.t_s.append(float(msg._timestamp))
+            out.thrust.append(float(msg.thrust))
+            out.tilt_deg.append(tilt)
+            out.body_rates.append(rates)
+            out.in_air.append(in_air)
+            out.height_m.append(0.0 if height is None else height)
     return out
+
+
+def attitude_wobble_deg(path: str, min_height_m: float = 3.0, window_s: float = 0.5) -> float:
+    """How much the vehicle rocks, from its own ATTITUDE frames in the tlog at `path`: roll
+    and pitch [deg] resampled at 100 Hz on the vehicle's clock (time_boot_ms) while it is more
+    than `min_height_m` above its first position sample, less their centred `window_s` moving
+    mean (a 1.2 Hz oscillation passes, a corner's lean mostly not); the RMS of the two
+    together [deg]. Independent of the companion's own measure
+    (`companion.flight.report.SetpointQuality`, which sees the commands)."""
+    rows: list[tuple[float, float, float]] = []
+    for msg, kind, height in _frames(path):
+        if kind == "ATTITUDE" and height is not None and height > min_height_m:
+            rows.append((msg.time_boot_ms / 1e3, math.degrees(float(msg.roll)),
+                         math.degrees(float(msg.pitch))))
+    if len(rows) < 100:
+        raise ValueError(f"{path}: {len(rows)} ATTITUDE frames above {min_height_m} m")
+    rows.sort()
+    t = np.array([r[0] for r in rows])
+    grid = np.arange(t[0], t[-1], 0.01)
+    n = round(window_s / 0.01) | 1
+    half = n // 2
+    total = 0.0
+    for k in (1, 2):
+        y = np.interp(grid, t, np.array([r[k] for r in rows]))
+        hp = (y - np.convolve(y, np.ones(n) / n, mode="same"))[half:-half]
+        total += float(np.mean(hp * hp))
+    return math.sqrt(total)

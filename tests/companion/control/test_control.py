@@ -674,11 +674,11 @@ def test_config_refuses_bad_rates_mode_settings(kw: dict[str, float]) -> None:
 
 
 def test_rates_separation_caps_only_rates_mode() -> None:
-    """rates_separation > 0 flies rates mode with `rates_mode_gains` and attitude mode with the
-    configured gains; 0 flies both with the configured gains."""
+    """rates_separation > 0: rates mode flies `rates_mode_gains`, attitude its own; 0: both."""
     att = AttitudeGains()
-    capped = rates_mode_gains(TrackingGains(), att, separation=2.5)
-    assert capped.kp_xy < TrackingGains().kp_xy  # the cap is active for the defaults
+    fast = TrackingGains(kp_xy=20.0, kd_xy=8.5)  # sqrt(20) > k_roll 10 / 2.5: capped
+    capped = rates_mode_gains(fast, att, separation=2.5)
+    assert capped.kp_xy < fast.kp_xy
 
     def run(cfg: TrackingConfig, mode: str) -> np.ndarray:
         ctl = TrackingController(cfg)
@@ -692,7 +692,7 @@ def test_rates_separation_caps_only_rates_mode() -> None:
         return ctl.last.acc_cmd_ned
 
     def cfg(gains: TrackingGains | None = None, sep: float = 0.0) -> TrackingConfig:
-        return TrackingConfig(params=_params(), gains=gains or TrackingGains(), attitude_gains=att,
+        return TrackingConfig(params=_params(), gains=gains or fast, attitude_gains=att,
                               estimate_hover_thrust=False, rates_separation=sep)
 
     np.testing.assert_allclose(run(cfg(sep=2.5), "rates"), run(cfg(capped), "rates"))
