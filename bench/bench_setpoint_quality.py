@@ -1,6 +1,6 @@
 """Setpoint quality before and after a change, in one run (issue 24): thrust steps between
-consecutive attitude/rates setpoints, commanded tilt and time over PX4's MPC_TILTMAX_AIR,
-judged from each flight's .tlog alone.
+consecutive attitude/rates setpoints, commanded tilt and time over PX4's MPC_TILTMAX_AIR, and
+how the vehicle rocks (its own attitude, high-passed), judged from each flight's .tlog alone.
 
 Two versions of the code fly the same missions: `--before REF` (a git revision, checked out in a
 temporary worktree and run from there: `python -m companion` from the worktree's folder imports
@@ -34,6 +34,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from pymavlink import mavutil
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -55,12 +56,15 @@ def quality_of_tlog(path: Path) -> dict[str, Any]:
     prev: tuple[float, float, bool] | None = None
     steps: list[float] = []
     tilt_max, over_s, t_last = 0.0, 0.0, None
+    att: list[tuple[float, float, float]] = []  # (vehicle time [s], roll, pitch [deg]) > 3 m up
     try:
         while (m := conn.recv_match(blocking=False)) is not None:
             kind = m.get_type()
             if kind == "LOCAL_POSITION_NED":
                 z0 = float(m.z) if z0 is None else z0
                 height = z0 - float(m.z)
+            elif kind == "ATTITUDE" and height > 3.0:
+                att.append((m.time_boot_ms * 1e-3, math.degrees(m.roll), math.degrees(m.pitch)))
             elif kind == "EXTENDED_SYS_STATE":
                 in_air = int(m.landed_state) == 2
             elif kind == "SET_ATTITUDE_TARGET":
@@ -81,7 +85,20 @@ def quality_of_tlog(path: Path) -> dict[str, Any]:
     return {"pairs": len(steps), "max_step": max(steps, default=0.0),
             "over_0_05": sum(s > STEP_GOAL for s in steps),
             "over_0_1": sum(s > 0.1 for s in steps), "max_tilt_deg": tilt_max,
-            "over_tilt_s": over_s}
+            "over_tilt_s": over_s, "wobble_deg": _wobble(att)}
+
+
+def _wobble(att: list[tuple[float, float, float]]) -> float:
+    """How the vehicle rocks [deg]: its roll and pitch on a 100 Hz grid of its own clock, less
+    their centred 0.51 s mean, RMS of both together (NaN without 100 samples)."""
+    if len(att) < 100:
+        return math.nan
+    a = np.array(sorted(att))
+    grid = np.arange(a[0, 0], a[-1, 0], 0.01)
+    box = np.ones(51) / 51.0
+    hp = [np.interp(grid, a[:, 0], a[:, k]) for k in (1, 2)]
+    hp = [(y - np.convolve(y, box, mode="same"))[25:-25] for y in hp]
+    return float(np.sqrt(np.mean(hp[0] ** 2 + hp[1] ** 2)))
 
 
 @contextlib.contextmanager
@@ -141,7 +158,8 @@ def _row(label: str, b: dict[str, Any], a: dict[str, Any]) -> str:
         if "error" in r:
             return r["error"]
         text = (f"{r['max_step']:.3f} / {r['over_0_05']} / {r['over_0_1']} / "
-                f"{r['max_tilt_deg']:.1f} / {r['over_tilt_s']:.2f}")
+                f"{r['max_tilt_deg']:.1f} / {r['over_tilt_s']:.2f} / "
+                f"{r.get('wobble_deg', math.nan):.2f}")
         if r.get("duration_s") is not None:
             text += (f" (fly: {r['duration_s']:.1f} s, RMS {r['rms_m']:.3f} m, "
                      f"{r['reached']} waypoints)")
@@ -205,7 +223,9 @@ def main(argv: list[str] | None = None) -> int:
         "the vehicle in the air and it is more than 0.5 m up; tilt of the commanded quaternion "
         "(attitude mode) against MPC_TILTMAX_AIR 45 deg.", "",
         "Cells: largest thrust step / steps over 0.05 / steps over 0.1 / largest commanded tilt "
-        "[deg] / time over 45 deg [s]; real PX4 rows add `fly`'s own report: armed time flown "
+        "[deg] / time over 45 deg [s] / wobble [deg] (the vehicle's own roll and pitch in "
+        "ATTITUDE more than 3 m up, less their centred 0.51 s mean, RMS); real PX4 rows add "
+        "`fly`'s own report: armed time flown "
         "(ARM to disarm), RMS distance to the reference, waypoints reached.", "",
         "| mission, mode | before | after |", "| --- | --- | --- |", *rows, ""])
     print(text)

@@ -12,6 +12,7 @@ where the vehicle is."""
 from __future__ import annotations
 
 import math
+from itertools import pairwise
 
 import numpy as np
 import pytest
@@ -140,3 +141,39 @@ def test_the_flight_begins_where_the_vehicle_stopped_and_joins_the_plan_smoothly
     done = [r for r in refs if np.linalg.norm(plan(r[1]).pos_ned - START) >= BLEND_M]
     assert done and all(np.linalg.norm(r.pos_ned - plan(tr).pos_ned) < 1e-9
                         for _t, tr, r, _sp in done)
+
+
+def test_the_setpoint_figures_start_at_liftoff_not_at_the_spin_up() -> None:
+    """A vehicle standing 0.25 m above the plan's start (EKF2's height rose since the plan was
+    made; real PX4 SIH: 0.1-0.25 m) that PX4 already calls in the air at the spin-up: the
+    handover's end pulls its height reference back down, a thrust step, counted nowhere while
+    it stands (real PX4: 0.04-0.12 in the report of a flight that was fine); once it is
+    LIFTOFF_M above where it stood, steps count."""
+    from companion.flight.tracking import LIFTOFF_M
+
+    def takeoff(t: float) -> Reference:  # from rest at START, up at 0.2 m/s^2 (NED: -z)
+        return Reference(START + np.array([0.0, 0.0, -0.1 * t * t]), np.array([0.0, 0.0, -0.2 * t]),
+                         np.array([0.0, 0.0, -0.2]))
+
+    def at(now: float, pos: np.ndarray, landed: int) -> TelemetrySnapshot:
+        s = snap(now, pos, (0.0, 0.0, 0.0))
+        return TelemetrySnapshot(position=s.position, attitude=s.attitude,
+                                 extended=ExtendedState(now, landed, 0), now_s=now)
+
+    src = TrackingSource(takeoff, "attitude", PARAMS, time_scaling=False)
+    stand = START + np.array([0.0, 0.0, -0.25])
+    src(0.0, at(T0, stand, 1))  # priming, on the ground
+    thrusts, t = [], 0.0
+    while t < HANDOVER_S + 0.2:
+        t += 0.01
+        sp = src(t, at(T0 + t, stand, 2))  # PX4: in the air at the spin-up
+        assert isinstance(sp, AttitudeSetpoint)
+        thrusts.append(sp.thrust_norm)
+    step = max(abs(b - a) for a, b in pairwise(thrusts))
+    assert step > 0.05  # the handover's end steps the thrust of the standing vehicle
+    assert src.quality.max_thrust_step == 0.0  # not counted: not lifted
+    # lifted: LIFTOFF_M above where it stood, the same step is counted
+    up = stand + np.array([0.0, 0.0, -LIFTOFF_M - 0.01])
+    src(t + 0.01, at(T0 + t + 0.01, up, 2))
+    src(t + 0.02, at(T0 + t + 0.02, up + np.array([0.0, 0.3, 0.0]), 2))
+    assert src.quality.max_thrust_step > 0.0
