@@ -246,6 +246,11 @@ PARAMS.update(
             1.0, False, "scale of SIH's gyro noise (0.14/0.07/0.03 rad/s roll/pitch/yaw per "
             "250 Hz sample while the rotors push; 0 = off)"
         ),
+        "SIM_SP_DELAY": ParamSpec(
+            0.006, False, "an offboard attitude/rates setpoint is flown this long after it "
+            "arrives [s]: PX4 v1.16 SIH answers 4-9 ms later than the mock without it "
+            "(bench/attitude_sweep.py, 0.8-1.6 Hz); 0 = from the next step"
+        ),
     }
 )
 
@@ -511,6 +516,7 @@ _MOCK_RANGES: dict[str, tuple[float, float]] = {
     "SIM_EST_LEAD_S": (0.0, 2.0),
     "SIM_EST_YAW_BIAS": (0.0, 180.0),
     "SIM_GYRO_SIH": (0.0, 10.0),
+    "SIM_SP_DELAY": (0.0, 0.1),
 }
 
 

@@ -34,9 +34,10 @@ class TrackingGains:
     hover included, and the vehicle with it. Wobble of the vehicle's attitude (high-passed RMS)
     was 4.6-5.8 deg at 20 / 8.5, 3.2 at 17.5 / 8, 2.1-2.2 at 15 / 7.4 and 1.6 at 12 / 6.5.
     Tracking: 0.134-0.137 m RMS, 0.134, 0.140-0.142 and 0.148-0.149 on the square; figure-8 at
-    6 m/s (truth RMS) 0.196, -, 0.192, 0.198 m. The mock oscillates from kp_xy 27 (BENCHMARKS.md,
-    "The 1.2 Hz rocking"). They assume telemetry latency under ~50 ms; with ~100 ms use kp_xy 6,
-    kd_xy 4.5, ki_xy 1 and attitude gains k_roll = k_pitch = 6.5.
+    6 m/s (truth RMS) 0.196, -, 0.192, 0.198 m. The mock rocks only from kp_xy ~25 (27 before its
+    setpoint delay `SIM_SP_DELAY`; BENCHMARKS.md, "The 1.2 Hz rocking"). They assume telemetry
+    latency under ~50 ms; with ~100 ms use kp_xy 6, kd_xy 4.5, ki_xy 1 and attitude gains
+    k_roll = k_pitch = 6.5.
     """
 
     kp_xy: float = 14.0

@@ -289,6 +289,8 @@ class Autopilot:
         if onboard is not None and onboard.due(t_phys):
             onboard.cycle()  # before the controllers: its setpoint is flown from this step on
         cmdr = self.commander
+        if self.offboard.pending:
+            self.offboard.release()
         ob_target = self.offboard.target
         if (cmdr.armed and cmdr.mode is _OFFBOARD and ob_target is not None
                 and type(ob_target) is cmdr.control_kind):

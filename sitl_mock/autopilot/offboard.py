@@ -7,7 +7,7 @@ link alive for COM_OF_LOSS_T seconds (`fresh`); the commander decides what a sta
 from __future__ import annotations
 
 import math
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from typing import Any
 
@@ -46,6 +46,8 @@ class OffboardInput:
         self.last_position: PositionTarget | None = None
         self.last_attitude: AttitudeTarget | None = None
         self.on_setpoint: Callable[[], None] = lambda: None
+        # attitude/rates setpoints received, flown from SIM_SP_DELAY later: (due [s], target)
+        self.pending: deque[tuple[float, AttitudeTarget]] = deque()
 
     @property
     def fresh(self) -> bool:
@@ -180,9 +182,25 @@ class OffboardInput:
     def _accept(self, target: PositionTarget | AttitudeTarget) -> None:
         self.stats["rx_setpoints"] += 1
         self.last_t = self.clock.t
+        delay = float(self.params["SIM_SP_DELAY"])
+        if delay > 0.0 and isinstance(target, AttitudeTarget):
+            self.pending.append((self.clock.t + delay, target))
+            self.release()
+        else:
+            self.pending.clear()
+            self._fly(target)
+        self.on_setpoint()
+
+    def _fly(self, target: PositionTarget | AttitudeTarget) -> None:
         self.target = target
         if isinstance(target, PositionTarget):
             self.last_position = target
         else:
             self.last_attitude = target
-        self.on_setpoint()
+
+    def release(self) -> None:
+        """The attitude/rates setpoints due by now become `target` (SIM_SP_DELAY; each physics
+        step calls this before the controllers run)."""
+        pending, t = self.pending, self.clock.t
+        while pending and pending[0][0] <= t + 1e-9:
+            self._fly(pending.popleft()[1])

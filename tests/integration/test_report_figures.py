@@ -13,7 +13,9 @@ when the drag estimator came on by default with the disturbance taken out of its
 position gains came down from kp_xy 20 / kd_xy 8.5 to 14 / 7.1 (session 31: the old ones
 rocked the vehicle at 1.2 Hz on real PX4; the mock's RMS errors 0.7 % lower to 10 % higher,
 every waypoint and thrust step unchanged), with the reports' new tilt-oscillation figures
-(whose 2 s windows moved when the setpoint figures began at liftoff: 0.1-0.5 deg).
+(whose 2 s windows moved when the setpoint figures began at liftoff: 0.1-0.5 deg), and when
+the mock flew offboard attitude setpoints SIM_SP_DELAY (6 ms) after they arrived, as PX4 does
+(RMS errors within 1.1 %, largest thrust steps within 0.0013).
 Their correctness is asserted by the
 other replay tests (waypoints from the tlog, setpoint quality, touchdown). A change of flight
 behaviour must show up here and be re-recorded on purpose, with the reason in the commit:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from itertools import pairwise
 
 import numpy as np
 import pytest
@@ -255,3 +256,38 @@ def test_entering_offboard_on_attitude_setpoints_flies_them_at_once() -> None:
     h.run_until(lambda: _tilt(h) > math.radians(5), 1.0,
                 lambda: att_setpoint(h, tilt, 0.5))
     assert h.ap.mode.name == "OFFBOARD" and h.t - t0 < 0.2
+
+
+def _roll_after_step(delay_s: float) -> tuple[float, list[tuple[float, float]]]:
+    """Hover in OFFBOARD, level attitude setpoints for 1 s (the commander's 2 Hz control mode
+    catches up with the kind), then a 15 deg roll attitude setpoint every 10 ms: (the time the
+    first was sent [s since boot], the ATTITUDE (time, roll [deg]) after it)."""
+    h = Harness(params={"SIM_SP_DELAY": delay_s, "SIM_GYRO_SIH": 0.0})
+    in_offboard(h)
+    h.run(1.0, lambda: att_setpoint(h, (1.0, 0.0, 0.0, 0.0), 0.5))
+    q = q_from_euler(math.radians(15.0), 0.0, 0.0)
+    t0 = h.now_boot
+    h.run(0.6, lambda: att_setpoint(h, q, 0.5 / math.cos(math.radians(15.0))))
+    return t0, [(m.time_boot_ms * 1e-3, math.degrees(m.roll)) for m in h.msgs("ATTITUDE")
+                if m.time_boot_ms * 1e-3 >= t0]
+
+
+def _crossing(rows: list[tuple[float, float]], level: float) -> float:
+    """First time [s] the roll crosses `level` [deg] (linear between samples)."""
+    for (ta, ra), (tb, rb) in pairwise(rows):
+        if ra < level <= rb:
+            return ta + (level - ra) / (rb - ra) * (tb - ta)
+    raise AssertionError(f"roll never reached {level} deg")
+
+
+@pytest.mark.parametrize("delay_s", [0.008, 0.05])
+def test_attitude_setpoints_are_flown_sim_sp_delay_after_they_arrive(delay_s: float) -> None:
+    """SIM_SP_DELAY: the roll response to an attitude step is the undelayed one, later by the
+    delay: its 20 / 50 / 80 % crossings of a 15 deg step move by the delay, within one physics
+    step (4 ms: the delayed setpoint is flown from the first step after it is due)."""
+    t0, base = _roll_after_step(0.0)
+    t1, late = _roll_after_step(delay_s)
+    assert t1 == pytest.approx(t0)
+    for level in (3.0, 7.5, 12.0):
+        shift = _crossing(late, level) - _crossing(base, level)
+        assert shift == pytest.approx(delay_s, abs=0.0045)
