@@ -18,24 +18,24 @@ def tilt_ne_of_q(q_wxyz: tuple[float, float, float, float]) -> tuple[float, floa
     """The lean of attitude `q_wxyz`'s thrust axis (-body z, FRD -> NED) toward north and
     east: its tilt from vertical [rad] along the horizontal direction it points to."""
     w, x, y, z = q_wxyz
-    hx, hy = -2.0 * (x * z + w * y), -2.0 * (y * z - w * x)
-    s = math.hypot(hx, hy)
-    if s < 1e-12:
-        return (0.0, 0.0)
-    tilt = math.atan2(s, 1.0 - 2.0 * (x * x + y * y))
-    return (tilt * hx / s, tilt * hy / s)
+    return _lean(-2.0 * (x * z + w * y), -2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y))
 
 
 def lean_of_reference(ref: Reference, drag_per_kg: float, g: float) -> tuple[float, float]:
     """The lean (as `tilt_ne_of_q`) the plan itself asks for at `ref`: the thrust that gives its
     acceleration against gravity and the linear drag `drag_per_kg` [1/s] at its velocity."""
     a, v = ref.acc_ned, ref.vel_ned
-    hx = float(a[0]) + drag_per_kg * float(v[0])
-    hy = float(a[1]) + drag_per_kg * float(v[1])
+    return _lean(float(a[0]) + drag_per_kg * float(v[0]), float(a[1]) + drag_per_kg * float(v[1]),
+                 g - float(a[2]))
+
+
+def _lean(hx: float, hy: float, up: float) -> tuple[float, float]:
+    """The lean [rad, north and east] of an axis with horizontal part (hx, hy) and vertical
+    part `up` (any common scale): its angle from vertical along (hx, hy)."""
     s = math.hypot(hx, hy)
     if s < 1e-12:
         return (0.0, 0.0)
-    tilt = math.atan2(s, g - float(a[2]))
+    tilt = math.atan2(s, up)
     return (tilt * hx / s, tilt * hy / s)
 
 
