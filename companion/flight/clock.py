@@ -16,7 +16,10 @@ SETTLED_BLOCKS = 8
 #: in steps: a lockstep autopilot clock that stalled 46 ms (real PX4 SITL in CI, 2026-11-29)
 #: raised the line that much at once when the stall's block became the newest minimum, and the
 #: controller's extrapolation at 5 m/s jumped 0.23 m: a thrust step of 0.095 between setpoints
-#: 10 ms apart. Slewed at 0.1 s/s that takes 0.46 s; PX4's clock drifts ~0.01 s/s.
+#: 10 ms apart. Slewed at 0.1 s/s that takes 0.46 s. The fitted drift itself is followed at
+#: once: PX4 SITL on a slow host runs at 0.7-0.93x real time (0.08-0.43 s/s of drift), and an
+#: offset held to the slew fell behind by seconds, so that every sample looked stale and the
+#: controller sat in its hover fallback for the rest of the flight (real PX4, 2026-12-01).
 OFFSET_SLEW = 0.1
 
 
@@ -63,6 +66,7 @@ class SampleClock:
         self._last_boot = -math.inf
         self._out: float | None = None  # the offset given [s] (slewed toward a + b t_boot)
         self._out_t: float | None = None  # receive time [s] it was last moved at
+        self._out_boot = 0.0  # the boot time [s] it was last moved for
 
     @property
     def drift(self) -> float:
@@ -71,8 +75,9 @@ class SampleClock:
 
     def local_time(self, t_boot_s: float, t_receive_s: float) -> float:
         """Local time [s] at which the sample stamped `t_boot_s` [s] was taken. Once the
-        clock has settled (SETTLED_BLOCKS completed blocks), the offset it gives moves at most
-        OFFSET_SLEW s per second of receive time toward the fitted line."""
+        clock has settled (SETTLED_BLOCKS completed blocks), the offset it gives follows the
+        fitted line's slope (the drift) and moves at most OFFSET_SLEW s per second of receive
+        time toward the line besides."""
         key = (t_boot_s, t_receive_s)
         if key != self._last_key:
             self._last_key = key
@@ -82,9 +87,13 @@ class SampleClock:
             if out is None or t_last is None or len(self._blocks) <= SETTLED_BLOCKS:
                 self._out = target
             else:
+                # along the line's slope at once (a clock that runs steadily slow or fast),
+                # only the rest (a step of the line) slewed
+                pred = out + self._b * (t_boot_s - self._out_boot)
                 step = OFFSET_SLEW * max(0.0, t_receive_s - t_last)
-                self._out = out + min(step, max(-step, target - out))
+                self._out = pred + min(step, max(-step, target - pred))
             self._out_t = t_receive_s
+            self._out_boot = t_boot_s
         out = self._out
         assert out is not None
         # never after its arrival (the fitted slope's noise could tilt the line that far)
