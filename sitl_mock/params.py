@@ -251,6 +251,12 @@ PARAMS.update(
             "arrives [s]: PX4 v1.16 SIH answers 4-9 ms later than the mock without it "
             "(bench/attitude_sweep.py, 0.8-1.6 Hz); 0 = from the next step"
         ),
+        "SIM_SPEED_FACTOR": ParamSpec(
+            1.0, False, "simulated seconds per second of the clock that drives the mock (the "
+            "wall clock, or a replay's lockstep clock), read at boot: PX4 SITL on a slow host "
+            "runs at 0.7-0.93x real time (PX4_SIM_SPEED_FACTOR sets it on purpose); the "
+            "vehicle, its clock and its stamps all run at that rate"
+        ),
     }
 )
 
@@ -517,6 +523,7 @@ _MOCK_RANGES: dict[str, tuple[float, float]] = {
     "SIM_EST_YAW_BIAS": (0.0, 180.0),
     "SIM_GYRO_SIH": (0.0, 10.0),
     "SIM_SP_DELAY": (0.0, 0.1),
+    "SIM_SPEED_FACTOR": (0.1, 10.0),
 }
 
 

@@ -402,7 +402,8 @@ class Vehicle(VehicleBase):
             pos_ned=None if pos is None else pos.pos_ned,
             traj_time_s=getattr(source, "reference_time_s", None),
             arrived=bool(getattr(source, "arrived", False)),
-            stalled_s=float(getattr(source, "stalled_s", 0.0)))
+            stalled_s=float(getattr(source, "stalled_s", 0.0)),
+            blind_s=float(getattr(source, "blind_s", 0.0)))
 
     async def _send_command(self, a: SendCommand) -> tuple[int, bool, str, int | None]:
         """Send one command of the flight sequence; (command, ok, reason, MAV_RESULT)."""

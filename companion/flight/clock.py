@@ -211,6 +211,8 @@ class FlightClock:
         self._offset = 0.0  # flight time - time_boot origin: flight time is local-clock-like
         self._t_local: float | None = None
         self._t_flight = 0.0
+        self._lag = 0.0  # local - flight time [s]: flight time is kept as the local clock less
+        # this, so that at full speed it is the local clock to the bit
 
     def observe(self, time_boot_s: float, t_receive_s: float) -> None:
         """A telemetry sample stamped `time_boot_s` [s] by the vehicle, received at local time
@@ -240,5 +242,12 @@ class FlightClock:
             excess = self._t_flight - (self._boot + self._offset) - self.lead_s
             rate = min(max(1.0 - self.gain_per_s * excess, 0.0), 1.0)
         self._t_local = local_s
-        self._t_flight += rate * dt
+        if rate < 1.0:
+            self._lag += (1.0 - rate) * dt
+        self._t_flight = local_s - self._lag
         return self._t_flight
+
+    @property
+    def lag_s(self) -> float:
+        """How far [s] flight time has fallen behind the local clock (0 at full speed)."""
+        return self._lag

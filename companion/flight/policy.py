@@ -13,7 +13,8 @@ from companion.mavlink.px4_mode import FlightMode
 from companion.planning.schedule import Schedule
 
 __all__ = [
-    "HANDOVER_HEIGHT_M", "ROVER_SETTLE_S", "STALL_S", "TOUCHDOWN_FROM_M", "TOUCHDOWN_TIMEOUT_S",
+    "BLIND_S", "HANDOVER_HEIGHT_M", "ROVER_SETTLE_S", "STALL_S", "TOUCHDOWN_FROM_M",
+    "TOUCHDOWN_TIMEOUT_S",
     "final_mode", "handover_height_m", "handover_mode", "lands_at_end", "plan_touchdown",
     "self_lands", "stall_s",
 ]
@@ -29,6 +30,12 @@ ROVER_SETTLE_S = 20.0
 #: vehicle that cannot follow it) that has stood still this long [s] ends the flight with a
 #: handover to the final mode: the vehicle makes no progress (stuck; wind it cannot fly into).
 STALL_S = 20.0
+#: A tracking law that has flown its level hover fallback (telemetry stale, missing or
+#: implausible) this long [s] without a break ends the flight with a handover to the final
+#: mode: PX4 flies on its own fresh estimate. The fallback is meant for a glitch of a few
+#: setpoints; on real PX4 SITL at 0.7x real time a sample clock that fell behind kept it
+#: there for 20 s in OFFBOARD while the vehicle sank to the ground (2026-12-01).
+BLIND_S = 2.0
 
 
 def stall_s(vehicle: str, mode: str) -> float | None:

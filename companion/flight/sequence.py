@@ -31,7 +31,7 @@ from companion.mavlink.commands import (
 from companion.mavlink.offboard import OffboardMachine, OffboardTrigger
 from companion.mavlink.px4_mode import FlightMode
 
-from .policy import TOUCHDOWN_TIMEOUT_S
+from .policy import BLIND_S, TOUCHDOWN_TIMEOUT_S
 
 __all__ = [
     "EndPolicy", "Failure", "Finished", "FlightSequence", "Phase", "PhaseChanged",
@@ -65,6 +65,7 @@ class Failure(enum.Enum):
     NO_LAND = "no_land"
     DISARM_REFUSED = "disarm_refused"  # disarming in Hold (a rover) refused
     ABORTED = "aborted"  # by the caller (timeout, cancellation)
+    BLIND = "blind"  # the tracking law flew its hover fallback too long: handed over to PX4
 
 
 @dataclass(frozen=True)
@@ -86,6 +87,8 @@ class VehicleView:
     arrived: bool = False
     # how long [s] the source's governed reference has stood still waiting for the vehicle
     stalled_s: float = 0.0
+    # how long [s] the source's tracking law has flown its hover fallback without a break
+    blind_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -170,7 +173,8 @@ class EndPolicy:
     are not needed); the flight is done once the HEARTBEAT shows another mode. None: sent once.
     stall_s: hand over when the source's governed reference has stood still this long [s]
     (``VehicleView.stalled_s``: a vehicle that makes no progress, e.g. a stuck rover); None:
-    never."""
+    never. blind_s: hand over when the source's tracking law has flown its hover fallback this
+    long [s] (``VehicleView.blind_s``: telemetry stale or missing); None: never."""
 
     handover_mode: FlightMode = FlightMode.HOLD
     touchdown_from_s: float | None = None
@@ -188,6 +192,7 @@ class EndPolicy:
     land_timeout_s: float | None = None
     handover_retry_s: float | None = None
     stall_s: float | None = None
+    blind_s: float | None = BLIND_S
 
 
 @dataclass(frozen=True)
@@ -228,7 +233,7 @@ class FlightSequence:
         self.t_fly0: float | None = None
         self.t_plan_end: float | None = None
         self.reason = ""
-        self.failure: Failure | None = None
+        self._fault: tuple[Failure, str] | None = None  # a handover for a fault (BLIND)
         self.offboard_seen = False
         self.disarm_sent = False
         self._t_disarm_ack: float | None = None
@@ -263,6 +268,9 @@ class FlightSequence:
 
     def _finish(self, now: float, reason: str = "", failure: Failure | None = None,
                 result: int | None = None) -> list[SequenceAction]:
+        if failure is None and self._fault is not None:  # a handover for a fault ends failed
+            failure = self._fault[0]
+            reason = self._fault[1] + (f"; {reason}" if reason else "")
         out = self._go(Phase.FAILED if failure is not None else Phase.DONE, now, reason)
         self.failure = failure
         self.machine.stop(now, reason or "done")
@@ -386,6 +394,11 @@ class FlightSequence:
         assert self.t_fly0 is not None
         end = self.end
         t = now - self.t_fly0
+        if end.blind_s is not None and view.blind_s >= end.blind_s:
+            why = (f"tracking blind for {view.blind_s:.1f} s (telemetry stale or missing): "
+                   f"handed over to PX4's {end.handover_mode.name}")
+            self._fault = (Failure.BLIND, why)
+            return self._handover(now, end.handover_mode, why)
         if end.touchdown_from_s is not None:
             # a governed reference (slowed down for the vehicle) reaches the touchdown later
             late = (t if view.traj_time_s is None else view.traj_time_s) - end.touchdown_from_s

@@ -53,6 +53,9 @@ class FlightLog:
     modes: list[tuple[float, str]] = field(default_factory=list)
     armed_t: float | None = None
     disarmed_t: float | None = None
+    boot_rate: float = 1.0
+    """The autopilot's clock [s] per second of flight time (a mock at SIM_SPEED_FACTOR runs
+    that fast against the replay's lockstep clock; `t` is kept on flight time)."""
     ref_clock: list[tuple[float, float]] = field(default_factory=list)
     """(time [s], the reference's own time [s]) of each setpoint of a source that governs its
     reference time (a rover's `ProgressGovernor`); empty: the reference ran on flight time."""
@@ -60,11 +63,12 @@ class FlightLog:
 
 def record_message(log: FlightLog, msg: Any, t: float) -> None:
     """Record one decoded MAVLink message received at `t` [s]: LOCAL_POSITION_NED (at its own
-    sample time, the vehicle booting at t = 0), ATTITUDE_QUATERNION (tilt, body-rate norm)
-    and STATUSTEXT; others are ignored."""
+    sample time, the vehicle booting at t = 0 with a clock `log.boot_rate` times as fast),
+    ATTITUDE_QUATERNION (tilt, body-rate norm) and STATUSTEXT; others are ignored."""
     kind = msg.get_type()
     if kind == "LOCAL_POSITION_NED":
-        log.t.append(msg.time_boot_ms * 1e-3)  # sample time (the mock boots at t = 0)
+        # sample time (the mock boots at t = 0), on flight time
+        log.t.append(msg.time_boot_ms * 1e-3 / log.boot_rate)
         log.pos.append((msg.x, msg.y, msg.z))
         log.vel.append((msg.vx, msg.vy, msg.vz))
     elif kind == "ATTITUDE_QUATERNION":

@@ -264,6 +264,14 @@ class TrackingSource:
         self._ref: Reference | None = None
         self.calls = 0
         self.clock = SampleClock()
+        # the controller's clock: the local clock less this [s], run at the autopilot's rate
+        # (see `_vehicle_time`); its last local time [s]
+        self._ctrl_lag = 0.0
+        self._ctrl_last: float | None = None
+        # local time [s] the tracking law's current run of hover fallbacks began (None: it
+        # flies its regular command), and of the last call
+        self._blind_since: float | None = None
+        self._blind_now = 0.0
         self._engaged = False  # the controller runs (a call with t_s > 0 was seen)
         self._ground_z: float | None = None  # the height [m, NED z] it last stood at
         self._lifted = False  # off the ground (see `_lift_off`)
@@ -340,6 +348,24 @@ class TrackingSource:
         """How long [s] a governed reference has stood still waiting for the vehicle (0 for a
         reference on flight time)."""
         return 0.0 if self.governor is None else self.governor.stalled_s
+
+    @property
+    def blind_s(self) -> float:
+        """How long [s] the law has flown its hover fallback without a break (see `_blind`)."""
+        return 0.0 if self._blind_since is None else max(0.0, self._blind_now - self._blind_since)
+
+    def _blind(self, now: float, fallback: bool, telemetry: TelemetrySnapshot) -> None:
+        """Count the run of fallbacks (`fallback`: this call's command is one) while position
+        samples keep arriving (received within the law's stale age): a silent link is a link
+        loss, left to the link monitor and PX4's offboard failsafe."""
+        pos, ctl = telemetry.position, self.controller
+        if not fallback or ctl is None or pos is None or not now - pos.t_s <= (
+                ctl.config.stale_after_s):
+            self._blind_since = None
+        elif self._blind_since is None and math.isfinite(now):
+            self._blind_since = now
+        if math.isfinite(now):
+            self._blind_now = now
 
     @property
     def reference_time_s(self) -> float | None:
@@ -541,6 +567,24 @@ class TrackingSource:
         self._est_key, self._est = key, est
         return est
 
+    def _vehicle_time(self, now: float, est: StateEstimate,
+                      rtt_s: float) -> tuple[float, StateEstimate, float]:
+        """(`now`, `est`, the link's round trip `rtt_s`) with their times on a clock that runs
+        at the autopilot's rate (the sample clock's drift b: 1 / (1 + b) autopilot seconds per
+        local second). The controller's dynamics (its extrapolation, estimators, integrator
+        and thrust history) are the vehicle's: PX4 SITL at 0.7x real time otherwise saw its
+        accelerations estimated 0.7x as large and the latency predicted 1.4x as long. With
+        no drift, the times as given (on a real autopilot the two clocks agree)."""
+        b = self.clock.drift
+        last, self._ctrl_last = self._ctrl_last, now
+        if last is not None and b != 0.0 and now > last:
+            self._ctrl_lag += (now - last) * (b / (1.0 + b))
+        if b == 0.0 and self._ctrl_lag == 0.0:
+            return now, est, rtt_s
+        now_c = now - self._ctrl_lag
+        k = 1.0 / (1.0 + b)
+        return (now_c, replace(est, t_s=now_c - (now - est.t_s) * k), rtt_s * k)
+
     def _handover(self, t_s: float, now: float) -> bool:
         """Engage the controller on the first call with flight time `t_s` > 0 and run the
         handover after it: True while it lasts (the vehicle is held where it is, `_hold_s`
@@ -669,6 +713,8 @@ class TrackingSource:
             if self.mode == "rover":
                 return PositionSetpoint(vel_ned=(0.0, 0.0, 0.0), yaw_rate=0.0)
             self.quality.gap()
+            if self.mode != "position":  # no state to fly on
+                self._blind(now, True, telemetry)
             return self.position_setpoint(t_s)
         if self.mode == "rover":
             assert self.rover is not None
@@ -702,6 +748,7 @@ class TrackingSource:
             assert self.contact_s is not None and self.touchdown is not None
             fade = max(0.0, 1.0 - (now - self.contact_s) / self.touchdown.ramp_s)
             thrust = self._contact_thrust * fade
+            self._blind(now, False, telemetry)
             quality.add(now, thrust, 0.0, (0.0, 0.0, 0.0), airborne)
             if self.mode == "attitude":
                 return AttitudeSetpoint(_level_q(est.q_wxyz), thrust, 0.0)
@@ -726,19 +773,23 @@ class TrackingSource:
                 ahead = gov.scaled(self._reference_at(t_s + lead * gov.rate))
             else:
                 ahead = self._reference_at(t_s + lead)
-            out = self.controller.attitude_values(now, est, ref, ahead)
+            now_c, est_c, _ = self._vehicle_time(now, est, telemetry.link_rtt_s)
+            out = self.controller.attitude_values(now_c, est_c, ref, ahead)
             if isinstance(out, AttitudeCommand):  # a hover fallback
                 qw, qx, qy, qz = out.q_wxyz.tolist()
                 thrust, rate_ff = out.thrust_norm, out.yaw_rate_ff
             else:  # the regular command as floats (no arrays on the way)
                 (qw, qx, qy, qz), thrust, rate_ff, _sat = out
+            self._blind(now, isinstance(out, AttitudeCommand), telemetry)
             self._last_thrust = float(thrust)
             q = (float(qw), float(qx), float(qy), float(qz))
             quality.add(now, self._last_thrust, tilt_of_q(q), (0.0, 0.0, float(rate_ff)),
                         airborne, lean_residual(tilt_ne_of_q(q), self._plan_lean(ahead)))
             return AttitudeSetpoint(q, float(thrust), _opt(float(rate_ff)))
-        self.controller.link_rtt_s = telemetry.link_rtt_s
-        r = self.controller.rates(now, est, ref)
+        now_c, est_c, self.controller.link_rtt_s = self._vehicle_time(now, est,
+                                                                     telemetry.link_rtt_s)
+        r = self.controller.rates(now_c, est_c, ref)
+        self._blind(now, r.fallback, telemetry)
         w = r.omega_frd
         self._last_thrust = float(r.thrust_norm)
         rates = (float(w[0]), float(w[1]), float(w[2]))

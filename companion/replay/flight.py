@@ -20,6 +20,7 @@ import numpy as np
 from companion._frozen import frozen_new
 from companion.aio.tlog import TlogWriter
 from companion.control import Reference
+from companion.flight.clock import FlightClock
 from companion.flight.policy import ROVER_SETTLE_S, handover_mode, plan_touchdown
 from companion.flight.policy import stall_s as policy_stall_s
 from companion.flight.report import SetpointLimits
@@ -107,6 +108,10 @@ class Flight:
                 stall_s=policy_stall_s(config.vehicle, config.mode),
                 end_ned=end_ned,  # type: ignore[arg-type]
                 disarm_at_hold=rover, disarm_on_ground=not rover)))
+        # the sequence and the reference run on flight time, which follows the autopilot's
+        # clock as `fly`'s does (FlightClock): a mock slowed by SIM_SPEED_FACTOR slows them
+        # with it; at full speed flight time is the lockstep clock to the bit
+        self.fclock = FlightClock()
         self.setpoints_sent = 0
         self._armed_seen = False  # a HEARTBEAT showed armed (disarmed_t is after it)
 
@@ -125,10 +130,17 @@ class Flight:
         """The sequence finished."""
         return self.seq.finished
 
+    def _flight_now(self, now: float) -> float:
+        """Flight time [s] at lockstep time `now` [s] (FlightClock on the newest position)."""
+        pos = self.link.telemetry.position
+        if pos is not None:
+            self.fclock.observe(pos.time_boot_s, pos.t_s)
+        return self.fclock.now(now)
+
     def _reference(self, t_s: float) -> Reference:
         return self.schedule.reference(t_s, origin=self.origin)
 
-    def _stream(self, t_s: float | None, now: float) -> None:
+    def _stream(self, t_s: float | None, now: float, flight_now: float) -> None:
         if t_s is None:  # priming, mode request, arming: hold the start point
             sp: SetpointCommand = (PositionSetpoint(vel_ned=(0.0, 0.0, 0.0), yaw_rate=0.0)
                                    if self.config.vehicle == "rover"
@@ -146,17 +158,20 @@ class Flight:
             if t_ref is not None:
                 self.log.ref_clock.append((now, t_ref))
         self.lk.to_vehicle([self.link.encode_setpoint(sp, now)])
-        self.seq.on_setpoint_sent(now)
+        self.seq.on_setpoint_sent(flight_now)
         self.setpoints_sent += 1
         if isinstance(sp, (AttitudeSetpoint, RatesSetpoint)):
             self.log.thrust_norm.append(sp.thrust_norm)
 
-    def perform(self, actions: list[SequenceAction], now: float) -> None:
-        """Carry out the sequence's actions over the lockstep link."""
+    def perform(self, actions: list[SequenceAction], now: float,
+                flight_now: float | None = None) -> None:
+        """Carry out the sequence's actions over the lockstep link at lockstep time `now` [s]
+        (`flight_now`: the sequence's flight time then, default `now`)."""
+        f = now if flight_now is None else flight_now
         link = self.link
         for a in actions:
             if isinstance(a, Stream):
-                self._stream(a.t_s, now)
+                self._stream(a.t_s, now, f)
             elif isinstance(a, SendCommand):
                 if a.command == MAV_CMD_DO_SET_MODE and a.mode is not None:
                     link.set_mode(a.mode, now)
@@ -176,15 +191,16 @@ class Flight:
                     if self.log.armed_t is None or now < self.log.armed_t:
                         self.log.armed_t = now
                     self.source.reset()
-        if self.seq.t_plan_end is not None:
-            self.log.fly_t1 = self.seq.t_plan_end
+        if self.seq.t_plan_end is not None:  # (flight time, back on the lockstep clock)
+            self.log.fly_t1 = self.seq.t_plan_end + self.fclock.lag_s
 
     def on_events(self, events: list[Any], now: float) -> None:
         """Command results from the link."""
         for ev in events:
             if isinstance(ev, CommandFinished):
-                self.perform(self.seq.on_command_result(ev.command, ev.ok, ev.reason, now,
-                                                        ev.result), now)
+                f = self._flight_now(now)
+                self.perform(self.seq.on_command_result(ev.command, ev.ok, ev.reason, f,
+                                                        ev.result), now, f)
 
     def tick(self, now: float) -> None:
         """One setpoint period."""
@@ -210,18 +226,21 @@ class Flight:
             ready=have_state and st is not None and st.armable, have_state=have_state,
             on_ground=ext is not None and ext.landed_state == 1, pos_ned=rel,
             traj_time_s=self.source.reference_time_s, arrived=self.source.arrived,
-            stalled_s=self.source.stalled_s)
-        self.perform(self.seq.update(now, view), now)
+            stalled_s=self.source.stalled_s, blind_s=self.source.blind_s)
+        f = self._flight_now(now)
+        self.perform(self.seq.update(f, view), now, f)
 
     def late_s(self) -> float:
         """How late the reference runs [s]: a multirotor's reference slowed down for the
-        vehicle (TimeScaler) moves the deadline with it; a reference that stands still ends
-        the flight itself (STALL_S)."""
-        return float(getattr(self.source.governor, "delay_s", 0.0))
+        vehicle (TimeScaler) moves the deadline with it, and so does flight time's lag behind a
+        slow autopilot clock; a reference that stands still ends the flight itself
+        (STALL_S)."""
+        return float(getattr(self.source.governor, "delay_s", 0.0)) + self.fclock.lag_s
 
     def abort(self, now: float, reason: str) -> None:
         """End the flight (the replay's time limit)."""
-        self.perform(self.seq.fail(now, reason), now)
+        f = self._flight_now(now)
+        self.perform(self.seq.fail(f, reason), now, f)
 
 
 
@@ -230,7 +249,7 @@ def recorded_link(config: ReplayConfig, home: tuple[float, float, float],
     """A fresh mock for `config` and the companion's link to it, every message recorded into
     a new flight log (without a tlog the streams nobody reads are not built: `UNREAD_STREAMS`)."""
     sim = make_sim(config, home, unread=UNREAD_STREAMS if tlog is None else frozenset())
-    log = FlightLog()
+    log = FlightLog(boot_rate=sim.autopilot.speed)
     lk = LockstepLink(sim, VehicleLink(LinkConfig()), tlog)
     lk.on_message = functools.partial(record_message, log)
     return lk, log
@@ -319,7 +338,7 @@ def fly_px4_mission(
     ("ok" or the failure reason, log)."""
     sim = make_sim(config, home)
     link = VehicleLink(LinkConfig())
-    log = FlightLog()
+    log = FlightLog(boot_rate=sim.autopilot.speed)
     lk = LockstepLink(sim, link, None)
     lk.on_message = functools.partial(record_message, log)
     dt = 0.02

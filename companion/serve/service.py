@@ -737,7 +737,8 @@ class ServeService:
         return VehicleView(armed=obs.armed, mode=obs.mode,
                            pos_ned=pos.pos_ned if fresh and pos is not None else None,
                            traj_time_s=None if src is None else src.reference_time_s,
-                           stalled_s=0.0 if src is None else src.stalled_s)
+                           stalled_s=0.0 if src is None else src.stalled_s,
+                           blind_s=0.0 if src is None else src.blind_s)
 
     def _final_requests(self, acts: list[SequenceAction]) -> list[Action]:
         """The sequence's handover commands as mode requests (results are not awaited)."""

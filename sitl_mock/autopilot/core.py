@@ -107,6 +107,8 @@ class Autopilot:
         self.dt = 1.0 / physics_hz
         self._boot = float(now)
         self.clock = Clock()
+        # simulated seconds per second of the caller's clock (SIM_SPEED_FACTOR)
+        self._speed = float(self.params["SIM_SPEED_FACTOR"])
         self._n_steps = 0
         self.scenario = scenario or ScenarioFaults()
         self.stats: Counter[str] = Counter()
@@ -172,9 +174,14 @@ class Autopilot:
 
     # ================================================================== public sans-IO API
     @property
+    def speed(self) -> float:
+        """Simulated seconds per second of the caller's clock (SIM_SPEED_FACTOR at boot)."""
+        return self._speed
+
+    @property
     def now(self) -> float:
         """Current simulated time on the caller's clock."""
-        return self._boot + self.clock.t
+        return self._boot + self.clock.t / self._speed
 
     @property
     def handled_messages(self) -> frozenset[str]:
@@ -188,7 +195,7 @@ class Autopilot:
 
     def receive_datagram(self, data: bytes, addr: Addr, now: float, link: str = "offboard") -> None:
         """Feed one datagram received on `link` from `addr` at time `now`."""
-        if now - self._boot > self.clock.t:  # (advance's own early return, without the call)
+        if (now - self._boot) * self._speed > self.clock.t:  # (advance's own early return)
             self.advance(now)
         lk = self.comms.by_name.get(link)
         if lk is None:
@@ -198,27 +205,28 @@ class Autopilot:
     def datagrams_to_send(self, now: float, link: str | None = None) -> list[tuple[bytes, Addr]]:
         """Datagrams due by `now` on one link (or all links), with their destinations."""
         # physics steps may land a hair past `now`
-        return self.comms.datagrams_to_send(now - self._boot + 1e-9, link)
+        return self.comms.datagrams_to_send((now - self._boot) * self._speed + 1e-9, link)
 
     def frames_to_send(self, now: float, link: str) -> list[bytes]:
         """`datagrams_to_send(now, link)`'s datagrams without their destinations."""
-        return self.comms.frames_due(now - self._boot + 1e-9, link)
+        return self.comms.frames_due((now - self._boot) * self._speed + 1e-9, link)
 
     def get_timer(self) -> float:
         """Next time (caller's clock) at which `handle_timer` has work to do."""
         t = (self._n_steps + 1) * self.dt
         if self._events:
             t = min(t, self._events[0][0])
-        return self._boot + self.comms.next_due(t)
+        return self._boot + self.comms.next_due(t) / self._speed
 
     def handle_timer(self, now: float) -> None:
         """Run everything due by `now` (physics steps, telemetry, retries, failsafes)."""
         self.advance(now)
 
     def advance(self, now: float) -> None:
-        """Advance simulated time to `now`, stepping physics at the fixed rate."""
+        """Advance simulated time to `now` (the caller's clock), stepping physics at the fixed
+        rate."""
         clock = self.clock
-        t_end = now - self._boot
+        t_end = (now - self._boot) * self._speed
         if not t_end > clock.t:  # also rejects NaN
             return
         dt = self.dt

@@ -5,14 +5,14 @@ numpy hands 3x3 products and dots of 3 to its BLAS; OpenBLAS's x86-64 kernels (H
 later) round them as chains of fused multiply-adds, which the float code reproduces exactly
 (`_fma`: Dekker's product and `math.fsum`). `_fma` is checked against exact rational arithmetic
 everywhere; the comparisons with numpy are bit for bit where this numpy's BLAS rounds as that
-chain (`NUMPY_ROUNDS_AS_FMA`, probed below) and within 1e-13 elsewhere (the same formulas, a
-different rounding of the sums).
+chain (`NUMPY_ROUNDS_AS_FMA`, probed in tests/support/blas.py: OpenBLAS's SkylakeX kernels;
+its Haswell kernels round a 1-D dot of 3 without FMA) and within 1e-13 elsewhere (the same
+formulas, a different rounding of the sums).
 """
 
 from __future__ import annotations
 
 import math
-from fractions import Fraction
 
 import numpy as np
 import pytest
@@ -37,31 +37,14 @@ from companion.control.so3 import (
     tilt_priority_error,
     tilt_priority_error_f,
 )
+from tests.support.blas import fma_exact as _fma_exact
+from tests.support.blas import numpy_rounds_as_fma_chain
 
 GAINS = [AttitudeGains(), AttitudeGains(tilt_priority=False),
          AttitudeGains(tilt_priority=False, large_angle=False), AttitudeGains(yaw_weight=1.0)]
 
 
-def _fma_exact(a: float, b: float, c: float) -> float:
-    if a * b == 0.0:
-        return a * b + c  # exact zero product: IEEE's sign of zero
-    return float(Fraction(a) * Fraction(b) + Fraction(c))
-
-
-def _probe_blas() -> bool:
-    rng = np.random.default_rng(0)
-    for _ in range(200):
-        A, B, v = rng.normal(size=(3, 3)), rng.normal(size=(3, 3)), rng.normal(size=3)
-        chain = [[_fma_exact(A[i, 2], B[2, j], _fma_exact(A[i, 1], B[1, j], A[i, 0] * B[0, j]))
-                  for j in range(3)] for i in range(3)]
-        mv = [_fma_exact(A[i, 2], v[2], _fma_exact(A[i, 0], v[0], A[i, 1] * v[1]))
-              for i in range(3)]
-        if (A @ B).tolist() != chain or (A @ v).tolist() != mv:
-            return False
-    return True
-
-
-NUMPY_ROUNDS_AS_FMA = _probe_blas()
+NUMPY_ROUNDS_AS_FMA = numpy_rounds_as_fma_chain()
 
 
 def _same(fast: object, general: np.ndarray) -> None:

@@ -101,3 +101,16 @@ def test_before_any_sample_it_is_the_local_clock_and_never_runs_back() -> None:
 def test_refuses_bad_settings(kw: dict[str, float]) -> None:
     with pytest.raises(ValueError):
         FlightClock(**kw)
+
+
+def test_at_full_speed_flight_time_is_the_local_clock_to_the_bit() -> None:
+    """The replay runs its flights on this clock: at full speed (samples that keep up) flight
+    time must be the lockstep clock itself, not a sum of its steps (which rounds)."""
+    clock = FlightClock()
+    dt = 0.01
+    for k in range(1, 3001):
+        t = k * dt
+        clock.observe(t - 0.004, t)  # each sample received 4 ms after it was taken
+        assert clock.now(t) == t
+    assert clock.lag_s == 0.0
+

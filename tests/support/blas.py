@@ -1,0 +1,63 @@
+"""Which rounding this host's BLAS gives numpy's small products.
+
+numpy hands 3x3 products and dots of 3 to OpenBLAS, whose kernel is chosen per CPU at load time
+unless `OPENBLAS_CORETYPE` names one. Both its Haswell (AVX2) and SkylakeX (AVX-512) kernels
+round a 3x3 product's entry and a matrix-vector product's as a chain of fused multiply-adds;
+a 1-D dot of 3 (and so a norm of 3) the SkylakeX kernels round as the chain too, the Haswell
+ones as plain (a0 b0 + a1 b1) + a2 b2. One ulp in a dot is enough for a closed-loop replay to
+drift: the same commit replayed five_minute.plan with a plan of 329.9 s under the SkylakeX
+kernels and 319.4 s under the Haswell ones (the planner's time allocation ends in another
+local optimum). The stored report figures were recorded with the Haswell kernels, which run
+on any x86-64 CPU with AVX2; `tests/conftest.py` picks them unless the caller chose."""
+
+from __future__ import annotations
+
+from fractions import Fraction
+
+import numpy as np
+
+
+def fma_exact(a: float, b: float, c: float) -> float:
+    """a * b + c rounded once (exact rational arithmetic)."""
+    if a * b == 0.0:
+        return a * b + c  # exact zero product: IEEE's sign of zero
+    return float(Fraction(a) * Fraction(b) + Fraction(c))
+
+
+def _dot_chain(a: np.ndarray, b: np.ndarray) -> float:
+    return fma_exact(a[2], b[2], fma_exact(a[1], b[1], fma_exact(a[0], b[0], 0.0)))
+
+
+def _dot_plain(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a[0] * b[0] + a[1] * b[1]) + a[2] * b[2])
+
+
+def _rounds_as(dot: object) -> bool:
+    """numpy's 3x3 products and matrix-vector products round as the FMA chain (fma(a2, b2,
+    fma(a1, b1, a0 b0)); fma(a2, v2, fma(a0, v0, a1 v1))) and its 1-D dots and norms of 3 as
+    `dot`."""
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        A, B, v, w = (rng.normal(size=(3, 3)), rng.normal(size=(3, 3)), rng.normal(size=3),
+                      rng.normal(size=3))
+        chain = [[fma_exact(A[i, 2], B[2, j], fma_exact(A[i, 1], B[1, j], A[i, 0] * B[0, j]))
+                  for j in range(3)] for i in range(3)]
+        mv = [fma_exact(A[i, 2], v[2], fma_exact(A[i, 0], v[0], A[i, 1] * v[1]))
+              for i in range(3)]
+        if ((A @ B).tolist() != chain or (A @ v).tolist() != mv
+                or float(v @ w) != dot(v, w)  # type: ignore[operator]
+                or float(np.linalg.norm(v)) != float(np.sqrt(dot(v, v)))):  # type: ignore[operator]
+            return False
+    return True
+
+
+def numpy_rounds_as_fma_chain() -> bool:
+    """numpy's small products and dots all round as the FMA chain (OpenBLAS's SkylakeX
+    kernels): the companion's float fast paths then reproduce numpy bit for bit."""
+    return _rounds_as(_dot_chain)
+
+
+def numpy_rounds_as_recorded() -> bool:
+    """numpy's small products round as when the stored report figures were recorded
+    (OpenBLAS's Haswell kernels: 1-D dots of 3 without FMA)."""
+    return _rounds_as(_dot_plain)
