@@ -287,9 +287,10 @@ def _axis_angle_dcm(axis: FloatArray, s_ang: float, c_ang: float) -> FloatArray:
 # numpy's cost per call is most of the time. The versions below take rows of floats and give
 # the numpy versions' bits: numpy hands 3x3 products and dots of 3 to OpenBLAS, whose x86-64
 # kernels (Haswell and later: fused multiply-add) round each sum as a chain of FMAs; `_fma`
-# does one FMA exactly, `_dot3` and `rotate_f` chain them in OpenBLAS's orders. Under a BLAS
-# that rounds otherwise, the two paths differ in the last bits
-# (tests/companion/control/test_so3_fast_paths.py checks which this numpy does).
+# does one FMA exactly, `_dot3` and `rotate_f` chain them in OpenBLAS's orders. A 1-D dot of 3
+# is such a chain only in the SkylakeX kernels (AVX-512; the Haswell ones add plain products),
+# and under a BLAS that rounds otherwise the two paths differ in the last bits
+# (tests/support/blas.py tells which this numpy does).
 
 _SPLIT = 134217729.0  # 2**27 + 1: Veltkamp's split of a double into two 26-bit halves
 _TINY = 1e-280  # below, Dekker's partial products may underflow: exact rational arithmetic
