@@ -233,6 +233,7 @@ class FlightSequence:
         self.t_fly0: float | None = None
         self.t_plan_end: float | None = None
         self.reason = ""
+        self.failure: Failure | None = None
         self._fault: tuple[Failure, str] | None = None  # a handover for a fault (BLIND)
         self.offboard_seen = False
         self.disarm_sent = False

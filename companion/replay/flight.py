@@ -163,15 +163,13 @@ class Flight:
         if isinstance(sp, (AttitudeSetpoint, RatesSetpoint)):
             self.log.thrust_norm.append(sp.thrust_norm)
 
-    def perform(self, actions: list[SequenceAction], now: float,
-                flight_now: float | None = None) -> None:
+    def perform(self, actions: list[SequenceAction], now: float, flight_now: float) -> None:
         """Carry out the sequence's actions over the lockstep link at lockstep time `now` [s]
-        (`flight_now`: the sequence's flight time then, default `now`)."""
-        f = now if flight_now is None else flight_now
+        (`flight_now`: the sequence's flight time then)."""
         link = self.link
         for a in actions:
             if isinstance(a, Stream):
-                self._stream(a.t_s, now, f)
+                self._stream(a.t_s, now, flight_now)
             elif isinstance(a, SendCommand):
                 if a.command == MAV_CMD_DO_SET_MODE and a.mode is not None:
                     link.set_mode(a.mode, now)

@@ -12,6 +12,7 @@ on any x86-64 CPU with AVX2; `tests/conftest.py` picks them unless the caller ch
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from fractions import Fraction
 
 import numpy as np
@@ -32,7 +33,7 @@ def _dot_plain(a: np.ndarray, b: np.ndarray) -> float:
     return float((a[0] * b[0] + a[1] * b[1]) + a[2] * b[2])
 
 
-def _rounds_as(dot: object) -> bool:
+def _rounds_as(dot: Callable[[np.ndarray, np.ndarray], float]) -> bool:
     """numpy's 3x3 products and matrix-vector products round as the FMA chain (fma(a2, b2,
     fma(a1, b1, a0 b0)); fma(a2, v2, fma(a0, v0, a1 v1))) and its 1-D dots and norms of 3 as
     `dot`."""
@@ -45,8 +46,8 @@ def _rounds_as(dot: object) -> bool:
         mv = [fma_exact(A[i, 2], v[2], fma_exact(A[i, 0], v[0], A[i, 1] * v[1]))
               for i in range(3)]
         if ((A @ B).tolist() != chain or (A @ v).tolist() != mv
-                or float(v @ w) != dot(v, w)  # type: ignore[operator]
-                or float(np.linalg.norm(v)) != float(np.sqrt(dot(v, v)))):  # type: ignore[operator]
+                or float(v @ w) != dot(v, w)
+                or float(np.linalg.norm(v)) != float(np.sqrt(dot(v, v)))):
             return False
     return True
 
