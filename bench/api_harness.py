@@ -122,6 +122,14 @@ class ReferenceRecorder:
         """When flight time 0 was [Unix s] (None before the first setpoint)."""
         return self.clock[0][0] - self.clock[0][1] if self.clock else None
 
+    def __getattr__(self, name: str) -> Any:
+        # what the flight reads of its source (reference_time_s, arrived, stalled_s, blind_s:
+        # `Vehicle._flight_view`) is the wrapped source's: without it the recorded flights
+        # lost the law's blind safety net (BLIND_S)
+        if name == "source":  # (not set yet)
+            raise AttributeError(name)
+        return getattr(self.source, name)
+
     def __call__(self, t_s: float, telemetry: TelemetrySnapshot) -> Any:
         if t_s <= 0.0:
             return self.source(t_s, telemetry)

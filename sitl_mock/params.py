@@ -257,6 +257,14 @@ PARAMS.update(
             "runs at 0.7-0.93x real time (PX4_SIM_SPEED_FACTOR sets it on purpose); the "
             "vehicle, its clock and its stamps all run at that rate"
         ),
+        "SIM_SPEED_CHG_T": ParamSpec(
+            0.0, False, "simulated time since boot [s] at which the speed factor becomes "
+            "SIM_SPEED_CHG (0 = never), read at boot: PX4 SITL slowed from 0.98x to 0.65x "
+            "real time mid-flight when its host got busy (2026-12-01)"
+        ),
+        "SIM_SPEED_CHG": ParamSpec(
+            1.0, False, "the speed factor from SIM_SPEED_CHG_T on (see SIM_SPEED_FACTOR)"
+        ),
     }
 )
 
@@ -524,6 +532,8 @@ _MOCK_RANGES: dict[str, tuple[float, float]] = {
     "SIM_GYRO_SIH": (0.0, 10.0),
     "SIM_SP_DELAY": (0.0, 0.1),
     "SIM_SPEED_FACTOR": (0.1, 10.0),
+    "SIM_SPEED_CHG_T": (0.0, 1e6),
+    "SIM_SPEED_CHG": (0.1, 10.0),
 }
 
 

@@ -21,6 +21,17 @@ SETTLED_BLOCKS = 8
 #: offset held to the slew fell behind by seconds, so that every sample looked stale and the
 #: controller sat in its hover fallback for the rest of the flight (real PX4, 2026-12-01).
 OFFSET_SLEW = 0.1
+#: SampleClock: a change of the autopilot clock's rate. Each completed block's minimum departs
+#: from the fitted drift's prediction (from the block before it) by d [s]. Departures beyond
+#: CHANGE_NOISE_S the same way in CHANGE_RUN blocks in a row, or beyond CHANGE_STEP_S in two,
+#: mean the rate changed where the run began. PX4 SITL slowed from 0.98x to 0.65x real time
+#: mid-flight when its host got busy (real PX4, 2026-12-01): the drift fitted over 20 s lagged,
+#: the mapped sample age rose from 0.01 to 0.53 s in 5 s and the law flew 3.1 s in its hover
+#: fallback; a 5 % slow-down left samples 0.1 s older than they were for 14 s. A stall (one
+#: step of the line) or a block of delayed samples (a step up and back) departs once each way.
+CHANGE_NOISE_S = 0.003
+CHANGE_STEP_S = 0.015
+CHANGE_RUN = 3
 
 
 class SampleClock:
@@ -38,8 +49,11 @@ class SampleClock:
     where receive times would hide it. Short blocks and a recent intercept let a fresh clock
     settle within about a second and follow a lockstep clock that falls behind in bursts (a
     line touching 20 s of one-second minima was up to 40-47 ms off on PX4 SITL in the first
-    seconds of a flight, these settings 8-9 ms). A boot time that jumps back by more than 0.5 s
-    (autopilot reboot) starts over.
+    seconds of a flight, these settings 8-9 ms). When the clock changes its rate (two blocks
+    in a row whose minima depart from the fitted drift by more than CHANGE_STEP_S the same
+    way), the fit starts again from the block where the change began, and the offset follows
+    the new line at once until it has settled again. A boot time that jumps back by more than
+    0.5 s (autopilot reboot) starts over.
     """
 
     def __init__(self, block_s: float = 0.25, blocks: int = 80, recent: int = 8) -> None:
@@ -117,6 +131,7 @@ class SampleClock:
         else:
             if blocks:
                 self._complete()  # the newest block so far is final now
+                self._detect_rate_change()
             blocks.append([idx, boot, off])
             self._pair_slopes.append([])
             if len(blocks) > self._size:
@@ -142,6 +157,40 @@ class SampleClock:
                     self._nan_slopes += 1
                 else:
                     insort(srt, slope)
+
+    def _detect_rate_change(self) -> None:
+        """The completed blocks' minima departed from the drift in a run (CHANGE_NOISE_S,
+        CHANGE_STEP_S, CHANGE_RUN): the clock's rate changed at the block before the run. The
+        fit keeps only the run's blocks, and the drift is their pairwise slopes' median until
+        later blocks refit it."""
+        blocks = self._blocks
+        n = len(blocks)
+        if n < 4:  # the drift is fitted from three completed blocks
+            return
+        b = self._b
+        run, way, least = 0, 0.0, math.inf
+        for k in range(n - 1, max(n - 1 - CHANGE_RUN, 0), -1):
+            p, q = blocks[k - 1], blocks[k]
+            d = q[2] - p[2] - b * (q[1] - p[1])
+            if not abs(d) > CHANGE_NOISE_S or d * way < 0.0:
+                break
+            run, way, least = run + 1, d, min(least, abs(d))
+            if run >= CHANGE_RUN or (run == 2 and least > CHANGE_STEP_S):
+                break
+        if not (run >= CHANGE_RUN or (run == 2 and least > CHANGE_STEP_S)):
+            return
+        keep = list(itertools.islice(blocks, n - 1 - run, None))
+        blocks.clear()
+        self._pair_slopes.clear()
+        self._sorted.clear()
+        self._nan_slopes = 0
+        for blk in keep:
+            blocks.append(blk)
+            self._pair_slopes.append([])
+            if len(blocks) > 1:
+                self._complete()
+        self._b = statistics.median([(q[2] - p[2]) / (q[1] - p[1])
+                                     for p, q in itertools.combinations(keep, 2)])
 
     def _forget(self, slopes: list[float]) -> None:
         """The slopes of a block that left the window leave the sorted slopes."""

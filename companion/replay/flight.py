@@ -112,6 +112,8 @@ class Flight:
         # clock as `fly`'s does (FlightClock): a mock slowed by SIM_SPEED_FACTOR slows them
         # with it; at full speed flight time is the lockstep clock to the bit
         self.fclock = FlightClock()
+        self._times: list[tuple[float, float]] = []  # (flight time, lockstep time) [s]
+        self._plan_end: float | None = None  # the sequence's plan end fly_t1 was taken from
         self.setpoints_sent = 0
         self._armed_seen = False  # a HEARTBEAT showed armed (disarmed_t is after it)
 
@@ -135,7 +137,17 @@ class Flight:
         pos = self.link.telemetry.position
         if pos is not None:
             self.fclock.observe(pos.time_boot_s, pos.t_s)
-        return self.fclock.now(now)
+        f = self.fclock.now(now)
+        self._times.append((f, now))
+        return f
+
+    def _lockstep_time(self, flight_s: float) -> float:
+        """The lockstep time [s] at which flight time was `flight_s` [s] (the same while flight
+        time never lagged)."""
+        if self.fclock.lag_s == 0.0:
+            return flight_s
+        f, n = zip(*self._times, strict=True)
+        return float(np.interp(flight_s, f, n))
 
     def _reference(self, t_s: float) -> Reference:
         return self.schedule.reference(t_s, origin=self.origin)
@@ -189,8 +201,10 @@ class Flight:
                     if self.log.armed_t is None or now < self.log.armed_t:
                         self.log.armed_t = now
                     self.source.reset()
-        if self.seq.t_plan_end is not None:  # (flight time, back on the lockstep clock)
-            self.log.fly_t1 = self.seq.t_plan_end + self.fclock.lag_s
+        end = self.seq.t_plan_end
+        if end is not None and end != self._plan_end:
+            self._plan_end = end
+            self.log.fly_t1 = self._lockstep_time(end)
 
     def on_events(self, events: list[Any], now: float) -> None:
         """Command results from the link."""
@@ -247,7 +261,7 @@ def recorded_link(config: ReplayConfig, home: tuple[float, float, float],
     """A fresh mock for `config` and the companion's link to it, every message recorded into
     a new flight log (without a tlog the streams nobody reads are not built: `UNREAD_STREAMS`)."""
     sim = make_sim(config, home, unread=UNREAD_STREAMS if tlog is None else frozenset())
-    log = FlightLog(boot_rate=sim.autopilot.speed)
+    log = FlightLog(boot_clock=sim.autopilot.caller_time)
     lk = LockstepLink(sim, VehicleLink(LinkConfig()), tlog)
     lk.on_message = functools.partial(record_message, log)
     return lk, log
@@ -336,7 +350,7 @@ def fly_px4_mission(
     ("ok" or the failure reason, log)."""
     sim = make_sim(config, home)
     link = VehicleLink(LinkConfig())
-    log = FlightLog(boot_rate=sim.autopilot.speed)
+    log = FlightLog(boot_clock=sim.autopilot.caller_time)
     lk = LockstepLink(sim, link, None)
     lk.on_message = functools.partial(record_message, log)
     dt = 0.02

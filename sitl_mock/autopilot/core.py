@@ -109,6 +109,11 @@ class Autopilot:
         self.clock = Clock()
         # simulated seconds per second of the caller's clock (SIM_SPEED_FACTOR)
         self._speed = float(self.params["SIM_SPEED_FACTOR"])
+        # from simulated time _chg_t on, the rate is _chg_speed (SIM_SPEED_CHG_T, 0 = never)
+        chg_t = float(self.params["SIM_SPEED_CHG_T"])
+        self._chg_t = chg_t if chg_t > 0.0 else math.inf
+        self._chg_speed = float(self.params["SIM_SPEED_CHG"])
+        self._chg_now = self._boot + self._chg_t / self._speed  # the caller's time of it
         self._n_steps = 0
         self.scenario = scenario or ScenarioFaults()
         self.stats: Counter[str] = Counter()
@@ -181,7 +186,20 @@ class Autopilot:
     @property
     def now(self) -> float:
         """Current simulated time on the caller's clock."""
-        return self._boot + self.clock.t / self._speed
+        return self.caller_time(self.clock.t)
+
+    def _sim_time(self, now: float) -> float:
+        """Simulated time since boot [s] at the caller's time `now` [s]."""
+        if now < self._chg_now:
+            return (now - self._boot) * self._speed
+        return self._chg_t + (now - self._chg_now) * self._chg_speed
+
+    def caller_time(self, t_sim: float) -> float:
+        """The caller's time [s] at simulated time since boot `t_sim` [s] (the clock that
+        drives the mock: SIM_SPEED_FACTOR, SIM_SPEED_CHG_T)."""
+        if t_sim < self._chg_t:
+            return self._boot + t_sim / self._speed
+        return self._chg_now + (t_sim - self._chg_t) / self._chg_speed
 
     @property
     def handled_messages(self) -> frozenset[str]:
@@ -195,7 +213,7 @@ class Autopilot:
 
     def receive_datagram(self, data: bytes, addr: Addr, now: float, link: str = "offboard") -> None:
         """Feed one datagram received on `link` from `addr` at time `now`."""
-        if (now - self._boot) * self._speed > self.clock.t:  # (advance's own early return)
+        if self._sim_time(now) > self.clock.t:  # (advance's own early return)
             self.advance(now)
         lk = self.comms.by_name.get(link)
         if lk is None:
@@ -205,18 +223,18 @@ class Autopilot:
     def datagrams_to_send(self, now: float, link: str | None = None) -> list[tuple[bytes, Addr]]:
         """Datagrams due by `now` on one link (or all links), with their destinations."""
         # physics steps may land a hair past `now`
-        return self.comms.datagrams_to_send((now - self._boot) * self._speed + 1e-9, link)
+        return self.comms.datagrams_to_send(self._sim_time(now) + 1e-9, link)
 
     def frames_to_send(self, now: float, link: str) -> list[bytes]:
         """`datagrams_to_send(now, link)`'s datagrams without their destinations."""
-        return self.comms.frames_due((now - self._boot) * self._speed + 1e-9, link)
+        return self.comms.frames_due(self._sim_time(now) + 1e-9, link)
 
     def get_timer(self) -> float:
         """Next time (caller's clock) at which `handle_timer` has work to do."""
         t = (self._n_steps + 1) * self.dt
         if self._events:
             t = min(t, self._events[0][0])
-        return self._boot + self.comms.next_due(t) / self._speed
+        return self.caller_time(self.comms.next_due(t))
 
     def handle_timer(self, now: float) -> None:
         """Run everything due by `now` (physics steps, telemetry, retries, failsafes)."""
@@ -226,7 +244,7 @@ class Autopilot:
         """Advance simulated time to `now` (the caller's clock), stepping physics at the fixed
         rate."""
         clock = self.clock
-        t_end = (now - self._boot) * self._speed
+        t_end = self._sim_time(now)
         if not t_end > clock.t:  # also rejects NaN
             return
         dt = self.dt

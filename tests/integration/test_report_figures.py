@@ -112,8 +112,9 @@ def _diff(path: str, want: Any, got: Any, out: list[str]) -> None:
 @pytest.mark.slow
 @pytest.mark.skipif(
     not numpy_rounds_as_recorded(),
-    reason="this host's BLAS rounds numpy's dots of 3 otherwise than the kernels the figures "
-           "were recorded with (OpenBLAS Haswell: needs AVX2; tests/support/blas.py)")
+    reason="this host's numpy rounds otherwise than when the figures were recorded (OpenBLAS "
+           "Haswell's dots of 3, needing AVX2; exp/log/sin/cos as the C library's; "
+           "tests/support/blas.py, tests/support/cpu_env.py)")
 def test_bundled_missions_replay_to_the_stored_report_figures(tmp_path: Path) -> None:
     stored = json.loads(STORED.read_text())
     assert sorted(stored) == sorted(name for name, _, _ in CASES)
@@ -143,7 +144,14 @@ def test_the_comparison_notices_a_changed_figure() -> None:
 if __name__ == "__main__":
     if sys.argv[1:] != ["--write"]:
         sys.exit(__doc__)
+    import os
     import tempfile
+
+    from tests.support.cpu_env import pinned_environment
+
+    if pinned_environment(os.environ):  # numpy is loaded: again, with the tests' set-up
+        os.execve(sys.executable, [sys.executable, "-m", "tests.integration.test_report_figures",
+                                   "--write"], {**os.environ, **pinned_environment(os.environ)})
 
     with tempfile.TemporaryDirectory() as d:
         STORED.write_text(json.dumps(_replay_all(Path(d)), indent=1, sort_keys=True) + "\n")

@@ -12,6 +12,7 @@ on any x86-64 CPU with AVX2; `tests/conftest.py` picks them unless the caller ch
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from fractions import Fraction
 
@@ -58,7 +59,20 @@ def numpy_rounds_as_fma_chain() -> bool:
     return _rounds_as(_dot_chain)
 
 
+def numpy_elementary_functions_are_libms() -> bool:
+    """numpy's float64 exp, log, sin and cos give the C library's values (its AVX2 builds call
+    it; its AVX-512 builds have their own, which round otherwise: tests/support/cpu_env.py)."""
+    rng = np.random.default_rng(1)
+    x = rng.normal(scale=4.0, size=2000)
+    pos = np.abs(x) + 1e-3
+    return (np.exp(x).tolist() == [math.exp(v) for v in x.tolist()]
+            and np.log(pos).tolist() == [math.log(v) for v in pos.tolist()]
+            and np.sin(x).tolist() == [math.sin(v) for v in x.tolist()]
+            and np.cos(x).tolist() == [math.cos(v) for v in x.tolist()])
+
+
 def numpy_rounds_as_recorded() -> bool:
-    """numpy's small products round as when the stored report figures were recorded
-    (OpenBLAS's Haswell kernels: 1-D dots of 3 without FMA)."""
-    return _rounds_as(_dot_plain)
+    """numpy rounds as when the stored report figures were recorded: its small products as
+    OpenBLAS's Haswell kernels (1-D dots of 3 without FMA), its elementary functions as the C
+    library."""
+    return _rounds_as(_dot_plain) and numpy_elementary_functions_are_libms()

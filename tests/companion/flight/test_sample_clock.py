@@ -180,3 +180,61 @@ def test_follows_an_autopilot_clock_that_runs_far_slower_or_faster_than_ours(
     settled = errors[3 * 30:]
     assert max(abs(e) for e in settled) < 5e-3
     assert clock.drift == pytest.approx(drift, rel=0.01)
+
+
+def rate_step_link(rate0: float, rate1: float, step_boot: float, seconds: float, seed: int,
+                   hz: float = 30.0) -> list[tuple[float, float, float]]:
+    """`simulated_link` with the vehicle's clock running at `rate0` boot seconds per local second
+    until boot time `step_boot` [s], then at `rate1` (samples `hz` per boot second)."""
+    rng = random.Random(seed)
+    out = []
+    for k in range(int(seconds * hz)):
+        boot = 12.0 + k / hz
+        true_local = 1000.0 + (boot / rate0 if boot < step_boot
+                               else step_boot / rate0 + (boot - step_boot) / rate1)
+        jitter = 0.0 if k % int(hz) == 7 else rng.expovariate(1 / 0.003)
+        out.append((boot, true_local + 0.004 + jitter, true_local))
+    return out
+
+
+@pytest.mark.parametrize(("rate0", "rate1"), [
+    (0.98, 0.65),  # real PX4 SITL when its host got busy (2026-12-01)
+    (0.65, 0.98),  # and back
+    (1.0, 0.95),  # a mild slow-down: below CHANGE_STEP_S a block, found by the run
+    (0.98, 0.5),
+])
+def test_follows_a_step_in_the_autopilot_clocks_rate(rate0: float, rate1: float) -> None:
+    """The clock's rate steps at boot 22 s. The drift fitted over 20 s lagged: at 0.98x ->
+    0.65x the mapped sample times fell 3.2 s behind (every sample stale for the law, 0.5 s);
+    at 1.0x -> 0.95x they stayed 0.1 s early for 14 s. The departure from the drift is found
+    within three blocks (0.75 s of boot time) and the new rate followed from there."""
+    samples = rate_step_link(rate0, rate1, 22.0, 30.0, seed=13)
+    jump = abs(1.0 / rate1 - 1.0 / rate0)  # the change of the drift [s/s]
+    clock = SampleClock()
+    for boot, rx, true in samples:
+        got = clock.local_time(boot, rx)
+        err = got - true - 0.004
+        assert got <= rx
+        if boot > 15.0:  # settled on the first rate
+            assert abs(err) < 1e-3 + jump * 1.0, (boot, err)
+        if boot > 22.0 + 1.5:
+            assert abs(err) < 6e-3, (boot, err)
+    assert clock.drift == pytest.approx(1.0 / rate1 - 1.0, rel=0.01)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(-0.05, 0.05), st.integers(0, 10_000), st.floats(0.002, 0.02))
+def test_a_steady_clock_behind_a_jittery_link_is_not_taken_for_a_rate_change(
+        drift: float, seed: int, jitter_s: float) -> None:
+    """Latency jitter up to 20 ms mean (a slow link) at a steady drift: the mapped times stay on
+    the line (a rate change wrongly found would refit the drift from three blocks, and its
+    error would show here)."""
+    rng = random.Random(seed)
+    clock = SampleClock()
+    for k in range(30 * 30):
+        boot = 12.0 + k / 30.0
+        true = 1000.0 + boot * (1.0 + drift)
+        late = 0.0 if k % 10 == 3 else rng.expovariate(1 / jitter_s)
+        got = clock.local_time(boot, true + 0.004 + late)
+        if boot > 12.0 + 5.0:
+            assert abs(got - true - 0.004) < 2e-3, (boot, got - true - 0.004)
