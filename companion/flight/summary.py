@@ -9,7 +9,7 @@ speed, tilt, thrust, body rates, failsafes, the geofence and the per-leg figures
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -53,10 +53,11 @@ class FlightLog:
     modes: list[tuple[float, str]] = field(default_factory=list)
     armed_t: float | None = None
     disarmed_t: float | None = None
-    boot_clock: Callable[[float], float] | None = None
-    """Flight time [s] of the autopilot's time since boot [s] (a mock at SIM_SPEED_FACTOR runs
-    that fast against the replay's lockstep clock; `t` is kept on flight time); None: the
-    same."""
+    boot_clock: tuple[tuple[float, float, float], ...] = ()
+    """Flight time of the autopilot's time since boot, as segments (from boot time [s], flight
+    time then [s], boot seconds per flight second) of which the last one begun applies: a
+    mock at SIM_SPEED_FACTOR runs that fast against the replay's lockstep clock (and changes
+    at SIM_SPEED_CHG_T); `t` is kept on flight time. Empty: the same."""
     ref_clock: list[tuple[float, float]] = field(default_factory=list)
     """(time [s], the reference's own time [s]) of each setpoint of a source that governs its
     reference time (a rover's `ProgressGovernor`); empty: the reference ran on flight time."""
@@ -64,13 +65,20 @@ class FlightLog:
 
 def record_message(log: FlightLog, msg: Any, t: float) -> None:
     """Record one decoded MAVLink message received at `t` [s]: LOCAL_POSITION_NED (at its own
-    sample time, the vehicle booting at t = 0 on the clock `log.boot_clock`),
+    sample time, the vehicle booting at t = 0, on the clock `log.boot_clock`),
     ATTITUDE_QUATERNION (tilt, body-rate norm) and STATUSTEXT; others are ignored."""
     kind = msg.get_type()
     if kind == "LOCAL_POSITION_NED":
         # sample time (the mock boots at t = 0), on flight time
         boot = msg.time_boot_ms * 1e-3
-        log.t.append(boot if log.boot_clock is None else log.boot_clock(boot))
+        segs = log.boot_clock
+        if segs:
+            seg = segs[0]
+            for later in segs[1:]:
+                if boot >= later[0]:
+                    seg = later
+            boot = seg[1] + (boot - seg[0]) / seg[2]
+        log.t.append(boot)
         log.pos.append((msg.x, msg.y, msg.z))
         log.vel.append((msg.vx, msg.vy, msg.vz))
     elif kind == "ATTITUDE_QUATERNION":

@@ -261,7 +261,7 @@ def recorded_link(config: ReplayConfig, home: tuple[float, float, float],
     """A fresh mock for `config` and the companion's link to it, every message recorded into
     a new flight log (without a tlog the streams nobody reads are not built: `UNREAD_STREAMS`)."""
     sim = make_sim(config, home, unread=UNREAD_STREAMS if tlog is None else frozenset())
-    log = FlightLog(boot_clock=sim.autopilot.caller_time)
+    log = FlightLog(boot_clock=sim.autopilot.clock_segments())
     lk = LockstepLink(sim, VehicleLink(LinkConfig()), tlog)
     lk.on_message = functools.partial(record_message, log)
     return lk, log
@@ -350,7 +350,7 @@ def fly_px4_mission(
     ("ok" or the failure reason, log)."""
     sim = make_sim(config, home)
     link = VehicleLink(LinkConfig())
-    log = FlightLog(boot_clock=sim.autopilot.caller_time)
+    log = FlightLog(boot_clock=sim.autopilot.clock_segments())
     lk = LockstepLink(sim, link, None)
     lk.on_message = functools.partial(record_message, log)
     dt = 0.02

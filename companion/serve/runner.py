@@ -33,6 +33,7 @@ from typing import Any, BinaryIO, Literal
 
 from rich.console import Console
 
+from companion.flight.clock import FlightClock
 from companion.mavlink import FlightMode, LinkConfig, VehicleLink
 from companion.mavlink.codec import MavMessage
 from companion.mission.px4_params import Px4PlanningParams
@@ -193,6 +194,22 @@ class _Session:
         self._text_id = 0
         self._armed = False
         self._px4: asyncio.Task[Px4PlanningParams | str] | None = None
+        # the mission's reference runs on flight time, which follows the autopilot's clock
+        # as `fly`'s does (a PX4 SITL slowed by its host slows the reference with it); the
+        # onboard module flies on the autopilot's clock itself
+        self._fclock = FlightClock()
+        self._fclock_lock = threading.Lock()  # (the setpoint thread and the service loop)
+        if not isinstance(service, OnboardServeService):
+            service.clock = self.flight_time
+
+    def flight_time(self, local_s: float) -> float:
+        """Flight time [s] at local time ``local_s`` [s] (`FlightClock` on the newest
+        position sample)."""
+        pos = self.v.telemetry.position
+        with self._fclock_lock:
+            if pos is not None:
+                self._fclock.observe(pos.time_boot_s, pos.t_s)
+            return self._fclock.now(local_s)
 
     async def read_px4_params(self) -> Px4PlanningParams | str:
         """The vehicle's planning parameters with the vehicle file's [px4] overrides, logged

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -220,13 +221,23 @@ class MissionStream:
     t0_s: float
     join_s: float  # duration of the joining trajectory [s]
     t_join: float  # schedule time where the join ends [s]
+    #: flight time [s] at the caller's time [s], a clock that follows the autopilot's
+    #: (`FlightClock`; None: the caller's own), and its value at ``t0_s``
+    clock: Callable[[float], float] | None = None
+    t0_flight_s: float = 0.0
+
+    def elapsed_s(self, now_s: float) -> float:
+        """Flight time [s] since ``t0_s`` at ``now_s`` (on ``clock`` when there is one)."""
+        if self.clock is None:
+            return now_s - self.t0_s
+        return self.clock(now_s) - self.t0_flight_s
 
     def flight_time(self, now_s: float) -> float:
         """Time [s] on this stream's own clock at ``now_s``: the reference's own time when the
-        source slows it down for the vehicle (`TrackingSource.reference_time_s`), else since
-        ``t0_s``."""
+        source slows it down for the vehicle (`TrackingSource.reference_time_s`), else the
+        flight time since ``t0_s``."""
         governed = self.source.reference_time_s
-        return now_s - self.t0_s if governed is None else governed
+        return self.elapsed_s(now_s) if governed is None else governed
 
     def schedule_time(self, now_s: float) -> float:
         """Schedule time [s] being flown at ``now_s``."""
@@ -234,7 +245,7 @@ class MissionStream:
 
     def setpoint(self, now_s: float, telemetry: Any) -> SetpointCommand:
         """The setpoint for ``now_s`` (calls the tracking source)."""
-        return self.source(now_s - self.t0_s, telemetry)
+        return self.source(self.elapsed_s(now_s), telemetry)
 
 
 Stream = HoldStream | MissionStream
@@ -252,11 +263,16 @@ def _yaw_of(ref: Reference) -> float:
 class ServeService:
     """The service's state machine (see the module doc)."""
 
-    def __init__(self, config: ServiceConfig | None = None, defer_join: bool = False) -> None:
+    def __init__(self, config: ServiceConfig | None = None, defer_join: bool = False,
+                 clock: Callable[[float], float] | None = None) -> None:
         """``defer_join``: return a :class:`PlanJoin` action for the caller to plan off its
-        event loop (the runner); otherwise the join is planned inside ``update``."""
+        event loop (the runner); otherwise the join is planned inside ``update``. ``clock``:
+        flight time [s] at the caller's time [s], following the autopilot's clock (the
+        runner's `FlightClock`: a PX4 SITL slowed by its host slows the mission's reference
+        with it); None: the caller's time."""
         self.config = config or ServiceConfig()
         self.defer_join = defer_join
+        self.clock = clock
         self.state = "idle"  # idle | hold | offboard_hold | joining | mission | finishing
         self._joining: int | None = None  # the token of the join being planned
         self._join_token = 0
@@ -373,7 +389,7 @@ class ServeService:
             ms = self.stream
             hold = None
             if isinstance(ms, MissionStream):  # hold where the reference is now
-                r = ms.source.reference(max(0.0, now_s - ms.t0_s))
+                r = ms.source.reference(max(0.0, ms.elapsed_s(now_s)))
                 if r is not None:
                     hold = PositionSetpoint(pos_ned=tuple(float(c) for c in r.pos_ned),  # type: ignore[arg-type]
                                             vel_ned=(0.0, 0.0, 0.0), yaw=_yaw_of(r))
@@ -557,7 +573,9 @@ class ServeService:
             return [Announce(f"ecca: holding, cannot join the mission: {result}",
                              MAV_SEVERITY_WARNING),
                     LogEvent("join_failed", {"why": result})]
-        stream = dataclasses.replace(result, t0_s=now_s)
+        clock = self.clock
+        stream = dataclasses.replace(result, t0_s=now_s, clock=clock,
+                                     t0_flight_s=now_s if clock is None else clock(now_s))
         self.stream = stream
         self.state = "mission"
         self._seq = self._sequence(prog, stream, dataclasses.replace(obs, now_s=now_s))

@@ -194,6 +194,15 @@ class Autopilot:
             return (now - self._boot) * self._speed
         return self._chg_t + (now - self._chg_now) * self._chg_speed
 
+    def clock_segments(self) -> tuple[tuple[float, float, float], ...]:
+        """The simulated clock against the caller's, as segments (from simulated time [s], the
+        caller's time then [s], simulated seconds per second of the caller's) of which the
+        last one begun applies (SIM_SPEED_FACTOR, SIM_SPEED_CHG_T)."""
+        first = (0.0, self._boot, self._speed)
+        if math.isinf(self._chg_t):
+            return (first,)
+        return (first, (self._chg_t, self._chg_now, self._chg_speed))
+
     def caller_time(self, t_sim: float) -> float:
         """The caller's time [s] at simulated time since boot `t_sim` [s] (the clock that
         drives the mock: SIM_SPEED_FACTOR, SIM_SPEED_CHG_T)."""

@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from companion.flight.clock import OFFSET_SLEW, SampleClock
+from companion.flight.clock import CHANGE_SLEW, OFFSET_SLEW, SampleClock
 
 
 def simulated_link(drift: float, seconds: float, seed: int, hz: float = 30.0,
@@ -211,14 +211,23 @@ def test_follows_a_step_in_the_autopilot_clocks_rate(rate0: float, rate1: float)
     samples = rate_step_link(rate0, rate1, 22.0, 30.0, seed=13)
     jump = abs(1.0 / rate1 - 1.0 / rate0)  # the change of the drift [s/s]
     clock = SampleClock()
+    prev: tuple[float, float, float, bool] | None = None
     for boot, rx, true in samples:
         got = clock.local_time(boot, rx)
         err = got - true - 0.004
         assert got <= rx
         if boot > 15.0:  # settled on the first rate
             assert abs(err) < 1e-3 + jump * 1.0, (boot, err)
-        if boot > 22.0 + 1.5:
+            # and it never jumps: the offset moves along the drift and at most CHANGE_SLEW
+            # toward the line besides (taken at once, the refitted line moved the offset by
+            # 0.17-0.25 s between two samples on real PX4, and the law's extrapolation with it)
+            assert prev is not None
+            moved = (got - boot) - prev[0] - clock.drift * (boot - prev[1])
+            if got < rx and prev[3]:  # (not held to its arrival time: a clock speeding up)
+                assert abs(moved) <= CHANGE_SLEW * (rx - prev[2]) + 2e-3, (boot, moved)
+        if boot > 22.0 + 2.0:
             assert abs(err) < 6e-3, (boot, err)
+        prev = (got - boot, boot, rx, got < rx)
     assert clock.drift == pytest.approx(1.0 / rate1 - 1.0, rel=0.01)
 
 

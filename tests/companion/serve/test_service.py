@@ -415,3 +415,25 @@ def test_a_rovers_mission_is_refused_with_the_reason_never_flown() -> None:
     items, home = wire_items(MISSIONS.parents[2] / "examples" / "missions" / "rover_square.plan")
     with pytest.raises(ValueError, match="drive a rover's mission with"):
         plan_program(items, home, (1, len(items)), ServiceConfig(), vehicle="rover")
+
+
+def test_the_missions_reference_runs_on_the_flight_clock(
+        program_and_key: tuple[object, tuple[int, int]]) -> None:
+    """With a clock (the runner's FlightClock: flight time following the autopilot's, which a
+    busy host slows), the stream hands its source flight time since the join, not the caller's
+    time: on a PX4 SITL at half speed a reference on the caller's clock ran twice as fast as
+    planned in the vehicle's own time."""
+    prog, key = program_and_key
+    p0 = (8.0, -1.0, -4.0)
+    svc = ServeService(clock=lambda t: 100.0 + 0.5 * t)  # the autopilot at half speed
+    svc.on_planned(key, prog, 0.0)  # type: ignore[arg-type]
+    svc.update(obs(0.0, pos=p0))
+    svc.update(obs(0.05, mode=FlightMode.OFFBOARD, pos=p0))
+    ms = svc.stream
+    assert isinstance(ms, MissionStream) and ms.t0_s == 0.05
+    seen: list[float] = []
+    spy = dataclasses.replace(ms, source=lambda t, _tel: seen.append(t))  # type: ignore[arg-type, func-returns-value]
+    spy.setpoint(4.05, None)
+    assert seen == [pytest.approx(2.0)]  # 4 s of ours: 2 s of the vehicle's
+    dataclasses.replace(spy, clock=None).setpoint(4.05, None)
+    assert seen[-1] == pytest.approx(4.0)  # without a clock: the caller's own

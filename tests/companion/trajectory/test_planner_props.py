@@ -46,6 +46,12 @@ def _check(tr: PiecewiseBezier, wp: np.ndarray, times: np.ndarray, s: int) -> No
         np.testing.assert_allclose(v0, 0.0, atol=1e-9 * ref)
         np.testing.assert_allclose(v1, 0.0, atol=1e-9 * ref)
     segs = tr.segments
+    # the r-th derivatives' largest size at any joint: the joints are solved together in one
+    # banded system, whose round-off follows its largest values (a 4 m step in a 0.22 s end
+    # segment gave 2e4 at order 5 and put 2e-9 of round-off on a joint where it is ~0, beyond
+    # a tolerance scaled by that joint's own 3 s segments; hypothesis in CI, 2026-12-02)
+    size = [max((float(np.max(np.abs(seg.evaluate(seg.duration, r)))) for seg in segs[:-1]),
+                default=0.0) for r in range(2 * s - 1)]
     for k in range(len(segs) - 1):
         hmin = min(segs[k].duration, segs[k + 1].duration)
         # continuity through snap (s = 4) / jerk (s = 3), and the free-joint optimality
@@ -53,7 +59,7 @@ def _check(tr: PiecewiseBezier, wp: np.ndarray, times: np.ndarray, s: int) -> No
         for r in range(0, 2 * s - 1):
             left = segs[k].evaluate(segs[k].duration, r)
             right = segs[k + 1].evaluate(0.0, r)
-            ref = scale / hmin**r
+            ref = max(scale / hmin**r, size[r])
             np.testing.assert_allclose(
                 left, right, atol=1e-7 * ref, err_msg=f"joint {k}, order {r}"
             )
