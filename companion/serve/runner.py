@@ -27,6 +27,7 @@ import math
 import signal
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO, Literal
@@ -194,22 +195,27 @@ class _Session:
         self._text_id = 0
         self._armed = False
         self._px4: asyncio.Task[Px4PlanningParams | str] | None = None
-        # the mission's reference runs on flight time, which follows the autopilot's clock
-        # as `fly`'s does (a PX4 SITL slowed by its host slows the reference with it); the
-        # onboard module flies on the autopilot's clock itself
-        self._fclock = FlightClock()
-        self._fclock_lock = threading.Lock()  # (the setpoint thread and the service loop)
+        # each mission stream's reference runs on flight time, which follows the autopilot's
+        # clock as `fly`'s does (a PX4 SITL slowed by its host slows the reference with it);
+        # the onboard module flies on the autopilot's clock itself
         if not isinstance(service, OnboardServeService):
-            service.clock = self.flight_time
+            service.clock = self.flight_clock
 
-    def flight_time(self, local_s: float) -> float:
-        """Flight time [s] at local time ``local_s`` [s] (`FlightClock` on the newest
-        position sample)."""
-        pos = self.v.telemetry.position
-        with self._fclock_lock:
-            if pos is not None:
-                self._fclock.observe(pos.time_boot_s, pos.t_s)
-            return self._fclock.now(local_s)
+    def flight_clock(self) -> Callable[[float], float]:
+        """A new flight clock (one per mission stream, as `fly` has one per flight: a
+        `FlightClock` fed only while it is read would take a pause for a stall): flight time
+        [s] at local time [s], on the newest position sample."""
+        fclock = FlightClock()
+        lock = threading.Lock()  # (the setpoint thread and the service loop)
+
+        def flight_time(local_s: float) -> float:
+            pos = self.v.telemetry.position
+            with lock:
+                if pos is not None:
+                    fclock.observe(pos.time_boot_s, pos.t_s)
+                return fclock.now(local_s)
+
+        return flight_time
 
     async def read_px4_params(self) -> Px4PlanningParams | str:
         """The vehicle's planning parameters with the vehicle file's [px4] overrides, logged

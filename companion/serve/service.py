@@ -264,12 +264,12 @@ class ServeService:
     """The service's state machine (see the module doc)."""
 
     def __init__(self, config: ServiceConfig | None = None, defer_join: bool = False,
-                 clock: Callable[[float], float] | None = None) -> None:
+                 clock: Callable[[], Callable[[float], float]] | None = None) -> None:
         """``defer_join``: return a :class:`PlanJoin` action for the caller to plan off its
         event loop (the runner); otherwise the join is planned inside ``update``. ``clock``:
-        flight time [s] at the caller's time [s], following the autopilot's clock (the
-        runner's `FlightClock`: a PX4 SITL slowed by its host slows the mission's reference
-        with it); None: the caller's time."""
+        makes a new flight clock for each mission stream, flight time [s] at the caller's time
+        [s] following the autopilot's clock (the runner's `FlightClock`: a PX4 SITL slowed by
+        its host slows the mission's reference with it); None: the caller's time."""
         self.config = config or ServiceConfig()
         self.defer_join = defer_join
         self.clock = clock
@@ -573,7 +573,7 @@ class ServeService:
             return [Announce(f"ecca: holding, cannot join the mission: {result}",
                              MAV_SEVERITY_WARNING),
                     LogEvent("join_failed", {"why": result})]
-        clock = self.clock
+        clock = None if self.clock is None else self.clock()
         stream = dataclasses.replace(result, t0_s=now_s, clock=clock,
                                      t0_flight_s=now_s if clock is None else clock(now_s))
         self.stream = stream

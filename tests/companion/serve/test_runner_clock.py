@@ -23,15 +23,16 @@ def _session(service: ServeService) -> tuple[_Session, SimpleNamespace]:
 def test_flight_time_follows_an_autopilot_at_half_speed() -> None:
     service = ServeService()
     session, v = _session(service)
-    assert service.clock == session.flight_time
+    assert service.clock == session.flight_clock
+    flight_time = session.flight_clock()
     t_local = 50.0
-    flight = [session.flight_time(t_local)]
+    flight = [flight_time(t_local)]
     for k in range(1, 401):  # 20 s of ours, samples every 50 ms, the autopilot at half speed
         t_local = 50.0 + 0.05 * k
         boot = 10.0 + 0.025 * k
         v.telemetry.position = LocalPosition(t_local - 0.004, boot, (0.0, 0.0, -5.0),
                                              (0.0, 0.0, 0.0), "LOCAL_POSITION_NED")
-        flight.append(session.flight_time(t_local))
+        flight.append(flight_time(t_local))
     assert all(b >= a for a, b in itertools.pairwise(flight))
     # the last 10 s of ours: 5 s of flight time (the clock settles within a second)
     assert flight[-1] - flight[200] == pytest.approx(5.0, abs=0.05)

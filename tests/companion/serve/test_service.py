@@ -425,7 +425,7 @@ def test_the_missions_reference_runs_on_the_flight_clock(
     planned in the vehicle's own time."""
     prog, key = program_and_key
     p0 = (8.0, -1.0, -4.0)
-    svc = ServeService(clock=lambda t: 100.0 + 0.5 * t)  # the autopilot at half speed
+    svc = ServeService(clock=lambda: lambda t: 100.0 + 0.5 * t)  # an autopilot at half speed
     svc.on_planned(key, prog, 0.0)  # type: ignore[arg-type]
     svc.update(obs(0.0, pos=p0))
     svc.update(obs(0.05, mode=FlightMode.OFFBOARD, pos=p0))
