@@ -99,7 +99,8 @@ def limit_thrust(ops: fm.Backend, t_vec: Vec3, t_min: S, t_max: S, cos_tilt: S,
 def tracking_pre(ops: fm.Backend, x: Sequence[S]) -> dict[str, Any]:
     """The core up to the flatness map, on the inputs `x` (`CORE_INPUTS` order, flattened).
     Returns ``v_drag, acc, jerk, snap, yaw_acc, sat, integ, acc_d, e_p, e_v`` (the flatness
-    map's velocity, acceleration, jerk, snap and yaw acceleration; whether limited; the
+    map's velocity, acceleration (whose thrust vector with ``drag_map`` is the limited one),
+    jerk, snap and yaw acceleration; whether limited; the
     integrator after the update; the acceleration with the disturbance; the position and
     velocity errors)."""
     rp, rv, ra = x[0:3], x[3:6], x[6:9]
@@ -108,7 +109,7 @@ def tracking_pre(ops: fm.Backend, x: Sequence[S]) -> dict[str, Any]:
     integ, kp, kd, ki, imax = x[27:30], x[30:33], x[33:36], x[36:39], x[39:42]
     dx, dy = x[42], x[43]
     yaw_acc_in = x[46]
-    h, D, m, g0 = x[47], x[48], x[50], x[51]
+    h, D, D_map, m, g0 = x[47], x[48], x[49], x[50], x[51]
     thr_min, thr_max, cos_t, tan_t = x[52], x[53], x[54], x[55]
     share, drag_est, dt, learn = x[56], x[57], x[58], x[59]
     # position and velocity feedback (per component, written out: this runs every setpoint)
@@ -165,9 +166,18 @@ def tracking_pre(ops: fm.Backend, x: Sequence[S]) -> dict[str, Any]:
 
     jerk = ops.lazy_where(sat, lambda: saturated_jerk(limited, t_vec, t_sat, j_ff, v_dot, m, D),
                           lambda: j_ff, 3)
+    # the flatness map's acceleration: the one whose thrust vector, with the map's drag
+    # (`drag_map`, rounded), is `t_sat` itself, so the commanded attitude stays within the tilt
+    # limit (with `a_sat` the map's thrust vector was t_sat + (D - D_map) v: real PX4, 45.001 deg
+    # against a 45 deg limit); the same as `a_sat` where D_map == D
+    a_map = (
+        -(t_sat[0] + D_map * v_drag[0]) / m,
+        -(t_sat[1] + D_map * v_drag[1]) / m,
+        g0 - (t_sat[2] + D_map * v_drag[2]) / m,
+    )
     return {
         "v_drag": v_drag,
-        "acc": a_sat,
+        "acc": a_map,
         "jerk": jerk,
         "snap": (ops.where(sat, 0.0, rs[0]), ops.where(sat, 0.0, rs[1]),
                  ops.where(sat, 0.0, rs[2])),

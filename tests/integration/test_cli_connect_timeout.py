@@ -19,6 +19,9 @@ import pytest
 from companion.app.cli import main
 from tests.support.mock_process import free_udp_port
 
+# flies in wall-clock time (the mock served over a link): README's second test phase
+pytestmark = pytest.mark.realtime
+
 EXIT_NO_VEHICLE = 3  # README "Conventions": no vehicle heard within --timeout
 ROOT = Path(__file__).resolve().parents[2]
 HANG_GUARD_S = 60.0  # far above the 0.5 s asked for: only stops a hung process

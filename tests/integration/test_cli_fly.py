@@ -18,10 +18,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pytest
 from pymavlink import mavutil
 
 from companion.app.cli import main as cli_main
 from tests.support.mock_process import bounded, run_mock
+
+# flies in wall-clock time (the mock served over a link): README's second test phase
+pytestmark = pytest.mark.realtime
 
 OFFBOARD_CUSTOM_MODE = 6 << 16
 SIZE_M, SPEED_M_S = 6.0, 2.0

@@ -37,6 +37,9 @@ from companion.mavlink import (
 )
 from companion.trajectory import PiecewiseBezier, hermite
 
+# flies in wall-clock time (the mock served over a link): README's second test phase
+pytestmark = pytest.mark.realtime
+
 MockFactory = Callable[..., int]
 
 

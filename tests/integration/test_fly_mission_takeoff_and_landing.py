@@ -28,6 +28,9 @@ from pymavlink import mavutil
 from tests.integration.test_lossy_link_mission_passes_waypoints import haversine_m, waypoints
 from tests.support.mock_process import run_companion, run_mock
 
+# flies in wall-clock time (the mock served over a link): README's second test phase
+pytestmark = pytest.mark.realtime
+
 MISSION = Path(__file__).parents[1] / "data" / "missions" / "px4_short.plan"
 OFFBOARD, LAND_SUB = 6, 6  # PX4 main mode OFFBOARD; AUTO (4) sub mode LAND
 ARM_DISARM, NAV_TAKEOFF, NAV_LAND, DO_SET_MODE = 400, 22, 21, 176

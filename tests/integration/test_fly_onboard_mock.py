@@ -16,11 +16,15 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
 from pymavlink import mavutil
 
 from companion.aio.tlog import offboard_setpoints
 from companion.onboard.protocol import OP_STATUS, PROTO_NAME
 from tests.support.mock_process import run_companion, run_mock
+
+# flies in wall-clock time (the mock served over a link): README's second test phase
+pytestmark = pytest.mark.realtime
 
 MISSION = Path(__file__).parents[1] / "data" / "missions" / "px4_short.plan"
 SPEED = 4.0

@@ -24,6 +24,9 @@ from companion.mission import load_mission
 from companion.mission.px4_params import PLANNING_PARAM_NAMES, Px4PlanningParams
 from tests.support.mock_process import bounded, free_udp_port
 
+# flies in wall-clock time (the mock served over a link): README's second test phase
+pytestmark = pytest.mark.realtime
+
 MISSION = Path(__file__).resolve().parents[1] / "data" / "missions" / "px4_short.plan"
 REAL32 = mavlink2.MAV_PARAM_TYPE_REAL32
 FORBIDDEN_COMMANDS = {400, 22, 176, 21, 300}  # ARM/DISARM, TAKEOFF, DO_SET_MODE, LAND, START

@@ -15,10 +15,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pytest
 from pymavlink import mavutil
 
 from tests.support.mission_oracle import expected_ne
 from tests.support.mock_process import run_companion, run_mock
+
+# flies in wall-clock time (the mock served over a link): README's second test phase
+pytestmark = pytest.mark.realtime
 
 ROOT = Path(__file__).resolve().parents[2]
 MISSION = ROOT / "tests" / "data" / "missions" / "rover_short.plan"

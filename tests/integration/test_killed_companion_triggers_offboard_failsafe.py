@@ -22,9 +22,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from tests.support.mock_process import free_udp_port
+
+# flies in wall-clock time (the mock served over a link): README's second test phase
+pytestmark = pytest.mark.realtime
 
 OFFBOARD, POSCTL = 6, 3
 MAV_STATE_CRITICAL = 5

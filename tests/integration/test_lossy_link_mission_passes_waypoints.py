@@ -13,9 +13,13 @@ import json
 import math
 from pathlib import Path
 
+import pytest
 from pymavlink import mavutil
 
 from tests.support.mock_process import run_companion, run_mock
+
+# flies in wall-clock time (the mock served over a link): README's second test phase
+pytestmark = pytest.mark.realtime
 
 MISSION = Path(__file__).parents[1] / "data" / "missions" / "square_15m.plan"
 EARTH_RADIUS_M = 6_371_008.8  # IUGG mean radius

@@ -8,9 +8,13 @@ import signal
 import socket
 import sys
 
+import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from tests.support.mock_process import bounded
+
+# flies in wall-clock time (the mock served over a link): README's second test phase
+pytestmark = pytest.mark.realtime
 
 
 def _udp() -> socket.socket:

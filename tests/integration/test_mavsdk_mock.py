@@ -28,6 +28,9 @@ from mavsdk.plugins.mission_raw.mission_raw import MissionRawError, MissionRawRe
 
 from tests.support.mock_process import Drone, bounded, connect_drone
 
+# flies in wall-clock time (the mock served over a link): README's second test phase
+pytestmark = pytest.mark.realtime
+
 T = TypeVar("T")
 SPEED = 2.0  # simulated seconds per wall second (MAVSDK's wall-clock timeouts allow it)
 

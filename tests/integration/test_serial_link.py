@@ -16,9 +16,14 @@ import sys
 from collections.abc import AsyncIterator
 from pathlib import Path
 
+import pytest
+
 from companion.aio import Vehicle, VehicleConfig
 from companion.mission import load_mission, mission_upload_items
 from tests.support.mock_process import bounded, stop_process
+
+# flies in wall-clock time (the mock served over a link): README's second test phase
+pytestmark = pytest.mark.realtime
 
 MISSION = Path(__file__).resolve().parents[1] / "data" / "missions" / "px4_short.plan"
 

@@ -23,10 +23,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pytest
 from pymavlink import mavutil
 
 from tests.support.gcs import Gcs, custom_mode, ground_station, mission_item, offset_deg
 from tests.support.mock_process import bounded, free_udp_port, run_mock
+
+# flies in wall-clock time (the mock served over a link): README's second test phase
+pytestmark = pytest.mark.realtime
 
 HOME = (47.397742, 8.545594)  # the mock's default home (PX4 SITL's)
 ALT_M = 5.0

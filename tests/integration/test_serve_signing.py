@@ -14,6 +14,9 @@ import pytest
 from tests.integration.test_serve_mock import Service, run_service
 from tests.support.mock_process import run_mock
 
+# flies in wall-clock time (the mock served over a link): README's second test phase
+pytestmark = pytest.mark.realtime
+
 
 def _key(path: Path, seed: int) -> Path:
     path.write_text(bytes((seed + i) % 256 for i in range(32)).hex())

@@ -25,6 +25,9 @@ from sitl_mock.server import LinkConfig as MockLink
 from sitl_mock.server import MockServer, ServerConfig
 from tests.support.mock_process import bounded, free_udp_port, run_mock
 
+# flies in wall-clock time (the mock served over a link): README's second test phase
+pytestmark = pytest.mark.realtime
+
 KEY = bytes(range(7, 39))
 OTHER_KEY = bytes(range(32))
 

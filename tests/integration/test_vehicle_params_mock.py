@@ -15,6 +15,9 @@ from companion.aio import ParamReadError, Vehicle, VehicleConfig
 from companion.planning.vehicle_params import read_planning_params
 from tests.support.mock_process import bounded, free_udp_port, run_mock
 
+# flies in wall-clock time (the mock served over a link): README's second test phase
+pytestmark = pytest.mark.realtime
+
 
 async def test_vehicle_reads_changed_planning_parameters_from_the_mock() -> None:
     # the GCS socket is bound before the mock starts: nothing the mock sends it is lost, and

@@ -140,3 +140,25 @@ def test_the_integrator_runs_in_the_air_and_only_unwinds_while_saturated(axis: i
         far[o["integ"] + i] = -0.2
         far[o["pos"] + i] = far[o["ref_pos"] + i] - 4000.0
     assert tracking_core(fm.FLOAT, far)[OUT["integ"] + axis] == 2.0
+
+
+def test_the_commanded_attitude_is_within_the_tilt_limit_whatever_the_maps_drag() -> None:
+    """The attitude the core commands (its quaternion's body z against down) tilts no further
+    than the limit where the limit acts, also when the flatness map's drag (`drag_map`, the
+    controller's rounding of the estimate) is not the drag of the limited thrust vector (before:
+    the map's thrust vector was the limited one plus (D - D_map) v; real PX4, 45.001 deg)."""
+    rng = np.random.default_rng(29)
+    x = random_core_inputs(rng, 4000)
+    d = x[:, OFFSET["drag"]]
+    x[:, OFFSET["drag"]] = d + rng.choice([0.0, 4e-5, -4e-5, 0.3, -0.3], d.shape) * (d > 0.3)
+    checked = 0
+    for row in x:
+        y = tracking_core(fm.FLOAT, row.tolist())
+        if y[OUT["saturated"]] < 0.5 or y[OUT["singular"]] > 0.5:
+            continue
+        _qw, qx, qy, _qz = y[OUT["q_wxyz"]:OUT["q_wxyz"] + 4]
+        cos_tilt = 1.0 - 2.0 * (qx * qx + qy * qy)  # body z . down of the commanded attitude
+        limit = math.acos(row[OFFSET["cos_tilt"]])
+        assert math.acos(max(-1.0, min(1.0, cos_tilt))) <= limit + 1e-9
+        checked += 1
+    assert checked > 500  # the limit acted in many of them
