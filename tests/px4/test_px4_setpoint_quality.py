@@ -61,7 +61,8 @@ def test_px4_fly_passes_every_waypoint_without_thrust_chatter_within_the_tilt_li
 
 def check_mission_positions(tlog: Path, sysid: int) -> None:
     """Every position item of MISSION passed within 0.5 m (LAND: horizontally) by PX4's own
-    GLOBAL_POSITION_INT in the tlog; the vehicle armed, then landed and disarmed."""
+    GLOBAL_POSITION_INT in the tlog; the vehicle armed, then landed (PX4's land detector,
+    EXTENDED_SYS_STATE, said on the ground before the last disarm) and disarmed."""
     mission = load_mission(MISSION)
     home = mission.home
     targets = [it for it in mission.items if it.command in (16, 21)]
@@ -69,15 +70,21 @@ def check_mission_positions(tlog: Path, sysid: int) -> None:
     conn = mavutil.mavlink_connection(str(tlog))
     pos: list[tuple[float, float, float]] = []
     armed: list[bool] = []
+    landed_state = 0  # MAV_LANDED_STATE, the newest
+    landed_at_disarm: list[int] = []
     try:
         for _ in range(2_000_000):
-            m = conn.recv_match(type=["GLOBAL_POSITION_INT", "HEARTBEAT"])
+            m = conn.recv_match(type=["GLOBAL_POSITION_INT", "HEARTBEAT", "EXTENDED_SYS_STATE"])
             if m is None:
                 break
             if m.get_srcSystem() != sysid or m.get_srcComponent() != 1:
                 continue
             if m.get_type() == "HEARTBEAT":
+                if armed and armed[-1] and not m.base_mode & 128:
+                    landed_at_disarm.append(landed_state)
                 armed.append(bool(m.base_mode & 128))
+            elif m.get_type() == "EXTENDED_SYS_STATE":
+                landed_state = int(m.landed_state)
             else:
                 pos.append((m.lat * 1e-7, m.lon * 1e-7, m.relative_alt * 1e-3))
     finally:
@@ -93,6 +100,10 @@ def check_mission_positions(tlog: Path, sysid: int) -> None:
             d = float(np.min(np.linalg.norm(flown - goal, axis=1)))
         print(f"item {it.index}: closest {d:.2f} m")
         assert d < 0.5, (it.index, d)
-    assert any(armed) and not armed[-1]  # flown, then landed and disarmed
-    assert abs(pos[-1][2]) < 0.5
+    assert any(armed) and not armed[-1]  # flown, then disarmed
+    # ... on the ground: PX4's land detector said so before the disarm (not the estimate's
+    # height: EKF2 drifts in SIH, in CI 2026-12-02 relative_alt read -0.61 m at the disarm,
+    # the rangefinder out of range on the ground)
+    assert landed_at_disarm and landed_at_disarm[-1] == 1, landed_at_disarm  # ON_GROUND
+    assert abs(pos[-1][2]) < 1.5  # and not far from home's height by the estimate either
     assert math.isfinite(pos[-1][0])
