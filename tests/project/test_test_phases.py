@@ -40,7 +40,7 @@ def test_the_oracle_sees_the_modules_it_is_about() -> None:
     assert {"test_cli_fly.py", "test_mavsdk_mock.py", "test_signing_udp.py"} <= set(flying)
 
 
-def test_readme_phases_are_complementary_and_run_the_px4_set_as_one_group() -> None:
+def test_readme_runs_the_two_phases() -> None:
     text = ROOT.joinpath("README.md").read_text(encoding="utf-8")
     assert "--dist worksteal -m 'not realtime and not px4'" in text
     assert "--dist loadgroup -m 'realtime or px4'" in text
